@@ -1,0 +1,112 @@
+"""Physical parameters of one HBIS camera and its Risley pair.
+
+Defaults are the prototype of the paper (Table 1). Lengths are in millimetres unless a name says
+otherwise (``pixel_pitch_um``, ``wavelength_nm``), angles in degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+from .errors import HbisInputError
+
+
+def _check_positive(name: str, value: float) -> None:
+    if not math.isfinite(value) or value <= 0:
+        raise HbisInputError(f"{name} must be a finite positive number, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera with a pixel array (Table 1).
+
+    Attributes
+    ----------
+    pixel_pitch_um : float
+        Pixel pitch p in micrometres.
+    rows, cols : int
+        Sensor size M x N in pixels (rows along y, columns along x).
+    focal_length_mm : float
+        Focal length f' in millimetres.
+    f_number : float
+        Working F-number F = f'/D.
+    wavelength_nm : float
+        Wavelength used for diffraction, in nanometres.
+    """
+
+    pixel_pitch_um: float = 3.75
+    rows: int = 960
+    cols: int = 1280
+    focal_length_mm: float = 12.0
+    f_number: float = 1.4
+    wavelength_nm: float = 550.0
+
+    def __post_init__(self) -> None:
+        for name in ("pixel_pitch_um", "focal_length_mm", "f_number", "wavelength_nm"):
+            _check_positive(name, float(getattr(self, name)))
+        for name in ("rows", "cols"):
+            value = getattr(self, name)
+            if int(value) != value or value < 1:
+                raise HbisInputError(f"{name} must be a positive integer, got {value!r}")
+
+    @property
+    def pitch_mm(self) -> float:
+        return self.pixel_pitch_um * 1e-3
+
+    @property
+    def pupil_diameter_mm(self) -> float:
+        return self.focal_length_mm / self.f_number
+
+    @property
+    def half_fov_h_deg(self) -> float:
+        """theta_h: half of the horizontal field of view (to the sensor's outer edge)."""
+        return math.degrees(math.atan(self.cols / 2 * self.pitch_mm / self.focal_length_mm))
+
+    @property
+    def half_fov_v_deg(self) -> float:
+        """theta_v: half of the vertical field of view (to the sensor's outer edge)."""
+        return math.degrees(math.atan(self.rows / 2 * self.pitch_mm / self.focal_length_mm))
+
+
+@dataclass(frozen=True)
+class Prisms:
+    """Two identical wedge prisms (the Risley pair).
+
+    Attributes
+    ----------
+    wedge_angle_deg : float
+        Wedge angle alpha in degrees, 0 < alpha < 90.
+    refractive_index : float
+        Refractive index n > 1 at the working wavelength.
+    """
+
+    wedge_angle_deg: float = 4.0
+    refractive_index: float = 1.5
+
+    def __post_init__(self) -> None:
+        a, n = float(self.wedge_angle_deg), float(self.refractive_index)
+        if not math.isfinite(a) or not 0 < a < 90:
+            raise HbisInputError(f"wedge angle must lie in (0, 90) degrees, got {a!r}")
+        if not math.isfinite(n) or n <= 1:
+            raise HbisInputError(f"refractive index must be a finite number > 1, got {n!r}")
+
+
+@dataclass(frozen=True)
+class System:
+    """The fovea of an HBIS: a camera behind a Risley pair, looking at an object plane."""
+
+    camera: Camera = field(default_factory=Camera)
+    prisms: Prisms = field(default_factory=Prisms)
+    object_distance_mm: float = 50.0
+
+    def __post_init__(self) -> None:
+        _check_positive("object distance", float(self.object_distance_mm))
+
+    @property
+    def object_pixel_mm(self) -> float:
+        """One sensor pixel projected onto the object plane, in mm (p * v / f')."""
+        return self.camera.pitch_mm * self.object_distance_mm / self.camera.focal_length_mm
+
+    def to_dict(self) -> dict:
+        return asdict(self)

@@ -1,0 +1,1 @@
+"""Figures that reproduce the paper (matplotlib, written as PNG)."""

@@ -1,0 +1,39 @@
+"""Exact vector ray tracing through the Risley pair, and per-pixel landing maps."""
+
+from .pixels import (
+    check_roi,
+    landing_map,
+    landing_map_interpolated,
+    pinhole_landing,
+    pixel_coordinates,
+    pixel_rays,
+)
+from .risley import (
+    RisleyTrace,
+    axis_deviation,
+    deviation_azimuth,
+    exit_directions,
+    land_on_plane,
+    risley_normals,
+    trace_faces,
+    trace_risley,
+)
+from .snell import refract
+
+__all__ = [
+    "RisleyTrace",
+    "axis_deviation",
+    "check_roi",
+    "deviation_azimuth",
+    "exit_directions",
+    "land_on_plane",
+    "landing_map",
+    "landing_map_interpolated",
+    "pinhole_landing",
+    "pixel_coordinates",
+    "pixel_rays",
+    "refract",
+    "risley_normals",
+    "trace_faces",
+    "trace_risley",
+]

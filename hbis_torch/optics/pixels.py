@@ -1,0 +1,145 @@
+"""Per-pixel chief rays and landing maps on the object plane.
+
+Pixel (u, v), 0-based, names the centre of column u and row v. Its chief ray leaves the pupil
+along ((u - (cols-1)/2) p, (v - (rows-1)/2) p, f'), normalised (DESIGN.md section 1).
+
+A region of interest (ROI) is ``(u0, v0, width, height)`` in pixels, as in the hbis-stack/1
+file format; ``None`` means the whole sensor.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..config import Camera, System
+from ..errors import HbisInputError
+from .risley import exit_directions, land_on_plane
+
+Roi = tuple[int, int, int, int]
+
+
+def check_roi(camera: Camera, roi: Roi | None) -> Roi:
+    """Return a validated ``(u0, v0, width, height)``; ``None`` gives the whole sensor."""
+    if roi is None:
+        return (0, 0, camera.cols, camera.rows)
+    try:
+        u0, v0, w, h = (int(r) for r in roi)
+    except (TypeError, ValueError):
+        raise HbisInputError(f"roi must be four integers (u0, v0, width, height), got {roi!r}")
+    if w < 1 or h < 1:
+        raise HbisInputError(f"roi {roi!r} is empty: width and height must be at least 1")
+    if u0 < 0 or v0 < 0 or u0 + w > camera.cols or v0 + h > camera.rows:
+        raise HbisInputError(
+            f"roi {roi!r} lies outside the {camera.rows} x {camera.cols} (rows x cols) sensor"
+        )
+    return (u0, v0, w, h)
+
+
+def pixel_coordinates(camera: Camera, roi: Roi | None = None, dtype=torch.float64, device=None):
+    """Sensor-plane coordinates (x, y) in mm of the pixel centres, each of shape (H, W)."""
+    u0, v0, w, h = check_roi(camera, roi)
+    p = camera.pitch_mm
+    u = torch.arange(u0, u0 + w, dtype=dtype, device=device) - (camera.cols - 1) / 2
+    v = torch.arange(v0, v0 + h, dtype=dtype, device=device) - (camera.rows - 1) / 2
+    y, x = torch.meshgrid(v * p, u * p, indexing="ij")
+    return x, y
+
+
+def pixel_rays(camera: Camera, roi: Roi | None = None, dtype=torch.float64, device=None) -> Tensor:
+    """Unit chief-ray directions of the pixels, shape (H, W, 3)."""
+    x, y = pixel_coordinates(camera, roi, dtype, device)
+    f = torch.full_like(x, camera.focal_length_mm)
+    rays = torch.stack((x, y, f), dim=-1)
+    return rays / rays.norm(dim=-1, keepdim=True)
+
+
+def _phases(phi1_deg, phi2_deg, dtype, device) -> tuple[Tensor, Tensor]:
+    p1 = torch.as_tensor(phi1_deg, dtype=dtype, device=device)
+    p2 = torch.as_tensor(phi2_deg, dtype=dtype, device=device)
+    p1, p2 = torch.broadcast_tensors(p1, p2)
+    if not (torch.isfinite(p1).all() and torch.isfinite(p2).all()):
+        raise HbisInputError("phases contain non-finite values")
+    return p1, p2
+
+
+def landing_map(
+    system: System, phi1_deg, phi2_deg, roi: Roi | None = None, dtype=torch.float64, device=None
+) -> Tensor:
+    """Exact landing points of every pixel's chief ray on the object plane, in mm.
+
+    Parameters
+    ----------
+    phi1_deg, phi2_deg : float or Tensor, shape (*P)
+        Prism phases in degrees.
+    roi : (u0, v0, width, height) or None
+        Pixels to trace (None: the whole sensor).
+
+    Returns
+    -------
+    Tensor, shape (*P, H, W, 2)
+        (x, y) on the plane z = v, in mm. Divide by ``system.object_pixel_mm`` for pixel units.
+    """
+    rays = pixel_rays(system.camera, roi, dtype, device)
+    p1, p2 = _phases(phi1_deg, phi2_deg, dtype, device)
+    p1, p2 = p1[..., None, None], p2[..., None, None]
+    directions = exit_directions(rays, p1, p2, system.prisms)
+    return land_on_plane(directions, system.object_distance_mm)
+
+
+def pinhole_landing(system: System, roi: Roi | None = None, dtype=torch.float64, device=None):
+    """Landing points without prisms, (H, W, 2) in mm: v / f' * (x, y)."""
+    x, y = pixel_coordinates(system.camera, roi, dtype, device)
+    scale = system.object_distance_mm / system.camera.focal_length_mm
+    return torch.stack((x, y), dim=-1) * scale
+
+
+def _spline_basis(nodes: int, size: int, dtype, device) -> Tensor:
+    """(size, nodes) matrix that evaluates a not-a-knot cubic spline through ``nodes`` equally
+    spaced samples (the first at 0, the last at size - 1) at every integer 0..size-1."""
+    from scipy.interpolate import CubicSpline
+
+    knots = np.linspace(0.0, size - 1.0, nodes)
+    basis = CubicSpline(knots, np.eye(nodes))(np.arange(size, dtype=np.float64))
+    return torch.as_tensor(basis, dtype=dtype, device=device)
+
+
+def landing_map_interpolated(
+    system: System,
+    phi1_deg,
+    phi2_deg,
+    roi: Roi | None = None,
+    grid_step: int = 96,
+    dtype=torch.float64,
+    device=None,
+) -> Tensor:
+    """Landing maps from a coarse exact trace and cubic-spline interpolation; (*P, H, W, 2), mm.
+
+    What is interpolated is the prism's contribution (landing minus the pinhole landing), which is
+    smooth over the sensor, so a coarse grid of nodes every ``grid_step`` pixels is enough; the
+    spline is separable, so the fine map is two small matrix products per phase pair.
+    benchmarks/bench_optics.py prints the error against the exact trace.
+    """
+    u0, v0, w, h = check_roi(system.camera, roi)
+    p1, p2 = _phases(phi1_deg, phi2_deg, dtype, device)
+    nu = math.ceil((w - 1) / grid_step) + 1
+    nv = math.ceil((h - 1) / grid_step) + 1
+    if min(nu, nv) < 4 or nu * nv * 8 >= w * h:  # too small for a spline to pay off
+        return landing_map(system, p1, p2, roi, dtype, device)
+    cam = system.camera
+    us = torch.linspace(u0, u0 + w - 1, nu, dtype=dtype, device=device) - (cam.cols - 1) / 2
+    vs = torch.linspace(v0, v0 + h - 1, nv, dtype=dtype, device=device) - (cam.rows - 1) / 2
+    y, x = torch.meshgrid(vs * cam.pitch_mm, us * cam.pitch_mm, indexing="ij")
+    rays = torch.stack((x, y, torch.full_like(x, cam.focal_length_mm)), dim=-1)
+    rays = rays / rays.norm(dim=-1, keepdim=True)
+    directions = exit_directions(rays, p1[..., None, None], p2[..., None, None], system.prisms)
+    coarse = land_on_plane(directions, system.object_distance_mm)
+    scale = system.object_distance_mm / cam.focal_length_mm
+    coarse = (coarse - torch.stack((x, y), dim=-1) * scale).movedim(-1, -3)  # (*P, 2, nv, nu)
+    basis_v = _spline_basis(nv, h, dtype, device)
+    basis_u = _spline_basis(nu, w, dtype, device)
+    fine = basis_v @ coarse @ basis_u.T  # (*P, 2, h, w)
+    return fine.movedim(-3, -1) + pinhole_landing(system, roi, dtype, device)
