@@ -1,5 +1,5 @@
-"""The ``hbis`` command line. Each subcommand lives in its own module ``cmd_<name>.py`` with a
-``register(subparsers)`` function; add new ones to COMMANDS.
+"""The ``hbis`` command line. Each subcommand lives in its own module ``cmd_<name>.py`` beside
+this file, with a ``register(subparsers)`` function; modules are found automatically.
 
 Exit codes: 0 success, 2 bad arguments or bad input (one line on stderr), 1 anything else.
 """
@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import pkgutil
 import sys
 
 from ..errors import HbisInputError
 
-COMMANDS = ["design", "figures", "demo"]
+COMMANDS = sorted(m.name[4:] for m in pkgutil.iter_modules(__path__) if m.name.startswith("cmd_"))
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -2,21 +2,20 @@
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
 from pathlib import Path
 
+from .. import figures
 from .common import add_system_args, system_from_args
 
-# Each entry: a function (out_dir, system) -> list of paths. Other issues add their figures here.
-FIGURE_SETS = {}
-
-
-def _design(out_dir, system):
-    from ..figures.design_figures import design_figures
-
-    return design_figures(out_dir, system)
-
-
-FIGURE_SETS["design"] = _design
+# Every module hbis_torch/figures/<set>_figures.py with a function
+# make_figures(out_dir, system) -> list[Path] is one figure set, found automatically.
+FIGURE_SETS = {
+    m.name[: -len("_figures")]: importlib.import_module(f"{figures.__name__}.{m.name}").make_figures
+    for m in pkgutil.iter_modules(figures.__path__)
+    if m.name.endswith("_figures")
+}
 
 
 def register(sub) -> None:

@@ -141,7 +141,7 @@ def figure_10(system: System, path: Path, cases=((18.4, 12.9, 4.0), (11.3, 8.5, 
     return path
 
 
-def design_figures(out_dir, system: System = System(), progress: bool = True) -> list[Path]:
+def make_figures(out_dir, system: System = System(), progress: bool = True) -> list[Path]:
     """Write fig4.png, fig6.png and fig10.png into ``out_dir``; returns their paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
