@@ -59,6 +59,16 @@ def test_transient_faults_are_recovered_in_place(fault, tmp_path):
     assert torch.equal(run.phases_deg, ScanJournal.open(tmp_path / "j.json", TARGETS).phases_deg())
 
 
+def test_reply_lost_during_a_long_move_is_recovered():
+    targets = [(0.0, 0.0), (170.0, -170.0), (171.0, -171.0)]  # 170 deg: ~3 s of machine time, 0.6 s here
+    camera = Camera()
+    with GrblSimulator(speedup=5, max_lifetime_s=60) as sim, connect(sim.port) as grbl:
+        sim.inject("drop_reply", after_moves=1)
+        run = run_scan(grbl, targets, camera, settle_s=0.0)  # retried while the prisms still turn
+    assert run.retries == 1 and [i for i, _ in camera.calls] == [0, 1, 2]
+    assert run.phases_deg[1].tolist() == pytest.approx([170.0, -170.0], abs=0.02)
+
+
 def _interrupted(sim, grbl, camera, path, fault, code=None):
     sim.inject(fault, after_moves=FAULT_AT, code=code)
     with pytest.raises(ScanInterrupted) as info:

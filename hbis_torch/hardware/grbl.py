@@ -401,7 +401,15 @@ class GrblController:
         return move_duration_s(length, speed, axis_limited(unit, accels))
 
     def _check_ready(self) -> GrblStatus:
+        """The status once the controller is Idle; a move still running (say one whose ``ok`` was
+        lost) is waited for, as long as the longest move this driver sends (half a turn)."""
         report = self.status()
+        if report.state in ("Run", "Jog"):
+            longest = self.estimate_move_s((0.0, 0.0), (180.0, 180.0))
+            deadline = time.monotonic() + 2.0 * longest + self.timeouts.move_margin_s
+            while report.state in ("Run", "Jog") and time.monotonic() < deadline:
+                time.sleep(self.poll_interval_s)
+                report = self.status()
         if report.state == "Alarm":
             raise GrblAlarm(self.alarm_code, alarm_meaning(self.alarm_code) if self.alarm_code
                             else "motion is locked", "home ($H) or unlock ($X) first")
