@@ -104,7 +104,7 @@ def run_status(args) -> int:
         phases = grbl.phases_deg()
         data = {"version": grbl.version, "state": report.state, "phases_deg": list(phases),
                 "steps_per_deg": list(grbl.steps_per_deg), "step_deg": list(grbl.step_deg),
-                "homing_enabled": grbl.homing_enabled, "messages": grbl.messages}
+                "homing_enabled": grbl.homing_enabled, "messages": list(grbl.messages)}
     if args.json:
         print(json.dumps(data, indent=2))
         return 0

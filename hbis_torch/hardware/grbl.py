@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import serial
@@ -95,9 +96,9 @@ class GrblController:
         The ``$$`` settings read when the connection opened.
     version : str
         Firmware version from the welcome line, e.g. ``"1.1h"``.
-    messages : list[str]
-        Every ``[MSG:...]`` pushed by the controller, oldest first.
-    noise_lines : list[str]
+    messages : deque[str]
+        The ``[MSG:...]`` lines pushed by the controller, oldest first.
+    noise_lines : deque[str]
         Lines that were not GRBL 1.1 protocol (line noise, garbled replies); ignored.
     stale_replies : int
         ``ok``/``error`` lines that answered a line the driver had already given up on.
@@ -118,8 +119,9 @@ class GrblController:
         self.phase_offset_deg = offsets
         self.settings: dict[int, float] = {}
         self.version = ""
-        self.messages: list[str] = []
-        self.noise_lines: list[str] = []
+        # the latest 100 of each: a noisy line must not fill memory in a long session
+        self.messages: deque[str] = deque(maxlen=100)
+        self.noise_lines: deque[str] = deque(maxlen=100)
         self.stale_replies = 0
         self.alarm_code: int | None = None
         self.last_status: GrblStatus | None = None
