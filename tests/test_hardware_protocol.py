@@ -159,3 +159,30 @@ def test_machine_alarm_lock_and_unlock():
     assert _run(m, "G0 X1") == ["error:9"]
     assert _run(m, "$X") == ["[MSG:Caution: Unlocked]", "ok"]
     assert _run(m, "G0 X1") == ["ok"]
+
+
+def test_machine_feed_hold_freezes_and_resume_continues():
+    m = SimulatedGrbl()
+    _run(m, "G0 X90")
+    total = move_duration_s(90.0, DEFAULT_SETTINGS[110] / 60, DEFAULT_SETTINGS[120])
+    m.receive(b"!", total / 2)
+    held = m.position_deg(total / 2)[0]
+    m.tick(total * 3)
+    assert m.position_deg()[0] == held and 0 < held < 90
+    m.receive(b"?", total * 3)
+    assert m.take_output().startswith(b"<Hold:0|")
+    m.receive(b"~", total * 3)
+    m.tick(total * 3 + total / 2 + 0.01)  # the rest of the move takes the other half
+    assert m.state == "Idle" and m.position_deg()[0] == pytest.approx(90.0, abs=0.03)
+
+
+def test_machine_dwell_answers_when_done_and_reset_mid_move_alarms():
+    m = SimulatedGrbl()
+    assert _run(m, "G4 P0.5") == []  # G4 answers only once the dwell is over
+    m.tick(0.6)
+    assert m.take_output() == b"ok\r\n"
+    _run(m, "G0 X90", now=1.0)
+    m.receive(b"\x18", 1.1)
+    lines = m.take_output().decode().split("\r\n")
+    assert lines[:4] == ["ALARM:3", "", "Grbl 1.1h ['$' for help]", "[MSG:'$H'|'$X' to unlock]"]
+    assert m.state == "Alarm" and 0 < m.position_deg()[0] < 90  # position kept where it stopped
