@@ -10,7 +10,7 @@ from hbis_torch.hardware import (GrblAlarm, GrblCommandError, GrblController, Gr
 from hbis_torch.hardware import sim_machine
 from hbis_torch.hardware.grbl_protocol import SOFT_RESET
 
-FAST = GrblTimeouts(welcome_s=1.0, reply_s=0.3, status_s=0.2, homing_s=5.0, move_margin_s=1.0)
+FAST = GrblTimeouts(welcome_s=1.0, reply_s=0.5, status_s=0.3, homing_s=5.0, move_margin_s=1.0)
 
 
 def connect(port, **kwargs):
@@ -100,8 +100,8 @@ def test_unlock_leaves_alarm():
 
 
 def test_jog_cancel_stops_midway(sim, grbl):
-    grbl.jog(90.0, 0.0, 600.0)  # 9 s of machine time, 0.18 s here
-    time.sleep(0.03)
+    grbl.jog(90.0, 0.0, 60.0)  # 90 s of machine time, 1.8 s here
+    time.sleep(0.05)
     assert grbl.status().state == "Jog"
     report = grbl.jog_cancel()
     x = grbl.machine_position(report)[0]

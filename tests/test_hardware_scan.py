@@ -12,7 +12,7 @@ from hbis_torch.hardware import (GrblAlarm, GrblCommandError, GrblController, Gr
                                  GrblTimeout, GrblTimeouts, ScanInterrupted)
 from hbis_torch.hardware.scan_executor import ScanJournal, run_scan
 
-FAST = GrblTimeouts(welcome_s=1.0, reply_s=0.3, status_s=0.2, homing_s=5.0, move_margin_s=1.0)
+FAST = GrblTimeouts(welcome_s=1.0, reply_s=0.5, status_s=0.3, homing_s=5.0, move_margin_s=1.0)
 TARGETS = [(5.0 + 0.07 * i, 70.0 - 0.05 * i) for i in range(8)]  # a small scan around (5, 70)
 FAULT_AT = 3
 
@@ -60,9 +60,9 @@ def test_transient_faults_are_recovered_in_place(fault, tmp_path):
 
 
 def test_reply_lost_during_a_long_move_is_recovered():
-    targets = [(0.0, 0.0), (170.0, -170.0), (171.0, -171.0)]  # 170 deg: ~3 s of machine time, 0.6 s here
+    targets = [(0.0, 0.0), (170.0, -170.0), (171.0, -171.0)]  # 170 deg: ~3 s of machine time, 1 s here
     camera = Camera()
-    with GrblSimulator(speedup=5, max_lifetime_s=60) as sim, connect(sim.port) as grbl:
+    with GrblSimulator(speedup=3, max_lifetime_s=60) as sim, connect(sim.port) as grbl:
         sim.inject("drop_reply", after_moves=1)
         run = run_scan(grbl, targets, camera, settle_s=0.0)  # retried while the prisms still turn
     assert run.retries == 1 and [i for i, _ in camera.calls] == [0, 1, 2]

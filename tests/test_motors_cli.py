@@ -16,7 +16,7 @@ from hbis_torch.cli import main
 from hbis_torch.hardware import GrblSimulator
 
 REPO = Path(__file__).resolve().parents[1]
-FAST = ["--timeout-s", "0.3", "--welcome-timeout-s", "1"]
+FAST = ["--timeout-s", "0.5", "--welcome-timeout-s", "1"]
 
 
 @pytest.fixture
