@@ -137,7 +137,7 @@ def test_failed_capture_is_retaken_on_resume(tmp_path):
 def test_finished_journal_takes_nothing(tmp_path):
     camera, path = Camera(), tmp_path / "j.json"
     with GrblSimulator(speedup=50, max_lifetime_s=60) as sim, connect(sim.port) as grbl:
-        first = run_scan(grbl, TARGETS, camera, journal=path, settle_s=0.0)
+        first = run_scan(grbl, TARGETS, camera, journal=path, settle_s=0.01)  # settle, then read back
         again = run_scan(grbl, TARGETS, camera, journal=path, settle_s=0.0)
     assert again.resumed_from == len(TARGETS) and len(camera.calls) == len(TARGETS)
     assert torch.equal(first.phases_deg, again.phases_deg)

@@ -190,10 +190,10 @@ def run_scan(controller, targets_deg, capture: Callable[[int, tuple[float, float
         attempts = 0
         while True:
             try:
-                controller.move_to(*target, feed_deg_per_min=feed_deg_per_min)
+                phases = controller.move_to(*target, feed_deg_per_min=feed_deg_per_min)
                 if settle_s:
                     time.sleep(settle_s)
-                phases = controller.phases_deg(near=target)
+                    phases = controller.phases_deg(near=target)
                 break
             except RETRYABLE as exc:
                 attempts += 1
