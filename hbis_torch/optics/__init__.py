@@ -7,6 +7,8 @@ from .pixels import (
     pinhole_landing,
     pixel_coordinates,
     pixel_rays,
+    rays_at,
+    sensor_position,
 )
 from .risley import (
     RisleyTrace,
@@ -15,6 +17,7 @@ from .risley import (
     exit_directions,
     land_on_plane,
     risley_normals,
+    trace_back,
     trace_faces,
     trace_risley,
 )
@@ -32,8 +35,11 @@ __all__ = [
     "pinhole_landing",
     "pixel_coordinates",
     "pixel_rays",
+    "rays_at",
+    "sensor_position",
     "refract",
     "risley_normals",
+    "trace_back",
     "trace_faces",
     "trace_risley",
 ]

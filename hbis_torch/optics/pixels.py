@@ -57,6 +57,54 @@ def pixel_rays(camera: Camera, roi: Roi | None = None, dtype=torch.float64, devi
     return rays / rays.norm(dim=-1, keepdim=True)
 
 
+def rays_at(camera: Camera, u: Tensor, v: Tensor) -> Tensor:
+    """Unit chief rays at fractional sensor positions (u, v) in pixels (0-based centres).
+
+    ``u`` and ``v`` are broadcastable tensors; returns shape broadcast(u, v) + (3,).
+    """
+    u, v = torch.broadcast_tensors(torch.as_tensor(u), torch.as_tensor(v))
+    if not u.is_floating_point():
+        u, v = u.double(), v.double()
+    p = camera.pitch_mm
+    x = (u - (camera.cols - 1) / 2) * p
+    y = (v - (camera.rows - 1) / 2) * p
+    rays = torch.stack((x, y, torch.full_like(x, camera.focal_length_mm)), dim=-1)
+    return rays / rays.norm(dim=-1, keepdim=True)
+
+
+def sensor_position(system: System, points_mm: Tensor, phi1_deg, phi2_deg) -> Tensor:
+    """Where on the sensor an object-plane point is imaged: the exact inverse of the landing map.
+
+    Parameters
+    ----------
+    points_mm : Tensor, shape (..., 2)
+        (x, y) on the object plane z = v, in mm.
+    phi1_deg, phi2_deg : float or Tensor broadcastable to points_mm.shape[:-1]
+        Prism phases in degrees.
+
+    Returns
+    -------
+    Tensor, shape (..., 2)
+        Fractional pixel coordinates (u, v), 0-based pixel centres (may lie off the sensor).
+    """
+    from .risley import trace_back
+
+    points_mm = torch.as_tensor(points_mm)
+    if points_mm.ndim == 0 or points_mm.shape[-1] != 2:
+        raise HbisInputError(f"points must have shape (..., 2), got {tuple(points_mm.shape)}")
+    if not points_mm.is_floating_point():
+        points_mm = points_mm.double()
+    v = torch.full_like(points_mm[..., :1], system.object_distance_mm)
+    out = torch.cat((points_mm, v), dim=-1)
+    out = out / out.norm(dim=-1, keepdim=True)
+    incident = trace_back(out, phi1_deg, phi2_deg, system.prisms).require_valid()
+    cam = system.camera
+    scale = cam.focal_length_mm / cam.pitch_mm
+    u = incident[..., 0] / incident[..., 2] * scale + (cam.cols - 1) / 2
+    w = incident[..., 1] / incident[..., 2] * scale + (cam.rows - 1) / 2
+    return torch.stack((u, w), dim=-1)
+
+
 def _phases(phi1_deg, phi2_deg, dtype, device) -> tuple[Tensor, Tensor]:
     p1 = torch.as_tensor(phi1_deg, dtype=dtype, device=device)
     p2 = torch.as_tensor(phi2_deg, dtype=dtype, device=device)

@@ -170,6 +170,20 @@ def trace_risley(
     return RisleyTrace(directions, valid)
 
 
+def trace_back(directions: Tensor, phi1_deg, phi2_deg, prisms: Prisms = Prisms()) -> RisleyTrace:
+    """Invert the pair: the incident directions whose exit directions are ``directions``.
+
+    Reversing a ray and mirroring z turns the pair into itself with the two phases swapped
+    (the tilted faces trade places), so the forward kernel does the work. Shapes as in
+    :func:`trace_risley`.
+    """
+    directions = _check_rays(directions)
+    x, y, z = directions.unbind(-1)
+    back = trace_risley(torch.stack((-x, -y, z), -1), phi2_deg, phi1_deg, prisms)
+    bx, by, bz = back.directions.unbind(-1)
+    return RisleyTrace(torch.stack((-bx, -by, bz), -1), back.valid)
+
+
 def trace_faces(rays: Tensor, normals: list[Tensor], indices: list[float]) -> RisleyTrace:
     """Trace rays through any sequence of plane faces (used to check reversibility).
 
