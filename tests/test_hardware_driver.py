@@ -48,6 +48,12 @@ def test_move_reads_back_the_step_quantised_position(sim, grbl):
     assert sim.machine.received_lines[-1] == "G21 G90 G53 G0 X5 Y70"
 
 
+def test_nearest_reachable_is_where_a_move_stops(sim, grbl):
+    reachable = grbl.nearest_reachable(5.0, 70.0)
+    assert reachable == pytest.approx((178 / 35.556, 2489 / 35.556))
+    assert grbl.move_to(*reachable) == pytest.approx(reachable, abs=1e-3)
+
+
 def test_moves_take_the_short_way_round(sim, grbl):
     grbl.move_to(350.0, 10.0)  # from 0: X turns -10, not +350
     assert sim.machine.position_deg()[:2] == pytest.approx((-10.0, 10.0), abs=0.02)

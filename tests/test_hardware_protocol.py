@@ -8,8 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hbis_torch.hardware.grbl_codes import ALARM_CODES, ERROR_CODES, alarm_meaning, error_meaning
-from hbis_torch.hardware.grbl_protocol import (Kind, classify, format_jog, format_move, parse_setting,
-                                               parse_status, parse_welcome, unwrap_near, wrap_deg)
+from hbis_torch.hardware.grbl_protocol import (Kind, classify, format_jog, format_move, nearest_step_phase,
+                                               parse_setting, parse_status, parse_welcome, unwrap_near,
+                                               wrap_deg)
 from hbis_torch.hardware.motion_profile import distance_at, move_duration_s
 from hbis_torch.hardware.sim_machine import DEFAULT_SETTINGS, SimulatedGrbl
 
@@ -95,6 +96,16 @@ def test_unwrap_examples():
     assert unwrap_near(10.0, 350.0) == pytest.approx(370.0)
     assert unwrap_near(350.0, 10.0) == pytest.approx(-10.0)
     assert unwrap_near(5.0, 725.0) == pytest.approx(725.0)
+
+
+def test_nearest_step_phase_follows_the_controller_grid():
+    assert nearest_step_phase(5.04, 10.0) == pytest.approx(5.0)
+    assert nearest_step_phase(5.06, 10.0) == pytest.approx(5.1)
+    assert nearest_step_phase(5.0, 10.0, offset_deg=0.03) == pytest.approx(5.03)  # MPos 4.97 -> 5.0
+    assert nearest_step_phase(359.99, 10.0) == pytest.approx(360.0)
+    # 360 deg is not a whole number of steps at 7.31 steps/deg: the grid depends on the turn
+    assert nearest_step_phase(5.0, 7.31) == pytest.approx(37 / 7.31)
+    assert nearest_step_phase(5.0, 7.31, machine_near_deg=365.0) == pytest.approx(2668 / 7.31 - 360.0)
 
 
 def test_trapezoid_and_triangle_profiles():

@@ -126,12 +126,28 @@ def test_scan_dry_run_needs_no_controller(monkeypatch, capsys):
     assert "4 frames" in out and "0.01000 deg (prism 1), 0.02000 deg (prism 2)" in out
 
 
-def test_scan_with_the_real_planner(sim, tmp_path, capsys):
-    scan = pytest.importorskip("hbis_torch.scan")
-    assert hasattr(scan, "step_alignment_error"), "hbis_torch.scan lacks step_alignment_error"
-    assert motors(sim.port, "scan", "--h", "2", "--settle-s", "0", "--journal", str(tmp_path / "j.json")) == 0
-    out = capsys.readouterr().out
-    assert "predicted alignment error" in out and "ae_axis_max" in out and "scan done: 4 frames" in out
+def test_scan_with_the_real_planner_reaches_the_predicted_phases(sim, tmp_path, capsys):
+    scan = pytest.importorskip("hbis_torch.scan")  # skipped only where the planner is missing
+    from hbis_torch.config import System
+
+    out = tmp_path / "phases.json"
+    assert motors(sim.port, "scan", "--h", "3", "--settle-s", "0", "--journal", str(tmp_path / "j.json"),
+                  "--out", str(out)) == 0
+    text = capsys.readouterr().out
+    assert "initial phases moved to the motor step grid: (5, 70) -> (5.0062, 70.0022) deg" in text
+    assert text.index("predicted alignment error") < text.index("frame 1/9") and "scan done: 9 frames" in text
+    data = json.loads(out.read_text())
+    plan = scan.plan_scan(System(), 3, initial_phases_deg=tuple(data["initial_phases_deg"]))
+    predicted = scan.step_alignment_error(System(), plan, data["steps_per_deg"])
+    assert data["predicted_ae"]["ae_axis_max"] == pytest.approx(predicted["ae_axis_max"], rel=1e-12)
+    # The motors stop on the very steps the prediction rounded to. Two printouts blur it: MPos has
+    # 3 decimals (0.0005 deg), and so has $101 (35.556 for the stored 35.5556, 1.2e-5 relative:
+    # 0.0009 deg at 70 deg). A step is 0.028 deg, so a wrong step would show as >= 0.026 deg.
+    read_back = torch.tensor(data["phases_deg"], dtype=torch.float64)
+    blur = 5e-4 + 71.0 * 5e-4 / 35.556
+    assert (read_back - predicted["quantised_phases_deg"]).abs().max() <= blur
+    achieved = scan.axis_alignment_error(System(), plan, read_back)
+    assert float(achieved.max()) == pytest.approx(predicted["ae_axis_max"], abs=0.01)
 
 
 def test_simulator_command_line_serves_a_port_and_stops_by_itself(capsys):

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ..errors import HbisInputError
 from ..hardware.grbl import GrblController, GrblTimeouts
+from ..hardware.grbl_protocol import nearest_step_phase
 from ..hardware.scan_executor import run_scan
 from ..hardware.simulator import add_simulator_args, serve_until_done, simulator_from_args
 from ..io_utils import atomic_write_text
@@ -141,21 +142,29 @@ def run_goto(args) -> int:
     return 0
 
 
-def _plan_and_predict(args, steps_per_deg):
+def _plan_and_predict(args, steps_per_deg, initial_deg):
+    """Plan from ``initial_deg`` (already on the motor step grid) and print the predicted AE."""
     try:
         from ..scan import plan_scan, step_alignment_error
     except ImportError as exc:
         raise HbisInputError(f"the scan planner (hbis_torch.scan) is not available in this build: {exc}") from None
     system = system_from_args(args)
-    plan = plan_scan(system, args.h, initial_phases_deg=_pair(args.phases_deg, "--phases-deg"), method=args.method)
+    plan = plan_scan(system, args.h, initial_phases_deg=initial_deg, method=args.method)
     ae = step_alignment_error(system, plan, steps_per_deg)
     frames = plan.phases_deg.shape[0]
-    print(f"scan plan: h = {args.h}, {frames} frames from phases ({args.phases_deg}), {args.method} inverse, "
-          f"step SL = {plan.step_mm * 1e3:.3f} um on the object plane")
+    print(f"scan plan: h = {args.h}, {frames} frames from phases ({initial_deg[0]:.4f}, {initial_deg[1]:.4f}) "
+          f"deg, {args.method} inverse, step SL = {plan.step_mm * 1e3:.3f} um on the object plane")
     print(f"motor steps: {1 / steps_per_deg[0]:.5f} deg (prism 1), {1 / steps_per_deg[1]:.5f} deg (prism 2)")
     shown = ", ".join(f"{k} = {v:.4f}" for k, v in ae.items() if k.startswith("ae_") and isinstance(v, float))
     print(f"predicted alignment error with these steps (fractions of SL): {shown}", flush=True)
     return plan, ae
+
+
+def _snapped(requested, reachable):
+    if any(abs(a - b) > 1e-6 for a, b in zip(requested, reachable)):
+        print(f"initial phases moved to the motor step grid: ({requested[0]:g}, {requested[1]:g}) -> "
+              f"({reachable[0]:.4f}, {reachable[1]:.4f}) deg")
+    return reachable
 
 
 def _capture_command(template: str, timeout_s: float):
@@ -177,13 +186,22 @@ def _capture_command(template: str, timeout_s: float):
 
 
 def run_scan_cmd(args) -> int:
+    requested = _pair(args.phases_deg, "--phases-deg")
     if args.dry_run and args.steps_per_deg:
-        _plan_and_predict(args, _pair(args.steps_per_deg, "--steps-per-deg"))
+        steps = _pair(args.steps_per_deg, "--steps-per-deg")
+        if not (steps[0] > 0 and steps[1] > 0):
+            raise HbisInputError(f"--steps-per-deg must be positive, got {args.steps_per_deg!r}")
+        offsets = _pair(args.phase_offset_deg, "--phase-offset-deg")
+        initial = tuple(nearest_step_phase(p, s, o) for p, s, o in zip(requested, steps, offsets))
+        _plan_and_predict(args, steps, _snapped(requested, initial))
         return 0
     if args.steps_per_deg:
         raise HbisInputError("--steps-per-deg is only for --dry-run; a real scan reads $100/$101 from the controller")
     with _controller(args).open() as grbl:
-        plan, ae = _plan_and_predict(args, grbl.steps_per_deg)
+        # Plan from phases the motors can reach, so the controller's rounding to whole steps is
+        # the one the AE prediction models (steps counted from the initial phases).
+        initial = _snapped(requested, grbl.nearest_reachable(*requested))
+        plan, ae = _plan_and_predict(args, grbl.steps_per_deg, initial)
         if args.dry_run:
             return 0
         capture = (_capture_command(args.capture_cmd, args.capture_timeout_s) if args.capture_cmd
@@ -203,6 +221,7 @@ def run_scan_cmd(args) -> int:
           f"journal {args.journal}")
     if args.out:
         data = {"h": args.h, "method": args.method, "steps_per_deg": steps,
+                "initial_phases_deg": list(initial), "reference_index": int(plan.reference_index),
                 "targets_deg": result.targets_deg.tolist(), "phases_deg": result.phases_deg.tolist(),
                 "predicted_ae": {k: v for k, v in ae.items() if isinstance(v, (int, float))}}
         atomic_write_text(args.out, json.dumps(data, indent=1))

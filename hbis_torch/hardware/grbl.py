@@ -26,7 +26,8 @@ from .errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, G
                      GrblProtocolError, GrblTimeout)
 from .grbl_codes import alarm_meaning, error_meaning
 from .grbl_protocol import (JOG_CANCEL, LINE_MAX_CHARS, SOFT_RESET, STATUS_QUERY, GrblStatus, Kind,
-                            classify, format_jog, format_move, unwrap_near)
+                            classify, format_jog, format_move, nearest_step_phase,
+                            unwrap_near)
 from .motion_profile import axis_limited, move_duration_s
 
 try:  # pyserial's POSIX backend lets termios.error (not an OSError) out of flush() on a dead tty
@@ -385,6 +386,16 @@ class GrblController:
             phases = (unwrap_near(phases[0], near[0]), unwrap_near(phases[1], near[1]))
         # MPos is printed to 0.001 deg; rounding to 1e-6 only drops the float noise of the sums
         return round(phases[0], 6), round(phases[1], 6)
+
+    def nearest_reachable(self, phi1_deg: float, phi2_deg: float) -> tuple[float, float]:
+        """The phases nearest (phi1, phi2) that the motors can stop at, from where they are now.
+
+        A scan planned from these initial phases is quantised by the controller exactly as the
+        scan planner's step model assumes (whole steps counted from the initial phases).
+        """
+        here = self.machine_position(self.status())
+        return tuple(nearest_step_phase(p, s, o, m) for p, s, o, m in
+                     zip((float(phi1_deg), float(phi2_deg)), self.steps_per_deg, self.phase_offset_deg, here))
 
     # --------------------------------------------------------------------------------- motion
     def estimate_move_s(self, start: tuple[float, float], end: tuple[float, float],

@@ -203,3 +203,19 @@ def unwrap_near(target_deg: float, reference_deg: float) -> float:
     Moving from ``reference_deg`` to the result turns at most 180 degrees: the short way round.
     """
     return reference_deg + wrap_deg(target_deg - reference_deg)
+
+
+def nearest_step_phase(phase_deg: float, steps_per_deg: float, offset_deg: float = 0.0,
+                       machine_near_deg: float | None = None) -> float:
+    """The phase a stepping axis can actually stop at that is nearest ``phase_deg``.
+
+    GRBL counts whole steps from machine position 0 (``round(MPos * steps_per_deg)``); the phase
+    is MPos + ``offset_deg``. The machine position is taken in the branch nearest
+    ``machine_near_deg`` (where a move from there would go; default ``phase_deg - offset_deg``),
+    and the result is returned in the branch of ``phase_deg``.
+    """
+    machine = phase_deg - offset_deg
+    if machine_near_deg is not None:
+        machine = unwrap_near(machine, machine_near_deg)
+    snapped = round(machine * steps_per_deg) / steps_per_deg + offset_deg
+    return unwrap_near(snapped, phase_deg)
