@@ -529,9 +529,10 @@ def _star(spec: SceneSpec, rng):
 
 
 def _bars(spec: SceneSpec, rng):
-    # nine bar widths, geometric, from 2 sensor pixels (or what fits a cell) down to 1/6 pixel
+    # nine bar widths, geometric, from the largest that fits a cell (two groups of 5 x 5 widths
+    # with gaps) down to a sixth of a sensor pixel
     cell = min(spec.size_mm[0] / 3, spec.size_mm[1] / 3)
-    coarse = min(2.0 * spec.pixel_mm, cell / 14)
+    coarse = cell / 14
     fine = spec.pixel_mm / 6
     widths = tuple(coarse * (fine / coarse) ** (k / 8) for k in range(9))
     return BarTarget(size_mm=spec.size_mm, bar_widths_mm=widths, columns=3)
