@@ -1,0 +1,146 @@
+"""Refining the stitching homographies from the images, for an imperfect assembly.
+
+Each side view is matched against the fovea's (parked) view, which overlaps all eight. Features
+are Kornia's SIFT (hand-crafted: no downloaded weights), matched by mutual nearest neighbours
+with Lowe's ratio test (``match_smnn``), pre-filtered by the design prediction (a match must
+land within ``gate_px`` of where the design homography puts it: assembly errors are small), and
+fitted by Kornia's RANSAC homography; through its inliers the final model is either that
+homography (least squares) or, for cameras that share a centre, a rotation. A refined homography is kept only when enough inliers
+support it; otherwise the design homography stays and a message says why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import kornia.feature as KF
+import torch
+from kornia.geometry.homography import find_homography_dlt
+from kornia.geometry.ransac import RANSAC
+from torch import Tensor
+
+from ..errors import HbisInputError
+from .cameras import CAMERA_NAMES, FOVEA_INDEX
+from .stitch import apply_homography
+
+
+@dataclass
+class Refinement:
+    """Result of :func:`refine_homographies`.
+
+    Attributes
+    ----------
+    homographies : Tensor (V, 3, 3) float64, view pixel -> fovea pixel
+    inliers : list of int, RANSAC inliers per view (the fovea: 0)
+    ok : list of bool, whether the view's homography was refined
+    messages : list of str
+    """
+
+    homographies: Tensor
+    inliers: list = field(default_factory=list)
+    ok: list = field(default_factory=list)
+    messages: list = field(default_factory=list)
+
+
+def _features(image: Tensor, detector: KF.SIFTFeature) -> tuple[Tensor, Tensor]:
+    """Keypoint centres (N, 2) float64 (x, y) and descriptors (N, 128) of one (H, W) image."""
+    with torch.no_grad():
+        lafs, _, desc = detector(image[None, None].float())
+    return KF.get_laf_center(lafs)[0].double(), desc[0]
+
+
+def _inside(points: Tensor, shape: tuple[int, int], margin: float) -> Tensor:
+    rows, cols = shape
+    return ((points[:, 0] >= -margin) & (points[:, 0] <= cols - 1 + margin)
+            & (points[:, 1] >= -margin) & (points[:, 1] <= rows - 1 + margin))
+
+
+def fit_rotation(src: Tensor, dst: Tensor, intrinsics: Tensor) -> Tensor:
+    """The rotation R (3, 3) float64 that best maps the rays of pixels ``src`` (N, 2) onto those
+    of ``dst`` (N, 2) (both cameras with intrinsics K): least squares on the unit sphere, solved
+    in closed form by SVD (orthogonal Procrustes / Kabsch)."""
+    k_inv = torch.linalg.inv(intrinsics.double())
+
+    def rays(p: Tensor) -> Tensor:
+        r = torch.cat((p.double(), torch.ones_like(p[:, :1]).double()), 1) @ k_inv.T
+        return r / r.norm(dim=-1, keepdim=True)
+
+    a, b = rays(src), rays(dst)
+    u, _, vh = torch.linalg.svd(b.T @ a)
+    d = torch.sign(torch.linalg.det(u @ vh))
+    return u @ torch.diag(torch.tensor([1.0, 1.0, float(d)], dtype=torch.float64)) @ vh
+
+
+def refine_homographies(views: Tensor, predicted: Tensor, gate_px: float = 40.0,
+                        num_features: int = 1500, min_inliers: int = 20, inlier_px: float = 1.5,
+                        seed: int = 0, intrinsics: Tensor | None = None) -> Refinement:
+    """Estimate each side view's homography to the fovea's view from the images.
+
+    Parameters
+    ----------
+    views : Tensor (9, H, W) float in [0, 1], the array's views (the fovea parked)
+    predicted : Tensor (9, 3, 3), design homographies (view px -> fovea px) used as the prior
+    gate_px : float
+        How far (in pixels of these views) a match may land from the prediction; set it from
+        the assembly tolerance (1 deg is about f / p * 0.0175 full-resolution pixels).
+    num_features, min_inliers, inlier_px, seed
+        SIFT features per view; the fewest RANSAC inliers to accept a fit; RANSAC's inlier
+        threshold in pixels; RANSAC's random seed.
+    intrinsics : Tensor (3, 3) or None
+        The views' K. Given, the final fit through RANSAC's inliers is a pure rotation
+        H = K R K^-1 (3 parameters: the cameras share a centre), which extrapolates far
+        better beyond the small overlaps than a free homography (8 parameters, used when None).
+    """
+    if views.ndim != 3 or views.shape[0] != len(CAMERA_NAMES):
+        raise HbisInputError(f"need the nine views (9, H, W), got {tuple(views.shape)}")
+    if predicted.shape != (len(CAMERA_NAMES), 3, 3):
+        raise HbisInputError("need nine predicted homographies (9, 3, 3)")
+    if not torch.isfinite(views).all():
+        raise HbisInputError("the views contain NaN or inf")
+    shape = tuple(views.shape[1:])
+    detector = KF.SIFTFeature(num_features=num_features, upright=True)
+    ransac = RANSAC("homography", inl_th=inlier_px, max_iter=50, seed=seed)
+    ref_xy, ref_desc = _features(views[FOVEA_INDEX], detector)
+    result = Refinement(homographies=predicted.clone().double())
+    for k, name in enumerate(CAMERA_NAMES):
+        if k == FOVEA_INDEX:
+            result.inliers.append(0)
+            result.ok.append(True)
+            continue
+        xy, desc = _features(views[k], detector)
+        h_pred = predicted[k].double()
+        # Keep only features that the prediction puts inside the other view.
+        keep = _inside(apply_homography(h_pred, xy), shape, gate_px)
+        keep_ref = _inside(apply_homography(torch.linalg.inv(h_pred), ref_xy), shape, gate_px)
+        if int(keep.sum()) < min_inliers or int(keep_ref.sum()) < min_inliers:
+            result.inliers.append(0)
+            result.ok.append(False)
+            result.messages.append(f"{name}: too few features in the predicted overlap; design kept")
+            continue
+        xy_k, xy_r = xy[keep], ref_xy[keep_ref]
+        _, idx = KF.match_smnn(desc[keep], ref_desc[keep_ref], th=0.95)
+        src, dst = xy_k[idx[:, 0]], xy_r[idx[:, 1]]
+        near = (apply_homography(h_pred, src) - dst).norm(dim=-1) <= gate_px
+        src, dst = src[near], dst[near]
+        if len(src) < min_inliers:
+            result.inliers.append(int(len(src)))
+            result.ok.append(False)
+            result.messages.append(f"{name}: only {len(src)} consistent matches; design kept")
+            continue
+        model, inliers = ransac(src.float(), dst.float())
+        count = int(inliers.sum())
+        if count < min_inliers or not torch.isfinite(model).all() or float(model.abs().sum()) == 0.0:
+            result.inliers.append(count)
+            result.ok.append(False)
+            result.messages.append(f"{name}: RANSAC found {count} inliers; design kept")
+            continue
+        # Final least-squares fit through all inliers, in float64.
+        if intrinsics is None:
+            h = find_homography_dlt(src[inliers][None], dst[inliers][None])[0]
+        else:
+            h = intrinsics @ fit_rotation(src[inliers], dst[inliers], intrinsics) @ torch.linalg.inv(intrinsics)
+        result.homographies[k] = h / h[2, 2]
+        result.inliers.append(count)
+        result.ok.append(True)
+    return result
+
