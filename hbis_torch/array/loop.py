@@ -2,16 +2,16 @@
 
 Stage one: the fovea is parked (prisms opposed) and every camera looks for motion between
 consecutive detection frames. A detection inside the fovea's scan field starts stage two: the
-fovea is steered onto the object (coarse, then exact phases; the prisms take time to turn),
-scans its h x h sub-pixel positions, and one frame more at the reference phases tells whether
-the object held still; if it did, ``reconstruct_fn`` makes the super-resolved fovea, otherwise
-the scan is discarded and repeated at the object's new place. The periphery keeps detecting
-all along, during the scan included, and updates the object's track; when the track leaves the
-scan field the prisms park and stage one resumes. Every step is an :class:`Event` with its
-simulated time.
+fovea is steered onto the object at once (coarse, then exact phases; the prisms take time to
+turn) and follows it while it moves. Once the object has held still for ``settle_s`` the fovea
+scans its h x h sub-pixel positions and takes one frame more at the reference phases; if that
+frame and the periphery agree that nothing moved, ``reconstruct_fn`` makes the super-resolved
+fovea, otherwise the scan is discarded. The periphery keeps detecting all along (during turns
+and scans too) and updates the object's track; when the track leaves the scan field the prisms
+park and stage one resumes. Every step is an :class:`Event` with its simulated time.
 
 ``reconstruct_fn(capture: FoveaCapture) -> np.ndarray (h H, h W)`` is a parameter so the
-classical and the learned methods plug in alike.
+classical and the learned methods plug in alike (``capture.stack`` is an hbis-stack/1 Stack).
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from torch import Tensor
 from ..errors import HbisInputError
 from .cameras import CAMERA_NAMES, FOVEA_INDEX, PARKED_PHASES_DEG
 from .detect import motion_blobs
-from .steering import (PHASE_DIFFERENCE_DEG, OutOfScanField, Pointing, plan_fovea_scan,
-                       parked_phases_near, slew_deg, steer)
+from .steering import (PHASE_DIFFERENCE_DEG, OutOfScanField, Pointing, parked_phases_near,
+                       plan_fovea_scan, slew_deg, steer)
 
 
 @dataclass
@@ -44,7 +44,8 @@ class LoopConfig:
     duration_s : float, simulated time to run
     threshold, min_area_px, blur_sigma_px : motion detection (see :func:`motion_blobs`)
     gate_mm : float, a detection this close to the track belongs to the tracked object
-    rescan_mm : float, re-point and scan again when the track moved this far since the last scan
+    rescan_mm : float, re-point (and scan again) when the track moved this far from the pointing
+    settle_s : float, scan once the periphery has seen no motion of the object for this long
     phase_difference_deg : (lo, hi), the steering window (see :mod:`.steering`)
     """
 
@@ -58,6 +59,7 @@ class LoopConfig:
     blur_sigma_px: float = 1.0
     gate_mm: float = 4.0
     rescan_mm: float = 0.5
+    settle_s: float = 0.1
     phase_difference_deg: tuple[float, float] = PHASE_DIFFERENCE_DEG
 
     def __post_init__(self) -> None:
@@ -86,33 +88,25 @@ class Event:
 
 @dataclass
 class FoveaCapture:
-    """One scan of the fovea: what a stack file holds, plus where it was pointed.
+    """One scan of the fovea.
 
     Attributes
     ----------
-    frames : Tensor (h^2, H, W) float32 in [0, 1], in scan order
-    phases_deg : Tensor (h^2, 2) float64
-    reference_index : int
-    roi : (u0, v0, W, H)
-    h : int
-    pointing : Pointing
-    t_start_s, t_end_s : float
-    system : the fovea's System
-    sr : np.ndarray (h H, h W) float32 or None, the super-resolved ROI
+    stack : hbis_torch.stack_io.Stack, the h^2 frames (hbis-stack/1, planned phases)
+    pointing : Pointing, where the fovea was steered
+    t_start_s, t_end_s : float, simulated time of the first frame and after the check frame
     plan_source : str, which planner made the scan
+    truth : np.ndarray (h H, h W) or None, the ground truth when the device can know it
+    sr : np.ndarray (h H, h W) float32 or None, the super-resolved ROI (kept scans only)
     """
 
-    frames: Tensor
-    phases_deg: Tensor
-    reference_index: int
-    roi: tuple
-    h: int
+    stack: object
     pointing: Pointing
     t_start_s: float
     t_end_s: float
-    system: object
-    sr: np.ndarray | None = None
     plan_source: str = ""
+    truth: np.ndarray | None = None
+    sr: np.ndarray | None = None
 
 
 @dataclass
@@ -138,7 +132,9 @@ class TwoStageLoop:
         self.stage = 1
         self.phases = PARKED_PHASES_DEG
         self.track: np.ndarray | None = None
-        self.scanned_at: np.ndarray | None = None
+        self.last_motion_s = 0.0
+        self.pointing: Pointing | None = None
+        self.scanned = False
         self.previous: Tensor | None = None
         self.previous_phases = PARKED_PHASES_DEG
         self.events: list[Event] = []
@@ -187,98 +183,92 @@ class TwoStageLoop:
         """Stage two's periphery: detect, and follow the tracked object."""
         det = self._associate(self._detect([k for k in range(9) if k != FOVEA_INDEX]))
         if det is not None:
-            self.track = det["point_mm"]
+            self.track, self.last_motion_s = det["point_mm"], self.t
+
+    def _watch(self, until_s: float) -> None:
+        """Let time pass to ``until_s``, the periphery detecting at every frame."""
+        while self.t + self.config.frame_period_s <= until_s + 1e-12:
+            self._periphery_tick()
+            self.t += self.config.frame_period_s
+        self.t = max(self.t, until_s)
 
     # -- stage two -------------------------------------------------------------------------
     def _slew(self, target_phases, why: str, watch: bool) -> None:
         """Turn the prisms; with ``watch`` the periphery keeps detecting while they turn."""
         turn = slew_deg(self.phases, target_phases)
         end = self.t + turn / self.config.prism_speed_deg_s
-        while watch and self.t + self.config.frame_period_s <= end:
-            self._periphery_tick()
-            self.t += self.config.frame_period_s
+        if watch:
+            self._watch(end)
         self.t = end
         self.phases = tuple(float(p) for p in target_phases)
         self.log("prisms_moved", f"prisms turned up to {turn:.2f} deg ({why})",
                  phases_deg=list(self.phases), turn_deg=turn)
 
-    def _point(self) -> Pointing:
-        """Steer onto the track; re-steer (at most 3 times) while the object moved during the turn."""
+    def _point(self) -> None:
+        """Steer the fovea onto the track (the prisms turn while the periphery watches)."""
         cfg = self.config
-        for attempt in range(4):
-            pointing = steer(self.system, self.track, cfg.roi_size, near_deg=self.phases,
-                             phase_difference_deg=cfg.phase_difference_deg)
-            self.log("pointed", "fovea steered onto the object: coarse phases ({:.3f}, {:.3f}) deg, "
-                     "exact ({:.3f}, {:.3f}) deg after {} Newton steps".format(
-                         *pointing.coarse_phases_deg, *pointing.phases_deg, pointing.iterations),
-                     object_mm=list(pointing.object_mm), roi=list(pointing.roi),
-                     coarse_phases_deg=list(pointing.coarse_phases_deg),
-                     phases_deg=list(pointing.phases_deg))
-            self._slew(pointing.phases_deg, "steering", watch=True)
-            moved = float(np.linalg.norm(self.track - np.asarray(pointing.object_mm)))
-            if moved <= cfg.rescan_mm or not self._in_field(self.track):
-                break
-        return pointing
+        pointing = steer(self.system, self.track, cfg.roi_size, near_deg=self.phases,
+                         phase_difference_deg=cfg.phase_difference_deg)
+        self.log("pointed", "fovea steered onto the object: coarse (paraxial) phases ({:.3f}, {:.3f}) "
+                 "deg, exact ({:.3f}, {:.3f}) deg".format(*pointing.coarse_phases_deg, *pointing.phases_deg),
+                 object_mm=list(pointing.object_mm), roi=list(pointing.roi),
+                 coarse_phases_deg=list(pointing.coarse_phases_deg),
+                 phases_deg=list(pointing.phases_deg))
+        self.pointing, self.scanned = pointing, False
+        self._slew(pointing.phases_deg, "steering", watch=True)
 
-    def _point_and_scan(self) -> None:
-        cfg = self.config
-        pointing = self._point()
+    def _scan(self) -> None:
+        cfg, pointing = self.config, self.pointing
         plan = plan_fovea_scan(self.system, cfg.h, pointing)
+        count = len(plan.phases_deg)
         start = self.t
-        self.log("scan_started", f"sub-pixel scan of {len(plan.phases_deg)} frames ({plan.source})",
-                 roi=list(pointing.roi))
-        frames = []
-        for i, phases in enumerate(plan.phases_deg.tolist()):
-            frames.append(self.device.fovea_frames(torch.tensor([phases]), pointing.roi, [self.t])[0])
-            self.phases = tuple(phases)
-            self._periphery_tick()  # the periphery keeps detecting during the scan
-            self.t += cfg.frame_period_s
-        reference = tuple(plan.phases_deg[plan.reference_index].tolist())
-        check = self.device.fovea_frames(torch.tensor([reference]), pointing.roi, [self.t])[0]
-        self.phases = reference
-        self.t += cfg.frame_period_s
-        capture = FoveaCapture(torch.stack(frames), plan.phases_deg, plan.reference_index, pointing.roi,
-                               cfg.h, pointing, start, self.t, self.system, plan_source=plan.source)
-        moved = motion_blobs(frames[plan.reference_index], check, cfg.threshold, 4 * cfg.min_area_px,
-                             cfg.blur_sigma_px)
+        times = [start + k * cfg.frame_period_s for k in range(count)]
+        self.log("scan_started", f"sub-pixel scan of {count} frames ({plan.source})", roi=list(pointing.roi))
+        stack, truth = self.device.fovea_scan(plan.phases_deg, plan.reference_index, cfg.h, pointing.roi, times)
+        self.phases = tuple(plan.phases_deg[-1].tolist())
+        self._watch(start + count * cfg.frame_period_s)  # the periphery detects during the scan
+        reference = plan.phases_deg[plan.reference_index : plan.reference_index + 1]
+        check, _ = self.device.fovea_scan(reference, 0, cfg.h, pointing.roi, [self.t])
+        self.phases = tuple(reference[0].tolist())
+        self._watch(self.t + cfg.frame_period_s)
+        capture = FoveaCapture(stack, pointing, start, self.t, plan.source, truth)
         self.captures.append(capture)
+        frames = stack.to_float()
+        moved = motion_blobs(frames[plan.reference_index], check.to_float()[0], cfg.threshold,
+                             4 * cfg.min_area_px, cfg.blur_sigma_px)
         drift = float(np.linalg.norm(self.track - np.asarray(pointing.object_mm)))
-        if not moved and drift > cfg.rescan_mm:
-            self.log("scan_discarded", f"the periphery saw the object move {drift:.2f} mm during the "
-                     "scan; scanning again", drift_mm=drift)
-            self.scanned_at = None
+        if moved or drift > cfg.rescan_mm:
+            why = ("the repeated reference frame differs" if moved
+                   else f"the periphery saw the object move {drift:.2f} mm")
+            self.log("scan_discarded", f"the object moved during the scan ({why})", drift_mm=drift)
             return
-        if moved:
-            self.log("scan_discarded", "the object moved during the scan (the repeated reference frame "
-                     "differs); scanning again", moved_px=int(sum(b.area_px for b in moved)))
-            self.scanned_at = None
+        self.scanned = True
+        self.log("scan_finished", "the object held still during the scan", frames=count)
+        if self.reconstruct_fn is None:
             return
-        self.scanned_at = np.asarray(pointing.object_mm)
-        self.log("scan_finished", "the object held still during the scan", frames=len(frames))
-        if self.reconstruct_fn is not None:
-            capture.sr = np.asarray(self.reconstruct_fn(capture), dtype=np.float32)
-            if capture.sr.shape != (cfg.h * pointing.roi[3], cfg.h * pointing.roi[2]):
-                raise HbisInputError(f"reconstruct_fn returned shape {capture.sr.shape}, expected "
-                                     f"{(cfg.h * pointing.roi[3], cfg.h * pointing.roi[2])}")
-            if not np.isfinite(capture.sr).all():
-                raise HbisInputError("reconstruct_fn returned NaN or inf")
-            self.log("super_resolved", f"super-resolved fovea {capture.sr.shape[1]} x {capture.sr.shape[0]} "
-                     f"(h = {cfg.h})", capture=len(self.captures) - 1)
+        sr = np.asarray(self.reconstruct_fn(capture), dtype=np.float32)
+        expected = (cfg.h * pointing.roi[3], cfg.h * pointing.roi[2])
+        if sr.shape != expected:
+            raise HbisInputError(f"reconstruct_fn returned shape {sr.shape}, expected {expected}")
+        if not np.isfinite(sr).all():
+            raise HbisInputError("reconstruct_fn returned NaN or inf")
+        capture.sr = sr
+        self.log("super_resolved", f"super-resolved fovea {sr.shape[1]} x {sr.shape[0]} (h = {cfg.h})",
+                 capture=len(self.captures) - 1)
 
     def _stage_two_tick(self) -> None:
         self._periphery_tick()
-        if self.track is None:
-            return
         if not self._in_field(self.track):
             self.log("object_left", "the object left the fovea's scan field",
                      point_mm=[float(x) for x in self.track])
             self._slew(parked_phases_near(self.phases), "parking", watch=False)
-            self.stage, self.track, self.scanned_at = 1, None, None
-            self.previous = None
+            self.stage, self.track, self.pointing, self.previous = 1, None, None, None
             self.log("stage_one", "back to stage one: every camera detects, the fovea parked")
             return
-        if self.scanned_at is None or np.linalg.norm(self.track - self.scanned_at) > self.config.rescan_mm:
-            self._point_and_scan()
+        if np.linalg.norm(self.track - np.asarray(self.pointing.object_mm)) > self.config.rescan_mm:
+            self._point()
+        elif not self.scanned and self.t - self.last_motion_s >= self.config.settle_s:
+            self._scan()
 
     def _stage_one_tick(self) -> None:
         detections = self._detect(range(9))
@@ -295,11 +285,13 @@ class TwoStageLoop:
         self._outside_reported = False
         self.log("detected", f"motion seen by {det['camera']} inside the fovea's scan field",
                  camera=det["camera"], point_mm=[float(x) for x in point])
-        self.stage, self.track, self.scanned_at = 2, point, None
-        self.log("stage_two", "stage two: steer the fovea and super-resolve")
+        self.stage, self.track, self.last_motion_s = 2, point, self.t
+        self.log("stage_two", "stage two: the fovea stares at the object")
+        self._point()
 
     # -- run -------------------------------------------------------------------------------
     def run(self) -> LoopResult:
+        """Run until ``config.duration_s`` of simulated time has passed."""
         self.log("start", "stage one: every camera detects, the fovea parked",
                  phases_deg=list(self.phases))
         while self.t < self.config.duration_s:
