@@ -175,3 +175,12 @@ def stitch_array(views: Tensor, array: CameraArray, binning: int, homographies: 
         homographies = design_homographies(array, binning)
     canvas = make_canvas(array, homographies, binning, scale)
     return stitch(views, homographies, canvas, feather)
+
+
+def rebin_homographies(homographies: Tensor, from_binning: int, to_binning: int) -> Tensor:
+    """The same homographies (..., 3, 3) expressed on views binned by ``to_binning`` instead of
+    ``from_binning`` (pixel centres: x_b = (x_1 + 0.5) / b - 0.5)."""
+    r = from_binning / to_binning
+    c = 0.5 * r - 0.5
+    s = torch.tensor([[r, 0.0, c], [0.0, r, c], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    return s @ homographies.double() @ torch.linalg.inv(s)
