@@ -36,6 +36,7 @@ from .plots import plot_panorama, plot_sr_pairs, plot_timeline, plot_views, save
 from .refine import refine_homographies
 from .render import ArrayRenderer
 from .scenario import default_scene
+from .scene import Trajectory
 from .sensor import periphery_sensor
 from .stitch import (apply_homography, design_homographies, rebin_homographies, stitch_array,
                      view_corners)
@@ -61,6 +62,7 @@ class ChainConfig:
     refine: bool = True
     method: str = "classical"
     model: str | None = None
+    path: Trajectory | None = None  # the moving object's path (None: scenario.default_path())
 
 
 def make_reconstruct_fn(method: str, model: str | None = None):
@@ -95,7 +97,7 @@ def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainCon
     cfg = config
     nominal = CameraArray(system, cfg.varphi_h_deg, cfg.varphi_v_deg)
     array = nominal.with_assembly_errors(cfg.assembly_sigma_deg, cfg.seed)
-    scene = default_scene(nominal, h=cfg.h)
+    scene = default_scene(nominal, h=cfg.h, path=cfg.path)
     renderer = ArrayRenderer(array, scene, periphery_sensor(SensorModel(), system.object_pixel_mm))
     b = cfg.panorama_binning
     design_h = design_homographies(array, b)

@@ -1,6 +1,7 @@
 """Refining the stitching homographies from the images, for an imperfect assembly.
 
-Each side view is matched against the fovea's (parked) view, which overlaps all eight. Features
+Each side view is matched against the fovea's (parked) view, which overlaps all eight (the
+corner views also against their two edge neighbours, with which they overlap more). Features
 are Kornia's SIFT (hand-crafted: no downloaded weights), matched by mutual nearest neighbours
 with Lowe's ratio test (``match_smnn``), pre-filtered by the design prediction (a match must
 land within ``gate_px`` of where the design homography puts it: assembly errors are small), and
@@ -71,10 +72,60 @@ def fit_rotation(src: Tensor, dst: Tensor, intrinsics: Tensor) -> Tensor:
     return u @ torch.diag(torch.tensor([1.0, 1.0, float(d)], dtype=torch.float64)) @ vh
 
 
+def _rotation_homography(src: Tensor, dst: Tensor, inliers: Tensor, intrinsics: Tensor,
+                         inlier_px: float, rounds: int = 3) -> Tensor:
+    """K R K^-1 through RANSAC's inliers, then re-fitted on the matches the rotation itself
+    explains (RANSAC's 8-parameter model accepts some a rotation cannot)."""
+    k_inv = torch.linalg.inv(intrinsics.double())
+    keep = inliers
+    for _ in range(rounds):
+        h = intrinsics.double() @ fit_rotation(src[keep], dst[keep], intrinsics) @ k_inv
+        residual = (apply_homography(h, src) - dst).norm(dim=-1)
+        new_keep = residual <= inlier_px
+        if int(new_keep.sum()) < 4 or torch.equal(new_keep, keep):
+            break
+        keep = new_keep
+    return h
+
+
+#: Side cameras matched first (each against the fovea), then the corners, each against the
+#: fovea and its two refined neighbours (the corners' overlap with the fovea alone is small).
+EDGES = ("C12", "C21", "C23", "C32")
+CORNER_NEIGHBOURS = {"C11": ("C12", "C21"), "C13": ("C12", "C23"), "C31": ("C21", "C32"),
+                     "C33": ("C23", "C32")}
+
+
+def _pair_matches(a: tuple, b: tuple, h_ab: Tensor, shape, gate_px: float, ransac: RANSAC,
+                  min_inliers: int):
+    """RANSAC-consistent matches (src in view a, dst in view b) given the predicted H a -> b,
+    or a sentence saying why there are none."""
+    xy_a, desc_a = a
+    xy_b, desc_b = b
+    keep_a = _inside(apply_homography(h_ab, xy_a), shape, gate_px)
+    keep_b = _inside(apply_homography(torch.linalg.inv(h_ab), xy_b), shape, gate_px)
+    if int(keep_a.sum()) < min_inliers or int(keep_b.sum()) < min_inliers:
+        return None, "too few features in the predicted overlap"
+    _, idx = KF.match_smnn(desc_a[keep_a], desc_b[keep_b], th=0.95)
+    src, dst = xy_a[keep_a][idx[:, 0]], xy_b[keep_b][idx[:, 1]]
+    near = (apply_homography(h_ab, src) - dst).norm(dim=-1) <= gate_px
+    src, dst = src[near], dst[near]
+    if len(src) < min_inliers:
+        return None, f"only {len(src)} consistent matches"
+    model, inliers = ransac(src.float(), dst.float())
+    count = int(inliers.sum())
+    if count < min_inliers or not torch.isfinite(model).all() or float(model.abs().sum()) == 0.0:
+        return None, f"RANSAC found {count} inliers"
+    return (src[inliers], dst[inliers]), ""
+
+
 def refine_homographies(views: Tensor, predicted: Tensor, gate_px: float = 40.0,
                         num_features: int = 1500, min_inliers: int = 20, inlier_px: float = 1.5,
                         seed: int = 0, intrinsics: Tensor | None = None) -> Refinement:
     """Estimate each side view's homography to the fovea's view from the images.
+
+    The four edge cameras are matched with the fovea; each corner camera with the fovea and
+    with its two edge neighbours, whose matches are carried into the fovea's pixel frame by
+    the neighbours' refined homographies (exact: the cameras share a centre).
 
     Parameters
     ----------
@@ -84,10 +135,10 @@ def refine_homographies(views: Tensor, predicted: Tensor, gate_px: float = 40.0,
         How far (in pixels of these views) a match may land from the prediction; set it from
         the assembly tolerance (1 deg is about f / p * 0.0175 full-resolution pixels).
     num_features, min_inliers, inlier_px, seed
-        SIFT features per view; the fewest RANSAC inliers to accept a fit; RANSAC's inlier
+        SIFT features per view; the fewest RANSAC inliers per camera pair; RANSAC's inlier
         threshold in pixels; RANSAC's random seed.
     intrinsics : Tensor (3, 3) or None
-        The views' K. Given, the final fit through RANSAC's inliers is a pure rotation
+        The views' K. Given, the final fit through the inliers is a pure rotation
         H = K R K^-1 (3 parameters: the cameras share a centre), which extrapolates far
         better beyond the small overlaps than a free homography (8 parameters, used when None).
     """
@@ -100,47 +151,33 @@ def refine_homographies(views: Tensor, predicted: Tensor, gate_px: float = 40.0,
     shape = tuple(views.shape[1:])
     detector = KF.SIFTFeature(num_features=num_features, upright=True)
     ransac = RANSAC("homography", inl_th=inlier_px, max_iter=50, seed=seed)
-    ref_xy, ref_desc = _features(views[FOVEA_INDEX], detector)
-    result = Refinement(homographies=predicted.clone().double())
-    for k, name in enumerate(CAMERA_NAMES):
-        if k == FOVEA_INDEX:
-            result.inliers.append(0)
-            result.ok.append(True)
+    features = [_features(view, detector) for view in views]
+    result = Refinement(homographies=predicted.clone().double(), inliers=[0] * 9, ok=[False] * 9)
+    result.ok[FOVEA_INDEX] = True
+    for name in EDGES + tuple(CORNER_NEIGHBOURS):
+        k = CAMERA_NAMES.index(name)
+        partners = [FOVEA_INDEX] + [CAMERA_NAMES.index(n) for n in CORNER_NEIGHBOURS.get(name, ())
+                                    if result.ok[CAMERA_NAMES.index(n)]]
+        sources, targets, why = [], [], []
+        for j in partners:
+            h_to_fovea = result.homographies[j]
+            h_kj = torch.linalg.inv(h_to_fovea) @ predicted[k].double()
+            pair, reason = _pair_matches(features[k], features[j], h_kj, shape, gate_px, ransac, min_inliers)
+            if pair is None:
+                why.append(f"{CAMERA_NAMES[j]}: {reason}")
+                continue
+            sources.append(pair[0])
+            targets.append(apply_homography(h_to_fovea, pair[1]))  # into the fovea's pixel frame
+        if not sources:
+            result.messages.append(f"{name}: no usable matches ({'; '.join(why)}); design kept")
             continue
-        xy, desc = _features(views[k], detector)
-        h_pred = predicted[k].double()
-        # Keep only features that the prediction puts inside the other view.
-        keep = _inside(apply_homography(h_pred, xy), shape, gate_px)
-        keep_ref = _inside(apply_homography(torch.linalg.inv(h_pred), ref_xy), shape, gate_px)
-        if int(keep.sum()) < min_inliers or int(keep_ref.sum()) < min_inliers:
-            result.inliers.append(0)
-            result.ok.append(False)
-            result.messages.append(f"{name}: too few features in the predicted overlap; design kept")
-            continue
-        xy_k, xy_r = xy[keep], ref_xy[keep_ref]
-        _, idx = KF.match_smnn(desc[keep], ref_desc[keep_ref], th=0.95)
-        src, dst = xy_k[idx[:, 0]], xy_r[idx[:, 1]]
-        near = (apply_homography(h_pred, src) - dst).norm(dim=-1) <= gate_px
-        src, dst = src[near], dst[near]
-        if len(src) < min_inliers:
-            result.inliers.append(int(len(src)))
-            result.ok.append(False)
-            result.messages.append(f"{name}: only {len(src)} consistent matches; design kept")
-            continue
-        model, inliers = ransac(src.float(), dst.float())
-        count = int(inliers.sum())
-        if count < min_inliers or not torch.isfinite(model).all() or float(model.abs().sum()) == 0.0:
-            result.inliers.append(count)
-            result.ok.append(False)
-            result.messages.append(f"{name}: RANSAC found {count} inliers; design kept")
-            continue
-        # Final least-squares fit through all inliers, in float64.
+        src, dst = torch.cat(sources), torch.cat(targets)
+        everything = torch.ones(len(src), dtype=torch.bool)
         if intrinsics is None:
-            h = find_homography_dlt(src[inliers][None], dst[inliers][None])[0]
+            h = find_homography_dlt(src[None], dst[None])[0]
         else:
-            h = intrinsics @ fit_rotation(src[inliers], dst[inliers], intrinsics) @ torch.linalg.inv(intrinsics)
+            h = _rotation_homography(src, dst, everything, intrinsics, inlier_px)
         result.homographies[k] = h / h[2, 2]
-        result.inliers.append(count)
-        result.ok.append(True)
+        result.inliers[k] = len(src)
+        result.ok[k] = True
     return result
-
