@@ -97,11 +97,12 @@ def render_report(summary: dict, design_report: dict, design_figures: list[str])
         f"{_fmt(s['refinement'].get('refined_error_px', float('nan')), 2)}.</p>",
         "<h2>Foveated composite</h2>",
         "<div class='pair'>",
-        _figure(img["composite"], "The panorama with the super-resolved fovea inlaid at its true place "
+        _figure(img["panorama"], "The stitched panorama as the periphery sees it."),
+        _figure(img["composite"], "The same with the super-resolved fovea inlaid at its true place "
                 "and scale (traced back through the prisms)."),
+        "</div>",
         _figure(img["composite_zoom"], f"Zoom on the fovea at one SR pixel per image pixel: the inlay "
                 f"(h = {cfg['h']}) inside the bicubically enlarged periphery."),
-        "</div>",
         _table(["", "measured", "theory / eq. 10"], [
             ["foveal ratio (sampling frequency, fovea / periphery)", s["foveal_ratio"]["measured"],
              s["foveal_ratio"]["theory"]],

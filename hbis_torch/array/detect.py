@@ -35,11 +35,13 @@ class Blob:
 
 
 def motion_blobs(previous: Tensor, current: Tensor, threshold: float = 0.06, min_area: int = 4,
-                 sigma_px: float = 1.0) -> list[Blob]:
+                 sigma_px: float = 1.0, merge_px: int = 2) -> list[Blob]:
     """Moving regions between two frames (H, W) in [0, 1], largest first.
 
     ``threshold`` should sit well above the noise of a difference of two frames (about
-    sqrt(2) x the per-frame noise, reduced by the Gaussian smoothing of ``sigma_px``).
+    sqrt(2) x the per-frame noise, reduced by the Gaussian smoothing of ``sigma_px``). Parts
+    closer than ``merge_px`` pixels count as one region: a textured object's difference image
+    breaks into fragments.
     """
     if previous.shape != current.shape or previous.ndim != 2:
         raise HbisInputError(
@@ -49,7 +51,12 @@ def motion_blobs(previous: Tensor, current: Tensor, threshold: float = 0.06, min
     diff = (current.float() - previous.float()).abs().numpy()
     if sigma_px > 0:  # scipy: small frames, no thread start-up cost
         diff = ndimage.gaussian_filter(diff, sigma_px, truncate=2.0)
-    labels, count = ndimage.label(diff > threshold)
+    mask = diff > threshold
+    if merge_px > 0:
+        grouped, count = ndimage.label(ndimage.binary_dilation(mask, iterations=merge_px))
+        labels = np.where(mask, grouped, 0)
+    else:
+        labels, count = ndimage.label(mask)
     if count == 0:
         return []
     index = np.arange(1, count + 1)

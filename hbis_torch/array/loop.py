@@ -46,6 +46,7 @@ class LoopConfig:
     gate_mm : float, a detection this close to the track belongs to the tracked object
     rescan_mm : float, re-point (and scan again) when the track moved this far from the pointing
     settle_s : float, scan once the periphery has seen no motion of the object for this long
+    aim_mm : float, before a scan, re-point if the track is this far from the pointing
     phase_difference_deg : (lo, hi), the steering window (see :mod:`.steering`)
     """
 
@@ -60,13 +61,14 @@ class LoopConfig:
     gate_mm: float = 4.0
     rescan_mm: float = 0.5
     settle_s: float = 0.1
+    aim_mm: float = 0.05
     phase_difference_deg: tuple[float, float] = PHASE_DIFFERENCE_DEG
 
     def __post_init__(self) -> None:
         if int(self.h) != self.h or self.h < 1:
             raise HbisInputError(f"h must be a positive integer, got {self.h!r}")
         for name in ("frame_period_s", "prism_speed_deg_s", "duration_s", "threshold", "gate_mm",
-                     "rescan_mm"):
+                     "rescan_mm", "aim_mm"):
             value = float(getattr(self, name))
             if not math.isfinite(value) or value <= 0:
                 raise HbisInputError(f"{name} must be a positive number, got {value!r}")
@@ -173,11 +175,22 @@ class TwoStageLoop:
         return sorted(found, key=lambda d: -d["area_px"])
 
     def _associate(self, detections: list[dict]) -> dict | None:
-        if self.track is None or not detections:
-            return detections[0] if detections else None
-        dist = [float(np.linalg.norm(d["point_mm"] - self.track)) for d in detections]
-        best = int(np.argmin(dist))
-        return detections[best] if dist[best] <= self.config.gate_mm else None
+        """The detection of the tracked object (the largest one when nothing is tracked yet):
+        the area-weighted mean of all detections near it, from every camera that saw it."""
+        if not detections:
+            return None
+        if self.track is None:
+            pick = detections[0]
+        else:
+            dist = [float(np.linalg.norm(d["point_mm"] - self.track)) for d in detections]
+            pick = detections[int(np.argmin(dist))]
+            if min(dist) > self.config.gate_mm:
+                return None
+        group = [d for d in detections
+                 if np.linalg.norm(d["point_mm"] - pick["point_mm"]) <= self.config.gate_mm]
+        weights = np.array([d["area_px"] for d in group], dtype=np.float64)
+        point = (np.stack([d["point_mm"] for d in group]) * weights[:, None]).sum(0) / weights.sum()
+        return {"camera": pick["camera"], "point_mm": point, "area_px": int(weights.sum())}
 
     def _periphery_tick(self) -> None:
         """Stage two's periphery: detect, and follow the tracked object."""
@@ -265,16 +278,18 @@ class TwoStageLoop:
             self.stage, self.track, self.pointing, self.previous = 1, None, None, None
             self.log("stage_one", "back to stage one: every camera detects, the fovea parked")
             return
-        if np.linalg.norm(self.track - np.asarray(self.pointing.object_mm)) > self.config.rescan_mm:
-            self._point()
-        elif not self.scanned and self.t - self.last_motion_s >= self.config.settle_s:
+        off = float(np.linalg.norm(self.track - np.asarray(self.pointing.object_mm)))
+        settled = self.t - self.last_motion_s >= self.config.settle_s
+        if off > self.config.rescan_mm or (settled and not self.scanned and off > self.config.aim_mm):
+            self._point()  # follow the object; once it holds still, aim precisely before the scan
+        elif settled and not self.scanned:
             self._scan()
 
     def _stage_one_tick(self) -> None:
         detections = self._detect(range(9))
         if not detections:
             return
-        det = detections[0]
+        det = self._associate(detections)
         point = det["point_mm"]
         if not self._in_field(point):
             if not self._outside_reported:
