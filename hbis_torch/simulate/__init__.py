@@ -8,6 +8,7 @@ Main entry points::
 docs/data.md describes the model and the output-grid convention.
 """
 
+from .dataset import DatasetConfig, SameHBatchSampler, SyntheticStacks
 from .forward import RenderedScan, render_scan
 from .geometry import landing_on_grid, sample_positions
 from .psf import airy_otf, airy_psf, blur_transfer, lens_otf
@@ -32,6 +33,9 @@ __all__ = [
     "BUILTIN_SCENES",
     "PHOTOS",
     "BarTarget",
+    "DatasetConfig",
+    "SameHBatchSampler",
+    "SyntheticStacks",
     "EdgesScene",
     "FlatScene",
     "GradientScene",

@@ -43,6 +43,7 @@ def simulate_stack(
     seed: int = 0,
     phase_error_deg: float = 0.0,
     oversample: int = 8,
+    margin_px: float = 4.0,
 ) -> tuple[Stack, np.ndarray]:
     """Simulate the stack a scan of ``scene`` records, and its ground truth.
 
@@ -66,6 +67,8 @@ def simulate_stack(
         ones (the true ones go to ``meta["simulation"]["true_phases_deg"]``).
     oversample : int
         Fine-grid points per sensor pixel of the forward model (see render_scan).
+    margin_px : float
+        Forward-model margin around the frames, pixels (see render_scan and docs/data.md).
 
     Returns
     -------
@@ -86,7 +89,7 @@ def simulate_stack(
         jitter[reference] = 0.0
         true_phases = phases + jitter
     rendered = render_scan(scene, system, true_phases, reference, h, roi, sensor,
-                           oversample=oversample, return_positions=False)
+                           oversample=oversample, margin_px=margin_px, return_positions=False)
     frames = expose(rendered.irradiance, sensor, generator)
     placed = rendered.scene
     record = {
@@ -96,6 +99,7 @@ def simulate_stack(
         "sensor": sensor.to_dict(),
         "seed": int(seed),
         "oversample": int(oversample),
+        "margin_px": float(margin_px),
         "phase_error_deg": float(phase_error_deg),
     }
     if phase_error_deg:
