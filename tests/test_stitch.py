@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from hbis_torch.array.cameras import CAMERA_NAMES, CameraArray
-from hbis_torch.array.coverage import largest_rectangle, measure_fer
+from hbis_torch.array.coverage import assembly_fer_study, largest_rectangle, measure_fer
 from hbis_torch.array.refine import fit_rotation, refine_homographies
 from hbis_torch.array.render import ArrayRenderer
 from hbis_torch.array.scenario import default_scene
@@ -118,6 +118,16 @@ def test_fer_from_the_stitched_coverage_matches_the_design():
     fer2 = measure_fer(stitch(torch.zeros(9, *ARRAY.view_shape(b)), h2, canvas2).coverage, canvas2,
                        ARRAY.system.camera)
     assert fer["central"].fov_h_deg - fer2["central"].fov_h_deg == pytest.approx(6.0, abs=0.2)
+
+
+def test_assembly_errors_shrink_the_covered_rectangle():
+    perfect = assembly_fer_study(ARRAY, 0.0, seeds=[0])
+    theory = design(ARRAY.system, 15.0, 10.0)
+    assert perfect["central_fer_h_mean"] == pytest.approx(theory.fer_h, abs=0.01)
+    assert perfect["central_fer_v_mean"] == pytest.approx(theory.fer_v, abs=0.01)
+    bent = assembly_fer_study(ARRAY, 1.5, seeds=range(4))
+    assert bent["rectangle_fer_v_mean"] < perfect["rectangle_fer_v_mean"] - 0.05
+    assert bent["rectangle_fer_h_min"] < perfect["rectangle_fer_h_mean"]
 
 
 def test_largest_rectangle():

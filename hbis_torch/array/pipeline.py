@@ -7,7 +7,8 @@
 3. The two-stage loop (:mod:`.loop`) on detection frames (``detection_binning``), super-resolving
    with ``reconstruct(stack, method)``.
 4. At the time of the kept scan: the panorama (design and refined homographies), FER from its
-   coverage, the foveated composite, the foveal ratio and the BSR from the data volumes.
+   coverage (and over random assemblies, :func:`.coverage.assembly_fer_study`), the foveated
+   composite, the foveal ratio and the BSR from the data volumes.
 5. Images and figures into ``out_dir``; a summary dict (numbers, relative paths, event log).
 
 Views are binned (stated in the summary): the panorama's pixels are ``panorama_binning`` sensor
@@ -29,7 +30,7 @@ from ..errors import HbisInputError
 from ..simulate import SensorModel
 from .cameras import CAMERA_NAMES, CameraArray
 from .composite import Inlay, composite, inlay_outline
-from .coverage import measure_fer
+from .coverage import assembly_fer_study, measure_fer
 from .device import SimulatedHBIS
 from .loop import FoveaCapture, LoopConfig, TwoStageLoop
 from .plots import plot_panorama, plot_sr_pairs, plot_timeline, plot_views, save_png
@@ -144,6 +145,7 @@ def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainCon
     fer = measure_fer(pano.coverage, pano.canvas, system.camera)
     fer_design = measure_fer(pano_design.coverage, pano_design.canvas, system.camera)
     theory = design(system, cfg.varphi_h_deg, cfg.varphi_v_deg, h=cfg.h)
+    study = [assembly_fer_study(nominal, sigma) for sigma in sorted({0.0, cfg.assembly_sigma_deg, 1.5})]
     lap("panorama")
 
     stack = capture.stack
@@ -203,6 +205,7 @@ def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainCon
             "theory": {"fer_h": theory.fer_h, "fer_v": theory.fer_v, "fov_h_deg": theory.fov_h_deg,
                        "fov_v_deg": theory.fov_v_deg},
             "paper_prototype_measured": PAPER_MEASURED_FER,
+            "assembly_study": study,
         },
         "foveal_ratio": {"measured": ratio, "theory": cfg.h},
         "bandwidth": volumes,

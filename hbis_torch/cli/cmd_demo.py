@@ -44,6 +44,8 @@ def register(sub) -> None:
     p.add_argument("--threads", type=int, default=1,
                    help="torch threads (default: 1; the chain is many small tensor operations, for which "
                    "thread hand-offs cost more than they save)")
+    p.add_argument("--figure-sets", nargs="*", choices=sorted(FIGURE_SETS), default=None,
+                   help="figure sets to draw (default: all, as hbis figures does)")
     p.add_argument("--design-only", action="store_true", help="only the design report and figures")
     p.set_defaults(func=run)
 
@@ -74,10 +76,33 @@ def _print_system(s: dict) -> None:
     print(f"  events            {len(s['events'])}, SR scans kept {s['loop']['kept']} of {s['loop']['captures']}")
 
 
-def run(args) -> int:
+def _run(args):
+    """Design report and figures, then (unless --design-only) the chain and the HTML page."""
     from ..array.pipeline import ChainConfig, run_chain
     from ..report import write_report
 
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    system = System()
+    report = design(system).to_dict()
+    prototype = design(system, varphi_h_deg=15.0, varphi_v_deg=10.0, h=4).to_dict()
+    sets = list(FIGURE_SETS) if args.figure_sets is None else args.figure_sets
+    figures = [str(p) for name in sets for p in FIGURE_SETS[name](out / "figures", system)]
+    summary = {"design_at_limits": report, "prototype_15_10_h4": prototype, "figures": figures}
+    _print_design(report, prototype)
+    if args.design_only:
+        return summary, None
+    config = ChainConfig(h=args.h, roi_size=args.roi, seed=args.seed, refine=not args.no_refine,
+                         assembly_sigma_deg=args.assembly_error_deg, method=args.method, model=args.model)
+    system_summary = run_chain(out, system, config)
+    summary["system"] = system_summary
+    relative = [str(Path(f).relative_to(out)) for f in figures]
+    page = write_report(out, system_summary, report, relative)
+    _print_system(system_summary)
+    return summary, page
+
+
+def run(args) -> int:
     if args.method not in _methods():
         raise HbisInputError(f"unknown method {args.method!r}; available: {', '.join(_methods())}")
     if args.model is not None and not Path(args.model).is_file():
@@ -85,31 +110,16 @@ def run(args) -> int:
     if args.threads < 1:
         raise HbisInputError(f"--threads must be at least 1, got {args.threads}")
     start = time.perf_counter()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(args.threads)
+    try:
+        summary, page = _run(args)
+    finally:
+        torch.set_num_threads(threads)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    system = System()
-    report = design(system).to_dict()
-    prototype = design(system, varphi_h_deg=15.0, varphi_v_deg=10.0, h=4).to_dict()
-    figures = [str(p) for make in FIGURE_SETS.values() for p in make(out / "figures", system)]
-    summary = {"design_at_limits": report, "prototype_15_10_h4": prototype, "figures": figures}
-    _print_design(report, prototype)
-    if not args.design_only:
-        threads = torch.get_num_threads()
-        torch.set_num_threads(args.threads)
-        try:
-            config = ChainConfig(h=args.h, roi_size=args.roi, seed=args.seed, refine=not args.no_refine,
-                                 assembly_sigma_deg=args.assembly_error_deg, method=args.method,
-                                 model=args.model)
-            system_summary = run_chain(out, system, config)
-        finally:
-            torch.set_num_threads(threads)
-        summary["system"] = system_summary
-        relative = [str(Path(f).relative_to(out)) for f in figures]
-        page = write_report(out, system_summary, report, relative)
-        _print_system(system_summary)
     summary["elapsed_s"] = round(time.perf_counter() - start, 1)
     atomic_write_text(out / "report.json", json.dumps(summary, indent=2, default=str))
-    print(f"wrote {out / 'report.json'} and {len(figures)} figures under {out / 'figures'}")
+    print(f"wrote {out / 'report.json'} and {len(summary['figures'])} figures under {out / 'figures'}")
     if not args.design_only:
         print(f"wrote the report {page} ({summary['elapsed_s']:.0f} s)")
     return 0
