@@ -238,3 +238,11 @@ def test_truth_pooled_h_by_h_is_the_reference_frame(h):
     reference = out.irradiance[plan.reference_index]
     assert float(reference.std()) > 0.05
     assert float((pooled - reference).abs().max()) < 2e-4
+
+
+def test_simulate_stack_takes_a_scene_name():
+    stack, truth = simulate_stack("bars", SYSTEM, 2, (100, 100, 20, 12), SensorModel(noise=False), seed=3)
+    assert stack.meta["simulation"]["scene"] == "bars" and truth.shape == (24, 40)
+    assert np.ptp(truth) > 0.3
+    with pytest.raises(HbisInputError, match="scene must be"):
+        simulate_stack(42, SYSTEM, 2, (100, 100, 20, 12))

@@ -109,8 +109,8 @@ def default_roi(camera) -> tuple[int, int, int, int]:
 def run(args) -> int:
     from ..optics import check_roi
     from ..scan import plan_scan
-    from ..simulate import SceneSpec, SensorModel, load_scene, simulate_stack
-    from ..simulate.forward import grid_factor
+    from ..simulate import SensorModel, simulate_stack
+    from ..simulate.stacks import scene_for_roi
     from ..stack_io import write_image, write_stack
 
     system = system_from_args(args)
@@ -134,14 +134,10 @@ def run(args) -> int:
         noise=not args.no_noise,
     )
     plan = plan_scan(system, args.h, args.phases_deg, method=args.method)
-    pixel_mm = system.object_pixel_mm
-    border = 2 * (args.margin_px + 4)
-    spec = SceneSpec(((roi[2] + border) * pixel_mm, (roi[3] + border) * pixel_mm), pixel_mm,
-                     pixel_mm / (args.h * grid_factor(args.h, args.oversample)))
     size = args.scene_size_mm
     if size is not None and len(size) == 1:
         size = size[0]
-    scene = load_scene(args.scene, spec, seed=args.seed, size_mm=size)
+    scene = scene_for_roi(args.scene, system, roi, args.h, args.seed, size, args.margin_px, args.oversample)
     stack, truth = simulate_stack(scene, system, plan, roi, sensor, seed=args.seed,
                                   phase_error_deg=args.phase_error_deg, oversample=args.oversample,
                                   margin_px=args.margin_px)

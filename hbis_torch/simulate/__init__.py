@@ -27,7 +27,7 @@ from .scenes import (
     load_scene,
 )
 from .sensor import SensorModel, expose
-from .stacks import simulate_stack
+from .stacks import scene_for_roi, simulate_stack
 
 __all__ = [
     "BUILTIN_SCENES",
@@ -55,5 +55,6 @@ __all__ = [
     "load_scene",
     "render_scan",
     "sample_positions",
+    "scene_for_roi",
     "simulate_stack",
 ]

@@ -149,6 +149,19 @@ def _photo_scene(name: str, region_mm: tuple[float, float], pixel_mm: float, rng
 
 
 @dataclass
+class RenderedItem:
+    """One item before it becomes tensors: its draw, phases, noise-free render and frames."""
+
+    draw: "Draw"
+    phases: torch.Tensor  # (F, 2) planned (recorded) phases, degrees
+    true_phases: torch.Tensor  # (F, 2) phases rendered (planned + error)
+    reference_index: int
+    rendered: object  # RenderedScan of the true phases
+    measured_positions: torch.Tensor  # (F, H, W, 2) roi-local, from the planned phases
+    frames: np.ndarray  # (F, H, W) stored frames (uint8/uint16)
+
+
+@dataclass
 class Draw:
     """Everything drawn for one item (kept for the validation set's index)."""
 
@@ -242,8 +255,8 @@ class SyntheticStacks(Dataset):
         detail = pixel_mm / (draw.h * grid_factor(draw.h))
         return BUILTIN_SCENES[draw.scene](SceneSpec(region, pixel_mm, detail), rng)
 
-    def render(self, index: int):
-        """(Draw, planned phases, reference index, rendered scan, noisy frames) of item ``index``."""
+    def render(self, index: int) -> RenderedItem:
+        """Item ``index`` rendered and exposed (see :class:`RenderedItem`)."""
         cfg = self.config
         draw = self.draw(index)
         scene = self.scene(draw)
@@ -261,11 +274,10 @@ class SyntheticStacks(Dataset):
         both = sample_positions(cfg.system, torch.cat((true_phases, phases)), plan.reference_index, draw.roi)
         rendered = render_scan(scene, cfg.system, true_phases, plan.reference_index, draw.h, draw.roi,
                                draw.sensor, margin_px=cfg.margin_px, positions=both[:n])
-        rendered.measured_positions = both[n:]
         rendered.irradiance.mul_(draw.exposure)
         rendered.truth.mul_(draw.exposure)
         frames = expose(rendered.irradiance, draw.sensor, generator)
-        return draw, phases, true_phases, plan.reference_index, rendered, frames
+        return RenderedItem(draw, phases, true_phases, plan.reference_index, rendered, both[n:], frames)
 
     def __getitem__(self, index: int) -> dict:
         """One training item.
@@ -283,16 +295,17 @@ class SyntheticStacks(Dataset):
             full_well_e, read_noise_e, exposure : float32 scalars (the noise drawn).
         """
         cfg = self.config
-        draw, phases, true_phases, reference, rendered, frames = self.render(index)
+        item = self.render(index)
+        draw = item.draw
         return {
-            "frames": normalise(frames, draw.sensor),
-            "positions": rendered.measured_positions.float(),
-            "true_positions": rendered.positions.float(),
-            "truth": rendered.truth,
-            "reference_index": torch.tensor(reference),
+            "frames": normalise(item.frames, draw.sensor),
+            "positions": item.measured_positions.float(),
+            "true_positions": item.rendered.positions.float(),
+            "truth": item.rendered.truth,
+            "reference_index": torch.tensor(item.reference_index),
             "h": torch.tensor(draw.h),
             "roi": torch.tensor(draw.roi),
-            "phases_deg": phases.clone(),
+            "phases_deg": item.phases.clone(),
             "full_well_e": torch.tensor(draw.sensor.full_well_e, dtype=torch.float32),
             "read_noise_e": torch.tensor(draw.sensor.read_noise_e, dtype=torch.float32),
             "exposure": torch.tensor(draw.exposure, dtype=torch.float32),
@@ -301,14 +314,15 @@ class SyntheticStacks(Dataset):
     def stack(self, index: int) -> tuple[Stack, np.ndarray, Draw]:
         """Item ``index`` as an hbis-stack/1 Stack (integer frames), its truth, and its draw."""
         cfg = self.config
-        draw, phases, true_phases, reference, rendered, frames = self.render(index)
+        item = self.render(index)
+        draw = item.draw
         record = {"dataset_seed": cfg.seed, "index": int(index), **draw.to_dict()}
-        if true_phases is not phases:
-            record["true_phases_deg"] = true_phases.tolist()
-        meta = make_meta(cfg.system, draw.h, draw.roi, phases.numpy(), bit_depth=draw.sensor.bit_depth,
-                         reference_index=reference, black_level=draw.sensor.black_level_dn,
+        if item.true_phases is not item.phases:
+            record["true_phases_deg"] = item.true_phases.tolist()
+        meta = make_meta(cfg.system, draw.h, draw.roi, item.phases.numpy(), bit_depth=draw.sensor.bit_depth,
+                         reference_index=item.reference_index, black_level=draw.sensor.black_level_dn,
                          simulation=record)
-        return Stack(frames, meta).validate("synthetic stack"), rendered.truth.numpy(), draw
+        return Stack(item.frames, meta).validate("synthetic stack"), item.rendered.truth.numpy(), draw
 
 
 class SameHBatchSampler(Sampler):

@@ -50,20 +50,21 @@ def _check_size(size_mm) -> Size:
     return (w, h)
 
 
-def box_step(t: Tensor, width) -> Tensor:
-    """A unit step at t = 0 averaged over a window of ``width`` centred on t (exact in 1-D)."""
-    if width is None or (not torch.is_tensor(width) and width <= 0):
-        return (t >= 0).to(t.dtype)
-    return torch.clamp(0.5 + t / width, 0.0, 1.0)
-
-
 def box_interval(t: Tensor, half, width) -> Tensor:
-    """The indicator of |t| <= half averaged over a window of ``width`` centred on t (exact)."""
-    if width is None or (not torch.is_tensor(width) and width <= 0):
+    """The indicator of |t| <= half averaged over a window of ``width`` centred on t (exact).
+
+    ``half`` is a number or a tensor like ``t``; ``width`` None or 0 gives the indicator itself.
+    The average is the length of [t - width/2, t + width/2] inside [-half, half], over width,
+    written with the indicator's integral ``P(z) = clamp(z + half, 0, 2 half)``.
+    """
+    if not width:
         return (t.abs() <= half).to(t.dtype)
-    lo = torch.clamp(t + 0.5 * width + half, min=0.0)
-    hi = torch.clamp(t - 0.5 * width + half, min=0.0)
-    return (torch.minimum(lo, 2 * half + 0 * lo) - torch.minimum(hi, 2 * half + 0 * hi)) / width
+    full = torch.as_tensor(2 * half, dtype=t.dtype)
+
+    def integral(z):
+        return torch.minimum(torch.clamp(z + half, min=0.0), full)
+
+    return (integral(t + 0.5 * width) - integral(t - 0.5 * width)) / width
 
 
 def square_edge_coverage(t: Tensor, angle_rad, side: float | None) -> Tensor:
