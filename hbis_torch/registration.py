@@ -429,8 +429,11 @@ class _LucasKanade:
         eye = 1e-12 * torch.eye(k, dtype=torch.float64)
         Hk = init.clone()
         converged = torch.zeros(F, dtype=torch.bool)
+        # A frame whose step exceeds 2 px, or that wanders over 3 px from its start, has no basin
+        # to converge in: it is left where it is (and flagged by the caller).
+        diverged = torch.zeros(F, dtype=torch.bool)
         for _ in range(iterations):
-            active = (~converged).nonzero()[:, 0]
+            active = (~(converged | diverged)).nonzero()[:, 0]
             r, _, w, _ = self.residual(coefficients[active], Hk[active],
                                        None if keep is None else keep[active])
             hess = _normal_matrix(w, sd)
@@ -439,8 +442,11 @@ class _LucasKanade:
             # i.e. H <- W(dp) H, with W expressed in normalised coordinates.
             upd = self.norm_inv @ _params_to_matrix(dp, model) @ self.norm @ Hk[active]
             Hk[active] = upd / upd[:, 2:3, 2:3]
-            converged[active] = self.motion_px(dp, model) < tol
-            if bool(converged.all()):
+            move = self.motion_px(dp, model)
+            converged[active] = move < tol
+            wandered = lk_motion_difference(Hk[active], init[active], self.H, self.W, None)
+            diverged[active] = ~torch.isfinite(move) | (move > 2.0) | (wandered > 3.0)
+            if bool((converged | diverged).all()):
                 break
         r, mask, w, sigma = self.residual(coefficients, Hk, keep)
         hess = _normal_matrix(w, sd)
@@ -473,21 +479,20 @@ class _LucasKanade:
         grown = torch.nn.functional.max_pool2d(bad.reshape(F, 1, 8, 8).to(r.dtype), 3, 1, 1)
         return fraction, grown.reshape(F, -1).bool().gather(1, tiles) & mask
 
-    def score_test(self, fit: _Fit, model: str, corr_area: float, skip: int) -> tuple[float, float]:
+    def score_test(self, fit: _Fit, model: str, corr_area: float, use: Tensor) -> tuple[float, float]:
         """What one Gauss-Newton step of a richer ``model`` would gain from ``fit``'s solution.
 
-        Returns (BIC gain summed over frames, largest extra motion in px over the frames);
-        a positive gain means the richer model explains enough more to pay for its parameters.
+        Returns (BIC gain summed over the frames in ``use`` (F,) bool, largest extra motion in px
+        over them); the gain is compared with the extra parameters' penalty by the caller.
         """
         sd = self.steepest[model]
         hess = _normal_matrix(fit.weights, sd)
         grad = (fit.weights * fit.residual) @ sd
         dp = torch.linalg.solve(hess + 1e-12 * torch.eye(sd.shape[1], dtype=torch.float64), grad)
         drop = (dp * grad).sum(-1).clamp_min(0)
-        keep = torch.arange(len(dp)) != skip
         n_eff = (fit.n_valid / corr_area).clamp_min(1.0)
         gain = n_eff * torch.log(fit.rss / (fit.rss - drop).clamp_min(1e-300))
-        return float(gain[keep].sum()), float(self.motion_px(dp, model)[keep].max())
+        return float(gain[use].sum()), float(self.motion_px(dp, model)[use].max())
 
 
 def _normal_matrix(w: Tensor, sd: Tensor) -> Tensor:
@@ -504,18 +509,17 @@ def _robust_scale(r: Tensor, mask: Tensor) -> Tensor:
     return (1.4826 * mad).nan_to_num(1.0).clamp_min(1e-12)
 
 
-def _bic(fit: _Fit, k: int, corr_area: float, skip: int) -> float:
-    """Bayesian information criterion of a fit, summed over frames (lower is better)."""
+def _bic(fit: _Fit, k: int, corr_area: float, use: Tensor) -> float:
+    """Bayesian information criterion of a fit, summed over the frames in ``use`` (lower is
+    better), with the effective number of independent residuals n / corr_area."""
     n_eff = (fit.n_valid / corr_area).clamp_min(k + 1.0)
     per_frame = n_eff * torch.log(fit.rss.clamp_min(1e-300) / fit.n_valid.clamp_min(1)) + k * torch.log(n_eff)
-    keep = torch.arange(len(per_frame)) != skip
-    return float(per_frame[keep].sum())
+    return float(per_frame[use].sum())
 
 
-def _penalty(fit: _Fit, k_extra: int, corr_area: float, skip: int) -> float:
+def _penalty(fit: _Fit, k_extra: int, corr_area: float, use: Tensor) -> float:
     n_eff = (fit.n_valid / corr_area).clamp_min(2.0)
-    keep = torch.arange(len(n_eff)) != skip
-    return float(k_extra * torch.log(n_eff[keep]).sum())
+    return float(k_extra * torch.log(n_eff[use]).sum())
 
 
 # --------------------------------------------------------------------------- coarse start
@@ -656,15 +660,19 @@ def register_stack(
     if bool((mismatch > 0).any()):
         keep = ~fit.mismatch_points
         fit = lk.fit(coefficients, fit.homographies, chosen, iterations, tolerance_px, keep)
-    if model == "auto" and F > 1:
+    # The model is chosen on the frames that registered sensibly (converged, residual about
+    # what the frame's contrast allows), not on the failures flagged below.
+    use = fit.converged & (fit.sigma < MISMATCH_RESIDUAL) & ~flat
+    use[ref] = False
+    if model == "auto" and bool(use.any()):
         for richer in MODELS[1:]:
             extra = N_PARAMS[richer] - N_PARAMS[chosen]
-            gain, moved = lk.score_test(fit, richer, corr_area, ref)
-            if gain <= _penalty(fit, extra, corr_area, ref) or moved <= motion_tolerance_px:
+            gain, moved = lk.score_test(fit, richer, corr_area, use)
+            if gain <= _penalty(fit, extra, corr_area, use) or moved <= motion_tolerance_px:
                 continue
             trial = lk.fit(coefficients, fit.homographies, richer, iterations, tolerance_px, keep)
-            moved = float(lk_motion_difference(trial.homographies, fit.homographies, H, W, ref))
-            if _bic(trial, N_PARAMS[richer], corr_area, ref) < _bic(fit, N_PARAMS[chosen], corr_area, ref) \
+            moved = float(lk_motion_difference(trial.homographies, fit.homographies, H, W, use))
+            if _bic(trial, N_PARAMS[richer], corr_area, use) < _bic(fit, N_PARAMS[chosen], corr_area, use) \
                     and moved > motion_tolerance_px:
                 chosen, fit = richer, trial
 
@@ -750,12 +758,12 @@ def _assess(fit: _Fit, model: str, flat: Tensor, noise: Tensor, ref: int, H: int
     return confidence.clamp(0, 1), messages
 
 
-def lk_motion_difference(a: Tensor, b: Tensor, H: int, W: int, skip: int) -> Tensor:
-    """Largest distance (px) between where two sets of homographies send the frame's corners."""
+def lk_motion_difference(a: Tensor, b: Tensor, H: int, W: int, use: Tensor | None) -> Tensor:
+    """Distance (px) between where two sets of homographies send the frame's corners: the
+    largest over the frames in ``use`` (F,) bool, or per frame (F,) when ``use`` is None."""
     corners = torch.tensor([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], dtype=torch.float64)
     d = (apply_homography(a, corners) - apply_homography(b, corners)).norm(dim=-1).amax(-1)
-    d[skip] = 0
-    return d.max()
+    return d if use is None else d[use].max()
 
 
 def _precision_px(fit: _Fit, model: str, H: int, W: int, corr_area: float) -> Tensor:

@@ -37,6 +37,11 @@ from torch import Tensor
 
 from ..errors import HbisInputError
 
+# The deblurring never trusts the data more than this noise level (intensity units, [0, 1]):
+# below it the model's own errors (the periodic-border split, the prior, positions known to
+# ~1e-3 px) dominate, and a sharper filter would amplify them near the aperture's zeros.
+NOISE_FLOOR = 2e-3
+
 __all__ = [
     "classical_sr",
     "optical_sample_positions",
@@ -194,7 +199,7 @@ def wiener_deblur(
     aperture: float = 1.0,
     cutoff: float | None = None,
     strength: float = 1.0,
-    aliases: int = 2,
+    aliases: int = 1,
 ) -> Tensor:
     """Wiener (MMSE linear) estimate of the p/h sensor's image from the interpolated one.
 
@@ -248,35 +253,68 @@ def wiener_deblur(
     fx = torch.fft.rfftfreq(p.shape[1], dtype=image.dtype)[None, :]
     spectrum = torch.fft.rfft2(p) / (splat_transfer(fx, kernel_sigma) * splat_transfer(fy, kernel_sigma))
 
-    s2, beta = fit_power_law(spectrum, fx, fy, h, noise, aperture)
-    cross = torch.zeros_like(spectrum)
-    power = torch.zeros_like(fx * fy)
+    # Per alias k: |K|, W, the lattice phase, and |f + k|^2.
     eps2 = (0.5 / max(p.shape)) ** 2  # keeps the prior finite at f = 0
+    terms = []
     for ky in range(-aliases, aliases + 1):
         for kx in range(-aliases, aliases + 1):
             gx, gy = fx + kx, fy + ky
-            r2 = gx * gx + gy * gy
+            r2 = gx * gx + gy * gy + eps2
             optics = torch.ones_like(r2)
             if cutoff is not None:
                 optics = diffraction_otf(torch.sqrt(r2) * h / cutoff)
             k_mag = optics * _box(gx, h * aperture) * _box(gy, h * aperture)
             w = optics * _box(gx, aperture) * _box(gy, aperture)
             phase = torch.exp(-2j * math.pi * (gx * offset[0] + gy * offset[1]))
-            prior = s2 * (r2 + eps2) ** (-beta / 2)
-            cross = cross + prior * w * k_mag * phase
-            power = power + prior * k_mag * k_mag
-    filt = cross / (power + strength * noise ** 2)
-    return torch.fft.irfft2(spectrum * filt, s=p.shape) + smooth
+            terms.append((k_mag, w, phase, r2))
+    if h == 1:  # nothing to deblur: only the splat's smoothing is undone
+        return torch.fft.irfft2(spectrum, s=p.shape) + shift_image(smooth, offset)
+    noise2 = max(noise, NOISE_FLOOR) ** 2
+    s2, beta = fit_spectrum(spectrum, fx, fy, terms, noise2)
+    priors = [s2 * torch.exp(-0.5 * beta * torch.log(r2)) for _, _, _, r2 in terms]
+    # Where the image holds more power than the power law explains (a grating, a texture), the
+    # prior of the unaliased frequency is raised to what is measured (power smoothed over 3 x 3
+    # frequencies, less the noise and the aliases' share), as long as the aperture passes it.
+    centre = len(terms) // 2
+    k0 = terms[centre][0]
+    measured = torch.nn.functional.avg_pool2d(
+        (spectrum.abs() ** 2 / (p.shape[0] * p.shape[1]))[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
+    aliased = sum(prior * t[0] ** 2 for i, (prior, t) in enumerate(zip(priors, terms)) if i != centre)
+    seen = (k0 * k0).expand_as(measured)
+    empirical = (measured - noise2 - aliased).clamp_min(0) / seen.clamp_min(1e-12)
+    priors[centre] = torch.where(seen > 0.05, torch.maximum(priors[centre], empirical), priors[centre])
+    cross = torch.zeros_like(spectrum)
+    power = torch.zeros_like(measured)
+    for prior, (k_mag, w, phase, _) in zip(priors, terms):
+        cross = cross + prior * w * k_mag * phase
+        power = power + prior * k_mag * k_mag
+    filt = cross / (power + strength * noise2)
+    return torch.fft.irfft2(spectrum * filt, s=p.shape) + shift_image(smooth, offset)
 
 
-def fit_power_law(spectrum: Tensor, fx: Tensor, fy: Tensor, h: int, noise: float,
-                  aperture: float = 1.0) -> tuple[float, float]:
-    """Fit the scene's power spectrum s^2 / |f|^beta to an interpolated image.
+def shift_image(image: Tensor, offset: tuple[float, float]) -> Tensor:
+    """A smooth image whose node j sits at coordinate j + offset, resampled at the integer
+    coordinates (that is, at nodes j - offset): cubic B-spline, mirrored borders."""
+    if offset == (0.0, 0.0):
+        return image
+    from ..registration import bspline_sample, prefilter
 
-    Inside the sensor's own band (|f| < 1/(2h) cycles per HR px) the image is the scene through
-    the LR pixel's aperture, with little aliasing; there, in log-spaced rings,
-    log(|image|^2 / n - noise^2) - log|aperture|^2 = log s^2 - beta log|f| is fitted by least
-    squares. beta is kept within [1.5, 4] (natural images: about 2 to 3).
+    rows, cols = image.shape
+    _, coefficients = prefilter(image[None])
+    vv, uu = torch.meshgrid(torch.arange(rows, dtype=image.dtype), torch.arange(cols, dtype=image.dtype),
+                            indexing="ij")
+    points = torch.stack((uu - offset[0], vv - offset[1]), -1).reshape(1, -1, 2)
+    return bspline_sample(coefficients, points).reshape(rows, cols)
+
+
+def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, terms, noise2: float) -> tuple[float, float]:
+    """Fit the scene prior s^2 / |f|^beta to an image's power spectrum, the noise being known.
+
+    The model of the (splat-corrected) image's power is E|Z(f)|^2 / n = s^2 S_beta(f) + sigma^2
+    with S_beta(f) = sum_k |K(f+k)|^2 / |f+k|^beta (``terms`` holds |K| and |f+k|^2 per alias).
+    In log-spaced frequency rings where the image stands clear of the noise (twice its power),
+    log(power - sigma^2) - log S_beta is fitted by a constant (log s^2); the beta of a grid over
+    [1.5, 4] with the smallest scatter is kept.
 
     Returns
     -------
@@ -284,29 +322,36 @@ def fit_power_law(spectrum: Tensor, fx: Tensor, fy: Tensor, h: int, noise: float
     """
     rows, half = spectrum.shape
     cols = 2 * (half - 1) if half > 1 else 1
-    n = rows * cols
-    rad = torch.sqrt(fx * fx + fy * fy).expand(spectrum.shape)
-    transfer = (_box(fx, h * aperture) * _box(fy, h * aperture)).expand(spectrum.shape) ** 2
-    excess = spectrum.abs() ** 2 / n - noise ** 2
-    lo, hi = 2.0 / max(rows, cols), 0.5 / h
-    edges = torch.logspace(math.log10(lo), math.log10(hi), 13, dtype=rad.dtype)
-    xs, ys = [], []
-    for a, b in zip(edges[:-1], edges[1:]):
-        ring = (rad >= a) & (rad < b)
-        if int(ring.sum()) < 4:
-            continue
-        level = float((excess[ring] / transfer[ring]).mean())
-        if level > 0:
-            xs.append(math.log(float(rad[ring].mean())))
-            ys.append(math.log(level))
-    if len(xs) < 3:
-        level = max(float((excess / transfer.clamp_min(1e-3)).mean()), 1e-12)
-        return level * 0.01 ** 2, 2.0  # too small an image to fit: a 1/f^2 law
-    x, y = torch.tensor(xs, dtype=torch.float64), torch.tensor(ys, dtype=torch.float64)
-    slope = float(((x - x.mean()) * (y - y.mean())).sum() / ((x - x.mean()) ** 2).sum())
-    beta = min(max(-slope, 1.5), 4.0)
-    s2 = math.exp(float((y + beta * x).mean()))
-    return s2, beta
+    measured = (spectrum.abs() ** 2 / (rows * cols)).reshape(-1)
+    rad = torch.sqrt(fx * fx + fy * fy).expand(spectrum.shape).reshape(-1)
+    edges = torch.logspace(math.log10(1.5 / max(rows, cols)), math.log10(0.71), 25, dtype=rad.dtype)
+    ring = torch.bucketize(rad, edges) - 1  # -1 and 24: outside the rings
+    inside = (ring >= 0) & (ring < 24)
+    count = torch.bincount(ring[inside], minlength=24)
+    m = torch.bincount(ring[inside], measured[inside], minlength=24) / count.clamp_min(1)
+    # The model's shape is smooth in frequency: evaluate it on a subsample (about 16k points).
+    stride = max(1, int(math.sqrt(rad.numel() / 16384)))
+    pick = torch.arange(0, rad.numel(), stride)
+    pick = pick[inside[pick]]
+    sub_ring = ring[pick]
+    sub_count = torch.bincount(sub_ring, minlength=24)
+    k2 = [(t[0] * t[0]).expand(spectrum.shape).reshape(-1)[pick] for t in terms]
+    log_r2 = [torch.log(t[3].expand(spectrum.shape).reshape(-1)[pick]) for t in terms]
+    clear = (count >= 8) & (sub_count >= 1) & (m > 2 * noise2)
+    if int(clear.sum()) < 3:  # the image is mostly noise: a weak 1/f^2 prior
+        shape = sum(a * torch.exp(-b) for a, b in zip(k2, log_r2))
+        excess = max(float(measured.mean()) - noise2, 1e-3 * noise2)
+        return excess / max(float(shape.mean()), 1e-30), 2.0
+    target = (m[clear] - noise2).log()
+    best = None
+    for beta in torch.arange(1.5, 4.01, 0.25).tolist():
+        shape = sum(a * torch.exp(-0.5 * beta * b) for a, b in zip(k2, log_r2))
+        S = (torch.bincount(sub_ring, shape, minlength=24) / sub_count.clamp_min(1))[clear]
+        gap = target - S.clamp_min(1e-300).log()
+        level, scatter = float(gap.mean()), float(((gap - gap.mean()) ** 2).mean())
+        if best is None or scatter < best[0]:
+            best = (scatter, math.exp(level), beta)
+    return best[1], best[2]
 
 
 def periodic_smooth(image: Tensor) -> tuple[Tensor, Tensor]:
@@ -419,12 +464,13 @@ def classical_sr(
                      (h * H, h * W), kernel_sigma, w)
     image = _fill_holes(num, den)
     if deblur:
-        if noise is None:
-            typical = float(den[den > 0].median())
-            noise = lattice_noise(image, kernel_sigma, den > 0.5 * typical)
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
         samples_per_node = float(den[den > 0].median()) / max(_peak_weight(kernel_sigma), 1e-12)
-        node_noise = noise / math.sqrt(max(samples_per_node, 1.0))
+        if noise is None:
+            typical = float(den[den > 0].median())
+            node_noise = lattice_noise(image, kernel_sigma, den > 0.5 * typical)
+        else:
+            node_noise = noise / math.sqrt(max(samples_per_node, 1.0))
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
                               cutoff, strength)
     return image.clamp(0, 1).to(torch.float32)
@@ -459,8 +505,8 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
             for dx in (-1, 0, 1):
                 inner = inner & valid[1 + dy:valid.shape[0] - 1 + dy, 1 + dx:valid.shape[1] - 1 + dx]
         out = out[inner]
-    if out.numel() < 16:
-        return 0.0
+    if out.numel() < 16:  # too few complete neighbourhoods: use every node
+        out = torch.nn.functional.conv2d(image[None, None], kernel)[0, 0]
     return 1.4826 * float(out.abs().median()) / gain_1d ** 2
 
 
