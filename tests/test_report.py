@@ -1,0 +1,112 @@
+"""The demo's outputs and its one-page HTML report (checked in a real browser when one exists)."""
+
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from hbis_torch.array.pipeline import ChainConfig, run_chain
+from hbis_torch.array.scenario import default_path
+from hbis_torch.cli import main
+from hbis_torch.config import System
+from hbis_torch.design import design
+from hbis_torch.figures.design_figures import make_figures
+from hbis_torch.report import image_links, write_report
+
+BROWSER = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    """A reduced chain (binned 4 panorama, h = 2, a quick object) and its report."""
+    out = tmp_path_factory.mktemp("demo")
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        path = default_path(stop_mm=(3.0, 2.0), speed_mm_s=12.0, start_x_mm=-15.0, end_x_mm=18.0, stop_s=1.0)
+        config = ChainConfig(h=2, roi_size=96, panorama_binning=4, duration_s=4.6, path=path)
+        summary = run_chain(out, System(), config, log=lambda *_: None)
+    finally:
+        torch.set_num_threads(threads)
+    figures = [str(p.relative_to(out)) for p in make_figures(out / "figures", System(), progress=False)]
+    page = write_report(out, summary, design(System()).to_dict(), figures)
+    return out, page, summary
+
+
+def test_report_is_written_and_every_image_it_names_exists(demo_dir):
+    out, page, summary = demo_dir
+    text = page.read_text()
+    links = image_links(text)
+    assert len(links) >= 13
+    for link in links:
+        path = out / link
+        assert path.is_file(), link
+        with Image.open(path) as im:
+            assert im.format == "PNG" and min(im.size) > 16
+    for key in ("panorama", "composite", "composite_zoom", "sr_fovea", "sub_image", "sr_pairs", "timeline"):
+        assert summary["images"][key] in links
+    assert "<table>" in text and "FER_h" in text and "Event log" in text
+
+
+def test_demo_numbers_are_consistent(demo_dir):
+    _, _, summary = demo_dir
+    fer = summary["fer"]
+    # the design-angle stitch of the (misassembled) array measures the design itself
+    assert fer["measured_design_stitch"]["central"]["fer_h"] == pytest.approx(fer["theory"]["fer_h"], abs=0.01)
+    # the refined stitch measures the real assembly: near the design, not equal to it
+    assert abs(fer["measured_refined"]["central"]["fer_h"] - fer["theory"]["fer_h"]) < 0.15
+    assert summary["refinement"]["refined_error_px"] < summary["refinement"]["design_error_px"] / 5
+    assert summary["foveal_ratio"]["measured"] == pytest.approx(2.0, rel=0.02)
+    assert summary["sr"]["psnr_sr_db"] > summary["sr"]["psnr_bicubic_db"]
+    assert 0.0 < summary["bandwidth"]["bsr_from_coverage"] < 1.0
+    json.dumps(summary)  # everything in it can go into report.json
+    sr = np.asarray(Image.open(demo_dir[0] / summary["images"]["sr_fovea"]))
+    assert sr.shape == tuple(summary["sr"]["shape"])
+
+
+@pytest.mark.skipif(BROWSER is None, reason="no chromium installed")
+def test_report_renders_in_a_headless_browser(demo_dir):
+    out, page, _ = demo_dir
+    shot = out / "screenshot.png"
+    with tempfile.TemporaryDirectory() as profile:
+        subprocess.run(
+            [BROWSER, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+             f"--user-data-dir={profile}", "--window-size=1280,4000", f"--screenshot={shot}",
+             page.resolve().as_uri()],
+            check=True, capture_output=True, timeout=120,
+        )
+    with Image.open(shot) as im:
+        assert im.size == (1280, 4000)
+        grey = np.asarray(im.convert("L"), dtype=np.float32)
+    # the page shows pictures, not a blank or an error page: much of it is neither white nor flat
+    assert float(grey.std()) > 40.0
+    assert float((grey < 200).mean()) > 0.25
+
+
+def test_demo_cli_design_only_and_bad_arguments(tmp_path, capsys):
+    assert main(["demo", "--design-only", "--out", str(tmp_path / "d")]) == 0
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert "design_at_limits" in report and "system" not in report
+    capsys.readouterr()
+    for bad in (["--method", "nonsense"], ["--threads", "0"], ["--model", str(tmp_path / "missing.onnx")]):
+        assert main(["demo", *bad, "--out", str(tmp_path / "x")]) == 2, bad
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_full_default_demo(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "hbis_torch", "demo", "--out", str(tmp_path)],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    page = (tmp_path / "report.html").read_text()
+    assert all((tmp_path / link).is_file() for link in image_links(page))
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["system"]["loop"]["kept"] >= 1
