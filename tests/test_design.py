@@ -3,9 +3,10 @@
 import math
 
 import pytest
+from scipy.optimize import brentq
 
 from hbis_torch import System
-from hbis_torch.design import design, limit_sweep, with_prisms
+from hbis_torch.design import design, limit_sweep, phi_min_deg, with_prisms
 
 ANGLE, RATIO = 0.2, 0.05
 
@@ -53,14 +54,18 @@ def test_inflection_points_on_the_papers_sweep_grid():
 
 
 def test_exact_inflections_and_fer_two_after_them():
-    """Located finely, the crossings are 10.93 / 8.18 deg and n = 2.38 / 2.03."""
-    alphas = [round(1 + 0.05 * i, 2) for i in range(300)]
-    assert _first_fer_two("wedge_angle_deg", alphas, "h") == pytest.approx(10.95, abs=0.05)
-    assert _first_fer_two("wedge_angle_deg", alphas, "v") == pytest.approx(8.2, abs=0.05)
-    indices = [round(1.3 + 0.005 * i, 3) for i in range(300)]
-    assert _first_fer_two("refractive_index", indices, "h") == pytest.approx(2.38, abs=0.01)
-    assert _first_fer_two("refractive_index", indices, "v") == pytest.approx(2.03, abs=0.01)
-    sweep = limit_sweep(System(), "wedge_angle_deg", [12.0, 20.0])
+    """Located by a root-find on Phi_min = 0, the crossings are 10.93 / 8.18 deg and n = 2.38 / 2.03."""
+    system = System()
+
+    def crossing(parameter, lo, hi, direction):
+        return brentq(lambda x: phi_min_deg(with_prisms(system, **{parameter: x}), direction), lo, hi,
+                      xtol=1e-6)
+
+    assert crossing("wedge_angle_deg", 1.0, 20.0, "h") == pytest.approx(10.93, abs=0.01)
+    assert crossing("wedge_angle_deg", 1.0, 20.0, "v") == pytest.approx(8.18, abs=0.01)
+    assert crossing("refractive_index", 1.3, 3.0, "h") == pytest.approx(2.38, abs=0.01)
+    assert crossing("refractive_index", 1.3, 3.0, "v") == pytest.approx(2.03, abs=0.01)
+    sweep = limit_sweep(system, "wedge_angle_deg", [12.0, 20.0])
     assert sweep["fer_h"] == pytest.approx([2.0, 2.0]) and sweep["fer_v"] == pytest.approx([2.0, 2.0])
 
 
