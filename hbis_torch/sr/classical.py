@@ -149,6 +149,43 @@ def splat(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: f
     return num.reshape(rows, cols), den.reshape(rows, cols)
 
 
+def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: float,
+                    weights: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    """Move every sample to its nearest lattice node, correcting its value to first order.
+
+    The deblurring models one sample per node. Samples a fraction of a node off it (motor
+    errors, the optics' distortion) are moved there with value v + grad(Z) . (node - x), the
+    gradient taken from a first interpolation Z of all samples (smooth: it carries the pixel's
+    blur), so that the lattice model holds without the bias of snapping.
+
+    Parameters
+    ----------
+    values, x, y : Tensor, shape (N,)
+        Samples and their lattice coordinates.
+    shape : (rows, cols)
+    sigma : float
+        Splat Gaussian of the first interpolation.
+    weights : Tensor, shape (N,), optional
+
+    Returns
+    -------
+    values, x, y : Tensor, shape (N,)
+        Corrected values at integer coordinates.
+    """
+    xn, yn = torch.round(x), torch.round(y)
+    dx, dy = xn - x, yn - y
+    if float(torch.maximum(dx.abs(), dy.abs()).max()) < 1e-3:
+        return values, xn, yn
+    pilot = _fill_holes(*splat(values, x, y, shape, sigma, weights))
+    gy, gx = torch.gradient(pilot)
+    rows, cols = shape
+    grid = torch.stack((2 * x / max(cols - 1, 1) - 1, 2 * y / max(rows - 1, 1) - 1), -1)[None, None]
+    slopes = torch.nn.functional.grid_sample(torch.stack((gx, gy))[None], grid.to(pilot.dtype),
+                                             mode="bilinear", padding_mode="border", align_corners=True)
+    sx, sy = slopes[0, 0, 0], slopes[0, 1, 0]
+    return values + sx * dx + sy * dy, xn, yn
+
+
 def _gaussian_blur(img: Tensor, sigma: float) -> Tensor:
     """Gaussian blur (rows, cols) with mirrored borders, via the FFT."""
     pad = min(int(math.ceil(4 * sigma)), img.shape[0] - 1, img.shape[1] - 1)
@@ -460,8 +497,11 @@ def classical_sr(
     keep = torch.ones(F, H, W, dtype=torch.bool) if weights is None else weights > 0
     offset = (_common_offset(X[keep]), _common_offset(Y[keep])) if deblur else (0.0, 0.0)
     w = None if weights is None else weights.reshape(-1)
-    num, den = splat(frames.reshape(-1), (X - offset[0]).reshape(-1), (Y - offset[1]).reshape(-1),
-                     (h * H, h * W), kernel_sigma, w)
+    values, x, y = frames.reshape(-1), (X - offset[0]).reshape(-1), (Y - offset[1]).reshape(-1)
+    shape = (h * H, h * W)
+    if deblur:
+        values, x, y = snap_to_lattice(values, x, y, shape, kernel_sigma, w)
+    num, den = splat(values, x, y, shape, kernel_sigma, w)
     image = _fill_holes(num, den)
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
