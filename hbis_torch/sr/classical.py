@@ -379,13 +379,17 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, terms, noise2: float)
     k2 = [(t[0] * t[0]).expand(spectrum.shape).reshape(-1)[pick] for t in terms]
     log_r2 = [torch.log(t[3].expand(spectrum.shape).reshape(-1)[pick]) for t in terms]
     clear = (count >= 8) & (sub_count >= 1) & (m > 2 * noise2)
-    if int(clear.sum()) < 3:  # the image is mostly noise: a weak 1/f^2 prior
-        shape = sum(a * torch.exp(-b) for a, b in zip(k2, log_r2))
-        excess = max(float(measured.mean()) - noise2, 1e-3 * noise2)
-        return excess / max(float(shape.mean()), 1e-30), 2.0
+    betas = torch.arange(1.5, 4.01, 0.25).tolist()
+    if int(clear.sum()) < 3:
+        # Too few frequencies stand above the noise to fit a slope: a 1/f^2 law through those
+        # that do, or, with none, a scene far below the noise at every frequency.
+        betas = [2.0]
+        if not bool(clear.any()):
+            shape = sum(a * torch.exp(-b) for a, b in zip(k2, log_r2))
+            return 1e-3 * noise2 / max(float(shape.max()), 1e-300), 2.0
     target = (m[clear] - noise2).log()
     best = None
-    for beta in torch.arange(1.5, 4.01, 0.25).tolist():
+    for beta in betas:
         shape = sum(a * torch.exp(-0.5 * beta * b) for a, b in zip(k2, log_r2))
         S = (torch.bincount(sub_ring, shape, minlength=24) / sub_count.clamp_min(1))[clear]
         gap = target - S.clamp_min(1e-300).log()
@@ -498,18 +502,7 @@ def classical_sr(
     if noise is not None and not (math.isfinite(noise) and noise >= 0):
         raise HbisInputError(f"noise must be a number >= 0, got {noise!r}")
 
-    # HR coordinates of every sample, and the common sub-pixel offset of the scan lattice.
-    X = (positions[..., 0] + 0.5) * h - 0.5
-    Y = (positions[..., 1] + 0.5) * h - 0.5
-    keep = torch.ones(F, H, W, dtype=torch.bool) if weights is None else weights > 0
-    offset = (_common_offset(X[keep]), _common_offset(Y[keep])) if deblur else (0.0, 0.0)
-    w = None if weights is None else weights.reshape(-1)
-    values, x, y = frames.reshape(-1), (X - offset[0]).reshape(-1), (Y - offset[1]).reshape(-1)
-    shape = (h * H, h * W)
-    if deblur:
-        values, x, y = snap_to_lattice(values, x, y, shape, kernel_sigma, w)
-    num, den = splat(values, x, y, shape, kernel_sigma, w)
-    image = _fill_holes(num, den)
+    image, den, offset = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur)
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
         samples_per_node = float(den[den > 0].median()) / max(_peak_weight(kernel_sigma), 1e-12)
@@ -521,6 +514,45 @@ def classical_sr(
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
                               cutoff, strength)
     return image.clamp(0, 1).to(torch.float32)
+
+
+def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float,
+                  weights: Tensor | None = None, on_lattice: bool = True):
+    """Interpolate scattered samples onto an h-times grid (normalized convolution).
+
+    Parameters
+    ----------
+    frames : Tensor, shape (F, H, W), float64
+    positions : Tensor, shape (F, H, W, 2), float64
+        ROI-local reference LR coordinates of the samples.
+    h : int
+    kernel_sigma : float
+    weights : Tensor, shape (F, H, W), optional
+    on_lattice : bool
+        Put the grid's nodes where the scan lattice puts the samples (the output grid shifted
+        by the samples' common sub-pixel ``offset``) and move every sample onto its node
+        (:func:`snap_to_lattice`), as the deblurring needs; False interpolates onto the output
+        grid itself.
+
+    Returns
+    -------
+    image, den : Tensor, shape (h*H, h*W)
+        The interpolated image and the splat weights' sum at each node.
+    offset : (float, float)
+        Where the nodes sit relative to the output pixels, HR px.
+    """
+    F, H, W = frames.shape
+    X = (positions[..., 0] + 0.5) * h - 0.5
+    Y = (positions[..., 1] + 0.5) * h - 0.5
+    keep = torch.ones(F, H, W, dtype=torch.bool) if weights is None else weights > 0
+    offset = (_common_offset(X[keep]), _common_offset(Y[keep])) if on_lattice else (0.0, 0.0)
+    w = None if weights is None else weights.reshape(-1)
+    values, x, y = frames.reshape(-1), (X - offset[0]).reshape(-1), (Y - offset[1]).reshape(-1)
+    shape = (h * H, h * W)
+    if on_lattice:
+        values, x, y = snap_to_lattice(values, x, y, shape, kernel_sigma, w)
+    num, den = splat(values, x, y, shape, kernel_sigma, w)
+    return _fill_holes(num, den), den, offset
 
 
 def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = None) -> float:
