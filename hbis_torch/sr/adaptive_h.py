@@ -208,7 +208,8 @@ def predict_psnr(s2: float, beta: float, noise: float, cutoff: float, h_max: int
         inside = (fx.abs() < h / 2) & (fy.abs() < h / 2)
         # Compared on the h_max grid: the h grid's image is resampled (bicubic), which passes
         # its band with the gain b, below 1 near the band's edge.
-        b = torch.ones_like(fx) if h == h_max else cubic_transfer(fx / h) * cubic_transfer(fy / h)
+        b1 = cubic_transfer(f / h)  # separable: one axis at a time
+        b = torch.ones_like(fx) if h == h_max else b1[:, None] * b1[None, :]
         if h == 1:  # one frame, nothing to deblur: its blur and its noise stay
             kept = scene * (b * optics * pixel - wanted) ** 2 + b * b * density
         else:  # the Wiener estimate (gain g), resampled
