@@ -137,16 +137,57 @@ def splat(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: f
     num = torch.zeros(rows * cols, dtype=values.dtype)
     den = torch.zeros(rows * cols, dtype=values.dtype)
     xi, yi = torch.round(x), torch.round(y)
+    on_nodes = bool(((xi - x).abs().max() < 1e-9) & ((yi - y).abs().max() < 1e-9))
     w0 = torch.ones_like(values) if weights is None else weights
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             nx, ny = xi + dx, yi + dy
             inside = (nx >= 0) & (nx < cols) & (ny >= 0) & (ny < rows)
-            g = torch.exp(-((nx - x) ** 2 + (ny - y) ** 2) / (2 * sigma * sigma)) * w0 * inside
+            if on_nodes:  # samples on the nodes: one weight per offset
+                g = math.exp(-(dx * dx + dy * dy) / (2 * sigma * sigma)) * w0 * inside
+            else:
+                g = torch.exp(-((nx - x) ** 2 + (ny - y) ** 2) / (2 * sigma * sigma)) * w0 * inside
             idx = (ny.clamp(0, rows - 1) * cols + nx.clamp(0, cols - 1)).long()
             num.index_add_(0, idx, g * values)
             den.index_add_(0, idx, g)
     return num.reshape(rows, cols), den.reshape(rows, cols)
+
+
+def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: float,
+                    weights: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    """Move every sample to its nearest lattice node, correcting its value to first order.
+
+    The deblurring models one sample per node. Samples a fraction of a node off it (motor
+    errors, the optics' distortion) are moved there with value v + grad(Z) . (node - x), the
+    gradient taken from a first interpolation Z of all samples (smooth: it carries the pixel's
+    blur), so that the lattice model holds without the bias of snapping.
+
+    Parameters
+    ----------
+    values, x, y : Tensor, shape (N,)
+        Samples and their lattice coordinates.
+    shape : (rows, cols)
+    sigma : float
+        Splat Gaussian of the first interpolation.
+    weights : Tensor, shape (N,), optional
+
+    Returns
+    -------
+    values, x, y : Tensor, shape (N,)
+        Corrected values at integer coordinates.
+    """
+    xn, yn = torch.round(x), torch.round(y)
+    dx, dy = xn - x, yn - y
+    if float(torch.maximum(dx.abs(), dy.abs()).max()) < 1e-3:
+        return values, xn, yn
+    pilot = _fill_holes(*splat(values, x, y, shape, sigma, weights))
+    gy, gx = torch.gradient(pilot)
+    rows, cols = shape
+    grid = torch.stack((2 * x / max(cols - 1, 1) - 1, 2 * y / max(rows - 1, 1) - 1), -1)[None, None]
+    slopes = torch.nn.functional.grid_sample(torch.stack((gx, gy))[None], grid.to(pilot.dtype),
+                                             mode="bilinear", padding_mode="border", align_corners=True)
+    sx, sy = slopes[0, 0, 0], slopes[0, 1, 0]
+    return values + sx * dx + sy * dy, xn, yn
 
 
 def _gaussian_blur(img: Tensor, sigma: float) -> Tensor:
@@ -338,13 +379,17 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, terms, noise2: float)
     k2 = [(t[0] * t[0]).expand(spectrum.shape).reshape(-1)[pick] for t in terms]
     log_r2 = [torch.log(t[3].expand(spectrum.shape).reshape(-1)[pick]) for t in terms]
     clear = (count >= 8) & (sub_count >= 1) & (m > 2 * noise2)
-    if int(clear.sum()) < 3:  # the image is mostly noise: a weak 1/f^2 prior
-        shape = sum(a * torch.exp(-b) for a, b in zip(k2, log_r2))
-        excess = max(float(measured.mean()) - noise2, 1e-3 * noise2)
-        return excess / max(float(shape.mean()), 1e-30), 2.0
+    betas = torch.arange(1.5, 4.01, 0.25).tolist()
+    if int(clear.sum()) < 3:
+        # Too few frequencies stand above the noise to fit a slope: a 1/f^2 law through those
+        # that do, or, with none, a scene far below the noise at every frequency.
+        betas = [2.0]
+        if not bool(clear.any()):
+            shape = sum(a * torch.exp(-b) for a, b in zip(k2, log_r2))
+            return 1e-3 * noise2 / max(float(shape.max()), 1e-300), 2.0
     target = (m[clear] - noise2).log()
     best = None
-    for beta in torch.arange(1.5, 4.01, 0.25).tolist():
+    for beta in betas:
         shape = sum(a * torch.exp(-0.5 * beta * b) for a, b in zip(k2, log_r2))
         S = (torch.bincount(sub_ring, shape, minlength=24) / sub_count.clamp_min(1))[clear]
         gap = target - S.clamp_min(1e-300).log()
@@ -390,7 +435,7 @@ def classical_sr(
     noise: float | None = None,
     fill_factor: float = 1.0,
     cutoff: float | None = None,
-    strength: float = 1.0,
+    strength: float = 2.0,
 ) -> Tensor:
     """Super-resolve frames whose samples' positions are known.
 
@@ -418,7 +463,10 @@ def classical_sr(
     cutoff : float, optional
         Optical cutoff in cycles per LR pixel (:func:`optics_cutoff`); None ignores the optics.
     strength : float
-        Scales the Wiener regulariser (1: the stated prior).
+        Scales the noise power in the Wiener filter. The default 2 was chosen on simulated
+        stacks (8 scenes x h = 3, 4, 5, 64 px, seed 1): it beat 1, 1.5 and 3 in mean PSNR (by
+        0.4 dB over 1), the estimated noise being the median level while shot noise grows with
+        the signal, and the power-law prior overstating some scenes' fine detail.
 
     Returns
     -------
@@ -454,15 +502,7 @@ def classical_sr(
     if noise is not None and not (math.isfinite(noise) and noise >= 0):
         raise HbisInputError(f"noise must be a number >= 0, got {noise!r}")
 
-    # HR coordinates of every sample, and the common sub-pixel offset of the scan lattice.
-    X = (positions[..., 0] + 0.5) * h - 0.5
-    Y = (positions[..., 1] + 0.5) * h - 0.5
-    keep = torch.ones(F, H, W, dtype=torch.bool) if weights is None else weights > 0
-    offset = (_common_offset(X[keep]), _common_offset(Y[keep])) if deblur else (0.0, 0.0)
-    w = None if weights is None else weights.reshape(-1)
-    num, den = splat(frames.reshape(-1), (X - offset[0]).reshape(-1), (Y - offset[1]).reshape(-1),
-                     (h * H, h * W), kernel_sigma, w)
-    image = _fill_holes(num, den)
+    image, den, offset = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur)
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
         samples_per_node = float(den[den > 0].median()) / max(_peak_weight(kernel_sigma), 1e-12)
@@ -474,6 +514,45 @@ def classical_sr(
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
                               cutoff, strength)
     return image.clamp(0, 1).to(torch.float32)
+
+
+def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float,
+                  weights: Tensor | None = None, on_lattice: bool = True):
+    """Interpolate scattered samples onto an h-times grid (normalized convolution).
+
+    Parameters
+    ----------
+    frames : Tensor, shape (F, H, W), float64
+    positions : Tensor, shape (F, H, W, 2), float64
+        ROI-local reference LR coordinates of the samples.
+    h : int
+    kernel_sigma : float
+    weights : Tensor, shape (F, H, W), optional
+    on_lattice : bool
+        Put the grid's nodes where the scan lattice puts the samples (the output grid shifted
+        by the samples' common sub-pixel ``offset``) and move every sample onto its node
+        (:func:`snap_to_lattice`), as the deblurring needs; False interpolates onto the output
+        grid itself.
+
+    Returns
+    -------
+    image, den : Tensor, shape (h*H, h*W)
+        The interpolated image and the splat weights' sum at each node.
+    offset : (float, float)
+        Where the nodes sit relative to the output pixels, HR px.
+    """
+    F, H, W = frames.shape
+    X = (positions[..., 0] + 0.5) * h - 0.5
+    Y = (positions[..., 1] + 0.5) * h - 0.5
+    keep = torch.ones(F, H, W, dtype=torch.bool) if weights is None else weights > 0
+    offset = (_common_offset(X[keep]), _common_offset(Y[keep])) if on_lattice else (0.0, 0.0)
+    w = None if weights is None else weights.reshape(-1)
+    values, x, y = frames.reshape(-1), (X - offset[0]).reshape(-1), (Y - offset[1]).reshape(-1)
+    shape = (h * H, h * W)
+    if on_lattice:
+        values, x, y = snap_to_lattice(values, x, y, shape, kernel_sigma, w)
+    num, den = splat(values, x, y, shape, kernel_sigma, w)
+    return _fill_holes(num, den), den, offset
 
 
 def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = None) -> float:
