@@ -1,0 +1,171 @@
+"""Sub-pixel scan plans (paper section 2.2, Fig. 3, eq. 7) and their alignment error (section 3.2).
+
+A scan of resolution improvement factor h moves the optical axis over an h x h grid of points
+spaced by the step SL = (p / h) v / f' on the object plane, around the point DV^0 where the axis
+lands at the initial phases (traced exactly, as the sentence after eq. 7 says).
+
+Scan order (eq. 7 with 0-based frame index i): raster, row by row, x fastest,
+
+    offset_i = (i mod h - floor(h/2), floor(i / h) - floor(h/2))     in units of SL,
+
+so x and y both run from -floor(h/2) to h - 1 - floor(h/2). For odd h the initial point is the
+centre of the grid; for even h it is the point just past the centre (Fig. 3b), offsets -h/2 ..
+h/2 - 1. The frame at the initial phases has index floor(h/2) (h + 1). (Eq. 7 as printed
+subtracts (h+1)/2 with 1-based i, which does not give DV^13 = DV^0 for h = 5; the form above
+does, and matches the figure.)
+
+The alignment error (AE) of a frame is the distance between where a ray lands and where the plan
+wants it, divided by SL. See :func:`axis_alignment_error` and :func:`pixel_alignment_error` for
+the exact conventions.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .config import System
+from .errors import HbisInputError
+from .optics.inverse import axis_landing, exact_inverse, paper_inverse, paper_norms
+
+METHODS = ("paper", "exact")
+
+
+@dataclass
+class ScanPlan:
+    """A sub-pixel scan: where the axis should land, and the prism phases that put it there.
+
+    Attributes
+    ----------
+    h : int
+        Resolution improvement factor; the plan has F = h * h frames.
+    initial_phases_deg : (float, float)
+        Phases at which the reference frame is taken.
+    step_mm : float
+        SL, the step on the object plane, (p / h) v / f' in mm.
+    offsets : Tensor, shape (F, 2), float64
+        Target offsets of the axis in units of SL, (x, y), scan order.
+    targets_mm : Tensor, shape (F, 2), float64
+        Axis landing targets on the object plane, mm: DV^0 + SL * offsets.
+    phases_deg : Tensor, shape (F, 2), float64
+        [phi1, phi2] per frame, degrees, scan order, each within 180 deg of its initial value.
+    reference_index : int
+        Index of the frame at the initial phases (offset (0, 0)).
+    method : str
+        "paper" (eqs. 8-9) or "exact" (non-paraxial inverse).
+    """
+
+    h: int
+    initial_phases_deg: tuple[float, float]
+    step_mm: float
+    offsets: Tensor
+    targets_mm: Tensor
+    phases_deg: Tensor
+    reference_index: int
+    method: str
+
+    @property
+    def frames(self) -> int:
+        return self.offsets.shape[0]
+
+    def phase_range_deg(self) -> Tensor:
+        """Range (max - min) of each prism's phase over the scan, shape (2,), degrees."""
+        return phase_range_deg(self.phases_deg)
+
+
+def check_h(h) -> int:
+    """A validated resolution improvement factor (an integer >= 1)."""
+    if isinstance(h, bool) or not isinstance(h, (int, float)) or h != int(h) or h < 1:
+        raise HbisInputError(f"h must be an integer >= 1, got {h!r}")
+    return int(h)
+
+
+def check_phase_pair(phases_deg) -> tuple[float, float]:
+    """Two finite angles in degrees, as a tuple of floats."""
+    try:
+        values = [float(v) for v in phases_deg]
+    except (TypeError, ValueError):
+        raise HbisInputError(f"phases must be two numbers in degrees, got {phases_deg!r}")
+    if len(values) != 2 or not all(math.isfinite(v) for v in values):
+        raise HbisInputError(f"phases must be two finite numbers in degrees, got {phases_deg!r}")
+    return values[0], values[1]
+
+
+def step_mm(system: System, h: int) -> float:
+    """SL = (p / h) v / f', the scan step on the object plane, mm."""
+    return system.object_pixel_mm / check_h(h)
+
+
+def scan_offsets(h: int) -> tuple[Tensor, int]:
+    """Eq. 7 offsets in units of SL, shape (h*h, 2) float64 in scan order, and the reference index."""
+    h = check_h(h)
+    i = torch.arange(h * h)
+    centre = h // 2
+    offsets = torch.stack((i % h - centre, i // h - centre), -1).to(torch.float64)
+    return offsets, centre * h + centre
+
+
+def phase_range_deg(phases_deg: Tensor) -> Tensor:
+    """Range (max - min) of each column of (F, 2) phases, degrees."""
+    return phases_deg.max(0).values - phases_deg.min(0).values
+
+
+def plan_scan(
+    system: System, h: int, initial_phases_deg=(5.0, 70.0), method: str = "exact"
+) -> ScanPlan:
+    """The h x h sub-pixel scan around the initial phases, and the phases of every frame.
+
+    Parameters
+    ----------
+    system : System
+        Camera, prisms and object distance.
+    h : int
+        Resolution improvement factor (>= 1), odd or even.
+    initial_phases_deg : (float, float)
+        [phi1, phi2] of the reference frame, degrees.
+    method : {"exact", "paper"}
+        "exact": the non-paraxial inverse, axis on target to rounding. "paper": eqs. 8-9.
+
+    Returns
+    -------
+    ScanPlan
+    """
+    h = check_h(h)
+    if method not in METHODS:
+        raise HbisInputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    initial = check_phase_pair(initial_phases_deg)
+    sl = step_mm(system, h)
+    offsets, reference = scan_offsets(h)
+    dv0 = axis_landing(system, initial[0], initial[1])
+    targets = dv0 + sl * offsets
+    current = torch.tensor(initial, dtype=torch.float64)
+    if method == "exact":
+        phases = exact_inverse(system, targets, current)
+    else:
+        k1, k2 = paper_norms(system, initial)
+        phases = paper_inverse(targets, k1, k2, current)
+    # The reference frame is taken at the initial phases themselves, not at a re-solved copy.
+    phases[reference] = current
+    return ScanPlan(h, initial, sl, offsets, targets, phases, reference, method)
+
+
+def axis_alignment_error(system: System, plan: ScanPlan, phases_deg: Tensor | None = None) -> Tensor:
+    """AE of the optical axis per frame: |landing - target| / SL, shape (F,).
+
+    ``phases_deg`` (F, 2) replaces the plan's phases (e.g. quantised or read back from motors).
+    """
+    phases = plan.phases_deg if phases_deg is None else _check_phases(phases_deg, plan.frames)
+    landing = axis_landing(system, phases[:, 0], phases[:, 1])
+    return (landing - plan.targets_mm).norm(dim=-1) / plan.step_mm
+
+
+def _check_phases(phases_deg, frames: int) -> Tensor:
+    p = torch.as_tensor(phases_deg, dtype=torch.float64)
+    if p.shape != (frames, 2):
+        raise HbisInputError(f"phases must have shape ({frames}, 2), got {tuple(p.shape)}")
+    if not torch.isfinite(p).all():
+        raise HbisInputError("phases contain non-finite values (NaN or inf)")
+    return p
