@@ -1,0 +1,238 @@
+"""Train the multi-frame super-resolution network (hbis_torch.sr.net) on simulated scans.
+
+Read it top to bottom: config, setup, data, the loop. One process:
+
+    python training/train_sr.py h=4 max_minutes=20 out_dir=runs/sr_h4
+
+Two processes on one machine (DDP over gloo, the same script unchanged):
+
+    torchrun --standalone --nproc_per_node=2 training/train_sr.py h=4 max_minutes=20
+
+Any name in the config block can be overridden as ``name=value`` (Python literals). Killing the
+run and starting the same command again resumes from ``out_dir/ckpt.pt``. The outputs in
+``out_dir``: ``ckpt.pt`` (latest, for resuming), ``model.pt`` (best validation PSNR),
+``history.json`` and ``val_psnr.png`` (the validation curve).
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
+from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
+from hbis_torch.sr.net import HbisSRNet, count_parameters  # noqa: E402
+from training.sr_data import make_batch  # noqa: E402
+
+# ---------------------------------------------------------------------------- config
+h = 4  # resolution improvement factor; the model takes h*h frames
+width = 48  # feature channels
+blocks = 5  # residual blocks
+patch = 32  # LR patch side of a training example (the output patch is h times larger)
+batch_size = 8  # per process
+lr = 2e-3  # peak learning rate (AdamW), cosine decay to lr/20 over the budget
+weight_decay = 1e-4
+warmup_steps = 50
+max_steps = 100_000  # whichever of max_steps / max_minutes comes first ends the run
+max_minutes = 20.0  # wall-clock budget for training (validation included)
+eval_interval = 100  # steps between validation + checkpoint
+val_examples = 64  # held-out examples (fixed seed stream, never trained on)
+val_patch = 48
+seed = 0
+threads = 0  # torch threads per process; 0: the CPUs divided among the processes
+out_dir = "runs/sr_h4"
+resume = True
+progress_bar = True
+
+# ---------------------------------------------------------------------------- overrides
+config_keys = [k for k, v in dict(globals()).items() if not k.startswith("_") and isinstance(v, (int, float, str, bool))]
+for arg in sys.argv[1:]:
+    key, _, value = arg.partition("=")
+    if key not in config_keys or not _:
+        raise SystemExit(f"unknown or malformed override {arg!r}; known: {', '.join(config_keys)}")
+    try:
+        parsed = ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        parsed = value  # a bare string such as out_dir=runs/x
+    if type(parsed) is not type(globals()[key]) and not (isinstance(globals()[key], float) and isinstance(parsed, int)):
+        raise SystemExit(f"{key} must be {type(globals()[key]).__name__}, got {value!r}")
+    globals()[key] = type(globals()[key])(parsed)
+config = {k: globals()[k] for k in config_keys}
+
+# ---------------------------------------------------------------------------- setup
+def git_commit() -> str:
+    """HEAD of this checkout (with "-dirty" if files differ from it), stored in checkpoints."""
+    here = Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here, capture_output=True, text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("-dirty" if dirty else "")
+
+
+ddp = "RANK" in os.environ
+if ddp:
+    dist.init_process_group("gloo")
+    rank, world = dist.get_rank(), dist.get_world_size()
+else:
+    rank, world = 0, 1
+master = rank == 0
+torch.set_num_threads(threads or max(1, len(os.sched_getaffinity(0)) // world))
+torch.manual_seed(seed)  # same initial weights on every rank (DDP also broadcasts them)
+out = Path(out_dir)
+commit = git_commit()
+if master:
+    out.mkdir(parents=True, exist_ok=True)
+
+model = HbisSRNet(h, width=width, blocks=blocks)
+optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
+step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
+ckpt_path = out / "ckpt.pt"
+if resume and ckpt_path.exists():
+    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+    model.load_state_dict(ckpt["model"])
+    optimizer.load_state_dict(ckpt["optimizer"])
+    step, trained_s, history = ckpt["step"], ckpt["trained_s"], ckpt["history"]
+    best_psnr = max((r["val_psnr"] for r in history), default=-math.inf)
+    if master:
+        print(f"resumed from {ckpt_path} at step {step} ({trained_s / 60:.1f} min trained)")
+net = torch.nn.parallel.DistributedDataParallel(model) if ddp else model
+if master:
+    print(f"HbisSRNet h={h}: {count_parameters(model)} parameters, {world} process(es)")
+
+# ---------------------------------------------------------------------------- data
+# Every batch comes from its own seed (seed, rank, step), so a resumed run sees the same data
+# as an uninterrupted one and the ranks never see the same examples.
+def train_batch(at_step: int):
+    rng = np.random.default_rng([seed, rank, at_step])
+    return [torch.from_numpy(a) for a in make_batch(rng, h, patch, batch_size)]
+
+
+# The validation set: its own seed stream, split across ranks, generated once.
+val_ids = range(rank, val_examples, world)
+val_set = [make_batch(np.random.default_rng([seed, 10_000_019, i]), h, val_patch, 1) for i in val_ids]
+
+
+def psnr(image: torch.Tensor, truth: torch.Tensor) -> float:
+    mse = F.mse_loss(image.clamp(0, 1).double(), truth.double()).item()
+    return 10 * math.log10(1.0 / max(mse, 1e-12))
+
+
+@torch.no_grad()
+def validate() -> tuple[float, float]:
+    """Mean PSNR (dB) over the whole validation set, network and its bilinear base."""
+    model.eval()
+    sums = torch.zeros(3, dtype=torch.float64)
+    for frames, offsets, truth in val_set:
+        frames, offsets, truth = (torch.from_numpy(a) for a in (frames, offsets, truth))
+        image = model(frames, offsets)
+        base = F.interpolate(frames[:, :1], scale_factor=h, mode="bilinear", align_corners=False)
+        sums += torch.tensor([psnr(image, truth), psnr(base, truth), 1.0], dtype=torch.float64)
+    if ddp:
+        dist.all_reduce(sums)
+    model.train()
+    return (sums[0] / sums[2]).item(), (sums[1] / sums[2]).item()
+
+
+def save_checkpoint(path: Path, **extra) -> None:
+    state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
+             "trained_s": trained_s, "history": history, "config": config,
+             "model_config": model.config(), "git_commit": commit, **extra}
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+
+
+def plot_history() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    minutes = [r["trained_s"] / 60 for r in history]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(minutes, [r["val_psnr"] for r in history], "o-", ms=3, label="network")
+    ax.plot(minutes, [r["base_psnr"] for r in history], "--", label="bilinear (reference frame)")
+    ax.set_xlabel("training time [min]")
+    ax.set_ylabel("validation PSNR [dB]")
+    ax.set_title(f"h = {h}, {world} process(es), batch {batch_size} x {world}, patch {patch}")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    with atomic_path(out / "val_psnr.png") as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
+
+
+def learning_rate(progress: float, at_step: int) -> float:
+    warm = min(1.0, (at_step + 1) / warmup_steps)
+    return lr * warm * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0))))
+
+
+# ---------------------------------------------------------------------------- loop
+def train() -> None:
+    global step, trained_s, best_psnr
+    budget_s = max_minutes * 60
+    bar = None
+    if master and progress_bar:
+        from tqdm import tqdm
+
+        bar = tqdm(total=max_steps, initial=step, desc="train", dynamic_ncols=True)
+    started = time.monotonic() - trained_s
+    model.train()
+    while True:
+        # Progress (time or steps, whichever is further) comes from rank 0 so that all ranks
+        # agree on the learning rate and on when to stop.
+        trained_s = time.monotonic() - started
+        progress = torch.tensor([max(step / max_steps, trained_s / budget_s)])
+        if ddp:
+            dist.broadcast(progress, 0)
+        done = progress.item() >= 1.0
+        evaluated = bool(history) and history[-1]["step"] == step  # e.g. just resumed
+        if (step % eval_interval == 0 or done) and not evaluated:
+            val_psnr, base_psnr = validate()
+            history.append({"step": step, "trained_s": trained_s, "val_psnr": val_psnr, "base_psnr": base_psnr})
+            if master:
+                if val_psnr > best_psnr:
+                    best_psnr = val_psnr
+                    save_checkpoint(out / "model.pt", val_psnr=val_psnr)
+                save_checkpoint(ckpt_path)
+                atomic_write_text(out / "history.json", json.dumps({"config": config, "history": history}, indent=1))
+                plot_history()
+                (bar.write if bar else print)(
+                    f"step {step}: val PSNR {val_psnr:.2f} dB (bilinear {base_psnr:.2f}), "
+                    f"{trained_s / 60:.1f} min"
+                )
+        if done:
+            break
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(progress.item(), step)
+        frames, offsets, truth = train_batch(step)
+        loss = F.l1_loss(net(frames, offsets), truth)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        step += 1
+        if bar:
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss.item():.4f}", lr=f"{optimizer.param_groups[0]['lr']:.1e}")
+    if bar:
+        bar.close()
+    if master:
+        print(f"done: {step} steps, {trained_s / 60:.1f} min, best val PSNR {best_psnr:.2f} dB -> {out / 'model.pt'}")
+
+
+train()
+if ddp:
+    dist.destroy_process_group()
