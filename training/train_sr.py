@@ -2,7 +2,7 @@
 
 Read it top to bottom: config, setup, data, the loop. One process:
 
-    python training/train_sr.py h=4 max_minutes=20 out_dir=runs/sr_h4
+    python training/train_sr.py h=4 max_minutes=20 out_dir=training/runs/sr_h4
 
 Two processes on one machine (DDP over gloo, the same script unchanged):
 
@@ -51,7 +51,7 @@ val_examples = 64  # held-out examples (fixed seed stream, never trained on)
 val_patch = 48
 seed = 0
 threads = 0  # torch threads per process; 0: the CPUs divided among the processes
-out_dir = "runs/sr_h4"
+out_dir = "training/runs/sr_h4"
 resume = True
 progress_bar = True
 
