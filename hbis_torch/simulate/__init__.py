@@ -1,0 +1,55 @@
+"""Physics-generated synthetic stacks: scenes, the fovea's forward model, sensor noise, datasets.
+
+Main entry points::
+
+    from hbis_torch.simulate import simulate_stack, SensorModel, load_scene, SceneSpec
+    stack, truth = simulate_stack(scene, system, plan_scan(system, 4), roi=(512, 352, 256, 256))
+
+docs/data.md describes the model and the output-grid convention.
+"""
+
+from .forward import RenderedScan, render_scan
+from .geometry import landing_on_grid, sample_positions
+from .psf import airy_otf, airy_psf, blur_transfer, lens_otf
+from .scenes import (
+    BUILTIN_SCENES,
+    PHOTOS,
+    BarTarget,
+    EdgesScene,
+    FlatScene,
+    GradientScene,
+    GratingScene,
+    ImageScene,
+    Scene,
+    SceneSpec,
+    SiemensStar,
+    load_scene,
+)
+from .sensor import SensorModel, expose
+from .stacks import simulate_stack
+
+__all__ = [
+    "BUILTIN_SCENES",
+    "PHOTOS",
+    "BarTarget",
+    "EdgesScene",
+    "FlatScene",
+    "GradientScene",
+    "GratingScene",
+    "ImageScene",
+    "RenderedScan",
+    "Scene",
+    "SceneSpec",
+    "SensorModel",
+    "SiemensStar",
+    "airy_otf",
+    "airy_psf",
+    "blur_transfer",
+    "expose",
+    "landing_on_grid",
+    "lens_otf",
+    "load_scene",
+    "render_scan",
+    "sample_positions",
+    "simulate_stack",
+]

@@ -1,0 +1,449 @@
+"""The ``hbis-stack/1`` file: one multi-page TIFF of frames plus a JSON description.
+
+A stack holds the frames of one sub-pixel scan in scan order, shape (F, rows, cols), grayscale,
+uint8, uint16 or float32 (float in [0, 1]). Page 0's ImageDescription holds one JSON object
+(DESIGN.md section 3)::
+
+    {"format": "hbis-stack/1", "h": 4,
+     "camera": {"pixel_pitch_um": 3.75, "rows": 960, "cols": 1280, "focal_length_mm": 12.0,
+                "f_number": 1.4, "wavelength_nm": 550},
+     "prisms": {"wedge_angle_deg": 4.0, "refractive_index": 1.5},
+     "object_distance_mm": 50.0,
+     "roi": [u0, v0, width, height],
+     "phases_deg": [[phi1, phi2], ...],
+     "bit_depth": 12}
+
+Optional keys this module understands (all others are kept as they are): ``bit_depth`` (default:
+8 for uint8, 16 for uint16), ``reference_index`` (the frame taken at the scan's initial phases,
+default 0), ``black_level`` (digital number of a black pixel, default 0; integer frames only),
+``camera.wavelength_nm`` (default 550).
+
+Every problem with a file or a stack raises :class:`StackFormatError` (an HbisInputError) whose
+one-line message starts with the file name and says what was wrong. Writes are atomic.
+docs/stack-format.md describes the format for outside tools.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .config import Camera, Prisms, System
+from .errors import HbisInputError
+from .io_utils import atomic_path
+
+FORMAT = "hbis-stack/1"
+FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
+_CAMERA_KEYS = ("pixel_pitch_um", "rows", "cols", "focal_length_mm", "f_number")
+_PRISM_KEYS = ("wedge_angle_deg", "refractive_index")
+_TOP_KEYS = ("format", "h", "camera", "prisms", "object_distance_mm", "roi", "phases_deg")
+
+
+class StackFormatError(HbisInputError):
+    """A stack file or a Stack object breaks the hbis-stack/1 format (one-line message)."""
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, (bool, np.bool_)
+    )
+
+
+def _jsonable(value):
+    """Plain-Python copy of ``value`` (numpy and torch scalars/arrays become numbers/lists)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, torch.Tensor):
+        return _jsonable(value.detach().cpu().numpy())
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def system_meta(system: System) -> dict:
+    """The ``camera``, ``prisms`` and ``object_distance_mm`` entries describing ``system``."""
+    cam, pr = system.camera, system.prisms
+    return {
+        "camera": {
+            "pixel_pitch_um": float(cam.pixel_pitch_um),
+            "rows": int(cam.rows),
+            "cols": int(cam.cols),
+            "focal_length_mm": float(cam.focal_length_mm),
+            "f_number": float(cam.f_number),
+            "wavelength_nm": float(cam.wavelength_nm),
+        },
+        "prisms": {
+            "wedge_angle_deg": float(pr.wedge_angle_deg),
+            "refractive_index": float(pr.refractive_index),
+        },
+        "object_distance_mm": float(system.object_distance_mm),
+    }
+
+
+def make_meta(
+    system: System,
+    h: int,
+    roi,
+    phases_deg,
+    bit_depth: int | None = None,
+    reference_index: int | None = None,
+    **extra,
+) -> dict:
+    """Build an hbis-stack/1 JSON object.
+
+    Parameters
+    ----------
+    system : System
+        Camera, prisms and object distance.
+    h : int
+        Resolution improvement factor of the scan.
+    roi : (u0, v0, width, height)
+        Where the frames sit on the sensor, in pixels.
+    phases_deg : array-like, shape (F, 2)
+        Prism phases (phi1, phi2) of each frame in degrees, in scan order.
+    bit_depth : int or None
+        Significant bits of integer frames (omitted when None).
+    reference_index : int or None
+        Index of the frame taken at the scan's initial phases (stored when given).
+    **extra
+        Further keys, kept as they are (must be JSON-serialisable).
+    """
+    meta = {"format": FORMAT, "h": int(h), **system_meta(system)}
+    meta["roi"] = [int(r) for r in roi]
+    meta["phases_deg"] = np.asarray(phases_deg, dtype=np.float64).reshape(-1, 2).tolist()
+    if bit_depth is not None:
+        meta["bit_depth"] = int(bit_depth)
+    if reference_index is not None:
+        meta["reference_index"] = int(reference_index)
+    meta.update(_jsonable(extra))
+    return meta
+
+
+def _system_from_meta(meta: dict, where: str) -> System:
+    cam, pr = meta["camera"], meta["prisms"]
+    try:
+        camera = Camera(
+            pixel_pitch_um=float(cam["pixel_pitch_um"]),
+            rows=cam["rows"],
+            cols=cam["cols"],
+            focal_length_mm=float(cam["focal_length_mm"]),
+            f_number=float(cam["f_number"]),
+            wavelength_nm=float(cam.get("wavelength_nm", 550.0)),
+        )
+        prisms = Prisms(float(pr["wedge_angle_deg"]), float(pr["refractive_index"]))
+        return System(camera, prisms, float(meta["object_distance_mm"]))
+    except HbisInputError as exc:
+        raise StackFormatError(f"{where}: {exc}") from None
+
+
+def _check_meta(meta, where: str) -> None:
+    """Check the JSON object alone (keys, types, values); frames are checked separately."""
+    if not isinstance(meta, dict):
+        raise StackFormatError(f"{where}: the description is not a JSON object")
+    missing = [k for k in _TOP_KEYS if k not in meta]
+    if missing:
+        raise StackFormatError(f"{where}: missing key(s) {', '.join(missing)} in the stack JSON")
+    if meta["format"] != FORMAT:
+        raise StackFormatError(f"{where}: format is {meta['format']!r}, expected {FORMAT!r}")
+    if not _is_int(meta["h"]) or meta["h"] < 1:
+        raise StackFormatError(f"{where}: h must be a positive integer, got {meta['h']!r}")
+    for key, needed in (("camera", _CAMERA_KEYS), ("prisms", _PRISM_KEYS)):
+        block = meta[key]
+        if not isinstance(block, dict):
+            raise StackFormatError(f"{where}: {key} must be a JSON object")
+        gone = [k for k in needed if k not in block]
+        if gone:
+            raise StackFormatError(f"{where}: missing key(s) {', '.join(key + '.' + k for k in gone)}")
+        for k, v in block.items():
+            if k in needed or k == "wavelength_nm":
+                if not _is_number(v) or not math.isfinite(v):
+                    raise StackFormatError(f"{where}: {key}.{k} must be a finite number, got {v!r}")
+    for k in ("rows", "cols"):
+        if not _is_int(meta["camera"][k]):
+            raise StackFormatError(f"{where}: camera.{k} must be an integer, got {meta['camera'][k]!r}")
+    od = meta["object_distance_mm"]
+    if not _is_number(od) or not math.isfinite(od):
+        raise StackFormatError(f"{where}: object_distance_mm must be a finite number, got {od!r}")
+    roi = meta["roi"]
+    if not isinstance(roi, (list, tuple)) or len(roi) != 4 or not all(_is_int(r) for r in roi):
+        raise StackFormatError(f"{where}: roi must be four integers [u0, v0, width, height], got {roi!r}")
+    phases = meta["phases_deg"]
+    if (
+        not isinstance(phases, (list, tuple))
+        or len(phases) == 0
+        or not all(isinstance(p, (list, tuple)) and len(p) == 2 for p in phases)
+        or not all(_is_number(x) for p in phases for x in p)
+    ):
+        raise StackFormatError(f"{where}: phases_deg must be a non-empty list of [phi1, phi2] numbers")
+    if not np.isfinite(np.asarray(phases, dtype=np.float64)).all():
+        raise StackFormatError(f"{where}: phases_deg contains NaN or infinite values")
+    bd = meta.get("bit_depth")
+    if bd is not None and (not _is_int(bd) or not 1 <= bd <= 16):
+        raise StackFormatError(f"{where}: bit_depth must be an integer from 1 to 16, got {bd!r}")
+    ref = meta.get("reference_index")
+    if ref is not None and (not _is_int(ref) or not 0 <= ref < len(phases)):
+        raise StackFormatError(
+            f"{where}: reference_index {ref!r} is not a frame index (0..{len(phases) - 1})"
+        )
+    black = meta.get("black_level", 0)
+    if not _is_number(black) or not math.isfinite(black) or black < 0:
+        raise StackFormatError(f"{where}: black_level must be a non-negative number, got {black!r}")
+
+
+def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None:
+    """Raise StackFormatError unless ``frames`` and ``meta`` form a valid hbis-stack/1 stack.
+
+    Parameters
+    ----------
+    frames : np.ndarray, shape (F, H, W)
+        uint8, uint16 or float32 in [0, 1].
+    meta : dict
+        The JSON object.
+    where : str
+        Prefix of the error message (the file name when reading or writing).
+    """
+    _check_meta(meta, where)
+    if not isinstance(frames, np.ndarray):
+        raise StackFormatError(f"{where}: frames must be a numpy array, got {type(frames).__name__}")
+    if frames.ndim != 3:
+        raise StackFormatError(
+            f"{where}: frames must have shape (F, rows, cols) (grayscale), got {frames.shape}"
+        )
+    if frames.dtype not in FRAME_DTYPES:
+        raise StackFormatError(
+            f"{where}: frame dtype {frames.dtype} is not one of uint8, uint16, float32"
+        )
+    n_frames, n_phases = frames.shape[0], len(meta["phases_deg"])
+    if n_frames != n_phases:
+        raise StackFormatError(
+            f"{where}: {n_frames} frame(s) but {n_phases} entries in phases_deg (one per frame)"
+        )
+    system = _system_from_meta(meta, where)
+    u0, v0, w, h = meta["roi"]
+    cam = system.camera
+    if w < 1 or h < 1 or u0 < 0 or v0 < 0 or u0 + w > cam.cols or v0 + h > cam.rows:
+        raise StackFormatError(
+            f"{where}: roi {list(meta['roi'])} lies outside the {cam.rows} x {cam.cols} "
+            "(rows x cols) sensor"
+        )
+    if (h, w) != frames.shape[1:]:
+        raise StackFormatError(
+            f"{where}: roi is {w} x {h} (width x height) but the frames are "
+            f"{frames.shape[2]} x {frames.shape[1]}"
+        )
+    bd = meta.get("bit_depth")
+    if frames.dtype == np.float32:
+        if not np.isfinite(frames).all():
+            raise StackFormatError(f"{where}: frames contain NaN or infinite values")
+        lo, hi = float(frames.min()), float(frames.max())
+        if lo < 0.0 or hi > 1.0:
+            raise StackFormatError(
+                f"{where}: float32 frames must lie in [0, 1], found values in [{lo:g}, {hi:g}]"
+            )
+        return
+    container = frames.dtype.itemsize * 8
+    if bd is not None and bd > container:
+        raise StackFormatError(f"{where}: bit_depth {bd} does not fit {frames.dtype} frames")
+    white = 2 ** (bd or container) - 1
+    top = int(frames.max())
+    if top > white:
+        raise StackFormatError(
+            f"{where}: pixel values up to {top} exceed bit_depth {bd} (largest allowed {white})"
+        )
+    black = meta.get("black_level", 0)
+    if black >= white:
+        raise StackFormatError(f"{where}: black_level {black} is not below the white level {white}")
+
+
+@dataclass
+class Stack:
+    """Frames of one sub-pixel scan and their hbis-stack/1 description.
+
+    Attributes
+    ----------
+    frames : np.ndarray, shape (F, H, W)
+        uint8, uint16 or float32 (in [0, 1]), in scan order.
+    meta : dict
+        The hbis-stack/1 JSON object, extra keys included.
+    """
+
+    frames: np.ndarray
+    meta: dict
+
+    def validate(self, where: str = "stack") -> "Stack":
+        """Raise StackFormatError unless the stack is valid; return self."""
+        validate_stack(self.frames, self.meta, where)
+        return self
+
+    @property
+    def h(self) -> int:
+        return int(self.meta["h"])
+
+    @property
+    def roi(self) -> tuple[int, int, int, int]:
+        """(u0, v0, width, height) in sensor pixels."""
+        return tuple(int(r) for r in self.meta["roi"])
+
+    @property
+    def phases_deg(self) -> np.ndarray:
+        """(F, 2) float64 prism phases (phi1, phi2) in degrees."""
+        return np.asarray(self.meta["phases_deg"], dtype=np.float64).reshape(-1, 2)
+
+    @property
+    def reference_index(self) -> int:
+        """Index of the frame taken at the scan's initial phases (0 when the file omits it)."""
+        return int(self.meta.get("reference_index", 0))
+
+    @property
+    def bit_depth(self) -> int | None:
+        """Significant bits; from the dtype (8 or 16) when the file omits it; None for float."""
+        bd = self.meta.get("bit_depth")
+        if bd is not None:
+            return int(bd)
+        if self.frames.dtype == np.float32:
+            return None
+        return self.frames.dtype.itemsize * 8
+
+    @property
+    def black_level(self) -> float:
+        return float(self.meta.get("black_level", 0))
+
+    @property
+    def system(self) -> System:
+        return _system_from_meta(self.meta, "stack")
+
+    def to_float(self) -> torch.Tensor:
+        """Frames as a (F, H, W) float32 tensor in [0, 1].
+
+        Integer frames map black_level to 0 and 2**bit_depth - 1 to 1 (values below black clip
+        to 0); float32 frames are returned as stored.
+        """
+        if self.frames.dtype == np.float32:
+            return torch.from_numpy(np.array(self.frames, dtype=np.float32))
+        white = 2 ** self.bit_depth - 1
+        black = self.black_level
+        x = torch.from_numpy(self.frames.astype(np.float32))
+        return ((x - black) / (white - black)).clamp_(0.0, 1.0)
+
+
+def _read_tiff(path: Path):
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            pages = list(tif.pages)
+            if not pages:
+                raise StackFormatError(f"{path}: the TIFF holds no pages")
+            description = pages[0].description
+            arrays = [p.asarray() for p in pages]
+    except StackFormatError:
+        raise
+    except FileNotFoundError:
+        raise StackFormatError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise StackFormatError(f"{path}: is a directory, not a TIFF file") from None
+    except Exception as exc:  # noqa: BLE001 - tifffile raises many types for corrupt files
+        raise StackFormatError(f"{path}: not a readable TIFF file ({type(exc).__name__}: {exc})") from None
+    shapes = {a.shape for a in arrays}
+    if len(shapes) != 1:
+        raise StackFormatError(f"{path}: the pages have different shapes {sorted(shapes)}")
+    if arrays[0].ndim != 2:
+        raise StackFormatError(
+            f"{path}: pages must be grayscale (rows, cols), got shape {arrays[0].shape}"
+        )
+    return np.stack(arrays), description
+
+
+def read_stack(path) -> Stack:
+    """Read and validate an hbis-stack/1 TIFF.
+
+    Returns
+    -------
+    Stack
+        frames (F, H, W) as stored, meta with every key of the file.
+
+    Raises
+    ------
+    StackFormatError
+        One line naming the file and what was wrong with it.
+    """
+    path = Path(path)
+    frames, description = _read_tiff(path)
+    if not description:
+        raise StackFormatError(f"{path}: page 0 has no ImageDescription (the stack's JSON)")
+    try:
+        meta = json.loads(description)
+    except json.JSONDecodeError as exc:
+        raise StackFormatError(f"{path}: page 0's ImageDescription is not JSON ({exc.msg})") from None
+    validate_stack(frames, meta, str(path))
+    return Stack(frames, meta)
+
+
+def _tiff_write(tmp: Path, array: np.ndarray, description: str) -> None:
+    import tifffile
+
+    tifffile.imwrite(
+        tmp,
+        array,
+        description=description,
+        metadata=None,
+        photometric="minisblack",
+        bigtiff=array.nbytes > 2**31,
+    )
+
+
+def write_stack(path, stack: Stack) -> None:
+    """Validate ``stack`` and write it atomically as an hbis-stack/1 TIFF at ``path``."""
+    path = Path(path)
+    frames = np.ascontiguousarray(stack.frames)
+    meta = _jsonable(stack.meta)
+    validate_stack(frames, meta, str(path))
+    try:
+        description = json.dumps(meta, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise StackFormatError(f"{path}: the stack's JSON cannot be written ({exc})") from None
+    with atomic_path(path) as tmp:
+        _tiff_write(tmp, frames, description)
+
+
+def write_image(path, image, meta: dict | None = None) -> None:
+    """Write one float32 image (H, W) in [0, 1] (a ground truth or a reconstruction) atomically.
+
+    ``meta`` (optional) goes to the ImageDescription as JSON.
+    """
+    path = Path(path)
+    image = np.asarray(image.detach().cpu() if isinstance(image, torch.Tensor) else image)
+    if image.ndim != 2:
+        raise HbisInputError(f"{path}: an image must have shape (H, W), got {image.shape}")
+    image = image.astype(np.float32)
+    if not np.isfinite(image).all():
+        raise HbisInputError(f"{path}: the image contains NaN or infinite values")
+    description = json.dumps(_jsonable(meta or {}), allow_nan=False)
+    with atomic_path(path) as tmp:
+        _tiff_write(tmp, image, description)
+
+
+def read_image(path) -> tuple[np.ndarray, dict]:
+    """Read a single-page grayscale TIFF: (image (H, W), its JSON description or {})."""
+    path = Path(path)
+    arrays, description = _read_tiff(path)
+    if arrays.shape[0] != 1:
+        raise StackFormatError(f"{path}: expected one image, found {arrays.shape[0]} pages")
+    try:
+        meta = json.loads(description) if description else {}
+    except json.JSONDecodeError:
+        meta = {}
+    return arrays[0], meta if isinstance(meta, dict) else {}
