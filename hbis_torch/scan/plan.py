@@ -14,9 +14,7 @@ h/2 - 1. The frame at the initial phases has index floor(h/2) (h + 1). (Eq. 7 as
 subtracts (h+1)/2 with 1-based i, which does not give DV^13 = DV^0 for h = 5; the form above
 does, and matches the figure.)
 
-The alignment error (AE) of a frame is the distance between where a ray lands and where the plan
-wants it, divided by SL. See :func:`axis_alignment_error` and :func:`pixel_alignment_error` for
-the exact conventions.
+The alignment error of a plan is in :mod:`hbis_torch.scan.alignment`.
 """
 
 from __future__ import annotations
@@ -27,9 +25,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .config import System
-from .errors import HbisInputError
-from .optics.inverse import axis_landing, exact_inverse, paper_inverse, paper_norms
+from ..config import System
+from ..errors import HbisInputError
+from ..optics.inverse import axis_landing, exact_inverse, paper_inverse, paper_norms
 
 METHODS = ("paper", "exact")
 
@@ -150,22 +148,3 @@ def plan_scan(
     # The reference frame is taken at the initial phases themselves, not at a re-solved copy.
     phases[reference] = current
     return ScanPlan(h, initial, sl, offsets, targets, phases, reference, method)
-
-
-def axis_alignment_error(system: System, plan: ScanPlan, phases_deg: Tensor | None = None) -> Tensor:
-    """AE of the optical axis per frame: |landing - target| / SL, shape (F,).
-
-    ``phases_deg`` (F, 2) replaces the plan's phases (e.g. quantised or read back from motors).
-    """
-    phases = plan.phases_deg if phases_deg is None else _check_phases(phases_deg, plan.frames)
-    landing = axis_landing(system, phases[:, 0], phases[:, 1])
-    return (landing - plan.targets_mm).norm(dim=-1) / plan.step_mm
-
-
-def _check_phases(phases_deg, frames: int) -> Tensor:
-    p = torch.as_tensor(phases_deg, dtype=torch.float64)
-    if p.shape != (frames, 2):
-        raise HbisInputError(f"phases must have shape ({frames}, 2), got {tuple(p.shape)}")
-    if not torch.isfinite(p).all():
-        raise HbisInputError("phases contain non-finite values (NaN or inf)")
-    return p
