@@ -14,8 +14,8 @@ import torch
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "training" / "train_sr.py"
-TINY = ["h=2", "width=8", "blocks=1", "patch=12", "batch_size=2", "val_examples=4",
-        "val_patch=12", "progress_bar=False", "max_minutes=1000.0"]
+TINY = ["h=2", "width=8", "blocks=1", "patch=12", "batch_size=2", "pool_size=3", "pool_roi=16",
+        "val_size=2", "val_roi=16", "progress_bar=False", "max_minutes=1000.0"]
 
 
 def run(args, out_dir, procs=1, **kw):
@@ -27,7 +27,8 @@ def run(args, out_dir, procs=1, **kw):
             pytest.skip("torchrun is not on PATH")
         cmd = [torchrun, "--standalone", f"--nproc_per_node={procs}", str(SCRIPT)]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    return subprocess.run(cmd + TINY + args + [f"out_dir={out_dir}"], cwd=REPO, env=env,
+    cache = Path(out_dir).parent / "cache"
+    return subprocess.run(cmd + TINY + args + [f"out_dir={out_dir}", f"cache_dir={cache}"], cwd=REPO, env=env,
                           capture_output=True, text=True, timeout=120, **kw)
 
 
@@ -51,7 +52,7 @@ def test_resume_after_a_kill_reproduces_the_uninterrupted_run(tmp_path):
     straight = tmp_path / "straight"
     assert run(steps, straight).returncode == 0
     killed = tmp_path / "killed"
-    cmd = [sys.executable, str(SCRIPT)] + TINY + steps + ["eval_interval=2", f"out_dir={killed}"]
+    cmd = [sys.executable, str(SCRIPT)] + TINY + steps + [f"out_dir={killed}", f"cache_dir={tmp_path / 'cache'}"]
     proc = subprocess.Popen(cmd, cwd=REPO, env={**os.environ, "OMP_NUM_THREADS": "1"},
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 90

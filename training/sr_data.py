@@ -1,90 +1,125 @@
-"""Training examples for the SR network: (registered frames, offsets, truth) patches.
+"""Training data for the SR network: simulated scans, cut into patches.
 
-STAND-IN: until the data helper's simulator lands, examples come from a small stand-in that
-box-filters a random vector scene and samples it at nominal scan offsets with a random scale and
-bias (what the optics do at the sensor's corners). Replaced by the real simulator before release.
+A *pool* is a list of simulated stacks (hbis_torch.simulate.simulate_stack, the project's physical
+forward model: exact Risley geometry, Airy PSF, pixel aperture, shot and read noise, 12-bit ADC)
+of procedural scenes (words, texture, edges, bars, Siemens stars, gradients) at random places on
+the sensor, so that the network sees the off-grid shifts of the sensor's corners as well as its
+centre. Photographs are *not* used for training: they are the held-out test of the benchmark.
+
+Training examples are random crops of pool stacks under the 8 flips/transposes of the square.
+Flipping a stack is a valid new scan: the crop's sample positions are flipped with it and
+:func:`~hbis_torch.sr.learned.prepare_inputs` finds the new registered order from them.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
-from skimage import draw
 
-from hbis_torch.scan import scan_offsets
+from hbis_torch.config import System
+from hbis_torch.io_utils import atomic_path
+from hbis_torch.scan import plan_scan
+from hbis_torch.simulate import SceneSpec, SensorModel, load_scene, sample_positions, simulate_stack
 from hbis_torch.sr.learned import prepare_inputs
 
-
-def random_scene(rng: np.random.Generator, size: int) -> np.ndarray:
-    """A (size, size) float64 scene in [0, 1]: shapes, lines and a grating on a gradient."""
-    yy, xx = np.mgrid[0:size, 0:size] / size
-    img = rng.uniform(0.1, 0.9) + rng.uniform(-0.3, 0.3) * (xx - 0.5) + rng.uniform(-0.3, 0.3) * (yy - 0.5)
-    for _ in range(rng.integers(3, 12)):
-        kind = rng.integers(0, 4)
-        value = rng.uniform(0, 1)
-        if kind == 0:
-            rr, cc = draw.disk(rng.uniform(0, size, 2), rng.uniform(2, size / 3), shape=img.shape)
-        elif kind == 1:
-            pts = rng.uniform(0, size, (rng.integers(3, 6), 2))
-            rr, cc = draw.polygon(pts[:, 0], pts[:, 1], shape=img.shape)
-        elif kind == 2:
-            r0, c0, r1, c1 = rng.integers(0, size, 4)
-            rr, cc, _ = draw.line_aa(r0, c0, r1, c1)
-            keep = (rr < size) & (cc < size)
-            rr, cc = rr[keep], cc[keep]
-        else:
-            f = rng.uniform(0.01, 0.25)
-            angle = rng.uniform(0, np.pi)
-            grating = 0.5 + 0.5 * np.sin(2 * np.pi * f * (np.cos(angle) * xx + np.sin(angle) * yy) * size)
-            mask = np.zeros(img.shape, bool)
-            rr, cc = draw.disk(rng.uniform(0, size, 2), rng.uniform(size / 8, size / 3), shape=img.shape)
-            img[rr, cc] = grating[rr, cc]
-            continue
-        img[rr, cc] = value
-    return np.clip(img, 0, 1)
+TRAIN_SCENES = ("words", "texture", "edges", "bars", "siemens-star", "gradient", "slanted-edge")
+SCENE_WEIGHTS = (0.3, 0.25, 0.15, 0.1, 0.1, 0.05, 0.05)
 
 
-def standin_example(rng: np.random.Generator, h: int, patch: int):
-    """One example: frames (h^2, P, P), positions (h^2, P, P, 2), truth (hP, hP)."""
-    fine_per_hr = 2
-    margin = 3
-    n = patch + 2 * margin
-    scale = h * fine_per_hr  # fine samples per LR pixel
-    scene = random_scene(rng, n * scale)
-    lr_box = ndimage.uniform_filter(scene, scale, mode="nearest")
-    hr_box = ndimage.uniform_filter(scene, fine_per_hr, mode="nearest")
-    offsets, _ = scan_offsets(h)
-    gain = 1 + rng.uniform(0, 0.09)
-    bias = rng.uniform(-0.06, 0.06, 2)
-    shifts = offsets.numpy() / h * gain + bias  # (F, 2) LR pixels
-    shifts[_] = 0.0  # the reference frame defines the grid
-    yy, xx = np.mgrid[0:patch, 0:patch].astype(np.float64)
-    grid = np.stack((xx, yy), -1)
-    positions = grid[None] + shifts[:, None, None, :]
-    frames = []
-    noise = rng.uniform(0.001, 0.02)
-    for k in range(h * h):
-        # fine coordinate of LR position x: (x + margin + 0.5) * scale - 0.5
-        fx = (positions[k, ..., 0] + margin + 0.5) * scale - 0.5
-        fy = (positions[k, ..., 1] + margin + 0.5) * scale - 0.5
-        f = ndimage.map_coordinates(lr_box, [fy, fx], order=1, mode="nearest")
-        f = f + rng.normal(0, noise, f.shape)
-        frames.append(np.round(np.clip(f, 0, 1) * 4095) / 4095)
-    hr = np.arange(h * patch)
-    hy, hx = np.meshgrid(hr, hr, indexing="ij")
-    ty = ((hy + 0.5) / h - 0.5 + margin + 0.5) * scale - 0.5
-    tx = ((hx + 0.5) / h - 0.5 + margin + 0.5) * scale - 0.5
-    truth = ndimage.map_coordinates(hr_box, [ty, tx], order=1, mode="nearest")
-    return np.stack(frames).astype(np.float32), positions, truth.astype(np.float32)
+def simulate_example(system: System, plan, size: int, seed: int) -> dict:
+    """One simulated stack of a random procedural scene at a random place on the sensor.
+
+    Returns a dict with ``frames`` (F, size, size) float32 in [0, 1], ``positions``
+    (F, size, size, 2) float32 ROI-local LR pixels, ``truth`` (h size, h size) float32,
+    ``roi`` (4,) and ``scene`` (name).
+    """
+    rng = np.random.default_rng(seed)
+    cam = system.camera
+    roi = (int(rng.integers(0, cam.cols - size + 1)), int(rng.integers(0, cam.rows - size + 1)), size, size)
+    name = str(rng.choice(TRAIN_SCENES, p=SCENE_WEIGHTS))
+    pixel = system.object_pixel_mm
+    side = size * pixel * 1.25  # a margin so the scene covers every frame of the scan
+    spec = SceneSpec(size_mm=(side, side), pixel_mm=pixel, detail_mm=pixel / 16)
+    scene = load_scene(name, spec, seed=int(rng.integers(2**31)))
+    # Exposure varies from dim (noisy) to bright; the ADC is the default 12 bits.
+    sensor = SensorModel(full_well_e=float(np.exp(rng.uniform(np.log(2000), np.log(30000)))))
+    stack, truth = simulate_stack(scene, system, plan, roi=roi, sensor=sensor, seed=int(rng.integers(2**31)))
+    positions = sample_positions(system, plan.phases_deg, plan.reference_index, roi)
+    return {
+        "frames": stack.to_float().numpy(),
+        "positions": positions.numpy().astype(np.float32),
+        "truth": np.asarray(truth, np.float32),
+        "roi": np.asarray(roi),
+        "scene": name,
+    }
 
 
-def make_batch(rng: np.random.Generator, h: int, patch: int, batch: int):
-    """A batch: frames (B, h^2, P, P), offsets (B, 2h^2, P, P), truth (B, 1, hP, hP), float32."""
-    frames, offsets, truths = [], [], []
-    for _ in range(batch):
-        f, pos, truth = standin_example(rng, h, patch)
-        fr, off = prepare_inputs(f, pos, h)
-        frames.append(fr)
-        offsets.append(off)
-        truths.append(truth[None])
-    return np.stack(frames), np.stack(offsets), np.stack(truths)
+def build_pool(h: int, count: int, size: int, seed: int, indices=None) -> list[dict]:
+    """``count`` simulated examples (or those of ``indices``) with seeds derived from ``seed``."""
+    system = System()
+    plan = plan_scan(system, h)
+    indices = range(count) if indices is None else indices
+    return [simulate_example(system, plan, size, int(np.random.SeedSequence([seed, i]).generate_state(1)[0]))
+            for i in indices]
+
+
+def save_pool(path, pool: list[dict]) -> None:
+    """Write a pool as one .npz (atomically)."""
+    arrays = {}
+    for i, ex in enumerate(pool):
+        for key, value in ex.items():
+            arrays[f"{i}/{key}"] = np.asarray(value)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **arrays)
+
+
+def load_pool(path) -> list[dict]:
+    with np.load(path) as data:
+        count = 1 + max(int(k.split("/")[0]) for k in data.files)
+        return [{key: data[f"{i}/{key}"] for key in ("frames", "positions", "truth", "roi", "scene")}
+                for i in range(count)]
+
+
+def dihedral(frames, positions, truth, k: int):
+    """Apply the k-th (0..7) flip/transpose of the square to a square crop and its positions."""
+    size = frames.shape[-1]
+    if k & 4:  # transpose: swap rows and columns, and the x and y of every position
+        frames = frames.transpose(0, 2, 1)
+        positions = positions.transpose(0, 2, 1, 3)[..., ::-1]
+        truth = truth.T
+    if k & 1:  # flip x
+        frames, truth = frames[..., ::-1], truth[..., ::-1]
+        positions = positions[:, :, ::-1].copy()
+        positions[..., 0] = (size - 1) - positions[..., 0]
+    if k & 2:  # flip y
+        frames, truth = frames[:, ::-1], truth[::-1]
+        positions = positions[:, ::-1].copy()
+        positions[..., 1] = (size - 1) - positions[..., 1]
+    return frames, positions, truth
+
+
+def crop_example(example: dict, h: int, patch: int, rng: np.random.Generator, augment: bool = True):
+    """A random (patch x patch) crop, transformed, as (frames_reg, offsets, truth (1, hP, hP))."""
+    frames, positions, truth = example["frames"], example["positions"], example["truth"]
+    size_y, size_x = frames.shape[1:]
+    y0 = int(rng.integers(0, size_y - patch + 1))
+    x0 = int(rng.integers(0, size_x - patch + 1))
+    f = frames[:, y0:y0 + patch, x0:x0 + patch]
+    p = positions[:, y0:y0 + patch, x0:x0 + patch] - np.array([x0, y0], np.float32)
+    t = truth[h * y0:h * (y0 + patch), h * x0:h * (x0 + patch)]
+    if augment:
+        f, p, t = dihedral(f, p, t, int(rng.integers(8)))
+    frames_reg, offsets = prepare_inputs(f, p, h)
+    return frames_reg, offsets, np.ascontiguousarray(t, dtype=np.float32)[None]
+
+
+def make_batch(pool: list[dict], h: int, patch: int, batch: int, rng: np.random.Generator):
+    """frames (B, h^2, P, P), offsets (B, 2h^2, P, P), truth (B, 1, hP, hP), float32."""
+    parts = [crop_example(pool[int(rng.integers(len(pool)))], h, patch, rng) for _ in range(batch)]
+    return tuple(np.stack(a) for a in zip(*parts))
+
+
+def whole_example(example: dict, h: int):
+    """The full example as a batch of one (no crop, no augmentation)."""
+    frames_reg, offsets = prepare_inputs(example["frames"], example["positions"], h)
+    return frames_reg[None], offsets[None], example["truth"][None, None]

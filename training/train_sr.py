@@ -33,13 +33,18 @@ import torch.nn.functional as F
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
 from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet, count_parameters  # noqa: E402
-from training.sr_data import make_batch  # noqa: E402
+from training.sr_data import build_pool, load_pool, make_batch, save_pool, whole_example  # noqa: E402
 
 # ---------------------------------------------------------------------------- config
 h = 4  # resolution improvement factor; the model takes h*h frames
 width = 48  # feature channels
 blocks = 5  # residual blocks
 patch = 32  # LR patch side of a training example (the output patch is h times larger)
+pool_size = 240  # simulated training stacks (procedural scenes, random places on the sensor)
+pool_roi = 96  # LR side of each simulated training stack; patches are cropped from them
+val_size = 24  # held-out simulated stacks (their own seeds, never trained on)
+val_roi = 64  # LR side of a validation stack (PSNR over the whole h*val_roi square)
+cache_dir = "training/runs/cache"  # simulated pools are generated once and reused
 batch_size = 8  # per process
 lr = 2e-3  # peak learning rate (AdamW), cosine decay to lr/20 over the budget
 weight_decay = 1e-4
@@ -47,8 +52,6 @@ warmup_steps = 50
 max_steps = 100_000  # whichever of max_steps / max_minutes comes first ends the run
 max_minutes = 20.0  # wall-clock budget for training (validation included)
 eval_interval = 100  # steps between validation + checkpoint
-val_examples = 64  # held-out examples (fixed seed stream, never trained on)
-val_patch = 48
 seed = 0
 threads = 0  # torch threads per process; 0: the CPUs divided among the processes
 out_dir = "training/runs/sr_h4"
@@ -113,16 +116,39 @@ if master:
     print(f"HbisSRNet h={h}: {count_parameters(model)} parameters, {world} process(es)")
 
 # ---------------------------------------------------------------------------- data
+def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
+    """A simulated pool, built once (split across the ranks) and cached as an .npz file."""
+    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}.npz"
+    if not path.exists():
+        part = Path(f"{path}.part{rank}of{world}.npz")
+        if not part.exists():
+            t0 = time.monotonic()
+            save_pool(part, build_pool(h, count, size, pool_seed, range(rank, count, world)))
+            print(f"rank {rank}: simulated {len(range(rank, count, world))} {name} stacks in {time.monotonic() - t0:.0f} s")
+        if ddp:
+            dist.barrier()
+        if master:
+            parts = [load_pool(f"{path}.part{r}of{world}.npz") for r in range(world)]
+            pool = [parts[i % world][i // world] for i in range(count)]  # back in index order
+            save_pool(path, pool)
+            for r in range(world):
+                Path(f"{path}.part{r}of{world}.npz").unlink()
+        if ddp:
+            dist.barrier()
+    return load_pool(path)
+
+
+# Training and validation stacks come from disjoint seed streams (seed and seed + 1).
+train_pool = cached_pool("train", pool_size, pool_roi, seed)
+val_pool = cached_pool("val", val_size, val_roi, seed + 1)
+val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across the ranks
+
+
 # Every batch comes from its own seed (seed, rank, step), so a resumed run sees the same data
 # as an uninterrupted one and the ranks never see the same examples.
 def train_batch(at_step: int):
     rng = np.random.default_rng([seed, rank, at_step])
-    return [torch.from_numpy(a) for a in make_batch(rng, h, patch, batch_size)]
-
-
-# The validation set: its own seed stream, split across ranks, generated once.
-val_ids = range(rank, val_examples, world)
-val_set = [make_batch(np.random.default_rng([seed, 10_000_019, i]), h, val_patch, 1) for i in val_ids]
+    return [torch.from_numpy(a) for a in make_batch(train_pool, h, patch, batch_size, rng)]
 
 
 def psnr(image: torch.Tensor, truth: torch.Tensor) -> float:
