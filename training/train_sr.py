@@ -221,7 +221,7 @@ def train() -> None:
         # Progress (time or steps, whichever is further) comes from rank 0 so that all ranks
         # agree on the learning rate and on when to stop.
         trained_s = time.monotonic() - started
-        progress = torch.tensor([max(step / max_steps, trained_s / budget_s)])
+        progress = torch.tensor([max(step / max_steps if max_steps > 0 else 1.0, trained_s / budget_s)])
         if ddp:
             dist.broadcast(progress, 0)
         done = progress.item() >= 1.0

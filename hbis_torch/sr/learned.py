@@ -137,6 +137,36 @@ def prepare_inputs(frames, positions, h: int) -> tuple[np.ndarray, np.ndarray]:
     return frames_reg, offsets
 
 
+def run_tiled(infer, frames_reg: np.ndarray, offsets: np.ndarray, h: int, tile: int = 256,
+              halo: int = TILE_HALO) -> np.ndarray:
+    """Run ``infer`` over overlapping tiles and stitch the centres.
+
+    Parameters
+    ----------
+    infer : callable
+        (1, h^2, h_t, w_t), (1, 2h^2, h_t, w_t) float32 arrays -> (1, 1, h h_t, h w_t).
+    frames_reg, offsets : ndarray, shapes (h^2, H, W) and (2h^2, H, W)
+    h, tile, halo : int
+        Factor, tile side and halo in LR pixels; a halo wider than the network's receptive field
+        radius makes the result independent of the tiling.
+
+    Returns
+    -------
+    ndarray, shape (hH, hW), float32
+    """
+    _, rows, cols = frames_reg.shape
+    out = np.empty((h * rows, h * cols), np.float32)
+    for y0 in range(0, rows, tile):
+        for x0 in range(0, cols, tile):
+            y1, x1 = min(y0 + tile, rows), min(x0 + tile, cols)
+            ya, xa = max(y0 - halo, 0), max(x0 - halo, 0)
+            yb, xb = min(y1 + halo, rows), min(x1 + halo, cols)
+            image = infer(np.ascontiguousarray(frames_reg[None, :, ya:yb, xa:xb]),
+                          np.ascontiguousarray(offsets[None, :, ya:yb, xa:xb]))[0, 0]
+            out[h * y0:h * y1, h * x0:h * x1] = image[h * (y0 - ya):h * (y1 - ya), h * (x0 - xa):h * (x1 - xa)]
+    return out
+
+
 def session_options(threads: int | None = None):
     """onnxruntime options for the CPU: all graph optimisations, one intra-op pool.
 
@@ -200,25 +230,13 @@ class LearnedSR:
         self.path = path
         self.tile = int(tile)
 
+    def infer(self, frames_reg: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """One network pass: (1, h^2, H, W), (1, 2h^2, H, W) float32 -> (1, 1, hH, hW)."""
+        return self.session.run(["image"], {"frames": frames_reg, "offsets": offsets})[0]
+
     def run_network(self, frames_reg: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Raw network output for registered inputs, tiled; (h^2, H, W), (2h^2, H, W) -> (hH, hW)."""
-        _, rows, cols = frames_reg.shape
-        h, tile, halo = self.h, self.tile, TILE_HALO
-        out = np.empty((h * rows, h * cols), np.float32)
-        for y0 in range(0, rows, tile):
-            for x0 in range(0, cols, tile):
-                y1, x1 = min(y0 + tile, rows), min(x0 + tile, cols)
-                ya, xa = max(y0 - halo, 0), max(x0 - halo, 0)
-                yb, xb = min(y1 + halo, rows), min(x1 + halo, cols)
-                feed = {
-                    "frames": np.ascontiguousarray(frames_reg[None, :, ya:yb, xa:xb]),
-                    "offsets": np.ascontiguousarray(offsets[None, :, ya:yb, xa:xb]),
-                }
-                image = self.session.run(["image"], feed)[0][0, 0]
-                out[h * y0:h * y1, h * x0:h * x1] = image[
-                    h * (y0 - ya):h * (y1 - ya), h * (x0 - xa):h * (x1 - xa)
-                ]
-        return out
+        return run_tiled(self.infer, frames_reg, offsets, self.h, self.tile)
 
     def __call__(self, frames, positions) -> np.ndarray:
         """Super-resolve frames (F, H, W) in [0, 1] with positions (F, H, W, 2) -> (hH, hW) in [0, 1]."""
