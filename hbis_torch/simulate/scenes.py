@@ -66,9 +66,10 @@ def box_interval(t: Tensor, half, width) -> Tensor:
     return (torch.minimum(lo, 2 * half + 0 * lo) - torch.minimum(hi, 2 * half + 0 * hi)) / width
 
 
-def square_edge_coverage(t: Tensor, angle_rad: float, side: float | None) -> Tensor:
+def square_edge_coverage(t: Tensor, angle_rad, side: float | None) -> Tensor:
     """Fraction of a square cell of ``side`` (axis aligned) on the positive side of a straight
-    edge whose normal makes ``angle_rad`` with +x, ``t`` being the cell centre's signed distance.
+    edge whose normal makes ``angle_rad`` (a number or a tensor like ``t``) with +x, ``t`` being
+    the cell centre's signed distance to the edge.
 
     Exact: the step is averaged by the two boxes the square projects to along the normal, of
     widths side |cos| and side |sin|, whose convolution is a trapezoid with a piecewise quadratic
@@ -76,13 +77,13 @@ def square_edge_coverage(t: Tensor, angle_rad: float, side: float | None) -> Ten
     """
     if not side:
         return (t >= 0).to(t.dtype)
-    a = side * max(abs(math.cos(angle_rad)), abs(math.sin(angle_rad)))
-    b = side * min(abs(math.cos(angle_rad)), abs(math.sin(angle_rad)))
-    if b < 1e-9 * a:
-        return box_step(t, a)
+    c = torch.as_tensor(angle_rad, dtype=t.dtype)
+    cos, sin = torch.cos(c).abs(), torch.sin(c).abs()
+    a = side * torch.maximum(cos, sin)
+    b = (side * torch.minimum(cos, sin)).clamp(min=1e-9 * side)
     u = t.abs()
     inner = 0.5 + u / a  # on the flat top of the trapezoid, |t| <= (a - b) / 2
-    outer = 1.0 - (torch.clamp((a + b) / 2 - u, min=0.0) ** 2) / (2 * a * b)
+    outer = 1.0 - torch.clamp((a + b) / 2 - u, min=0.0) ** 2 / (2 * a * b)
     cover = torch.where(u <= (a - b) / 2, inner, outer)
     return torch.where(t >= 0, cover, 1.0 - cover)
 
@@ -206,8 +207,9 @@ class SiemensStar(Scene):
         r = torch.hypot(x, y)
         theta = torch.atan2(y, x)
         distance = r * torch.asin(torch.sin(self.spokes * theta).clamp(-1.0, 1.0)) / self.spokes
-        star = self.dark + (self.bright - self.dark) * box_step(distance, spacing_mm)
-        inside = box_step(radius - r, spacing_mm)
+        # spoke edges are radial (normal: tangential), the rim is a circle (normal: radial)
+        star = self.dark + (self.bright - self.dark) * square_edge_coverage(distance, theta + math.pi / 2, spacing_mm)
+        inside = square_edge_coverage(radius - r, theta, spacing_mm)
         return self.background + inside * (star - self.background)
 
 
@@ -389,9 +391,13 @@ def read_image_file(path) -> np.ndarray:
             if array.ndim == 3 and array.shape[-1] not in (3, 4):
                 array = array[0]  # first page of a stack
         else:
-            import skimage.io
+            from PIL import Image
 
-            array = skimage.io.imread(path)
+            with Image.open(path) as image:
+                if image.mode.startswith("I;16"):
+                    array = np.asarray(image).astype(np.uint16)  # 16-bit: scaled by 65535
+                else:
+                    array = np.asarray(image)
     except FileNotFoundError:
         raise HbisInputError(f"{path}: no such image file") from None
     except Exception as exc:  # noqa: BLE001 - the readers raise many types for bad files
