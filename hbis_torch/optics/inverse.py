@@ -10,9 +10,9 @@ Three solvers, all vectorised over any number of targets (shape (F, 2), mm on th
 * :func:`exact_inverse` - the non-paraxial model, exact to rounding. It uses the rotational
   symmetry of the pair: turning both prisms by the same angle c turns the deviated axis by c,
   so the landing radius depends only on the relative angle delta = phi2 - phi1. The radius is a
-  monotone function of cos(delta) (largest with the prisms aligned, zero with them opposed), so
-  one safeguarded Newton root-find over all targets gives delta, and the common rotation then
-  follows from the target's azimuth.
+  monotone, nearly linear function of cos(delta / 2) (largest with the prisms aligned, zero with
+  them opposed), so one safeguarded Newton root-find over all targets gives delta, and the
+  common rotation then follows from the target's azimuth.
 * :func:`paraxial_inverse` - the first-order model of section 2.3 (each prism deviates by
   (n - 1) a), for coarse pointing.
 
@@ -24,7 +24,8 @@ its current value: the shortest rotation. Singular and hard cases:
   and the axis is not deviated at all, so the azimuth of a target at the centre is undefined.
   The solvers keep the common rotation of the current phases there (no 180 deg jump).
 * targets at the rim of the reachable disc (prisms aligned): the two branches merge and the
-  Jacobian loses rank; the root-find works in cos(delta), where the radius keeps a non-zero slope.
+  Jacobian loses rank; the root-find works in cos(delta / 2), where the radius keeps a non-zero
+  slope.
 * targets beyond the maximum deviation raise :class:`~hbis_torch.errors.HbisInputError`, naming
   that maximum; targets past the rim by rounding only (relative 1e-9) are put on the rim.
 * arccos arguments pushed past +-1 by rounding are clamped. No NaN ever leaves this module.
@@ -234,9 +235,10 @@ def paper_inverse(targets_mm, k1: float, k2: float, current_deg) -> Tensor:
 # --------------------------------------------------------------------------------------------
 
 
-def _relative_trace(system: System, cos_delta: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Landing radius (mm), twist (deg) and delta (deg) at phi1 = -delta/2, phi2 = +delta/2."""
-    delta = torch.rad2deg(torch.arccos(cos_delta.clamp(-1.0, 1.0)))
+def _relative_trace(system: System, half_cos: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Landing radius (mm), twist (deg) and delta (deg) at phi1 = -delta/2, phi2 = +delta/2,
+    for w = cos(delta / 2) in [0, 1]."""
+    delta = 2 * torch.rad2deg(torch.arccos(half_cos.clamp(0.0, 1.0)))
     xy = axis_landing(system, -delta / 2, delta / 2)
     radius = xy.norm(dim=-1)
     twist = torch.rad2deg(torch.atan2(xy[..., 1], xy[..., 0]))
@@ -244,7 +246,7 @@ def _relative_trace(system: System, cos_delta: Tensor) -> tuple[Tensor, Tensor, 
 
 
 def exact_inverse(
-    system: System, targets_mm, current_deg, tol_mm: float | None = None, max_iter: int = 30
+    system: System, targets_mm, current_deg, tol_mm: float | None = None, max_iter: int = 40
 ) -> Tensor:
     """Phases that land the optical axis exactly on each target (non-paraxial model).
 
@@ -260,7 +262,7 @@ def exact_inverse(
     tol_mm : float, optional
         Radial tolerance of the root-find; default 1e-13 of the largest landing radius.
     max_iter : int
-        Iteration cap of the safeguarded Newton root-find (it typically needs 3 or 4).
+        Iteration cap of the safeguarded Newton root-find (it typically needs 2 or 3).
 
     Returns
     -------
@@ -269,38 +271,39 @@ def exact_inverse(
     """
     t = _check_targets(targets_mm)
     current = _check_current(current_deg, t.shape[0])
-    r_max = max_landing_radius_mm(system)
+    max_deg = max_deviation_deg(system.prisms)
+    r_max = system.object_distance_mm * math.tan(math.radians(max_deg))
     r_target = _radius_check(
         t.norm(dim=-1),
         r_max,
-        f"the maximum deviation {max_deviation_deg(system.prisms):.6g} deg of the prisms "
+        f"the maximum deviation {max_deg:.6g} deg of the prisms "
         f"({r_max:.6g} mm on the object plane at {system.object_distance_mm:g} mm)",
     )
     tol = 1e-13 * r_max if tol_mm is None else float(tol_mm)
 
-    # Solve radius(u)^2 = r_target^2 for u = cos(delta) in [-1, 1]. radius^2 is increasing in u and
-    # nearly linear (exactly so in the first-order model, r^2 = 2 k^2 (1 + u)), which makes u the
-    # right variable: the slope stays finite at both rims, where it vanishes in delta.
-    target_sq = r_target**2
-    u = (2 * target_sq / r_max**2 - 1).clamp(-1.0, 1.0)
-    lo = torch.full_like(u, -1.0)
-    hi = torch.ones_like(u)
+    # Solve radius(w) = r_target for w = cos(delta / 2) in [0, 1]. The radius increases with w
+    # and is nearly proportional to it (exactly so in the first-order model, r = 2 k w), which
+    # makes w the right variable: the slope stays finite at the rim (w = 1), where it vanishes
+    # in delta, and w keeps full precision at the centre (w = 0), where cos(delta) would not.
+    w = (r_target / r_max).clamp(0.0, 1.0)
+    lo, hi = torch.zeros_like(w), torch.ones_like(w)
     step = 1e-7
     for _ in range(max_iter):
-        # Forward difference toward the interior, so u +- step stays within [-1, 1].
-        probe = u - step * torch.where(u > 0, 1.0, -1.0)
-        radius, twist, delta = _relative_trace(system, torch.stack((u, probe)))
-        f = radius[0] ** 2 - target_sq
-        done = radius[0].sub(r_target).abs() <= tol
+        # One-sided difference toward the interior, so the probe stays within [0, 1].
+        probe = w - step * torch.where(w > 0.5, 1.0, -1.0)
+        radius, twist, delta = _relative_trace(system, torch.stack((w, probe)))
+        f = radius[0] - r_target
+        done = f.abs() <= tol
         if bool(done.all()):
             break
-        lo = torch.where(f < 0, u, lo)
-        hi = torch.where(f > 0, u, hi)
-        slope = (radius[0] ** 2 - radius[1] ** 2) / (u - probe)
-        newton = u - f / torch.where(slope > 0, slope, torch.ones_like(slope))
-        inside = (slope > 0) & (newton > lo) & (newton < hi)
-        u_next = torch.where(inside, newton, (lo + hi) / 2)
-        u = torch.where(done, u, u_next)
+        lo = torch.where(f < 0, w, lo)
+        hi = torch.where(f > 0, w, hi)
+        slope = (radius[0] - radius[1]) / (w - probe)
+        newton = w - f / torch.where(slope > 0, slope, torch.ones_like(slope))
+        inside = (slope > 0) & (newton >= lo) & (newton <= hi)
+        w = torch.where(done, w, torch.where(inside, newton, (lo + hi) / 2))
+    else:  # out of iterations: report the state of the last update, not the last probe
+        radius, twist, delta = _relative_trace(system, w[None])
     radius, twist, delta = radius[0], twist[0], delta[0]
 
     centre = r_target <= CENTRE_TOLERANCE * r_max

@@ -8,6 +8,13 @@ from .alignment import (
     pixel_grid,
     scan_report,
 )
+from .motor_steps import (
+    landing_jacobian,
+    phase_steps,
+    quantise_phases,
+    required_steps_per_deg,
+    step_alignment_error,
+)
 from .plan import (
     METHODS,
     ScanPlan,
@@ -18,19 +25,28 @@ from .plan import (
     scan_offsets,
     step_mm,
 )
+from .pointing import Pointing, point_axis, point_sequence
 
 __all__ = [
     "CONVENTIONS",
     "METHODS",
+    "Pointing",
     "ScanPlan",
     "axis_alignment_error",
     "check_h",
     "check_phase_pair",
+    "landing_jacobian",
+    "phase_steps",
     "phase_range_deg",
     "pixel_alignment_error",
     "pixel_grid",
     "plan_scan",
+    "point_axis",
+    "point_sequence",
+    "quantise_phases",
+    "required_steps_per_deg",
     "scan_offsets",
     "scan_report",
+    "step_alignment_error",
     "step_mm",
 ]

@@ -1,0 +1,66 @@
+"""``hbis reconstruct``: super-resolve a stack onto the h-times grid of its reference frame."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from ..errors import HbisInputError
+
+# Every method the command line knows; the library says which are available in this build.
+METHOD_CHOICES = ("classical", "learned")
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "reconstruct",
+        help="super-resolve an hbis-stack/1 file (h times its size, float32 in [0, 1])",
+        description="Reconstruct the super-resolved image of a stack: h times the frames' size in "
+        "each direction, covering the reference frame's ROI, written as a float32 TIFF in [0, 1].",
+    )
+    p.add_argument("stack", type=Path, help="input stack (hbis-stack/1 TIFF)")
+    p.add_argument("--method", choices=METHOD_CHOICES, default="classical",
+                   help="reconstruction method (default: classical)")
+    p.add_argument("--model", type=Path, help="ONNX model file (only for --method learned)")
+    p.add_argument("--out", type=Path, required=True, help="output TIFF")
+    p.add_argument("--registration", choices=("auto", "optics", "data"), default="auto",
+                   help="sample positions from the tracer ('optics'), the tracer corrected by "
+                   "registering the frames ('data'), or that correction where the data is "
+                   "trusted (default 'auto')")
+    p.add_argument("--no-deblur", action="store_true",
+                   help="classical: interpolation only, without the Wiener deblurring")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..io_utils import atomic_path
+    from ..sr.classical import METHODS, reconstruct
+    from ..stack_io import read_stack
+
+    if args.method not in METHODS:
+        raise HbisInputError(
+            f"method {args.method!r} is not available in this build (available: {', '.join(METHODS)})"
+        )
+    kw = {}
+    if args.method == "classical":
+        if args.model is not None:
+            raise HbisInputError("--model is only for --method learned; the classical method has no model")
+        kw["deblur"] = not args.no_deblur
+    elif args.model is not None:
+        kw["model"] = args.model
+    stack = read_stack(args.stack)
+    messages: list[str] = []
+    image = reconstruct(stack, method=args.method, registration=args.registration,
+                        messages=messages, **kw)
+    for line in messages:
+        print(f"hbis reconstruct: {line}", file=sys.stderr)
+    description = json.dumps({"format": "hbis-sr/1", "source": args.stack.name, "method": args.method,
+                              "registration": args.registration, "h": stack.h, "roi": list(stack.roi),
+                              "reference_index": stack.reference_index})
+    import tifffile
+
+    with atomic_path(args.out) as tmp:
+        tifffile.imwrite(tmp, image, description=description, photometric="minisblack")
+    print(f"wrote {args.out} ({image.shape[0]} x {image.shape[1]} px, float32)")
+    return 0

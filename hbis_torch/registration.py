@@ -1,0 +1,802 @@
+"""Sub-pixel registration of a stack of shifted frames against its reference frame.
+
+The Risley scan moves the image by fractions of a pixel between frames. The tracer predicts that
+motion (``prediction``); the data then corrects it, because motors miss their targets and the
+optics are never exactly the model. The correction is an inverse-compositional Lucas-Kanade fit
+(Baker & Matthews 2004) on Kornia's spatial gradients, with robust (Huber) weights so that a small
+occluder does not drag the estimate, and cubic B-spline resampling so that the warp itself does
+not bias the sub-pixel answer (torch's bicubic kernel would, by about 0.04 px).
+
+Frames are (F, H, W); pixel (u, v) is the centre of column u and row v. A homography ``H_k``
+maps frame-k pixel coordinates to reference pixel coordinates: ``[u_r, v_r, 1] ~ H_k [u, v, 1]``.
+
+Motion models, simplest first: ``translation`` (2 parameters), ``similarity`` (4: shift, rotation,
+scale) and ``homography`` (8). With ``model="auto"`` the simplest model that explains the residual
+is kept: a richer model is tried only when a score test on the simpler fit's residual says it
+would pay (BIC over the effective number of independent residuals of the blurred frames) and
+its extra motion is measurable (it moves some pixel by more than ``motion_tolerance_px``); it is
+kept only if the full fit confirms both.
+
+Every frame gets a confidence in [0, 1] and an ``ok`` flag; ``messages`` says why a frame was
+flagged: too little texture to register, pixels that do not match (occlusion, a changed scene),
+no convergence, or (given a prediction) a frame that sits where another frame of the plan should
+be (frames out of order).
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+from dataclasses import dataclass, field
+
+import kornia
+import torch
+from torch import Tensor
+
+from .errors import HbisInputError
+
+MODELS = ("translation", "similarity", "homography")
+N_PARAMS = {"translation": 2, "similarity": 4, "homography": 8}
+
+# Thresholds behind the flags (px unless said otherwise).
+PRECISION_SCALE_PX = 0.05  # confidence exp(-(precision / this)^2); "too little texture" above it
+OCCLUSION_FRACTION = 0.10  # share of compared pixels off by > 4 sigma that is reported
+MISMATCH_RESIDUAL = 0.5  # robust residual, in units of the frame's contrast, that is reported
+
+
+@dataclass
+class Registration:
+    """Result of :func:`register_stack`.
+
+    Attributes
+    ----------
+    homographies : Tensor, shape (F, 3, 3), float64
+        Frame-k pixel coordinates -> reference pixel coordinates (identity for the reference).
+    model : str
+        The motion model used (``translation``, ``similarity`` or ``homography``).
+    confidence : Tensor, shape (F,), float64 in [0, 1]
+        How far to trust each frame's motion (1 for the reference).
+    ok : Tensor, shape (F,), bool
+        False for frames whose motion should not be used.
+    messages : list of str
+        One line per problem found, naming the frame.
+    precision_px : Tensor, shape (F,), float64
+        Expected standard error of the motion (px, RMS over the frame) from the fit's curvature.
+    residual : Tensor, shape (F,), float64
+        Robust scale of the aligned difference, in units of the frame's standard deviation.
+    out_of_order : Tensor, shape (F,), bool
+        Frames found nearer another frame's predicted position than their own (needs a
+        prediction; all False without one).
+    """
+
+    homographies: Tensor
+    model: str
+    confidence: Tensor
+    ok: Tensor
+    messages: list[str] = field(default_factory=list)
+    precision_px: Tensor | None = None
+    residual: Tensor | None = None
+    out_of_order: Tensor | None = None
+
+    def displacement(self, u: float, v: float) -> Tensor:
+        """(F, 2): where frame pixel (u, v) lands in the reference, minus (u, v), in px."""
+        point = torch.tensor([[u, v]], dtype=torch.float64)
+        return apply_homography(self.homographies, point)[:, 0] - point
+
+
+def apply_homography(homographies: Tensor, points: Tensor) -> Tensor:
+    """Map points through homographies.
+
+    Parameters
+    ----------
+    homographies : Tensor, shape (F, 3, 3)
+    points : Tensor, shape (F, N, 2) or (N, 2)
+        (u, v) pixel coordinates.
+
+    Returns
+    -------
+    Tensor, shape (F, N, 2), in the homographies' dtype.
+    """
+    points = points.to(homographies.dtype)
+    lin = torch.matmul(points, homographies[:, :2, :2].transpose(-1, -2))
+    lin = lin + homographies[:, None, :2, 2]
+    den = torch.matmul(points, homographies[:, 2:3, :2].transpose(-1, -2)) + homographies[:, None, 2:3, 2]
+    return lin / den
+
+
+def homographies_from_positions(positions, step: int = 4) -> Tensor:
+    """Least-squares homographies that best map each frame's pixel grid onto given positions.
+
+    Parameters
+    ----------
+    positions : Tensor, shape (F, H, W, 2)
+        Where pixel (u, v) of frame k lands, in reference pixel coordinates (for example
+        :func:`hbis_torch.sr.classical.optical_sample_positions`).
+    step : int
+        Use every ``step``-th pixel in each direction (the maps are smooth).
+
+    Returns
+    -------
+    Tensor, shape (F, 3, 3), float64
+    """
+    positions = torch.as_tensor(positions, dtype=torch.float64)
+    if positions.ndim != 4 or positions.shape[-1] != 2 or min(positions.shape[1:3]) < 2:
+        raise HbisInputError(f"positions must have shape (F, H, W, 2), got {tuple(positions.shape)}")
+    if not torch.isfinite(positions).all():
+        raise HbisInputError("positions contain non-finite values")
+    F, H, W, _ = positions.shape
+    rows = torch.unique(torch.cat((torch.arange(0, H, step), torch.tensor([H - 1]))))
+    cols = torch.unique(torch.cat((torch.arange(0, W, step), torch.tensor([W - 1]))))
+    vv, uu = torch.meshgrid(rows.double(), cols.double(), indexing="ij")
+    src = torch.stack((uu, vv), -1).reshape(1, -1, 2).expand(F, -1, -1)
+    dst = positions[:, rows][:, :, cols].reshape(F, -1, 2)
+    # Condition the DLT: centre and scale both point sets the same way.
+    norm = _normaliser(H, W, torch.float64).expand(F, 3, 3)
+    h_n = kornia.geometry.homography.find_homography_dlt(
+        apply_homography(norm, src), apply_homography(norm, dst)
+    )
+    out = torch.linalg.inv(norm) @ h_n @ norm
+    return out / out[:, 2:3, 2:3]
+
+
+def _normaliser(H: int, W: int, dtype) -> Tensor:
+    """3x3 matrix taking pixel coordinates to a centred frame of half-size about 1."""
+    s = max(H, W) / 2.0
+    return torch.tensor(
+        [[1 / s, 0, -(W - 1) / 2 / s], [0, 1 / s, -(H - 1) / 2 / s], [0, 0, 1]], dtype=dtype
+    )
+
+
+def _params_to_matrix(p: Tensor, model: str) -> Tensor:
+    """(F, k) parameters of a small motion -> (F, 3, 3) matrices (identity at p = 0)."""
+    m = torch.eye(3, dtype=p.dtype).repeat(p.shape[0], 1, 1)
+    m[:, 0, 2], m[:, 1, 2] = p[:, 0], p[:, 1]
+    if model == "similarity":
+        m[:, 0, 0] += p[:, 2]
+        m[:, 1, 1] += p[:, 2]
+        m[:, 0, 1], m[:, 1, 0] = -p[:, 3], p[:, 3]
+    elif model == "homography":
+        m[:, 0, 0] += p[:, 2]
+        m[:, 0, 1] += p[:, 3]
+        m[:, 1, 0] += p[:, 4]
+        m[:, 1, 1] += p[:, 5]
+        m[:, 2, 0], m[:, 2, 1] = p[:, 6], p[:, 7]
+    return m
+
+
+def _warp_jacobian(x: Tensor, y: Tensor, model: str) -> tuple[list[Tensor], list[Tensor]]:
+    """d(x', y')/dp at the identity, as two lists of k tensors shaped like x (normalised units)."""
+    one, zero = torch.ones_like(x), torch.zeros_like(x)
+    jx, jy = [one, zero], [zero, one]
+    if model == "similarity":
+        jx += [x, -y]
+        jy += [y, x]
+    elif model == "homography":
+        jx += [x, y, zero, zero, -x * x, -x * y]
+        jy += [zero, zero, x, y, -x * y, -y * y]
+    return jx, jy
+
+
+def _check_frames(frames) -> Tensor:
+    if not isinstance(frames, Tensor):
+        try:
+            frames = torch.as_tensor(frames)
+        except (TypeError, ValueError, RuntimeError) as exc:
+            raise HbisInputError(f"frames must be a (F, H, W) array of numbers: {exc}") from None
+    if frames.ndim != 3:
+        raise HbisInputError(f"frames must have shape (F, H, W), got {tuple(frames.shape)}")
+    F, H, W = frames.shape
+    if F < 1 or H < 16 or W < 16:
+        raise HbisInputError(f"frames must be at least one 16 x 16 frame, got shape {(F, H, W)}")
+    if frames.dtype == torch.bool or frames.is_complex():
+        raise HbisInputError(f"frames must be real numbers, got dtype {frames.dtype}")
+    frames = frames.to(torch.float64)
+    if not torch.isfinite(frames).all():
+        raise HbisInputError("frames contain non-finite values (NaN or inf)")
+    return frames
+
+
+def _check_prediction(prediction, F: int) -> Tensor | None:
+    if prediction is None:
+        return None
+    prediction = torch.as_tensor(prediction, dtype=torch.float64)
+    if prediction.shape != (F, 3, 3):
+        raise HbisInputError(
+            f"prediction must have shape ({F}, 3, 3) (one homography per frame), "
+            f"got {tuple(prediction.shape)}"
+        )
+    if not torch.isfinite(prediction).all():
+        raise HbisInputError("prediction contains non-finite values")
+    if bool((prediction[:, 2, 2].abs() < 1e-12).any()) or bool(
+        (torch.linalg.det(prediction).abs() < 1e-12).any()
+    ):
+        raise HbisInputError("prediction contains a singular homography")
+    return prediction / prediction[:, 2:3, 2:3]
+
+
+# --------------------------------------------------------------------------- resampling
+
+def prefilter(images: Tensor, blur_sigma: float = 0.0) -> tuple[Tensor, Tensor]:
+    """Gaussian-blurred images and their cubic B-spline coefficients, both (F, H, W).
+
+    Both filters are applied at once in the Fourier domain on mirror-padded images (the pad is
+    wide enough that the result equals mirrored-border convolution to float precision): the
+    Gaussian exp(-sigma^2 w^2 / 2), and the inverse of the B-spline's sampled kernel
+    [1, 4, 1] / 6, whose response (4 + 2 cos w) / 6 never falls below 1/3.
+
+    Parameters
+    ----------
+    images : Tensor, shape (F, H, W)
+    blur_sigma : float
+        Standard deviation of the Gaussian in px (0: no blur).
+
+    Returns
+    -------
+    blurred, coefficients : Tensor, shape (F, H, W) each, in the images' dtype.
+        ``bspline_sample(coefficients, p)`` interpolates ``blurred`` at points p.
+    """
+    F, H, W = images.shape
+    # The B-spline inverse decays as 0.268^n (1e-7 after 12 px); the Gaussian within 4 sigma.
+    pad = min(12 + int(math.ceil(4 * blur_sigma)), H - 1, W - 1)
+    padded = torch.nn.functional.pad(images[:, None], (pad, pad, pad, pad), mode="reflect")[:, 0]
+    Hp, Wp = padded.shape[-2:]
+    wy = 2 * math.pi * torch.fft.fftfreq(Hp, dtype=images.dtype)[:, None]
+    wx = 2 * math.pi * torch.fft.rfftfreq(Wp, dtype=images.dtype)[None, :]
+    blur = torch.exp(-0.5 * blur_sigma ** 2 * (wx * wx + wy * wy))
+    spline = (4 + 2 * torch.cos(wx)) * (4 + 2 * torch.cos(wy)) / 36
+    spectrum = torch.fft.rfft2(padded) * blur
+    crop = (slice(None), slice(pad, pad + H), slice(pad, pad + W))
+    blurred = torch.fft.irfft2(spectrum, s=(Hp, Wp))[crop]
+    coefficients = torch.fft.irfft2(spectrum / spline, s=(Hp, Wp))[crop]
+    return blurred, coefficients
+
+
+def bspline_sample(coefficients: Tensor, points: Tensor) -> Tensor:
+    """Evaluate cubic B-spline images at fractional pixel points.
+
+    Cubic B-spline interpolation, unlike torch's bicubic (Keys, a = -0.75), has no first-order
+    error, so a sub-pixel warp does not bias the registration (about 1e-4 px instead of 0.04 px
+    on content at a tenth of the sampling rate). Each 4 x 4 B-spline sum is computed as four
+    bilinear fetches (Sigg & Hadwiger, GPU Gems 2, ch. 20), all by ``grid_sample``.
+
+    Parameters
+    ----------
+    coefficients : Tensor, shape (F, H, W)
+        From :func:`prefilter`.
+    points : Tensor, shape (F, N, 2)
+        (u, v) pixel coordinates; the image is mirrored about its border pixels.
+
+    Returns
+    -------
+    Tensor, shape (F, N), in the coefficients' dtype.
+    """
+    F, H, W = coefficients.shape
+    points = points.to(coefficients.dtype)
+
+    def axis(t):
+        i = torch.floor(t)
+        f = t - i
+        f2 = f * f
+        f3 = f2 * f
+        w0 = (1 - 3 * f + 3 * f2 - f3) / 6
+        w1 = (4 - 6 * f2 + 3 * f3) / 6
+        w3 = f3 / 6
+        g0 = w0 + w1
+        return g0, 1 - g0, i - 1 + w1 / g0, i + 1 + w3 / (1 - g0)
+
+    gu0, gu1, u0, u1 = axis(points[..., 0])
+    gv0, gv1, v0, v1 = axis(points[..., 1])
+    # To grid_sample's [-1, 1] coordinates (align_corners=True: -1 and 1 are pixel centres).
+    u0, u1 = u0 * (2 / (W - 1)) - 1, u1 * (2 / (W - 1)) - 1
+    v0, v1 = v0 * (2 / (H - 1)) - 1, v1 * (2 / (H - 1)) - 1
+    n = points.shape[1]
+    grid = torch.stack(
+        (torch.cat((u0, u1, u0, u1), 1), torch.cat((v0, v0, v1, v1), 1)), -1
+    )[:, None]
+    got = torch.nn.functional.grid_sample(
+        coefficients[:, None], grid, mode="bilinear", padding_mode="reflection", align_corners=True
+    )[:, 0, 0]
+    f00, f10, f01, f11 = got[:, :n], got[:, n:2 * n], got[:, 2 * n:3 * n], got[:, 3 * n:]
+    return gv0 * (gu0 * f00 + gu1 * f10) + gv1 * (gu0 * f01 + gu1 * f11)
+
+
+# --------------------------------------------------------------------------- Lucas-Kanade
+
+
+@dataclass
+class _Fit:
+    homographies: Tensor  # (F, 3, 3) frame -> reference, float64
+    residual: Tensor  # (F, N) aligned difference at the solution (0 where not compared)
+    weights: Tensor  # (F, N) robust weights (0 where not compared)
+    rss: Tensor  # (F,) weighted sum of squared residuals
+    n_valid: Tensor  # (F,) pixels compared
+    mismatch_fraction: Tensor  # (F,) compared pixels in tiles that do not match (occlusion)
+    mismatch_points: Tensor  # (F, N) bool: those points
+    covariance: Tensor  # (F, k, k) of the normalised parameters
+    converged: Tensor  # (F,) bool
+    sigma: Tensor  # (F,) robust residual scale
+
+
+class _LucasKanade:
+    """Inverse-compositional Lucas-Kanade of many frames against one reference image.
+
+    Only the ``keep_fraction`` of reference pixels with the strongest gradient take part: they
+    hold nearly all the information on the motion, and the fit costs proportionally less.
+    The warp is parametrised in normalised coordinates (centred, half-size 1) so that the
+    normal equations stay well conditioned for every model.
+    """
+
+    huber = 1.345  # Huber's constant: 95% efficiency on Gaussian residuals
+    tile_ratio = 4.0  # a tile this many times worse than the median tile does not match
+
+    def __init__(self, reference: Tensor, margin: int, keep_fraction: float):
+        H, W = reference.shape
+        self.H, self.W, self.margin = H, W, margin
+        self.scale = max(H, W) / 2.0
+        self.norm = _normaliser(H, W, torch.float64)
+        self.norm_inv = torch.linalg.inv(self.norm)
+        ref = reference.double()
+        grads = kornia.filters.spatial_gradient(ref[None, None], mode="diff")[0, 0]
+        gx, gy = grads[0], grads[1]
+        inner = torch.zeros(H, W, dtype=torch.bool)
+        inner[margin:H - margin, margin:W - margin] = True
+        strength = torch.where(inner, gx * gx + gy * gy, torch.full_like(gx, -1.0)).reshape(-1)
+        n_keep = max(64, int(keep_fraction * int(inner.sum())))
+        self.index = torch.topk(strength, min(n_keep, int(inner.sum()))).indices.sort().values
+        vv, uu = torch.meshgrid(torch.arange(H, dtype=torch.float64),
+                                torch.arange(W, dtype=torch.float64), indexing="ij")
+        u, v = uu.reshape(-1)[self.index], vv.reshape(-1)[self.index]
+        self.points = torch.stack((u, v), -1)  # (N, 2)
+        self.template = ref.reshape(-1)[self.index]
+        # 8 x 8 tiles over the frame, for the mismatch (occlusion) measure.
+        self.n_tiles = 64
+        self.tile_index = ((v * 8 / H).long() * 8 + (u * 8 / W).long())[None]
+        # Template gradient per normalised unit times the warp Jacobian: (N, k) per model.
+        x, y = (u - (W - 1) / 2) / self.scale, (v - (H - 1) / 2) / self.scale
+        gxs, gys = gx.reshape(-1)[self.index] * self.scale, gy.reshape(-1)[self.index] * self.scale
+        self.steepest = {}
+        for m in MODELS:
+            jx, jy = _warp_jacobian(x, y, m)
+            self.steepest[m] = torch.stack([gxs * a + gys * b for a, b in zip(jx, jy)], -1)
+
+    def residual(self, coefficients: Tensor, homographies: Tensor, keep: Tensor | None = None):
+        """Aligned difference at the reference's points, with robust weights.
+
+        Each warped frame gets its own gain and offset (weighted least squares against the
+        template, refitted with the robust weights), so that exposure changes and an occluder
+        that shifts the frame's mean do not leak into the motion.
+
+        Returns
+        -------
+        r : Tensor, shape (F, N)
+            gain * warped + offset - template, 0 where not compared.
+        mask : Tensor, shape (F, N), bool
+            Points that fall well inside the frame (and are in ``keep``, if given).
+        w : Tensor, shape (F, N)
+            Huber weights (0 where not compared).
+        sigma : Tensor, shape (F,)
+            Robust scale of r.
+        """
+        q = apply_homography(torch.linalg.inv(homographies), self.points)  # reference -> frame
+        m = self.margin
+        mask = ((q[..., 0] >= m) & (q[..., 0] <= self.W - 1 - m)
+                & (q[..., 1] >= m) & (q[..., 1] <= self.H - 1 - m))
+        if keep is not None:
+            mask = mask & keep
+        warped = bspline_sample(coefficients, q).double()
+        r = self._photometric(warped, mask.double()) * mask
+        w, sigma = self._huber(r, mask)
+        r = self._photometric(warped, w) * mask
+        w, sigma = self._huber(r, mask)
+        return r, mask, w, sigma
+
+    def _photometric(self, warped: Tensor, w: Tensor) -> Tensor:
+        """gain * warped + offset - template, gain and offset fitted by weighted least squares."""
+        t = self.template
+        sw = w.sum(-1).clamp_min(1e-12)
+        mx, mt = (w * warped).sum(-1) / sw, (w * t).sum(-1) / sw
+        dx = warped - mx[:, None]
+        var = (w * dx * dx).sum(-1)
+        gain = torch.where(var > 1e-12, (w * dx * (t - mt[:, None])).sum(-1) / var.clamp_min(1e-12),
+                           torch.ones_like(var))
+        return gain[:, None] * dx + mt[:, None] - t
+
+    def _huber(self, r: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+        sigma = _robust_scale(r, mask)
+        a = r.abs() / (self.huber * sigma[:, None])
+        w = torch.where(a <= 1, torch.ones_like(a), 1 / a.clamp_min(1e-12)) * mask
+        return w, sigma
+
+    def motion_px(self, dp: Tensor, model: str) -> Tensor:
+        """Largest displacement (px) a small parameter step causes at the frame's corners, (F,)."""
+        hx, hy = (self.W - 1) / 2 / self.scale, (self.H - 1) / 2 / self.scale
+        x = torch.tensor([-hx, hx, -hx, hx], dtype=torch.float64)
+        y = torch.tensor([-hy, -hy, hy, hy], dtype=torch.float64)
+        jx, jy = _warp_jacobian(x, y, model)
+        dx = torch.stack(jx, -1) @ dp.T  # (4, F)
+        dy = torch.stack(jy, -1) @ dp.T
+        return torch.hypot(dx, dy).amax(0) * self.scale
+
+    def fit(self, coefficients: Tensor, init: Tensor, model: str, iterations: int, tol: float,
+            keep: Tensor | None = None) -> _Fit:
+        """Refine ``init`` (F, 3, 3) so that each frame warped onto the reference matches it.
+
+        ``keep`` (F, N) bool, optional, leaves out points (for example an occluded region).
+        """
+        F = coefficients.shape[0]
+        k = N_PARAMS[model]
+        sd = self.steepest[model]
+        eye = 1e-12 * torch.eye(k, dtype=torch.float64)
+        Hk = init.clone()
+        converged = torch.zeros(F, dtype=torch.bool)
+        for _ in range(iterations):
+            active = (~converged).nonzero()[:, 0]
+            r, _, w, _ = self.residual(coefficients[active], Hk[active],
+                                       None if keep is None else keep[active])
+            hess = _normal_matrix(w, sd)
+            dp = torch.linalg.solve(hess + eye, (w * r) @ sd)
+            # Inverse composition: G <- G o W(dp)^-1 for G = H^-1 (reference -> frame),
+            # i.e. H <- W(dp) H, with W expressed in normalised coordinates.
+            upd = self.norm_inv @ _params_to_matrix(dp, model) @ self.norm @ Hk[active]
+            Hk[active] = upd / upd[:, 2:3, 2:3]
+            converged[active] = self.motion_px(dp, model) < tol
+            if bool(converged.all()):
+                break
+        r, mask, w, sigma = self.residual(coefficients, Hk, keep)
+        hess = _normal_matrix(w, sd)
+        n_valid = mask.sum(-1).double()
+        rss = (w * r * r).sum(-1)
+        # Noise-limited covariance: the robust scale, not the RSS, so that an occluder shows up
+        # as a mismatch and not as a loss of precision.
+        cov = torch.linalg.inv(hess + eye) * (sigma * sigma)[:, None, None]
+        fraction, points = self.mismatch(r, mask)
+        return _Fit(Hk, r, w, rss, n_valid, fraction, points, cov, converged, sigma)
+
+    def mismatch(self, r: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+        """Points in tiles whose mean |residual| is far above the frame's typical tile.
+
+        An occluder or a moving object is coherent in space, whereas the aliasing that differs
+        between shifted frames is spread thinly over every edge. Returns the share of compared
+        points in such tiles (F,) and the points themselves (F, N) bool.
+        """
+        F = r.shape[0]
+        tiles = self.tile_index.expand(F, -1)
+        count = torch.zeros(F, self.n_tiles, dtype=r.dtype).scatter_add_(1, tiles, mask.to(r.dtype))
+        total = torch.zeros(F, self.n_tiles, dtype=r.dtype).scatter_add_(1, tiles, r.abs())
+        used = count >= 8
+        mean = torch.where(used, total / count.clamp_min(1), torch.full_like(total, float("nan")))
+        typical = torch.nanmedian(mean, dim=1).values.nan_to_num(0.0)
+        bad = used & (mean > self.tile_ratio * typical[:, None])
+        fraction = (count * bad).sum(1) / count.sum(1).clamp_min(1)
+        # The points to leave out: bad tiles and their neighbours (an occluder's edge rarely
+        # follows the tiles).
+        grown = torch.nn.functional.max_pool2d(bad.reshape(F, 1, 8, 8).to(r.dtype), 3, 1, 1)
+        return fraction, grown.reshape(F, -1).bool().gather(1, tiles) & mask
+
+    def score_test(self, fit: _Fit, model: str, corr_area: float, skip: int) -> tuple[float, float]:
+        """What one Gauss-Newton step of a richer ``model`` would gain from ``fit``'s solution.
+
+        Returns (BIC gain summed over frames, largest extra motion in px over the frames);
+        a positive gain means the richer model explains enough more to pay for its parameters.
+        """
+        sd = self.steepest[model]
+        hess = _normal_matrix(fit.weights, sd)
+        grad = (fit.weights * fit.residual) @ sd
+        dp = torch.linalg.solve(hess + 1e-12 * torch.eye(sd.shape[1], dtype=torch.float64), grad)
+        drop = (dp * grad).sum(-1).clamp_min(0)
+        keep = torch.arange(len(dp)) != skip
+        n_eff = (fit.n_valid / corr_area).clamp_min(1.0)
+        gain = n_eff * torch.log(fit.rss / (fit.rss - drop).clamp_min(1e-300))
+        return float(gain[keep].sum()), float(self.motion_px(dp, model)[keep].max())
+
+
+def _normal_matrix(w: Tensor, sd: Tensor) -> Tensor:
+    """J^T W J for every frame: weights (F, N), steepest-descent images (N, k) -> (F, k, k)."""
+    return (w[:, :, None] * sd).transpose(1, 2) @ sd
+
+
+def _robust_scale(r: Tensor, mask: Tensor) -> Tensor:
+    """Per-frame residual scale 1.4826 * median |r| over the compared pixels, (F,)."""
+    # Every other point is plenty for a median, at half the cost.
+    r, mask = r[:, ::2], mask[:, ::2]
+    vals = torch.where(mask, r.abs(), torch.full_like(r, float("nan")))
+    mad = torch.nanmedian(vals, dim=-1).values
+    return (1.4826 * mad).nan_to_num(1.0).clamp_min(1e-12)
+
+
+def _bic(fit: _Fit, k: int, corr_area: float, skip: int) -> float:
+    """Bayesian information criterion of a fit, summed over frames (lower is better)."""
+    n_eff = (fit.n_valid / corr_area).clamp_min(k + 1.0)
+    per_frame = n_eff * torch.log(fit.rss.clamp_min(1e-300) / fit.n_valid.clamp_min(1)) + k * torch.log(n_eff)
+    keep = torch.arange(len(per_frame)) != skip
+    return float(per_frame[keep].sum())
+
+
+def _penalty(fit: _Fit, k_extra: int, corr_area: float, skip: int) -> float:
+    n_eff = (fit.n_valid / corr_area).clamp_min(2.0)
+    keep = torch.arange(len(n_eff)) != skip
+    return float(k_extra * torch.log(n_eff[keep]).sum())
+
+
+# --------------------------------------------------------------------------- coarse start
+
+
+def phase_correlation_shifts(frames: Tensor, reference: Tensor) -> Tensor:
+    """Coarse translation of each frame relative to the reference, (F, 2) px as (du, dv).
+
+    Normalised cross-power spectrum of Hann-windowed frames; the integer peak is refined by a
+    parabola through its neighbours. Good to a few tenths of a pixel, which is all the
+    Lucas-Kanade refinement needs to start from any shift. The sign is the homography's: content
+    at u in the frame sits at u + du in the reference.
+    """
+    F, H, W = frames.shape
+    win = torch.outer(torch.hann_window(H, periodic=False, dtype=torch.float64),
+                      torch.hann_window(W, periodic=False, dtype=torch.float64))
+    a = torch.fft.rfft2((reference - reference.mean()) * win)
+    b = torch.fft.rfft2((frames - frames.mean((-2, -1), keepdim=True)) * win)
+    cross = a * b.conj()
+    corr = torch.fft.irfft2(cross / cross.abs().clamp_min(1e-12), s=(H, W))
+    idx = corr.reshape(F, -1).argmax(-1)
+    iv, iu = idx // W, idx % W
+    f = torch.arange(F)
+
+    def parabola(minus, centre, plus):
+        den = minus - 2 * centre + plus
+        return torch.where(den.abs() > 1e-12, 0.5 * (minus - plus) / den, torch.zeros_like(den))
+
+    c0 = corr[f, iv, iu]
+    du = iu + parabola(corr[f, iv, (iu - 1) % W], c0, corr[f, iv, (iu + 1) % W])
+    dv = iv + parabola(corr[f, (iv - 1) % H, iu], c0, corr[f, (iv + 1) % H, iu])
+    du = torch.where(du > W / 2, du - W, du)
+    dv = torch.where(dv > H / 2, dv - H, dv)
+    return torch.stack((du, dv), -1)
+
+
+def _translation(shifts: Tensor) -> Tensor:
+    m = torch.eye(3, dtype=torch.float64).repeat(len(shifts), 1, 1)
+    m[:, :2, 2] = shifts
+    return m
+
+
+# --------------------------------------------------------------------------- public entry
+
+
+def register_stack(
+    frames,
+    reference_index: int,
+    prediction=None,
+    model: str = "auto",
+    *,
+    blur_sigma: float = 0.7,
+    keep_fraction: float = 0.5,
+    iterations: int = 30,
+    tolerance_px: float = 1e-3,
+    motion_tolerance_px: float = 0.01,
+    min_confidence: float = 0.5,
+    dtype=torch.float32,
+) -> Registration:
+    """Estimate each frame's motion relative to the reference frame.
+
+    Parameters
+    ----------
+    frames : Tensor or array, shape (F, H, W)
+        The stack, any real dtype. Each frame is normalised to zero mean and unit standard
+        deviation first, so gain and offset need not match.
+    reference_index : int
+        Index of the reference frame (its homography is the identity).
+    prediction : Tensor, shape (F, 3, 3), optional
+        Predicted homographies (frame -> reference pixel coordinates) from the optics, for
+        example ``homographies_from_positions(optical_sample_positions(stack))``. The data
+        corrects them; without a prediction the motion starts from phase correlation, and frames
+        out of order cannot be told.
+    model : {"auto", "translation", "similarity", "homography"}
+        Motion model of the data's correction (on top of the prediction, if any).
+    blur_sigma : float
+        Gaussian pre-filter (px) on every frame, against noise and the aliased content that
+        differs between shifted frames.
+    keep_fraction : float in (0, 1]
+        Share of reference pixels (strongest gradients) that take part in the fit.
+    iterations, tolerance_px : int, float
+        Lucas-Kanade stops when an update moves no corner of the frame by more than
+        ``tolerance_px``.
+    motion_tolerance_px : float
+        In ``auto`` mode, a richer model must move some pixel by more than this to be kept.
+    min_confidence : float
+        Frames below this confidence are marked not ok.
+    dtype : torch.dtype
+        Precision of the resampling (float32 by default; the normal equations are always solved
+        in float64). float32 agrees with float64 to about 1e-4 px (tests check it).
+
+    Returns
+    -------
+    Registration
+    """
+    frames = _check_frames(frames)
+    F, H, W = frames.shape
+    try:
+        if isinstance(reference_index, bool):
+            raise TypeError
+        ref = operator.index(reference_index)
+    except TypeError:
+        raise HbisInputError(f"reference_index must be an integer, got {reference_index!r}") from None
+    if not 0 <= ref < F:
+        raise HbisInputError(f"reference_index must lie in [0, {F - 1}], got {ref}")
+    prediction = _check_prediction(prediction, F)
+    if model != "auto" and model not in MODELS:
+        raise HbisInputError(f"model must be 'auto' or one of {MODELS}, got {model!r}")
+    if not (math.isfinite(blur_sigma) and 0 <= blur_sigma <= 5):
+        raise HbisInputError(f"blur_sigma must be a number in [0, 5] px, got {blur_sigma!r}")
+    if not 0 < keep_fraction <= 1:
+        raise HbisInputError(f"keep_fraction must lie in (0, 1], got {keep_fraction!r}")
+    if dtype not in (torch.float32, torch.float64):
+        raise HbisInputError(f"dtype must be torch.float32 or torch.float64, got {dtype!r}")
+
+    # Photometric normalisation: every frame to zero mean and unit standard deviation.
+    x = frames - frames.mean((-2, -1), keepdim=True)
+    spread = x.std((-2, -1))
+    tiny = 1e-9 * max(1.0, float(frames.abs().max()))
+    flat = spread < tiny
+    x = x / spread.clamp_min(tiny)[:, None, None]
+    noise = noise_sigma(x)
+    margin = 2 + int(math.ceil(2 * blur_sigma))
+    if min(H, W) <= 2 * margin + 8:
+        raise HbisInputError(f"frames of {H} x {W} px are too small to register (blur_sigma={blur_sigma})")
+    # Blurred residuals are correlated over about this many pixels (for the statistics).
+    corr_area = max(1.0, 4 * math.pi * blur_sigma ** 2)
+
+    x, coefficients = prefilter(x.to(dtype), blur_sigma)
+    init = prediction.clone() if prediction is not None else _translation(phase_correlation_shifts(x, x[ref]))
+    init[ref] = torch.eye(3, dtype=torch.float64)
+    lk = _LucasKanade(x[ref], margin, keep_fraction)
+
+    chosen = "translation" if model == "auto" else model
+    fit = lk.fit(coefficients, init, chosen, iterations, tolerance_px)
+    # Occlusion: leave out the tiles that do not match and fit again.
+    keep, mismatch = None, fit.mismatch_fraction
+    if bool((mismatch > 0).any()):
+        keep = ~fit.mismatch_points
+        fit = lk.fit(coefficients, fit.homographies, chosen, iterations, tolerance_px, keep)
+    if model == "auto" and F > 1:
+        for richer in MODELS[1:]:
+            extra = N_PARAMS[richer] - N_PARAMS[chosen]
+            gain, moved = lk.score_test(fit, richer, corr_area, ref)
+            if gain <= _penalty(fit, extra, corr_area, ref) or moved <= motion_tolerance_px:
+                continue
+            trial = lk.fit(coefficients, fit.homographies, richer, iterations, tolerance_px, keep)
+            moved = float(lk_motion_difference(trial.homographies, fit.homographies, H, W, ref))
+            if _bic(trial, N_PARAMS[richer], corr_area, ref) < _bic(fit, N_PARAMS[chosen], corr_area, ref) \
+                    and moved > motion_tolerance_px:
+                chosen, fit = richer, trial
+
+    fit.mismatch_fraction = mismatch
+    # What noise alone leaves in the residual: two frames' noise, through the blur.
+    blur_gain = 1.0 if blur_sigma < 0.5 else 1 / (2 * math.sqrt(math.pi) * blur_sigma)
+    noise_residual = math.sqrt(2) * blur_gain * noise
+    confidence, messages = _assess(fit, chosen, flat, noise_residual, ref, H, W, corr_area, iterations)
+    ok = confidence >= min_confidence
+    Hk = fit.homographies.clone()
+    # A frame that failed keeps its starting motion (the prediction, if any), not a wild guess.
+    Hk[~ok] = init[~ok]
+    Hk[ref] = torch.eye(3, dtype=torch.float64)
+    for k in (~ok).nonzero()[:, 0].tolist():
+        start = "predicted" if prediction is not None else "phase-correlation"
+        messages.append(f"frame {k}: not registered (confidence {float(confidence[k]):.2f}); "
+                        f"its {start} motion is kept")
+    out_of_order = torch.zeros(F, dtype=torch.bool)
+    if prediction is not None and F > 2:
+        out_of_order, order_messages = _check_order(Hk, prediction, H, W, ref, ok)
+        messages += order_messages
+    precision = _precision_px(fit, chosen, H, W, corr_area)
+    precision[ref] = 0.0
+    residual = fit.sigma.clone()
+    residual[ref] = 0.0
+    return Registration(Hk, chosen, confidence, ok, messages, precision, residual, out_of_order)
+
+
+def noise_sigma(frames: Tensor) -> Tensor:
+    """Robust per-frame noise level (F,), in the frames' units (Immerkaer 1996, median form).
+
+    The 3 x 3 operator [[1, -2, 1], [-2, 4, -2], [1, -2, 1]] cancels smooth content; on white
+    noise of level s its output has standard deviation 6 s. The median makes edges count little.
+    """
+    kernel = torch.tensor([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]],
+                          dtype=frames.dtype)[None, None]
+    out = torch.nn.functional.conv2d(frames[:, None], kernel)[:, 0]
+    return 1.4826 * out.abs().flatten(1).median(-1).values / 6.0
+
+
+def _assess(fit: _Fit, model: str, flat: Tensor, noise: Tensor, ref: int, H: int, W: int,
+            corr_area: float, iterations: int) -> tuple[Tensor, list[str]]:
+    """Confidence (F,) in [0, 1] and one message per problem found.
+
+    The confidence multiplies three factors: the expected error from the fit's curvature and
+    the noise (exp(-(e / 0.05 px)^2): texture), the share of pixels in tiles that matched
+    (occlusion), and, where the residual is more than noise explains, the residual relative to
+    the frame's contrast (a different scene). A fit that did not converge counts half.
+    ``noise`` (F,) is the expected residual scale from noise alone.
+    """
+    F = len(flat)
+    precision = _precision_px(fit, model, H, W, corr_area)
+    mismatch = fit.mismatch_fraction
+    residual = fit.sigma
+    unexplained = residual > 2 * noise
+    confidence = torch.exp(-((precision / PRECISION_SCALE_PX) ** 2))
+    confidence = confidence * (1 - mismatch).clamp(0, 1)
+    confidence = torch.where(unexplained, confidence * (1 - residual / (2 * MISMATCH_RESIDUAL)).clamp(0, 1),
+                             confidence)
+    confidence = torch.where(fit.converged, confidence, 0.5 * confidence)
+    messages: list[str] = []
+    if bool(flat[ref]):
+        messages.append(f"reference frame {ref} is flat: there is nothing to register against")
+        confidence[:] = 0.0
+    for k in range(F):
+        if k == ref or bool(flat[ref]):
+            continue
+        if bool(flat[k]):
+            messages.append(f"frame {k} is flat (no image)")
+            confidence[k] = 0.0
+        elif float(residual[k]) > MISMATCH_RESIDUAL and bool(unexplained[k]):
+            messages.append(f"frame {k} does not match the reference (residual "
+                            f"{float(residual[k]):.2f} of its contrast): a different scene?")
+        elif float(mismatch[k]) > OCCLUSION_FRACTION:
+            messages.append(f"frame {k}: {100 * float(mismatch[k]):.0f}% of its pixels do not match "
+                            "the reference and were left out (occlusion or a moving object?)")
+        elif float(precision[k]) > PRECISION_SCALE_PX:
+            messages.append(f"frame {k}: too little texture above the noise to register "
+                            f"(expected error {float(precision[k]):.3f} px)")
+        if not bool(fit.converged[k]) and not bool(flat[k]):
+            messages.append(f"frame {k}: registration did not converge in {iterations} iterations")
+    confidence[ref] = 1.0
+    return confidence.clamp(0, 1), messages
+
+
+def lk_motion_difference(a: Tensor, b: Tensor, H: int, W: int, skip: int) -> Tensor:
+    """Largest distance (px) between where two sets of homographies send the frame's corners."""
+    corners = torch.tensor([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], dtype=torch.float64)
+    d = (apply_homography(a, corners) - apply_homography(b, corners)).norm(dim=-1).amax(-1)
+    d[skip] = 0
+    return d.max()
+
+
+def _precision_px(fit: _Fit, model: str, H: int, W: int, corr_area: float) -> Tensor:
+    """RMS over a 5 x 5 grid on the frame of the displacement's standard error, in px, (F,).
+
+    The least-squares covariance assumes independent residuals; the blurred frames have
+    residuals correlated over about ``corr_area`` pixels, so the variance is scaled by it.
+    """
+    s = max(H, W) / 2.0
+    x = torch.linspace(-(W - 1) / 2, (W - 1) / 2, 5, dtype=torch.float64) / s
+    y = torch.linspace(-(H - 1) / 2, (H - 1) / 2, 5, dtype=torch.float64) / s
+    x, y = (t.reshape(-1) for t in torch.meshgrid(x, y, indexing="ij"))
+    jx, jy = _warp_jacobian(x, y, model)
+    jac = torch.stack((torch.stack(jx, -1), torch.stack(jy, -1)), -2)  # (P, 2, k)
+    var = torch.einsum("pai,fij,paj->fp", jac, fit.covariance, jac)
+    return torch.sqrt(var.clamp_min(0).mean(-1) * corr_area) * s
+
+
+def _check_order(measured: Tensor, predicted: Tensor, H: int, W: int, ref: int, ok: Tensor):
+    """Registered frames whose measured position is nearer another frame's planned position
+    than their own.
+
+    Returns (out_of_order (F,) bool, messages).
+    """
+    centre = torch.tensor([[(W - 1) / 2, (H - 1) / 2]], dtype=torch.float64)
+    m = apply_homography(measured, centre)[:, 0]
+    p = apply_homography(predicted, centre)[:, 0]
+    spacing = torch.cdist(p, p)
+    spacing.fill_diagonal_(float("inf"))
+    half_step = 0.5 * float(spacing.min())
+    dist = torch.cdist(m, p)
+    flags = torch.zeros(len(m), dtype=torch.bool)
+    out = []
+    for k in range(len(m)):
+        if k == ref or not bool(ok[k]):
+            continue
+        j = int(dist[k].argmin())
+        if j != k and float(dist[k, k]) > half_step:
+            flags[k] = True
+            out.append(f"frame {k} sits where frame {j} was planned "
+                       f"({float(dist[k, k]):.3f} px from its own plan): frames out of order?")
+        elif float(dist[k, k]) > half_step:
+            out.append(f"frame {k} is {float(dist[k, k]):.3f} px from its planned position")
+    return flags, out
