@@ -40,7 +40,7 @@ h = 4  # resolution improvement factor; the model takes h*h frames
 width = 48  # feature channels
 blocks = 5  # residual blocks
 patch = 32  # LR patch side of a training example (the output patch is h times larger)
-pool_size = 240  # simulated training stacks (procedural scenes, random places on the sensor)
+pool_size = 480  # simulated training stacks (procedural scenes, random places on the sensor)
 pool_roi = 96  # LR side of each simulated training stack; patches are cropped from them
 val_size = 24  # held-out simulated stacks (their own seeds, never trained on)
 val_roi = 64  # LR side of a validation stack (PSNR over the whole h*val_roi square)
@@ -144,6 +144,25 @@ val_pool = cached_pool("val", val_size, val_roi, seed + 1)
 val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across the ranks
 
 
+def classical_baseline() -> float:
+    """Mean PSNR of the classical method (hbis_torch.sr.classical) on the validation set, cached."""
+    path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}.classical.json"
+    if not path.exists():
+        from hbis_torch.sr.classical import classical_sr
+
+        sums = torch.zeros(2, dtype=torch.float64)
+        for ex in val_pool[rank::world]:
+            image = classical_sr(torch.from_numpy(ex["frames"]), torch.from_numpy(ex["positions"]).double(), h)
+            sums += torch.tensor([psnr(image[None, None].float(), torch.from_numpy(ex["truth"])[None, None]), 1.0])
+        if ddp:
+            dist.all_reduce(sums)
+        if master:
+            atomic_write_text(path, json.dumps({"classical_psnr": (sums[0] / sums[1]).item()}))
+        if ddp:
+            dist.barrier()
+    return json.loads(path.read_text())["classical_psnr"]
+
+
 # Every batch comes from its own seed (seed, rank, step), so a resumed run sees the same data
 # as an uninterrupted one and the ranks never see the same examples.
 def train_batch(at_step: int):
@@ -172,6 +191,11 @@ def validate() -> tuple[float, float]:
     return (sums[0] / sums[2]).item(), (sums[1] / sums[2]).item()
 
 
+classical_psnr = classical_baseline()
+if master:
+    print(f"classical baseline on the validation set: {classical_psnr:.2f} dB")
+
+
 def save_checkpoint(path: Path, **extra) -> None:
     state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
              "trained_s": trained_s, "history": history, "config": config,
@@ -190,6 +214,7 @@ def plot_history() -> None:
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(minutes, [r["val_psnr"] for r in history], "o-", ms=3, label="network")
     ax.plot(minutes, [r["base_psnr"] for r in history], "--", label="bilinear (reference frame)")
+    ax.axhline(classical_psnr, color="k", ls=":", label=f"classical ({classical_psnr:.2f} dB)")
     ax.set_xlabel("training time [min]")
     ax.set_ylabel("validation PSNR [dB]")
     ax.set_title(f"h = {h}, {world} process(es), batch {batch_size} x {world}, patch {patch}")
@@ -234,10 +259,11 @@ def train() -> None:
                     best_psnr = val_psnr
                     save_checkpoint(out / "model.pt", val_psnr=val_psnr)
                 save_checkpoint(ckpt_path)
-                atomic_write_text(out / "history.json", json.dumps({"config": config, "history": history}, indent=1))
+                atomic_write_text(out / "history.json", json.dumps({"config": config, "classical_psnr": classical_psnr, "git_commit": commit, "history": history}, indent=1))
                 plot_history()
                 (bar.write if bar else print)(
-                    f"step {step}: val PSNR {val_psnr:.2f} dB (bilinear {base_psnr:.2f}), "
+                    f"step {step}: val PSNR {val_psnr:.2f} dB (bilinear {base_psnr:.2f}, "
+                    f"classical {classical_psnr:.2f}), "
                     f"{trained_s / 60:.1f} min"
                 )
         if done:

@@ -257,33 +257,84 @@ class LearnedSR:
         return np.clip(image, 0.0, 1.0)
 
 
-def learned_sr(stack, model=None, positions=None, threads: int | None = None) -> np.ndarray:
-    """Super-resolve a captured or simulated stack with an ONNX model.
+def stack_positions(stack, registration: str = "optics", messages: list | None = None):
+    """Sample positions (F, H, W, 2) float64 of a stack, as the classical method finds them.
+
+    ``"optics"``: the exact tracer (:func:`~hbis_torch.sr.classical.optical_sample_positions`).
+    ``"data"`` / ``"auto"``: the tracer corrected by registering the frames
+    (:func:`~hbis_torch.registration.register_stack`), for the frames the registration trusts;
+    the network needs every frame, so untrusted frames keep their optical positions.
+    """
+    import torch
+
+    from ..registration import apply_homography, homographies_from_positions, register_stack
+    from .classical import REGISTRATIONS, optical_sample_positions
+
+    if registration not in REGISTRATIONS:
+        raise HbisInputError(f"registration must be one of {REGISTRATIONS}, got {registration!r}")
+    positions = optical_sample_positions(stack)
+    count, rows, cols = positions.shape[:3]
+    if registration == "optics" or count == 1:
+        return positions.numpy()
+    frames = stack.to_float()
+    predicted = homographies_from_positions(positions)
+    reg = register_stack(frames, stack.reference_index, prediction=predicted)
+    if messages is not None:
+        messages.extend(reg.messages)
+        if not bool(reg.ok.all()):
+            messages.append(f"kept the optical positions of {int((~reg.ok).sum())} frame(s) the "
+                            "registration could not trust")
+    correction = reg.homographies @ torch.linalg.inv(predicted)
+    corrected = apply_homography(correction, positions.reshape(count, -1, 2)).reshape(positions.shape)
+    return torch.where(reg.ok[:, None, None, None], corrected, positions).numpy()
+
+
+def learned_sr(stack, model=None, positions=None, threads: int | None = None,
+               registration: str = "optics", messages: list | None = None) -> np.ndarray:
+    """Super-resolve a captured or simulated stack with an ONNX model (onnxruntime, no torch).
 
     Parameters
     ----------
     stack : hbis_torch.stack_io.Stack
     model : path, optional
-        Defaults to the shipped model for the stack's h.
+        Defaults to the shipped model for the stack's h (:func:`default_model_path`).
     positions : array (F, H, W, 2), optional
-        Sample positions in ROI-local reference LR pixels; by default from the optics
-        (:func:`hbis_torch.sr.classical.optical_sample_positions`).
+        Sample positions in ROI-local reference LR pixels; by default :func:`stack_positions`.
+    threads : int, optional
+        onnxruntime intra-op threads.
+    registration : {"optics", "data", "auto"}
+        Where the positions come from when they are not given.
+    messages : list, optional
+        Receives the registration's warnings.
 
     Returns
     -------
     ndarray, shape (h H, h W), float32 in [0, 1]
     """
-    if positions is None:
-        from .classical import optical_sample_positions
-
-        positions = optical_sample_positions(stack)
-    positions = np.asarray(positions.detach().cpu() if hasattr(positions, "detach") else positions)
     runner = LearnedSR(model=model, h=None if model is not None else stack.h, threads=threads)
     if runner.h != stack.h:
         raise HbisInputError(f"model {runner.path.name} is for h = {runner.h}, the stack has h = {stack.h}")
+    if positions is None:
+        positions = stack_positions(stack, registration, messages)
+    positions = np.asarray(positions.detach().cpu() if hasattr(positions, "detach") else positions)
     frames = stack.to_float()
     frames = np.asarray(frames.detach().cpu() if hasattr(frames, "detach") else frames)
     return runner(frames, positions)
+
+
+def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
+                        threads: int | None = None) -> np.ndarray:
+    """The ``"learned"`` entry of :data:`hbis_torch.sr.classical.METHODS` (``hbis reconstruct``)."""
+    return learned_sr(stack, model=model, threads=threads, registration=registration, messages=messages)
+
+
+def _register_method() -> None:
+    from .classical import METHODS
+
+    METHODS.setdefault("learned", reconstruct_learned)
+
+
+_register_method()
 
 
 def read_model_metadata(path) -> dict:
