@@ -110,11 +110,20 @@ def main(argv=None) -> int:
     parser.add_argument("checkpoint", help="model.pt written by training/train_sr.py")
     parser.add_argument("out", help="the .onnx file to write")
     parser.add_argument("--opset", type=int, default=OPSET)
+    parser.add_argument("--weights", help="also write the float32 weights (no optimizer state) to this .pt, "
+                        "for eager-torch comparisons and fine-tuning")
     parser.add_argument("--no-check", action="store_true", help="skip the torch/onnxruntime parity check")
     args = parser.parse_args(argv)
     metadata = export(args.checkpoint, args.out, args.opset)
     size = Path(args.out).stat().st_size
     print(f"wrote {args.out} ({size / 1e6:.2f} MB, opset {args.opset}, h = {metadata['h']})")
+    if args.weights:
+        model, ckpt = load_checkpoint(args.checkpoint)
+        slim = {"model": model.state_dict(), "model_config": model.config(), "metadata": metadata}
+        with atomic_path(args.weights) as tmp:
+            torch.save(slim, tmp)
+            tmp.chmod(0o644)
+        print(f"wrote {args.weights} ({Path(args.weights).stat().st_size / 1e6:.2f} MB)")
     if args.no_check:
         return 0
     from export.check_onnx import TOLERANCE, check_parity

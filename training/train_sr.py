@@ -146,13 +146,17 @@ val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across
 
 def classical_baseline() -> float:
     """Mean PSNR of the classical method (hbis_torch.sr.classical) on the validation set, cached."""
-    path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}.classical.json"
+    path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}.classical_optics.json"
     if not path.exists():
-        from hbis_torch.sr.classical import classical_sr
+        from hbis_torch.config import System
+        from hbis_torch.sr.classical import classical_sr, optics_cutoff
 
+        # As reconstruct(stack, "classical", registration="optics") runs it on these stacks.
+        cutoff = optics_cutoff(System())
         sums = torch.zeros(2, dtype=torch.float64)
         for ex in val_pool[rank::world]:
-            image = classical_sr(torch.from_numpy(ex["frames"]), torch.from_numpy(ex["positions"]).double(), h)
+            frames, positions = torch.from_numpy(ex["frames"]), torch.from_numpy(ex["positions"]).double()
+            image = classical_sr(frames, positions, h, cutoff=cutoff, fill_factor=1.0)
             sums += torch.tensor([psnr(image[None, None].float(), torch.from_numpy(ex["truth"])[None, None]), 1.0])
         if ddp:
             dist.all_reduce(sums)
