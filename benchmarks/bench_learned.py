@@ -11,8 +11,9 @@ Methods, all on the same simulated stacks (hbis_torch.simulate, 12-bit sensor, e
 - ``learned-torch``: the network in eager PyTorch (float32, same tiling as below).
 - ``learned-onnx``: the exported network in onnxruntime (:class:`hbis_torch.sr.learned.LearnedSR`).
 
-Every method gets the same frames and the same sample positions (from the tracer; their cost is
-reported on its own line, it is shared by classical and learned). Times are wall-clock medians of
+Every method gets the same frames and the same sample positions (from the tracer, via
+:func:`hbis_torch.simulate.sample_positions`; their cost is reported on its own line, it is shared
+by classical and learned). Times are wall-clock medians of
 ``--repeats`` runs after one warm-up, with 2 threads for torch and onnxruntime alike. PSNR is over
 the whole output image against the simulator's ground truth (peak 1). Scenes: procedural
 (``words``, ``texture``: the kind the network was trained on, new seeds) and photographs from
@@ -40,8 +41,8 @@ sys.path.insert(0, str(REPO))
 from hbis_torch.config import System  # noqa: E402
 from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
 from hbis_torch.scan import plan_scan  # noqa: E402
-from hbis_torch.simulate import SceneSpec, load_scene, simulate_stack  # noqa: E402
-from hbis_torch.sr.classical import classical_sr, optical_sample_positions, optics_cutoff  # noqa: E402
+from hbis_torch.simulate import SceneSpec, load_scene, sample_positions, simulate_stack  # noqa: E402
+from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
 from hbis_torch.sr.learned import LearnedSR, models_dir, prepare_inputs, run_tiled  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet  # noqa: E402
 
@@ -98,7 +99,8 @@ def load_torch_model(h: int) -> HbisSRNet | None:
 def run_case(system, h, roi, scene_name, seed, runner, model, repeats):
     stack, truth = make_stack(system, h, roi, scene_name, seed)
     frames = stack.to_float()
-    positions, t_pos = timed(lambda: optical_sample_positions(stack), 0 if roi[2] > 512 else 1)
+    positions, t_pos = timed_once(
+        lambda: sample_positions(system, stack.phases_deg, stack.reference_index, stack.roi))
     frames_np, positions_np = frames.numpy(), positions.numpy()
     ref = frames[stack.reference_index][None, None]
     rows = {}

@@ -98,8 +98,14 @@ def dihedral(frames, positions, truth, k: int):
     return frames, positions, truth
 
 
-def crop_example(example: dict, h: int, patch: int, rng: np.random.Generator, augment: bool = True):
-    """A random (patch x patch) crop, transformed, as (frames_reg, offsets, truth (1, hP, hP))."""
+def crop_example(example: dict, h: int, patch: int, rng: np.random.Generator, augment: bool = True,
+                 noise_prob: float = 0.0, noise_max: float = 0.0):
+    """A random (patch x patch) crop, transformed, as (frames_reg, offsets, truth (1, hP, hP)).
+
+    With probability ``noise_prob`` the frames get extra Gaussian noise of a standard deviation
+    drawn uniformly from [0, noise_max] (then clipped to [0, 1] as a sensor would), so that the
+    network also learns to denoise stacks far noisier than the simulator's default exposure.
+    """
     frames, positions, truth = example["frames"], example["positions"], example["truth"]
     size_y, size_x = frames.shape[1:]
     y0 = int(rng.integers(0, size_y - patch + 1))
@@ -109,13 +115,17 @@ def crop_example(example: dict, h: int, patch: int, rng: np.random.Generator, au
     t = truth[h * y0:h * (y0 + patch), h * x0:h * (x0 + patch)]
     if augment:
         f, p, t = dihedral(f, p, t, int(rng.integers(8)))
+    if noise_prob and rng.random() < noise_prob:
+        f = np.clip(f + rng.normal(0.0, rng.uniform(0.0, noise_max), f.shape), 0.0, 1.0)
     frames_reg, offsets = prepare_inputs(f, p, h)
     return frames_reg, offsets, np.ascontiguousarray(t, dtype=np.float32)[None]
 
 
-def make_batch(pool: list[dict], h: int, patch: int, batch: int, rng: np.random.Generator):
+def make_batch(pool: list[dict], h: int, patch: int, batch: int, rng: np.random.Generator,
+               noise_prob: float = 0.0, noise_max: float = 0.0):
     """frames (B, h^2, P, P), offsets (B, 2h^2, P, P), truth (B, 1, hP, hP), float32."""
-    parts = [crop_example(pool[int(rng.integers(len(pool)))], h, patch, rng) for _ in range(batch)]
+    parts = [crop_example(pool[int(rng.integers(len(pool)))], h, patch, rng, True, noise_prob, noise_max)
+             for _ in range(batch)]
     return tuple(np.stack(a) for a in zip(*parts))
 
 

@@ -42,6 +42,8 @@ blocks = 5  # residual blocks
 patch = 32  # LR patch side of a training example (the output patch is h times larger)
 pool_size = 480  # simulated training stacks (procedural scenes, random places on the sensor)
 pool_roi = 96  # LR side of each simulated training stack; patches are cropped from them
+noise_prob = 0.5  # share of training crops that get extra Gaussian noise ...
+noise_max = 0.06  # ... of a standard deviation uniform in [0, noise_max] (frames in [0, 1])
 val_size = 24  # held-out simulated stacks (their own seeds, never trained on)
 val_roi = 64  # LR side of a validation stack (PSNR over the whole h*val_roi square)
 cache_dir = "training/runs/cache"  # simulated pools are generated once and reused
@@ -171,7 +173,7 @@ def classical_baseline() -> float:
 # as an uninterrupted one and the ranks never see the same examples.
 def train_batch(at_step: int):
     rng = np.random.default_rng([seed, rank, at_step])
-    return [torch.from_numpy(a) for a in make_batch(train_pool, h, patch, batch_size, rng)]
+    return [torch.from_numpy(a) for a in make_batch(train_pool, h, patch, batch_size, rng, noise_prob, noise_max)]
 
 
 def psnr(image: torch.Tensor, truth: torch.Tensor) -> float:

@@ -27,7 +27,8 @@ from ..errors import HbisInputError
 MODEL_FORMAT = "hbis-sr-onnx/1"
 NORMALISATION = (
     "frames: float32 in [0, 1] (stack.to_float), registered order; offsets: float32, output "
-    "pixels, sample position minus nominal phase, (x, y) per frame; image: float32, clip to [0, 1]"
+    "pixels, sample position minus nominal phase, (x, y) per frame; image: float32, clip to [0, 1]; "
+    "dark stacks (99.9th percentile < 0.5) are scaled by up to 64x before and unscaled after"
 )
 # Halo (LR pixels) around each tile: more than the network's receptive field radius (12 for
 # the shipped models: head + 2 per block + tail), so that tiling does not change the result.
@@ -135,6 +136,21 @@ def prepare_inputs(frames, positions, h: int) -> tuple[np.ndarray, np.ndarray]:
         offsets[2 * c] = residual[..., 0]
         offsets[2 * c + 1] = residual[..., 1]
     return frames_reg, offsets
+
+
+# Dark stacks are brightened before the network (and its output darkened by the same factor):
+# the training exposures put the highlights above half scale, and a stack whose brightest
+# pixels sit far below that is outside what the network has seen. Normal stacks are untouched.
+DARK_TARGET = 0.5
+MAX_GAIN = 64.0
+
+
+def exposure_gain(frames: np.ndarray) -> float:
+    """1 for stacks whose 99.9th percentile reaches DARK_TARGET, else up to MAX_GAIN to get there."""
+    high = float(np.percentile(frames, 99.9))
+    if high >= DARK_TARGET:
+        return 1.0
+    return float(min(MAX_GAIN, DARK_TARGET / max(high, DARK_TARGET / MAX_GAIN)))
 
 
 def run_tiled(infer, frames_reg: np.ndarray, offsets: np.ndarray, h: int, tile: int = 256,
@@ -249,7 +265,8 @@ class LearnedSR:
         if frames.ndim == 3 and min(frames.shape[1:]) < 4:
             raise HbisInputError(f"frames of {frames.shape[1]} x {frames.shape[2]} are too small (min 4 x 4)")
         frames_reg, offsets = prepare_inputs(frames, positions, self.h)
-        image = self.run_network(frames_reg, offsets)
+        gain = exposure_gain(frames_reg)
+        image = self.run_network(frames_reg * gain, offsets) / gain
         # A model is a function of float32 inputs in [0, 1]; anything non-finite here is a bug
         # in the model file, not in the stack.
         if not np.isfinite(image).all():
@@ -260,7 +277,9 @@ class LearnedSR:
 def stack_positions(stack, registration: str = "optics", messages: list | None = None):
     """Sample positions (F, H, W, 2) float64 of a stack, as the classical method finds them.
 
-    ``"optics"``: the exact tracer (:func:`~hbis_torch.sr.classical.optical_sample_positions`).
+    ``"optics"``: the tracer, through :func:`hbis_torch.simulate.sample_positions` (exact at
+    nodes 8 pixels apart, cubic splines between: < 1e-6 pixel from
+    :func:`~hbis_torch.sr.classical.optical_sample_positions`, and much faster).
     ``"data"`` / ``"auto"``: the tracer corrected by registering the frames
     (:func:`~hbis_torch.registration.register_stack`), for the frames the registration trusts;
     the network needs every frame, so untrusted frames keep their optical positions.
@@ -268,11 +287,12 @@ def stack_positions(stack, registration: str = "optics", messages: list | None =
     import torch
 
     from ..registration import apply_homography, homographies_from_positions, register_stack
-    from .classical import REGISTRATIONS, optical_sample_positions
+    from ..simulate import sample_positions
+    from .classical import REGISTRATIONS
 
     if registration not in REGISTRATIONS:
         raise HbisInputError(f"registration must be one of {REGISTRATIONS}, got {registration!r}")
-    positions = optical_sample_positions(stack)
+    positions = sample_positions(stack.system, stack.phases_deg, stack.reference_index, stack.roi)
     count, rows, cols = positions.shape[:3]
     if registration == "optics" or count == 1:
         return positions.numpy()
