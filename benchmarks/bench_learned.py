@@ -222,8 +222,8 @@ def main(argv=None) -> int:
         for size_arg in args.sizes:
             size = None if size_arg == "full" else int(size_arg)
             cases = [("synthetic", s) for s in SYNTHETIC] + [("photo", p) for p in PHOTOS]
-            if size is None:
-                cases = [("synthetic", "words"), ("photo", "camera")]
+            if size is None or size > 128:  # fewer scenes where every run takes long
+                cases = [("synthetic", "words"), ("photo", "camera"), ("photo", "astronaut")][:2 if size is None else 3]
             for i, (kind, scene) in enumerate(cases):
                 roi = roi_for(system, size, i)
                 t0 = time.perf_counter()
