@@ -81,3 +81,14 @@ def test_non_finite_or_misshapen_input_is_refused(bad):
         pos = pos[:, :3]
     with pytest.raises(HbisInputError):
         prepare_inputs(frames, pos, 2)
+
+
+def test_exposure_gain_leaves_normal_stacks_alone_and_lifts_dark_ones():
+    from hbis_torch.sr.learned import MAX_GAIN, exposure_gain
+
+    rng = np.random.default_rng(1)
+    bright = rng.uniform(0, 0.9, (4, 16, 16)).astype(np.float32)
+    assert exposure_gain(bright) == 1.0
+    dark = bright * 0.05
+    assert exposure_gain(dark) == pytest.approx(0.5 / np.percentile(dark, 99.9))
+    assert exposure_gain(np.zeros((4, 16, 16), np.float32)) == MAX_GAIN

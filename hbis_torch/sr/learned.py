@@ -1,4 +1,6 @@
-"""Learned multi-frame super-resolution, run with onnxruntime (no torch at inference).
+"""Learned multi-frame super-resolution: the network runs in onnxruntime, not torch.
+
+(torch is used only where the rest of the package uses it: tracing the sample positions.)
 
 The network (:mod:`hbis_torch.sr.net`) sees the h^2 frames in *registered order* and, per pixel,
 how far each sample sits from its nominal sub-pixel phase. :func:`prepare_inputs` builds both
@@ -30,8 +32,9 @@ NORMALISATION = (
     "pixels, sample position minus nominal phase, (x, y) per frame; image: float32, clip to [0, 1]; "
     "dark stacks (99.9th percentile < 0.5) are scaled by up to 64x before and unscaled after"
 )
-# Halo (LR pixels) around each tile: more than the network's receptive field radius (12 for
-# the shipped models: head + 2 per block + tail), so that tiling does not change the result.
+# Least halo (LR pixels) around each tile: more than the network's receptive field radius (13
+# for the shipped models: head + 2 per block + tail + the bilinear base), so that tiling does
+# not change the result; deeper models get a wider one.
 TILE_HALO = 16
 
 
@@ -245,6 +248,9 @@ class LearnedSR:
             raise HbisInputError(f"model {path.name} is for h = {self.h}, the stack has h = {h}")
         self.path = path
         self.tile = int(tile)
+        # Receptive field radius: head + 2 per residual block + tail, + 1 for the bilinear base.
+        blocks = int(json.loads(self.metadata.get("model_config", "{}")).get("blocks", 5))
+        self.halo = max(TILE_HALO, 2 * blocks + 4)
 
     def infer(self, frames_reg: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """One network pass: (1, h^2, H, W), (1, 2h^2, H, W) float32 -> (1, 1, hH, hW)."""
@@ -252,7 +258,7 @@ class LearnedSR:
 
     def run_network(self, frames_reg: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Raw network output for registered inputs, tiled; (h^2, H, W), (2h^2, H, W) -> (hH, hW)."""
-        return run_tiled(self.infer, frames_reg, offsets, self.h, self.tile)
+        return run_tiled(self.infer, frames_reg, offsets, self.h, self.tile, self.halo)
 
     def __call__(self, frames, positions) -> np.ndarray:
         """Super-resolve frames (F, H, W) in [0, 1] with positions (F, H, W, 2) -> (hH, hW) in [0, 1]."""
