@@ -36,6 +36,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..io_utils import atomic_path
     from ..sr.classical import METHODS, reconstruct
+    from ..sr.learned import reconstruct_learned  # noqa: F401  (importing it adds METHODS["learned"])
     from ..stack_io import read_stack
 
     if args.method not in METHODS:

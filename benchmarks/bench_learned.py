@@ -1,0 +1,296 @@
+"""Speed against error of the super-resolution methods, measured side by side in one run.
+
+    python benchmarks/bench_learned.py                 # h with a shipped model; 128^2, 256^2, full frame
+    python benchmarks/bench_learned.py --sizes 128 256 # skip the full 960 x 1280 frame
+
+Methods, all on the same simulated stacks (hbis_torch.simulate, 12-bit sensor, exact optics):
+
+- ``bicubic``: the reference frame alone, bicubic upsampling (torch, ``align_corners=False``).
+- ``classical``: :func:`hbis_torch.sr.classical.classical_sr` with the optics' cutoff, i.e. what
+  ``hbis reconstruct --method classical --registration optics`` computes.
+- ``learned-torch``: the network in eager PyTorch (float32, same tiling as below).
+- ``learned-onnx``: the exported network in onnxruntime (:class:`hbis_torch.sr.learned.LearnedSR`).
+
+Every method gets the same frames and the same sample positions (from the tracer, via
+:func:`hbis_torch.simulate.sample_positions`; their cost is reported on its own line, it is shared
+by classical and learned). Times are wall-clock medians of
+``--repeats`` runs after one warm-up, with 2 threads for torch and onnxruntime alike. PSNR is over
+the whole output image against the simulator's ground truth (peak 1). Scenes: procedural
+(``words``, ``texture``: the kind the network was trained on, new seeds) and photographs from
+scikit-image (never seen in training).
+
+Writes ``benchmarks/results/bench_learned.json``, the Pareto plot ``docs/pareto.png`` and the
+markdown table ``benchmarks/results/bench_learned.md`` (copied into docs/learned.md by hand).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+from hbis_torch.config import System  # noqa: E402
+from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
+from hbis_torch.scan import plan_scan  # noqa: E402
+from hbis_torch.simulate import SceneSpec, load_scene, sample_positions, simulate_stack  # noqa: E402
+from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
+from hbis_torch.sr.learned import LearnedSR, exposure_gain, models_dir, prepare_inputs, run_tiled  # noqa: E402
+from hbis_torch.sr.net import HbisSRNet  # noqa: E402
+
+SYNTHETIC = ("words", "texture")
+PHOTOS = ("camera", "astronaut", "brick")
+METHODS = ("bicubic", "classical", "learned-torch", "learned-onnx")
+THREADS = 2
+
+
+def psnr(image: np.ndarray, truth: np.ndarray) -> float:
+    mse = float(np.mean((np.clip(image, 0, 1).astype(np.float64) - truth.astype(np.float64)) ** 2))
+    return 10 * np.log10(1.0 / max(mse, 1e-12))
+
+
+def timed(fn, repeats: int):
+    """(result, median seconds) of ``repeats`` calls after one warm-up call."""
+    result = fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - t0)
+    return result, float(np.median(times))
+
+
+def roi_for(system: System, size, index: int):
+    """ROI of ``size`` (side or None for the full frame) at the centre, or near a corner."""
+    cam = system.camera
+    if size is None:
+        return (0, 0, cam.cols, cam.rows)
+    spots = [((cam.cols - size) // 2, (cam.rows - size) // 2), (16, 16), (cam.cols - size - 16, cam.rows - size - 16)]
+    u0, v0 = spots[index % len(spots)]
+    return (u0, v0, size, size)
+
+
+def make_stack(system: System, h: int, roi, scene_name: str, seed: int):
+    w, hgt = roi[2], roi[3]
+    pixel = system.object_pixel_mm
+    spec = SceneSpec(size_mm=(w * pixel * 1.25, hgt * pixel * 1.25), pixel_mm=pixel, detail_mm=pixel / 16)
+    scene = load_scene(scene_name, spec, seed=seed)
+    return simulate_stack(scene, system, plan_scan(system, h), roi=roi, seed=seed)
+
+
+def load_torch_model(h: int) -> HbisSRNet | None:
+    path = models_dir() / f"hbis_sr_h{h}.pt"
+    if not path.exists():
+        return None
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    model = HbisSRNet(**state["model_config"])
+    model.load_state_dict(state["model"])
+    return model.eval()
+
+
+def run_case(system, h, roi, scene_name, seed, runner, model, repeats):
+    stack, truth = make_stack(system, h, roi, scene_name, seed)
+    frames = stack.to_float()
+    positions, t_pos = timed_once(
+        lambda: sample_positions(system, stack.phases_deg, stack.reference_index, stack.roi))
+    frames_np, positions_np = frames.numpy(), positions.numpy()
+    ref = frames[stack.reference_index][None, None]
+    rows = {}
+
+    def bicubic():
+        return F.interpolate(ref, scale_factor=h, mode="bicubic", align_corners=False)[0, 0].clamp(0, 1).numpy()
+
+    def classical():
+        return classical_sr(frames, positions, h, cutoff=optics_cutoff(system), fill_factor=1.0).numpy()
+
+    def learned_torch():
+        frames_reg, offsets = prepare_inputs(frames_np, positions_np, h)
+
+        def infer(a, b):
+            with torch.inference_mode():
+                return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
+
+        gain = exposure_gain(frames_reg)  # what LearnedSR does (1 for these normal exposures)
+        return np.clip(run_tiled(infer, frames_reg * gain, offsets, h, runner.tile, runner.halo) / gain, 0, 1)
+
+    def learned_onnx():
+        return runner(frames_np, positions_np)
+
+    methods = {"bicubic": bicubic, "classical": classical, "learned-onnx": learned_onnx}
+    if model is not None:
+        methods["learned-torch"] = learned_torch
+    small = roi[2] * roi[3] <= 256 * 256
+    for name, fn in methods.items():
+        # Small ROIs: median of repeats after a warm-up; the full frame: one run.
+        image, seconds = timed(fn, repeats) if small else timed_once(fn)
+        rows[name] = {"psnr": psnr(image, truth), "seconds": seconds}
+    return rows, t_pos
+
+
+def timed_once(fn):
+    t0 = time.perf_counter()
+    result = fn()
+    return result, time.perf_counter() - t0
+
+
+def summarise(results):
+    """Mean PSNR and median time per (h, size, kind, method)."""
+    groups = {}
+    for r in results:
+        for method, m in r["methods"].items():
+            key = (r["h"], r["size"], r["kind"], method)
+            groups.setdefault(key, []).append(m)
+    table = []
+    for (h, size, kind, method), ms in sorted(groups.items(), key=lambda kv: (kv[0][0], str(kv[0][1]), kv[0][2], METHODS.index(kv[0][3]))):
+        table.append({"h": h, "size": size, "kind": kind, "method": method, "n": len(ms),
+                      "psnr": float(np.mean([m["psnr"] for m in ms])),
+                      "seconds": float(np.median([m["seconds"] for m in ms]))})
+    return table
+
+
+def markdown(table, positions_s, load):
+    lines = [f"Load average during the run (1/5/15 min): {load}", "",
+             "| h | ROI (LR px) | scenes | method | PSNR [dB] | time [s] |",
+             "| --- | --- | --- | --- | ---: | ---: |"]
+    for row in table:
+        lines.append(f"| {row['h']} | {row['size']} | {row['kind']} (n={row['n']}) | {row['method']} | "
+                     f"{row['psnr']:.2f} | {row['seconds']:.3f} |")
+    lines.append("")
+    lines.append("Sample positions from the tracer (shared by classical and learned, not in the times above): "
+                 + ", ".join(f"{k}: {v:.2f} s" for k, v in positions_s.items()))
+    speed = {}
+    for row in table:
+        speed.setdefault((row["h"], row["size"], row["kind"]), {})[row["method"]] = row["seconds"]
+    ratios = [f"{h}/{size}/{kind}: {m['learned-torch'] / m['learned-onnx']:.2f}x"
+              for (h, size, kind), m in speed.items() if "learned-torch" in m and "learned-onnx" in m]
+    lines.append("")
+    lines.append("onnxruntime speed-up over eager torch (same tiles, same threads): " + ", ".join(ratios))
+    return "\n".join(lines) + "\n"
+
+
+def pareto_plot(table, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kinds = sorted({r["kind"] for r in table})
+    fig, axes = plt.subplots(1, len(kinds), figsize=(6 * len(kinds), 4.5), squeeze=False)
+    colours = {"bicubic": "tab:gray", "classical": "tab:blue", "learned-torch": "tab:orange", "learned-onnx": "tab:red"}
+    markers = {128: "o", 256: "s", "full": "^"}
+    for ax, kind in zip(axes[0], kinds):
+        for row in (r for r in table if r["kind"] == kind):
+            ax.scatter(row["seconds"], row["psnr"], c=colours[row["method"]], marker=markers.get(row["size"], "x"),
+                       s=50, label=f"{row['method']}, {row['size']}" + ("" if row["h"] == 4 else f", h={row['h']}"))
+        ax.set_xscale("log")
+        ax.set_xlabel("time per reconstruction [s] (2 CPU threads)")
+        ax.set_ylabel("PSNR [dB]")
+        ax.set_title(f"{kind} scenes")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7, ncol=2)
+    fig.suptitle("Speed against error: marker = ROI (o 128², s 256², ^ 960x1280), colour = method")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+
+
+def hard_cases() -> str:
+    """The hard cases of tests/test_learned_hard_cases.py, learned fp32 vs classical fp64, as a table."""
+    from hbis_torch.simulate import EdgesScene, FlatScene, SensorModel
+
+    h, system, roi = 4, System(), (1100, 60, 32, 32)
+    plan = plan_scan(system, h)
+    positions = sample_positions(system, plan.phases_deg, plan.reference_index, roi).numpy()
+    pixel = system.object_pixel_mm
+    edges = EdgesScene(size_mm=(40 * pixel, 40 * pixel), normals_deg=(20.0, 110.0),
+                       offsets_mm=(0.0, 3 * pixel), levels=(0.1, 0.4, 0.7, 0.95))
+    runner = LearnedSR(h=h, threads=THREADS)
+
+    def simulate(scene):
+        stack, truth = simulate_stack(scene, system, plan, roi=roi, sensor=SensorModel(), seed=3)
+        return stack.to_float().numpy(), truth
+
+    base_frames, base_truth = simulate(edges)
+    rng = np.random.default_rng(0)
+    cases = {
+        "normal exposure": (base_frames, base_truth),
+        "saturated (frames x 1.6, clipped)": (np.clip(base_frames * 1.6, 0, 1).astype(np.float32),
+                                              np.clip(base_truth * 1.6, 0, 1)),
+        "near-black (1/200 exposure, 12-bit steps)": ((np.round(base_frames * 0.005 * 4095) / 4095).astype(np.float32),
+                                                      base_truth * 0.005),
+        "strong noise (+ N(0, 0.05), clipped)": (np.clip(base_frames + rng.normal(0, 0.05, base_frames.shape), 0, 1)
+                                                 .astype(np.float32), base_truth),
+        "flat 0.5": simulate(FlatScene(size_mm=(1.0, 1.0), level=0.5)),
+    }
+    lines = ["| case | learned (fp32) | classical (fp64) | abs(mean difference) |", "| --- | ---: | ---: | ---: |"]
+    for name, (frames, truth) in cases.items():
+        learned = runner(frames, positions)
+        reference = classical_sr(torch.from_numpy(frames.astype(np.float64)), torch.from_numpy(positions), h,
+                                 cutoff=optics_cutoff(system)).double().clamp(0, 1).numpy()
+        scale = max(float(truth.max()), 1e-3)
+        lines.append(f"| {name} | {psnr(learned / scale, truth / scale):.2f} dB | "
+                     f"{psnr(reference / scale, truth / scale):.2f} dB | "
+                     f"{abs(float(learned.mean()) - float(reference.mean())):.1e} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--hs", type=int, nargs="+", default=[2, 4, 7], help="factors (those with a model)")
+    parser.add_argument("--sizes", nargs="+", default=["128", "256", "full"])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results")
+    parser.add_argument("--plot", type=Path, default=REPO / "docs" / "pareto.png")
+    parser.add_argument("--hard-cases", action="store_true",
+                        help="only print the hard-case table (learned fp32 vs classical fp64) and exit")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(THREADS)
+    if args.hard_cases:
+        print(hard_cases())
+        return 0
+    system = System()
+    results, positions_s = [], {}
+    for h in args.hs:
+        if not (models_dir() / f"hbis_sr_h{h}.onnx").exists():
+            print(f"h = {h}: no model, skipped")
+            continue
+        runner = LearnedSR(h=h, threads=THREADS)
+        model = load_torch_model(h)
+        for size_arg in args.sizes:
+            size = None if size_arg == "full" else int(size_arg)
+            cases = [("synthetic", s) for s in SYNTHETIC] + [("photo", p) for p in PHOTOS]
+            if size is None or size > 128:  # fewer scenes where every run takes long
+                cases = [("synthetic", "words"), ("photo", "camera"), ("photo", "astronaut")][:2 if size is None else 3]
+            for i, (kind, scene) in enumerate(cases):
+                roi = roi_for(system, size, i)
+                t0 = time.perf_counter()
+                rows, t_pos = run_case(system, h, roi, scene, 1000 + i, runner, model, args.repeats)
+                label = "full" if size is None else size
+                positions_s[f"h{h} {label}"] = t_pos
+                results.append({"h": h, "size": label, "kind": kind, "scene": scene, "roi": list(roi), "methods": rows})
+                summary = ", ".join(f"{k} {v['psnr']:.2f} dB {v['seconds']:.3f} s" for k, v in rows.items())
+                print(f"h={h} {label} {scene} @ {roi[:2]}: {summary} [{time.perf_counter() - t0:.0f} s]", flush=True)
+    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    table = summarise(results)
+    args.out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(args.out / "bench_learned.json",
+                      json.dumps({"load_average": load, "results": results, "table": table,
+                                  "positions_s": positions_s}, indent=1))
+    text = markdown(table, positions_s, load)
+    atomic_write_text(args.out / "bench_learned.md", text)
+    pareto_plot(table, args.plot)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,94 @@
+"""ONNX export: opset, dynamic height/width, metadata, parity with torch at another size."""
+
+import json
+
+import numpy as np
+import onnx
+import pytest
+import torch
+import torch.nn.functional as F
+
+from export.check_onnx import CHECK_SIZE, TOLERANCE, check_parity
+from export.export_onnx import EXPORT_SIZE, OPSET, export_model
+from hbis_torch.sr.learned import LearnedSR, read_model_metadata
+from hbis_torch.sr.net import HbisSRNet, space_to_depth
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    torch.manual_seed(0)
+    model = HbisSRNet(3, width=12, blocks=2).eval()
+    for p in model.tail.parameters():  # the tail starts at zero; make the whole net matter
+        torch.nn.init.normal_(p, std=0.1)
+    path = tmp_path_factory.mktemp("onnx") / "net.onnx"
+    info = {"git_commit": "abc123", "val_psnr": 30.5, "step": 7, "config": {"h": 3}}
+    export_model(model, path, info)
+    return model, path
+
+
+def test_parity_at_a_size_other_than_the_export_size(exported):
+    model, path = exported
+    assert tuple(CHECK_SIZE) != tuple(EXPORT_SIZE)
+    assert check_parity(path, model) <= TOLERANCE
+    assert check_parity(path, model, size=(9, 130)) <= TOLERANCE
+
+
+def test_height_and_width_are_dynamic_and_the_file_is_self_contained(exported):
+    _, path = exported
+    proto = onnx.load(str(path))
+    assert [o.version for o in proto.opset_import if o.domain in ("", "ai.onnx")] == [OPSET]
+    for tensor in proto.graph.input:
+        dims = tensor.type.tensor_type.shape.dim
+        assert dims[2].dim_param and dims[3].dim_param and not dims[2].dim_value
+    assert not list(path.parent.glob("*.data"))
+    ops = {n.op_type for n in proto.graph.node}
+    assert not ops & {"DeformConv", "Inverse", "SpaceToDepth"}
+
+
+def test_metadata_props_carry_h_frames_normalisation_and_commit(exported):
+    _, path = exported
+    meta = read_model_metadata(path)
+    assert meta["h"] == "3" and meta["frames"] == "9"
+    assert "[0, 1]" in meta["normalisation"]
+    assert meta["training_commit"] == "abc123"
+    assert len(meta["export_commit"]) >= 7
+    assert json.loads(meta["model_config"]) == {"h": 3, "width": 12, "blocks": 2}
+    runner = LearnedSR(path)
+    assert runner.h == 3 and runner.frame_count == 9
+
+
+def test_tiled_inference_equals_one_pass(exported):
+    model, path = exported
+    runner = LearnedSR(path, tile=16)
+    g = torch.Generator().manual_seed(3)
+    frames = torch.rand(1, 9, 40, 37, generator=g)
+    offsets = torch.rand(1, 18, 40, 37, generator=g) - 0.5
+    tiled = runner.run_network(frames[0].numpy(), offsets[0].numpy())
+    with torch.no_grad():
+        whole = model(frames, offsets)[0, 0].numpy()
+    assert np.abs(tiled - whole).max() <= TOLERANCE
+
+
+def test_space_to_depth_survives_the_dynamo_exporter(tmp_path):
+    import onnxruntime as ort
+
+    class Packer(torch.nn.Module):
+        def forward(self, x):
+            return space_to_depth(x, 4)
+
+    rows, cols = torch.export.Dim("rows", min=1, max=512), torch.export.Dim("cols", min=1, max=512)
+    path = tmp_path / "s2d.onnx"
+    torch.onnx.export(Packer(), (torch.randn(1, 2, 16, 24),), str(path), dynamo=True,
+                      dynamic_shapes={"x": {2: 4 * rows, 3: 4 * cols}}, external_data=False)
+    x = torch.randn(1, 2, 28, 12)
+    got = ort.InferenceSession(str(path)).run(None, {"x": x.numpy()})[0]
+    np.testing.assert_array_equal(got, F.pixel_unshuffle(x, 4).numpy())
+
+
+def test_corrupt_model_file_is_a_clear_input_error(tmp_path):
+    from hbis_torch.errors import HbisInputError
+
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not an onnx file")
+    with pytest.raises(HbisInputError, match="cannot load ONNX model"):
+        LearnedSR(bad)

@@ -1,0 +1,117 @@
+"""The shipped h = 4 model on hard inputs, in float32, against the float64 classical reference.
+
+Cases: saturated highlights, a near-black stack, strong noise, a flat scene, an all-black and an
+all-white stack, and stacks the model cannot serve (wrong frame count, too small, NaN).
+"""
+
+import numpy as np
+import pytest
+import torch
+
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.scan import plan_scan
+from hbis_torch.simulate import EdgesScene, FlatScene, SensorModel, sample_positions, simulate_stack
+from hbis_torch.sr.classical import classical_sr, optics_cutoff
+from hbis_torch.sr.learned import LearnedSR, default_model_path
+
+H = 4
+SYSTEM = System()
+ROI = (1100, 60, 32, 32)  # near a corner: the scan is least regular there
+
+
+def psnr(a, b):
+    return 10 * np.log10(1.0 / max(float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)), 1e-20))
+
+
+@pytest.fixture(scope="module")
+def runner():
+    return LearnedSR(default_model_path(H), threads=2)
+
+
+@pytest.fixture(scope="module")
+def positions():
+    plan = plan_scan(SYSTEM, H)
+    return sample_positions(SYSTEM, plan.phases_deg, plan.reference_index, ROI).numpy()
+
+
+def simulate(scene, sensor=SensorModel()):
+    pixel = SYSTEM.object_pixel_mm
+    scene = scene if scene is not None else EdgesScene(
+        size_mm=(40 * pixel, 40 * pixel), normals_deg=(20.0, 110.0), offsets_mm=(0.0, 3 * pixel),
+        levels=(0.1, 0.4, 0.7, 0.95))
+    stack, truth = simulate_stack(scene, SYSTEM, plan_scan(SYSTEM, H), roi=ROI, sensor=sensor, seed=3)
+    return stack.to_float().numpy(), truth
+
+
+def classical64(frames, positions):
+    out = classical_sr(torch.from_numpy(frames.astype(np.float64)), torch.from_numpy(positions), H,
+                       cutoff=optics_cutoff(SYSTEM))
+    assert out.dtype == torch.float64 or out.dtype == torch.float32
+    return out.double().clamp(0, 1).numpy()
+
+
+def check_output(image, shape):
+    assert image.shape == shape and image.dtype == np.float32
+    assert np.isfinite(image).all() and image.min() >= 0.0 and image.max() <= 1.0
+
+
+def test_normal_stack_beats_the_classical_reference(runner, positions):
+    frames, truth = simulate(None)
+    learned = runner(frames, positions)
+    check_output(learned, truth.shape)
+    assert psnr(learned, truth) > psnr(classical64(frames, positions), truth)
+
+
+@pytest.mark.parametrize("case", ["saturated", "near-black", "strong-noise"])
+def test_hard_stacks_stay_close_to_the_classical_reference(runner, positions, case):
+    frames, truth = simulate(None)
+    rng = np.random.default_rng(0)
+    if case == "saturated":  # over-exposed: the two brightest regions clip at white
+        frames = np.clip(frames * 1.6, 0, 1).astype(np.float32)
+        truth = np.clip(truth * 1.6, 0, 1)
+    elif case == "near-black":  # 1/200 of the exposure, still on 12-bit steps
+        frames = (np.round(frames * 0.005 * 4095) / 4095).astype(np.float32)
+        truth = truth * 0.005
+    else:  # noise 10 times the simulator's, clipped as a sensor would
+        frames = np.clip(frames + rng.normal(0, 0.05, frames.shape), 0, 1).astype(np.float32)
+    learned = runner(frames, positions)
+    reference = classical64(frames, positions)
+    check_output(learned, truth.shape)
+    scale = max(float(truth.max()), 1e-3)
+    # No bias against the float64 reference, relative to the image's own range.
+    assert abs(float(learned.mean()) - float(reference.mean())) < 0.02 * scale
+    # As close to the truth as the reference is, within 2 dB (relative to the range).
+    rel = lambda img: psnr(img / scale, truth / scale)  # noqa: E731
+    assert rel(learned) > rel(reference) - 2.0
+    if case == "saturated":
+        clipped = truth >= 1.0
+        assert learned[clipped].mean() > 0.97
+
+
+@pytest.mark.parametrize("level", [0.0, 0.5, 1.0])
+def test_flat_stacks_give_flat_images(runner, positions, level):
+    if level == 0.5:
+        frames, truth = simulate(FlatScene(size_mm=(1.0, 1.0), level=0.5))
+    else:  # all black / all white: no light, or every pixel clipped
+        frames = np.full((H * H, 32, 32), level, np.float32)
+        truth = np.full((H * 32, H * 32), level)
+    learned = runner(frames, positions)
+    reference = classical64(frames, positions)
+    check_output(learned, truth.shape)
+    assert abs(float(learned.mean()) - level) < 0.01
+    assert abs(float(learned.mean()) - float(reference.mean())) < 0.01
+    # The network must not invent structure: no more ripple than the noise it was given.
+    assert float(learned.std()) <= max(2 * float(reference.std()), 2e-3)
+
+
+def test_stacks_the_model_cannot_serve_get_one_clear_error(runner, positions):
+    frames = np.zeros((9, 32, 32), np.float32)
+    with pytest.raises(HbisInputError, match="9 frames but model hbis_sr_h4.onnx needs 16"):
+        runner(frames, positions[:9])
+    with pytest.raises(HbisInputError, match="too small"):
+        runner(np.zeros((16, 3, 32), np.float32), positions[:, :3])
+    bad = np.zeros((16, 32, 32), np.float32)
+    bad[3, 4, 5] = np.nan
+    with pytest.raises(HbisInputError, match="NaN"):
+        runner(bad, positions)

@@ -1,0 +1,296 @@
+"""Train the multi-frame super-resolution network (hbis_torch.sr.net) on simulated scans.
+
+Read it top to bottom: config, setup, data, the loop. One process:
+
+    python training/train_sr.py h=4 max_minutes=20 out_dir=training/runs/sr_h4
+
+Two processes on one machine (DDP over gloo, the same script unchanged):
+
+    torchrun --standalone --nproc_per_node=2 training/train_sr.py h=4 max_minutes=20
+
+Any name in the config block can be overridden as ``name=value`` (Python literals). Killing the
+run and starting the same command again resumes from ``out_dir/ckpt.pt``. The outputs in
+``out_dir``: ``ckpt.pt`` (latest, for resuming), ``model.pt`` (best validation PSNR),
+``history.json`` and ``val_psnr.png`` (the validation curve).
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
+from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
+from hbis_torch.sr.net import HbisSRNet, count_parameters  # noqa: E402
+from training.sr_data import build_pool, load_pool, make_batch, save_pool, whole_example  # noqa: E402
+
+# ---------------------------------------------------------------------------- config
+h = 4  # resolution improvement factor; the model takes h*h frames
+width = 48  # feature channels
+blocks = 5  # residual blocks
+patch = 32  # LR patch side of a training example (the output patch is h times larger)
+pool_size = 480  # simulated training stacks (procedural scenes, random places on the sensor)
+pool_roi = 96  # LR side of each simulated training stack; patches are cropped from them
+noise_prob = 0.5  # share of training crops that get extra Gaussian noise ...
+noise_max = 0.06  # ... of a standard deviation uniform in [0, noise_max] (frames in [0, 1])
+val_size = 24  # held-out simulated stacks (their own seeds, never trained on)
+val_roi = 64  # LR side of a validation stack (PSNR over the whole h*val_roi square)
+cache_dir = "training/runs/cache"  # simulated pools are generated once and reused
+batch_size = 8  # per process
+lr = 2e-3  # peak learning rate (AdamW), cosine decay to lr/20 over the budget
+weight_decay = 1e-4
+warmup_steps = 50
+max_steps = 100_000  # whichever of max_steps / max_minutes comes first ends the run
+max_minutes = 20.0  # wall-clock budget for training (validation included)
+eval_interval = 100  # steps between validation + checkpoint
+seed = 0
+threads = 0  # torch threads per process; 0: the CPUs divided among the processes
+out_dir = "training/runs/sr_h4"
+resume = True
+progress_bar = True
+
+# ---------------------------------------------------------------------------- overrides
+config_keys = [k for k, v in dict(globals()).items() if not k.startswith("_") and isinstance(v, (int, float, str, bool))]
+for arg in sys.argv[1:]:
+    key, _, value = arg.partition("=")
+    if key not in config_keys or not _:
+        raise SystemExit(f"unknown or malformed override {arg!r}; known: {', '.join(config_keys)}")
+    try:
+        parsed = ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        parsed = value  # a bare string such as out_dir=runs/x
+    if type(parsed) is not type(globals()[key]) and not (isinstance(globals()[key], float) and isinstance(parsed, int)):
+        raise SystemExit(f"{key} must be {type(globals()[key]).__name__}, got {value!r}")
+    globals()[key] = type(globals()[key])(parsed)
+config = {k: globals()[k] for k in config_keys}
+
+# ---------------------------------------------------------------------------- setup
+def git_commit() -> str:
+    """HEAD of this checkout (with "-dirty" if files differ from it), stored in checkpoints."""
+    here = Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here, capture_output=True, text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("-dirty" if dirty else "")
+
+
+ddp = "RANK" in os.environ
+if ddp:
+    dist.init_process_group("gloo")
+    rank, world = dist.get_rank(), dist.get_world_size()
+else:
+    rank, world = 0, 1
+master = rank == 0
+torch.set_num_threads(threads or max(1, len(os.sched_getaffinity(0)) // world))
+torch.manual_seed(seed)  # same initial weights on every rank (DDP also broadcasts them)
+out = Path(out_dir)
+commit = git_commit()
+if master:
+    out.mkdir(parents=True, exist_ok=True)
+
+model = HbisSRNet(h, width=width, blocks=blocks)
+optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
+step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
+ckpt_path = out / "ckpt.pt"
+if resume and ckpt_path.exists():
+    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+    model.load_state_dict(ckpt["model"])
+    optimizer.load_state_dict(ckpt["optimizer"])
+    step, trained_s, history = ckpt["step"], ckpt["trained_s"], ckpt["history"]
+    best_psnr = max((r["val_psnr"] for r in history), default=-math.inf)
+    if master:
+        print(f"resumed from {ckpt_path} at step {step} ({trained_s / 60:.1f} min trained)")
+net = torch.nn.parallel.DistributedDataParallel(model) if ddp else model
+if master:
+    print(f"HbisSRNet h={h}: {count_parameters(model)} parameters, {world} process(es)")
+
+# ---------------------------------------------------------------------------- data
+def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
+    """A simulated pool, built once (split across the ranks) and cached as an .npz file."""
+    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}.npz"
+    if not path.exists():
+        part = Path(f"{path}.part{rank}of{world}.npz")
+        if not part.exists():
+            t0 = time.monotonic()
+            save_pool(part, build_pool(h, count, size, pool_seed, range(rank, count, world)))
+            print(f"rank {rank}: simulated {len(range(rank, count, world))} {name} stacks in {time.monotonic() - t0:.0f} s")
+        if ddp:
+            dist.barrier()
+        if master:
+            parts = [load_pool(f"{path}.part{r}of{world}.npz") for r in range(world)]
+            pool = [parts[i % world][i // world] for i in range(count)]  # back in index order
+            save_pool(path, pool)
+            for r in range(world):
+                Path(f"{path}.part{r}of{world}.npz").unlink()
+        if ddp:
+            dist.barrier()
+    return load_pool(path)
+
+
+# Training and validation stacks come from disjoint seed streams (seed and seed + 1).
+train_pool = cached_pool("train", pool_size, pool_roi, seed)
+val_pool = cached_pool("val", val_size, val_roi, seed + 1)
+val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across the ranks
+
+
+def classical_baseline() -> float:
+    """Mean PSNR of the classical method (hbis_torch.sr.classical) on the validation set, cached."""
+    path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}.classical_optics.json"
+    if not path.exists():
+        from hbis_torch.config import System
+        from hbis_torch.sr.classical import classical_sr, optics_cutoff
+
+        # As reconstruct(stack, "classical", registration="optics") runs it on these stacks.
+        cutoff = optics_cutoff(System())
+        sums = torch.zeros(2, dtype=torch.float64)
+        for ex in val_pool[rank::world]:
+            frames, positions = torch.from_numpy(ex["frames"]), torch.from_numpy(ex["positions"]).double()
+            image = classical_sr(frames, positions, h, cutoff=cutoff, fill_factor=1.0)
+            sums += torch.tensor([psnr(image[None, None].float(), torch.from_numpy(ex["truth"])[None, None]), 1.0])
+        if ddp:
+            dist.all_reduce(sums)
+        if master:
+            atomic_write_text(path, json.dumps({"classical_psnr": (sums[0] / sums[1]).item()}))
+        if ddp:
+            dist.barrier()
+    return json.loads(path.read_text())["classical_psnr"]
+
+
+# Every batch comes from its own seed (seed, rank, step), so a resumed run sees the same data
+# as an uninterrupted one and the ranks never see the same examples.
+def train_batch(at_step: int):
+    rng = np.random.default_rng([seed, rank, at_step])
+    return [torch.from_numpy(a) for a in make_batch(train_pool, h, patch, batch_size, rng, noise_prob, noise_max)]
+
+
+def psnr(image: torch.Tensor, truth: torch.Tensor) -> float:
+    mse = F.mse_loss(image.clamp(0, 1).double(), truth.double()).item()
+    return 10 * math.log10(1.0 / max(mse, 1e-12))
+
+
+@torch.no_grad()
+def validate() -> tuple[float, float]:
+    """Mean PSNR (dB) over the whole validation set, network and its bilinear base."""
+    model.eval()
+    sums = torch.zeros(3, dtype=torch.float64)
+    for frames, offsets, truth in val_set:
+        frames, offsets, truth = (torch.from_numpy(a) for a in (frames, offsets, truth))
+        image = model(frames, offsets)
+        base = F.interpolate(frames[:, :1], scale_factor=h, mode="bilinear", align_corners=False)
+        sums += torch.tensor([psnr(image, truth), psnr(base, truth), 1.0], dtype=torch.float64)
+    if ddp:
+        dist.all_reduce(sums)
+    model.train()
+    return (sums[0] / sums[2]).item(), (sums[1] / sums[2]).item()
+
+
+classical_psnr = classical_baseline()
+if master:
+    print(f"classical baseline on the validation set: {classical_psnr:.2f} dB")
+
+
+def save_checkpoint(path: Path, **extra) -> None:
+    state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
+             "trained_s": trained_s, "history": history, "config": config,
+             "model_config": model.config(), "git_commit": commit, **extra}
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+
+
+def plot_history() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    minutes = [r["trained_s"] / 60 for r in history]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(minutes, [r["val_psnr"] for r in history], "o-", ms=3, label="network")
+    ax.plot(minutes, [r["base_psnr"] for r in history], "--", label="bilinear (reference frame)")
+    ax.axhline(classical_psnr, color="k", ls=":", label=f"classical ({classical_psnr:.2f} dB)")
+    ax.set_xlabel("training time [min]")
+    ax.set_ylabel("validation PSNR [dB]")
+    ax.set_title(f"h = {h}, {world} process(es), batch {batch_size} x {world}, patch {patch}")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    with atomic_path(out / "val_psnr.png") as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
+
+
+def learning_rate(progress: float, at_step: int) -> float:
+    warm = min(1.0, (at_step + 1) / warmup_steps)
+    return lr * warm * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0))))
+
+
+# ---------------------------------------------------------------------------- loop
+def train() -> None:
+    global step, trained_s, best_psnr
+    budget_s = max_minutes * 60
+    bar = None
+    if master and progress_bar:
+        from tqdm import tqdm
+
+        bar = tqdm(total=max_steps, initial=step, desc="train", dynamic_ncols=True)
+    started = time.monotonic() - trained_s
+    model.train()
+    while True:
+        # Progress (time or steps, whichever is further) comes from rank 0 so that all ranks
+        # agree on the learning rate and on when to stop.
+        trained_s = time.monotonic() - started
+        progress = torch.tensor([max(step / max_steps if max_steps > 0 else 1.0, trained_s / budget_s)])
+        if ddp:
+            dist.broadcast(progress, 0)
+        done = progress.item() >= 1.0
+        evaluated = bool(history) and history[-1]["step"] == step  # e.g. just resumed
+        if (step % eval_interval == 0 or done) and not evaluated:
+            val_psnr, base_psnr = validate()
+            history.append({"step": step, "trained_s": trained_s, "val_psnr": val_psnr, "base_psnr": base_psnr})
+            if master:
+                if val_psnr > best_psnr:
+                    best_psnr = val_psnr
+                    save_checkpoint(out / "model.pt", val_psnr=val_psnr)
+                save_checkpoint(ckpt_path)
+                atomic_write_text(out / "history.json", json.dumps({"config": config, "classical_psnr": classical_psnr, "git_commit": commit, "history": history}, indent=1))
+                plot_history()
+                (bar.write if bar else print)(
+                    f"step {step}: val PSNR {val_psnr:.2f} dB (bilinear {base_psnr:.2f}, "
+                    f"classical {classical_psnr:.2f}), "
+                    f"{trained_s / 60:.1f} min"
+                )
+        if done:
+            break
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(progress.item(), step)
+        frames, offsets, truth = train_batch(step)
+        loss = F.l1_loss(net(frames, offsets), truth)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        step += 1
+        if bar:
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss.item():.4f}", lr=f"{optimizer.param_groups[0]['lr']:.1e}")
+    if bar:
+        bar.close()
+    if master:
+        print(f"done: {step} steps, {trained_s / 60:.1f} min, best val PSNR {best_psnr:.2f} dB -> {out / 'model.pt'}")
+
+
+train()
+if ddp:
+    dist.destroy_process_group()
