@@ -10,16 +10,8 @@ from skimage.metrics import peak_signal_noise_ratio as psnr
 from hbis_torch.errors import HbisInputError
 from hbis_torch.sr.classical import classical_sr, lattice_noise, periodic_smooth, splat
 
+pytestmark = pytest.mark.usefixtures("one_thread")
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """These tensors are small: on cores shared with other jobs, extra threads only wait on
-    each other (up to 100x slower here), so this module runs on one and then restores."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 def lattice_stack(scene: np.ndarray, h: int, m: int, frames=None):
     """An ideal h x h scan of a scene raster with m scene pixels per HR pixel.

@@ -18,17 +18,10 @@ SYSTEM = System()
 ROI = (616, 456, 48, 48)
 
 
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
 @lru_cache(maxsize=None)
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """These tensors are small: on cores shared with other jobs, extra threads only wait on
-    each other (up to 100x slower here), so this module runs on one and then restores."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
 def _prescan(name: str, full_well: float = 20000.0):
     """A 2 x 2 pre-scan of a scene at a quarter of the exposure each (same total light)."""
     scene = scene_for_roi(name, SYSTEM, ROI, 7, seed=1)

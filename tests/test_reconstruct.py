@@ -25,16 +25,8 @@ SENSOR_40DB = SensorModel(full_well_e=20000.0, read_noise_e=2.0)  # shot noise: 
 CENTRE = (608, 448, 64, 64)
 CORNER = (0, 0, 64, 64)
 
+pytestmark = pytest.mark.usefixtures("one_thread")
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """These tensors are small: on cores shared with other jobs, extra threads only wait on
-    each other (up to 100x slower here), so this module runs on one and then restores."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 def _scene(width_px: int, seed: int = 2):
     px = SYSTEM.object_pixel_mm

@@ -17,16 +17,8 @@ from hbis_torch.registration import (
 
 H_FACTOR = 4  # frames are box averages of h x h photo pixels
 
+pytestmark = pytest.mark.usefixtures("one_thread")
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """These tensors are small: on cores shared with other jobs, extra threads only wait on
-    each other (up to 100x slower here), so this module runs on one and then restores."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 def _photo() -> np.ndarray:
     return data.camera().astype(np.float64) / 255.0
