@@ -190,8 +190,7 @@ def _check_frames(frames) -> Tensor:
         raise HbisInputError(f"frames must be at least one 16 x 16 frame, got shape {(F, H, W)}")
     if frames.dtype == torch.bool or frames.is_complex():
         raise HbisInputError(f"frames must be real numbers, got dtype {frames.dtype}")
-    frames = frames.to(torch.float64)
-    if not torch.isfinite(frames).all():
+    if frames.is_floating_point() and not torch.isfinite(frames).all():
         raise HbisInputError("frames contain non-finite values (NaN or inf)")
     return frames
 
@@ -604,7 +603,7 @@ def register_stack(
     model: str = "auto",
     *,
     blur_sigma: float = 0.7,
-    keep_fraction: float = 0.5,
+    keep_fraction: float = 0.2,
     iterations: int = 30,
     tolerance_px: float = 1e-2,
     motion_tolerance_px: float = 0.01,
@@ -671,7 +670,7 @@ def register_stack(
     frames = frames.to(dtype)
     x = frames - frames.mean((-2, -1), keepdim=True)
     spread = x.std((-2, -1))
-    tiny = 1e-9 * max(1.0, float(frames.abs().max()))
+    tiny = 1e-6 * max(1.0, float(frames.abs().max()))
     flat = spread < tiny
     x = x / spread.clamp_min(tiny)[:, None, None]
     noise = noise_sigma(x[ref:ref + 1]).expand(F)  # the same sensor: one frame says enough
