@@ -17,7 +17,14 @@ exposure; then more frames always average noise down and the best h is h_max.
 
 from __future__ import annotations
 
-import argparse
+import os
+
+# numpy/scipy on one thread too (set before they load), as torch below: a single-core comparison
+# that other jobs on the machine do not tilt (idle BLAS threads spinning on busy cores).
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
 import dataclasses
 import json
 from pathlib import Path
@@ -55,13 +62,12 @@ def main(argv=None) -> dict:
     parser.add_argument("--size", type=int, default=64, help="ROI width and height, px")
     parser.add_argument("--tolerance-db", type=float, default=0.1)
     parser.add_argument("--budget", choices=("total", "frame"), default="total")
-    parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--quick", action="store_true", help="three scenes, 40 dB only, 48 px")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     if args.quick:
         args.scenes, args.sensors, args.size = "gradient,camera,bars", "40dB", 48
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(1)
     system = System()
     h_max = design(system).h_max
     roi = (640 - args.size // 2, 480 - args.size // 2, args.size, args.size)

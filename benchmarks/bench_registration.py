@@ -7,14 +7,21 @@ alone is wrong and the data must measure the motion). The error of a method is t
 every pixel of every non-reference frame, of the distance between where it puts the pixel in
 the reference frame and where the exact tracer at the true phases puts it. Times are medians of
 ``--repeats`` runs of the CPU time of this process (steadier than the wall clock on cores shared
-with other jobs), both methods on one thread (``--threads``).
+with other jobs), both methods on one thread (numpy and scipy included).
 
     python3 benchmarks/bench_registration.py [--quick] [--json benchmarks/results/bench_registration.json]
 """
 
 from __future__ import annotations
 
-import argparse
+import os
+
+# numpy/scipy on one thread too (set before they load), as torch below: a single-core comparison
+# that other jobs on the machine do not tilt (idle BLAS threads spinning on busy cores).
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
 import copy
 import json
 import statistics
@@ -71,19 +78,18 @@ def main(argv=None) -> dict:
     parser.add_argument("--size", type=int, default=128, help="ROI width and height, px")
     parser.add_argument("--phase-error-deg", type=float, default=0.02)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--quick", action="store_true", help="two scenes, 96 px, one repeat")
     parser.add_argument("--json", type=Path, help="also write the results here")
     args = parser.parse_args(argv)
     if args.quick:
         args.scenes, args.size, args.repeats = "camera,texture", 96, 1
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(1)
     system = System()
     plan = plan_scan(system, args.h)
     roi = (640 - args.size // 2, 480 - args.size // 2, args.size, args.size)
     rows = []
     print(f"h={args.h}, ROI {args.size}x{args.size} px at the sensor centre, motors off by "
-          f"{args.phase_error_deg} deg (1 sigma), ~40 dB SNR, {args.threads} thread(s)")
+          f"{args.phase_error_deg} deg (1 sigma), ~40 dB SNR, 1 thread")
     print(f"{'scene':10s} {'plan only':>10s} {'ours+plan':>10s} {'ours':>10s} {'pcc':>10s}   "
           f"{'t ours+plan':>11s} {'t ours':>8s} {'t pcc':>8s} {'speed-up':>8s}")
     for name in args.scenes.split(","):

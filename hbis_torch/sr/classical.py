@@ -160,7 +160,8 @@ def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int]
     The deblurring models one sample per node. Samples a fraction of a node off it (motor
     errors, the optics' distortion) are moved there with value v + grad(Z) . (node - x), the
     gradient taken from a first interpolation Z of all samples (smooth: it carries the pixel's
-    blur), so that the lattice model holds without the bias of snapping.
+    blur, built here from the snapped samples), so that the lattice model holds without the
+    bias of snapping.
 
     Parameters
     ----------
@@ -180,7 +181,9 @@ def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int]
     dx, dy = xn - x, yn - y
     if float(torch.maximum(dx.abs(), dy.abs()).max()) < 1e-3:
         return values, xn, yn
-    pilot = _fill_holes(*splat(values, x, y, shape, sigma, weights))
+    # The pilot's only job is the local slope; built from the snapped samples it costs no
+    # Gaussian per sample, and the slope it gives is off by second-order terms only.
+    pilot = _fill_holes(*splat(values, xn, yn, shape, sigma, weights))
     gy, gx = torch.gradient(pilot)
     rows, cols = shape
     grid = torch.stack((2 * x / max(cols - 1, 1) - 1, 2 * y / max(rows - 1, 1) - 1), -1)[None, None]
@@ -335,17 +338,16 @@ def wiener_deblur(
 
 def shift_image(image: Tensor, offset: tuple[float, float]) -> Tensor:
     """A smooth image whose node j sits at coordinate j + offset, resampled at the integer
-    coordinates (that is, at nodes j - offset): cubic B-spline, mirrored borders."""
+    coordinates (that is, at nodes j - offset): bicubic, borders mirrored. Used for the smooth
+    part of the periodic + smooth split, which varies slowly, so a cubic needs no prefilter."""
     if offset == (0.0, 0.0):
         return image
-    from ..registration import bspline_sample, prefilter
-
     rows, cols = image.shape
-    _, coefficients = prefilter(image[None])
-    vv, uu = torch.meshgrid(torch.arange(rows, dtype=image.dtype), torch.arange(cols, dtype=image.dtype),
-                            indexing="ij")
-    points = torch.stack((uu - offset[0], vv - offset[1]), -1).reshape(1, -1, 2)
-    return bspline_sample(coefficients, points).reshape(rows, cols)
+    v = (torch.arange(rows, dtype=image.dtype) - offset[1]) * (2 / max(rows - 1, 1)) - 1
+    u = (torch.arange(cols, dtype=image.dtype) - offset[0]) * (2 / max(cols - 1, 1)) - 1
+    grid = torch.stack(torch.meshgrid(v, u, indexing="ij")[::-1], -1)[None]
+    return torch.nn.functional.grid_sample(image[None, None], grid, mode="bicubic",
+                                           padding_mode="reflection", align_corners=True)[0, 0]
 
 
 def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, terms, noise2: float) -> tuple[float, float]:
@@ -355,7 +357,7 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, terms, noise2: float)
     with S_beta(f) = sum_k |K(f+k)|^2 / |f+k|^beta (``terms`` holds |K| and |f+k|^2 per alias).
     In log-spaced frequency rings where the image stands clear of the noise (twice its power),
     log(power - sigma^2) - log S_beta is fitted by a constant (log s^2); the beta of a grid over
-    [1.5, 4] with the smallest scatter is kept.
+    [1.5, 4] (steps of 0.25) with the smallest scatter is kept.
 
     Returns
     -------
