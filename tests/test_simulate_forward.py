@@ -223,3 +223,26 @@ def test_int_plan_and_bad_input():
         render_scan(scene, SYSTEM, [[5.0, float("nan")]], 0, 2, (0, 0, 8, 8))
     with pytest.raises(HbisInputError, match="phase error"):
         simulate_stack(scene, SYSTEM, 2, (0, 0, 8, 8), phase_error_deg=-1)
+
+
+@pytest.mark.parametrize("h", [2, 3, 4])
+def test_truth_pooled_h_by_h_is_the_reference_frame(h):
+    """With fill factor 1 a sensor pixel's aperture is exactly the union of the h x h apertures
+    of the ideal pitch-p/h pixels on it (docs/data.md grid convention), and the PSF is the same,
+    so the noise-free reference frame equals the truth averaged over h x h blocks."""
+    plan = plan_scan(SYSTEM, h)
+    scene = load_scene("words", SceneSpec((1.0, 1.0), PIXEL_MM, PIXEL_MM / 8), seed=h)
+    out = render_scan(scene, SYSTEM, plan.phases_deg, plan.reference_index, h, (1250, 0, 30, 20),
+                      SensorModel(fill_factor=1.0, defocus_um=1.0))
+    pooled = torch.nn.functional.avg_pool2d(out.truth[None, None], h)[0, 0]
+    reference = out.irradiance[plan.reference_index]
+    assert float(reference.std()) > 0.05
+    assert float((pooled - reference).abs().max()) < 2e-4
+
+
+def test_simulate_stack_takes_a_scene_name():
+    stack, truth = simulate_stack("bars", SYSTEM, 2, (100, 100, 20, 12), SensorModel(noise=False), seed=3)
+    assert stack.meta["simulation"]["scene"] == "bars" and truth.shape == (24, 40)
+    assert np.ptp(truth) > 0.3
+    with pytest.raises(HbisInputError, match="scene must be"):
+        simulate_stack(42, SYSTEM, 2, (100, 100, 20, 12))

@@ -22,8 +22,24 @@ from .risley import (
     trace_risley,
 )
 from .snell import refract
+from .inverse import (  # noqa: E402 - after the forward model it inverts
+    axis_landing,
+    exact_inverse,
+    max_deviation_deg,
+    max_landing_radius_mm,
+    paper_inverse,
+    paper_norms,
+    paraxial_inverse,
+)
 
 __all__ = [
+    "axis_landing",
+    "exact_inverse",
+    "max_deviation_deg",
+    "max_landing_radius_mm",
+    "paper_inverse",
+    "paper_norms",
+    "paraxial_inverse",
     "RisleyTrace",
     "axis_deviation",
     "check_roi",

@@ -35,6 +35,7 @@ Angles are in degrees, lengths in mm, all work is float64.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -235,6 +236,34 @@ def paper_inverse(targets_mm, k1: float, k2: float, current_deg) -> Tensor:
 # --------------------------------------------------------------------------------------------
 
 
+_TABLE_NODES = 4097
+
+
+@functools.lru_cache(maxsize=64)
+def _radius_table(prisms: Prisms) -> tuple[Tensor, Tensor]:
+    """w = cos(delta / 2) on a fine grid and tan(deviation) of the axis there; both (N,).
+
+    tan(deviation) is the landing radius per mm of object distance. It increases with w.
+    """
+    w = torch.linspace(0.0, 1.0, _TABLE_NODES, dtype=torch.float64)
+    delta = 2 * torch.rad2deg(torch.arccos(w))
+    d = exit_directions(_AXIS, (-delta / 2)[:, None], (delta / 2)[:, None], prisms)[:, 0]
+    tan = d[:, :2].norm(dim=-1) / d[:, 2]
+    if not bool((tan.diff() > 0).all()):
+        raise HbisInputError(
+            f"the axis deviation of {prisms} does not grow monotonically from opposed to "
+            "aligned prisms; the exact inverse does not apply"
+        )
+    return w, tan
+
+
+def _interp(x: Tensor, xp: Tensor, fp: Tensor) -> Tensor:
+    """Linear interpolation of increasing samples (xp, fp) at x (clamped to the ends)."""
+    i = torch.searchsorted(xp, x).clamp(1, xp.numel() - 1)
+    x0, x1, f0, f1 = xp[i - 1], xp[i], fp[i - 1], fp[i]
+    return (f0 + (x - x0) / (x1 - x0) * (f1 - f0)).clamp(float(fp[0]), float(fp[-1]))
+
+
 def _relative_trace(system: System, half_cos: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Landing radius (mm), twist (deg) and delta (deg) at phi1 = -delta/2, phi2 = +delta/2,
     for w = cos(delta / 2) in [0, 1]."""
@@ -262,7 +291,7 @@ def exact_inverse(
     tol_mm : float, optional
         Radial tolerance of the root-find; default 1e-13 of the largest landing radius.
     max_iter : int
-        Iteration cap of the safeguarded Newton root-find (it typically needs 2 or 3).
+        Iteration cap of the safeguarded Newton root-find (it typically needs one step).
 
     Returns
     -------
@@ -271,13 +300,14 @@ def exact_inverse(
     """
     t = _check_targets(targets_mm)
     current = _check_current(current_deg, t.shape[0])
-    max_deg = max_deviation_deg(system.prisms)
-    r_max = system.object_distance_mm * math.tan(math.radians(max_deg))
+    table_w, table_tan = _radius_table(system.prisms)
+    v = system.object_distance_mm
+    r_max = v * float(table_tan[-1])
     r_target = _radius_check(
         t.norm(dim=-1),
         r_max,
-        f"the maximum deviation {max_deg:.6g} deg of the prisms "
-        f"({r_max:.6g} mm on the object plane at {system.object_distance_mm:g} mm)",
+        f"the maximum deviation {math.degrees(math.atan(float(table_tan[-1]))):.6g} deg of the "
+        f"prisms ({r_max:.6g} mm on the object plane at {v:g} mm)",
     )
     tol = 1e-13 * r_max if tol_mm is None else float(tol_mm)
 
@@ -285,26 +315,36 @@ def exact_inverse(
     # and is nearly proportional to it (exactly so in the first-order model, r = 2 k w), which
     # makes w the right variable: the slope stays finite at the rim (w = 1), where it vanishes
     # in delta, and w keeps full precision at the centre (w = 0), where cos(delta) would not.
-    w = (r_target / r_max).clamp(0.0, 1.0)
+    # Start from the tabulated radius (linear interpolation, error ~1e-8 in w): then one
+    # Newton step finishes, and one more trace gives the twist there.
+    w = _interp(r_target / v, table_tan, table_w)
     lo, hi = torch.zeros_like(w), torch.ones_like(w)
     step = 1e-7
     for _ in range(max_iter):
         # One-sided difference toward the interior, so the probe stays within [0, 1].
         probe = w - step * torch.where(w > 0.5, 1.0, -1.0)
-        radius, twist, delta = _relative_trace(system, torch.stack((w, probe)))
+        radius, twist, _ = _relative_trace(system, torch.stack((w, probe)))
         f = radius[0] - r_target
         done = f.abs() <= tol
         if bool(done.all()):
+            radius, twist = radius[0], twist[0]
             break
         lo = torch.where(f < 0, w, lo)
         hi = torch.where(f > 0, w, hi)
         slope = (radius[0] - radius[1]) / (w - probe)
         newton = w - f / torch.where(slope > 0, slope, torch.ones_like(slope))
         inside = (slope > 0) & (newton >= lo) & (newton <= hi)
-        w = torch.where(done, w, torch.where(inside, newton, (lo + hi) / 2))
+        w_next = torch.where(done, w, torch.where(inside, newton, (lo + hi) / 2))
+        converged = bool((inside | done).all()) and float((w_next - w).abs().max()) <= 1e-7
+        w = w_next
+        if converged:
+            # Newton converges quadratically: after a step this small the radius is off by
+            # ~|r''| dw^2 < 1e-14 r_max, so only the twist at the new w is still needed.
+            radius, twist, _ = _relative_trace(system, w)
+            break
     else:  # out of iterations: report the state of the last update, not the last probe
-        radius, twist, delta = _relative_trace(system, w[None])
-    radius, twist, delta = radius[0], twist[0], delta[0]
+        radius, twist, _ = _relative_trace(system, w)
+    delta = 2 * torch.rad2deg(torch.arccos(w.clamp(0.0, 1.0)))
 
     centre = r_target <= CENTRE_TOLERANCE * r_max
     azimuth = torch.rad2deg(torch.atan2(t[:, 1], t[:, 0]))

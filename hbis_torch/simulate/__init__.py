@@ -8,6 +8,7 @@ Main entry points::
 docs/data.md describes the model and the output-grid convention.
 """
 
+from .dataset import DatasetConfig, SameHBatchSampler, SyntheticStacks
 from .forward import RenderedScan, render_scan
 from .geometry import landing_on_grid, sample_positions
 from .psf import airy_otf, airy_psf, blur_transfer, lens_otf
@@ -26,12 +27,15 @@ from .scenes import (
     load_scene,
 )
 from .sensor import SensorModel, expose
-from .stacks import simulate_stack
+from .stacks import scene_for_roi, simulate_stack
 
 __all__ = [
     "BUILTIN_SCENES",
     "PHOTOS",
     "BarTarget",
+    "DatasetConfig",
+    "SameHBatchSampler",
+    "SyntheticStacks",
     "EdgesScene",
     "FlatScene",
     "GradientScene",
@@ -51,5 +55,6 @@ __all__ = [
     "load_scene",
     "render_scan",
     "sample_positions",
+    "scene_for_roi",
     "simulate_stack",
 ]

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from ..config import System
@@ -98,10 +99,11 @@ def place_scene(scene: Scene, system: System, reference_phases, roi) -> Scene:
 
 def bspline_prefilter(shape: tuple[int, int], dtype=torch.float32) -> Tensor:
     """1 / (b(wy) b(wx)) on DCT-II frequencies, b(w) = (2 + cos w) / 3: turns samples into cubic
-    B-spline coefficients (with mirror boundaries, as the DCT blur already has)."""
-    wy = 2 * math.pi * torch.from_numpy(dct_frequencies(shape[0], 1.0))[:, None]
-    wx = 2 * math.pi * torch.from_numpy(dct_frequencies(shape[1], 1.0))[None, :]
-    return (9.0 / ((2 + torch.cos(wy)) * (2 + torch.cos(wx)))).to(dtype)
+    B-spline coefficients (with mirror boundaries, as the DCT blur already has). Returns the
+    separable factors, (Ny, 1) and (1, Nx)."""
+    wy = 2 * math.pi * torch.from_numpy(dct_frequencies(shape[0], 1.0))
+    wx = 2 * math.pi * torch.from_numpy(dct_frequencies(shape[1], 1.0))
+    return (3.0 / (2 + torch.cos(wy))).to(dtype)[:, None], (3.0 / (2 + torch.cos(wx))).to(dtype)[None, :]
 
 
 def _dct2(x: Tensor) -> Tensor:
@@ -119,26 +121,32 @@ def _idct2(x: Tensor) -> Tensor:
 def bspline_sample(coeffs: Tensor, ix: Tensor, iy: Tensor) -> Tensor:
     """Evaluate the cubic B-spline with coefficients ``coeffs`` (Ny, Nx) at fractional grid
     indices (ix, iy) (any equal shapes, float64; at least 1 from the first and 2 from the last
-    index). Returns values of that shape in ``coeffs.dtype``."""
-    x0, y0 = torch.floor(ix), torch.floor(iy)
-    tx, ty = (ix - x0).to(coeffs.dtype), (iy - y0).to(coeffs.dtype)
+    index). Returns values of that shape in ``coeffs.dtype``.
 
-    def weights(t):
+    Uses the linear-interpolation form of the cubic B-spline (Sigg and Hadwiger, GPU Gems 2,
+    ch. 20): per axis the four weights pair up into two linear fetches, so one bilinear
+    ``grid_sample`` of four points per query does the 16-tap sum.
+    """
+    shape = ix.shape
+    ny, nx = coeffs.shape
+
+    def split(i):
+        base = torch.floor(i)
+        t = (i - base).to(coeffs.dtype)  # the weights need no more than the grid's precision
+        base = base.to(coeffs.dtype)
         s = 1 - t
-        return (s * s * s / 6, (3 * t * t * t - 6 * t * t + 4) / 6, (-3 * t * t * t + 3 * t * t + 3 * t + 1) / 6,
-                t * t * t / 6)
+        w0, w1, w2, w3 = s * s * s / 6, (3 * t * t * t - 6 * t * t + 4) / 6, (-3 * t * t * t + 3 * t * t + 3 * t + 1) / 6, t * t * t / 6
+        g0, g1 = w0 + w1, w2 + w3
+        return (base - 1 + w1 / g0, base + 1 + w3 / g1), (g0, g1)
 
-    wx, wy = weights(tx), weights(ty)
-    nx = coeffs.shape[1]
-    flat = coeffs.reshape(-1)
-    base = (y0.long() - 1) * nx + (x0.long() - 1)
-    out = torch.zeros(ix.shape, dtype=coeffs.dtype)
-    for j in range(4):
-        row = torch.zeros(ix.shape, dtype=coeffs.dtype)
-        for i in range(4):
-            row += wx[i] * flat[base + (j * nx + i)]
-        out += wy[j] * row
-    return out
+    (x0, x1), (gx0, gx1) = split(ix.reshape(-1))
+    (y0, y1), (gy0, gy1) = split(iy.reshape(-1))
+    xs = torch.stack((x0, x1, x0, x1))
+    ys = torch.stack((y0, y0, y1, y1))
+    grid = torch.stack((2 * xs / (nx - 1) - 1, 2 * ys / (ny - 1) - 1), -1)[None].to(coeffs.dtype)
+    fetched = F.grid_sample(coeffs[None, None], grid, mode="bilinear", align_corners=True)[0, 0]
+    weights = torch.stack((gx0 * gy0, gx1 * gy0, gx0 * gy1, gx1 * gy1)).to(coeffs.dtype)
+    return (fetched * weights).sum(0).reshape(shape)
 
 
 def _fast_len(n: int) -> int:
@@ -170,6 +178,7 @@ def render_scan(
     max_grid: int = 1536,
     exact_positions: bool = False,
     return_positions: bool = True,
+    positions: Tensor | None = None,
     dtype=torch.float32,
 ) -> RenderedScan:
     """Noise-free frames of a scan, and the ground truth at the reference phases.
@@ -199,6 +208,9 @@ def render_scan(
         Trace every pixel for the sample positions instead of spline interpolation (< 1e-6 px).
     return_positions : bool
         Keep the (F, H, W, 2) sample positions in the result.
+    positions : Tensor, shape (F, H, W, 2), or None
+        Sample positions already computed for these phases and roi (roi-local, as
+        :func:`sample_positions` returns them); None computes them.
     dtype : torch.dtype
         float32 (default) or float64 for the scene grid, FFTs and interpolation.
 
@@ -228,12 +240,19 @@ def render_scan(
 
     irradiance = torch.empty(n_frames, height, width, dtype=torch.float32)
     truth = torch.empty(h * height, h * width, dtype=torch.float32)
+    given = positions
+    if given is not None and tuple(given.shape) != (n_frames, height, width, 2):
+        raise HbisInputError(f"positions must have shape {(n_frames, height, width, 2)}, got {tuple(given.shape)}")
     positions = torch.empty(n_frames, height, width, 2, dtype=torch.float64) if return_positions else None
     for tv in range(v0, v0 + height, tile):
         for tu in range(u0, u0 + width, tile):
             tw, th = min(tile, u0 + width - tu), min(tile, v0 + height - tv)
-            q = sample_positions(system, phases, reference_index, (tu, tv, tw, th),
-                                 exact=exact_positions, local=False)
+            if given is None:
+                q = sample_positions(system, phases, reference_index, (tu, tv, tw, th),
+                                     exact=exact_positions, local=False)
+            else:
+                q = given[:, tv - v0:tv - v0 + th, tu - u0:tu - u0 + tw].double() + torch.tensor(
+                    [u0, v0], dtype=torch.float64)
             gu, iu = _axis(min(float(q[..., 0].min()), tu - 0.5) - margin_px,
                            max(float(q[..., 0].max()), tu + tw - 0.5) + margin_px,
                            tu - 0.5 + 0.5 / h, step)
@@ -247,7 +266,8 @@ def render_scan(
             transfer = dict(shape=grid.shape, spacing_px=step, pitch_um=cam.pixel_pitch_um,
                             f_number=cam.f_number, wavelength_nm=cam.wavelength_nm,
                             w20_waves=w20, dtype=dtype)
-            low_transfer = blur_transfer(aperture_px=aperture, **transfer) * bspline_prefilter(grid.shape, dtype)
+            by, bx = bspline_prefilter(grid.shape, dtype)
+            low_transfer = blur_transfer(aperture_px=aperture, **transfer) * by * bx
             coeffs = _idct2(spectrum * low_transfer)
             high = _idct2(spectrum * blur_transfer(aperture_px=aperture / h, **transfer))
 

@@ -104,13 +104,16 @@ def landing_on_grid(
     uu = torch.from_numpy(nu)[None, :]
     vv = torch.from_numpy(nv)[:, None]
     exact = landing_at(system, uu, vv, phi1_deg, phi2_deg) - _pinhole(system, uu, vv)
+    # the prisms' part is a large constant (the deviation, mm) plus a small variation; only the
+    # variation goes through the (possibly float32) spline, the constant stays in float64
+    offset = exact.mean(dim=(0, 1))
     bu = _regular_basis(len(u), len(nu)).to(dtype)
     bv = _regular_basis(len(v), len(nv)).to(dtype)
-    out = bv @ exact.movedim(-1, 0).to(dtype) @ bu.T  # (2, len(v), len(u)): the prisms' part
+    out = bv @ (exact - offset).movedim(-1, 0).to(dtype) @ bu.T  # (2, len(v), len(u))
     cam = system.camera
     scale = cam.pitch_mm * system.object_distance_mm / cam.focal_length_mm
-    px = (u - (cam.cols - 1) / 2) * scale - float(origin_mm[0])
-    py = (v - (cam.rows - 1) / 2) * scale - float(origin_mm[1])
+    px = (u - (cam.cols - 1) / 2) * scale - float(origin_mm[0]) + float(offset[0])
+    py = (v - (cam.rows - 1) / 2) * scale - float(origin_mm[1]) + float(offset[1])
     out[0] += torch.from_numpy(px).to(dtype)[None, :]
     out[1] += torch.from_numpy(py).to(dtype)[:, None]
     return out.movedim(0, -1)

@@ -112,13 +112,20 @@ def dct_frequencies(n: int, spacing: float) -> np.ndarray:
     return np.arange(n) / (2 * n * spacing)
 
 
-@lru_cache(maxsize=32)
-def _transfer_numpy(shape, spacing_px, pitch_um, f_number, wavelength_nm, aperture_px, w20):
+@lru_cache(maxsize=64)
+def _lens_table(shape, spacing_px, pitch_um, f_number, wavelength_nm, w20, dtype) -> torch.Tensor:
     ny, nx = shape
     fy = dct_frequencies(ny, spacing_px)[:, None]  # cycles per pixel of the sensor's pitch
     fx = dct_frequencies(nx, spacing_px)[None, :]
-    radial_um = np.hypot(fx, fy) / pitch_um
-    return lens_otf(radial_um, f_number, wavelength_nm, w20) * pixel_transfer(fx, fy, aperture_px)
+    return torch.from_numpy(lens_otf(np.hypot(fx, fy) / pitch_um, f_number, wavelength_nm, w20)).to(dtype)
+
+
+def aperture_vectors(shape, spacing_px: float, aperture_px: float, dtype=torch.float32):
+    """The square aperture's separable transfer on DCT-II frequencies: (Ny, 1) and (1, Nx)."""
+    fy = dct_frequencies(int(shape[0]), spacing_px)
+    fx = dct_frequencies(int(shape[1]), spacing_px)
+    return (torch.from_numpy(np.sinc(aperture_px * fy)).to(dtype)[:, None],
+            torch.from_numpy(np.sinc(aperture_px * fx)).to(dtype)[None, :])
 
 
 def blur_transfer(
@@ -156,13 +163,14 @@ def blur_transfer(
     Returns
     -------
     Tensor, shape (Ny, Nx)
-        Real transfer values (the PSF and aperture are symmetric, so the transfer is real).
+        Real transfer values (the PSF and aperture are symmetric, so the transfer is real). The
+        lens part is cached per grid; the aperture part is separable and cheap.
     """
     values = (spacing_px, pitch_um, f_number, wavelength_nm, aperture_px, w20_waves)
     if not all(math.isfinite(v) for v in values) or min(values[:5]) <= 0:
         raise HbisInputError(f"blur parameters must be finite and positive, got {values}")
-    table = _transfer_numpy(
-        (int(shape[0]), int(shape[1])), float(spacing_px), float(pitch_um), float(f_number),
-        float(wavelength_nm), float(aperture_px), float(w20_waves),
-    )
-    return torch.from_numpy(table).to(dtype)
+    shape = (int(shape[0]), int(shape[1]))
+    lens = _lens_table(shape, float(spacing_px), float(pitch_um), float(f_number),
+                       float(wavelength_nm), float(w20_waves), dtype)
+    sy, sx = aperture_vectors(shape, spacing_px, aperture_px, dtype)
+    return lens * sy * sx

@@ -50,20 +50,21 @@ def _check_size(size_mm) -> Size:
     return (w, h)
 
 
-def box_step(t: Tensor, width) -> Tensor:
-    """A unit step at t = 0 averaged over a window of ``width`` centred on t (exact in 1-D)."""
-    if width is None or (not torch.is_tensor(width) and width <= 0):
-        return (t >= 0).to(t.dtype)
-    return torch.clamp(0.5 + t / width, 0.0, 1.0)
-
-
 def box_interval(t: Tensor, half, width) -> Tensor:
-    """The indicator of |t| <= half averaged over a window of ``width`` centred on t (exact)."""
-    if width is None or (not torch.is_tensor(width) and width <= 0):
+    """The indicator of |t| <= half averaged over a window of ``width`` centred on t (exact).
+
+    ``half`` is a number or a tensor like ``t``; ``width`` None or 0 gives the indicator itself.
+    The average is the length of [t - width/2, t + width/2] inside [-half, half], over width,
+    written with the indicator's integral ``P(z) = clamp(z + half, 0, 2 half)``.
+    """
+    if not width:
         return (t.abs() <= half).to(t.dtype)
-    lo = torch.clamp(t + 0.5 * width + half, min=0.0)
-    hi = torch.clamp(t - 0.5 * width + half, min=0.0)
-    return (torch.minimum(lo, 2 * half + 0 * lo) - torch.minimum(hi, 2 * half + 0 * hi)) / width
+    full = torch.as_tensor(2 * half, dtype=t.dtype)
+
+    def integral(z):
+        return torch.minimum(torch.clamp(z + half, min=0.0), full)
+
+    return (integral(t + 0.5 * width) - integral(t - 0.5 * width)) / width
 
 
 def square_edge_coverage(t: Tensor, angle_rad, side: float | None) -> Tensor:
@@ -86,6 +87,19 @@ def square_edge_coverage(t: Tensor, angle_rad, side: float | None) -> Tensor:
     outer = 1.0 - torch.clamp((a + b) / 2 - u, min=0.0) ** 2 / (2 * a * b)
     cover = torch.where(u <= (a - b) / 2, inner, outer)
     return torch.where(t >= 0, cover, 1.0 - cover)
+
+
+def soft_step(t: Tensor, angle_rad, side: float | None) -> Tensor:
+    """:func:`square_edge_coverage`, computed only where the cell can straddle the edge
+    (|t| < side; elsewhere the hard step is exact): the same values, much less work."""
+    hard = (t >= 0).to(t.dtype)
+    if not side:
+        return hard
+    near = (t.abs() < side).nonzero(as_tuple=True)
+    if near[0].numel():
+        angle = angle_rad[near] if torch.is_tensor(angle_rad) else angle_rad
+        hard[near] = square_edge_coverage(t[near], angle, side)
+    return hard
 
 
 @dataclass(frozen=True)
@@ -208,8 +222,8 @@ class SiemensStar(Scene):
         theta = torch.atan2(y, x)
         distance = r * torch.asin(torch.sin(self.spokes * theta).clamp(-1.0, 1.0)) / self.spokes
         # spoke edges are radial (normal: tangential), the rim is a circle (normal: radial)
-        star = self.dark + (self.bright - self.dark) * square_edge_coverage(distance, theta + math.pi / 2, spacing_mm)
-        inside = square_edge_coverage(radius - r, theta, spacing_mm)
+        star = self.dark + (self.bright - self.dark) * soft_step(distance, theta + math.pi / 2, spacing_mm)
+        inside = soft_step(radius - r, theta, spacing_mm)
         return self.background + inside * (star - self.background)
 
 
@@ -239,9 +253,14 @@ class BarTarget(Scene):
         lx = x + w / 2 - (col + 0.5) * cw  # cell-local, centred
         ly = y + h / 2 - (row + 0.5) * ch
         ink = torch.zeros_like(lx)
+        reach = 2.5 * widths + (0.5 * spacing_mm if spacing_mm else 0.0)
         for along, across in ((lx + 3.5 * widths, ly), (ly, lx - 3.5 * widths)):
-            bars = sum(box_interval(along - k * widths, 0.5 * widths, spacing_mm) for k in (-2, 0, 2))
-            ink = ink + bars * box_interval(across, 2.5 * widths, spacing_mm)
+            near = ((along.abs() <= reach) & (across.abs() <= reach)).nonzero(as_tuple=True)
+            if not near[0].numel():
+                continue
+            a, c, wn = along[near], across[near], widths[near]
+            bars = sum(box_interval(a - k * wn, 0.5 * wn, spacing_mm) for k in (-2, 0, 2))
+            ink[near] += bars * box_interval(c, 2.5 * wn, spacing_mm)
         return self.bright - (self.bright - self.dark) * ink
 
 
@@ -273,10 +292,13 @@ class EdgesScene(Scene):
         if not spacing_mm:
             return out
         for k, a, t in distances:
-            on = levels[(code | (1 << k)) % n]
-            off = levels[(code & ~(1 << k)) % n]
-            side = ((code >> k) & 1).to(x.dtype)
-            out = out + (on - off) * (square_edge_coverage(t, a, spacing_mm) - side)
+            near = (t.abs() < spacing_mm).nonzero(as_tuple=True)  # cells this edge may cross
+            if not near[0].numel():
+                continue
+            c = code[near]
+            on, off = levels[(c | (1 << k)) % n], levels[(c & ~(1 << k)) % n]
+            side = ((c >> k) & 1).to(x.dtype)
+            out[near] += (on - off) * (square_edge_coverage(t[near], a, spacing_mm) - side)
         return out
 
 
@@ -508,9 +530,10 @@ def _star(spec: SceneSpec, rng):
 
 
 def _bars(spec: SceneSpec, rng):
-    # nine bar widths, geometric, from 2 sensor pixels (or what fits a cell) down to 1/6 pixel
+    # nine bar widths, geometric, from the largest that fits a cell (two groups of 5 x 5 widths
+    # with gaps) down to a sixth of a sensor pixel
     cell = min(spec.size_mm[0] / 3, spec.size_mm[1] / 3)
-    coarse = min(2.0 * spec.pixel_mm, cell / 14)
+    coarse = cell / 14
     fine = spec.pixel_mm / 6
     widths = tuple(coarse * (fine / coarse) ** (k / 8) for k in range(9))
     return BarTarget(size_mm=spec.size_mm, bar_widths_mm=widths, columns=3)

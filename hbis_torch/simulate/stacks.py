@@ -9,10 +9,23 @@ from ..config import System
 from ..errors import HbisInputError
 from ..optics import check_roi
 from ..stack_io import Stack, make_meta
-from .forward import render_scan
+from .forward import grid_factor, render_scan
 from .geometry import check_phases
-from .scenes import Scene
+from .scenes import Scene, SceneSpec, load_scene
 from .sensor import SensorModel, expose
+
+
+def scene_for_roi(name_or_path: str, system: System, roi, h: int, seed: int = 0, size_mm=None,
+                  margin_px: float = 4.0, oversample: int = 8) -> Scene:
+    """A built-in scene or image file fitted to the view of ``roi``: it covers the roi's
+    footprint on the object plane plus the forward model's margin (unless ``size_mm`` is given),
+    with procedural detail down to the simulator's grid spacing."""
+    u0, v0, w, hh = check_roi(system.camera, roi)
+    pixel_mm = system.object_pixel_mm
+    border = 2 * (margin_px + 4)
+    spec = SceneSpec(((w + border) * pixel_mm, (hh + border) * pixel_mm), pixel_mm,
+                     pixel_mm / (h * grid_factor(h, oversample)))
+    return load_scene(name_or_path, spec, seed=seed, size_mm=size_mm)
 
 
 def resolve_plan(system: System, plan):
@@ -43,13 +56,15 @@ def simulate_stack(
     seed: int = 0,
     phase_error_deg: float = 0.0,
     oversample: int = 8,
+    margin_px: float = 4.0,
 ) -> tuple[Stack, np.ndarray]:
     """Simulate the stack a scan of ``scene`` records, and its ground truth.
 
     Parameters
     ----------
-    scene : Scene
-        Object-plane scene; centred on the roi's view when its ``center_mm`` is None.
+    scene : Scene or str
+        Object-plane scene, centred on the roi's view when its ``center_mm`` is None; or a
+        built-in scene name or image path, fitted to the roi's view by :func:`scene_for_roi`.
     system : System
     plan : ScanPlan or int
         The scan (``phases_deg`` (F, 2), ``reference_index``, ``h``), or h to plan one with
@@ -66,6 +81,8 @@ def simulate_stack(
         ones (the true ones go to ``meta["simulation"]["true_phases_deg"]``).
     oversample : int
         Fine-grid points per sensor pixel of the forward model (see render_scan).
+    margin_px : float
+        Forward-model margin around the frames, pixels (see render_scan and docs/data.md).
 
     Returns
     -------
@@ -77,6 +94,10 @@ def simulate_stack(
     """
     phases, reference, h = resolve_plan(system, plan)
     roi = check_roi(system.camera, roi)
+    if isinstance(scene, str):
+        scene = scene_for_roi(scene, system, roi, h, seed, margin_px=margin_px, oversample=oversample)
+    elif not isinstance(scene, Scene):
+        raise HbisInputError(f"scene must be a Scene, a built-in scene name or an image path, got {type(scene).__name__}")
     generator = torch.Generator().manual_seed(int(seed))
     true_phases = phases.clone()
     if phase_error_deg:
@@ -86,7 +107,7 @@ def simulate_stack(
         jitter[reference] = 0.0
         true_phases = phases + jitter
     rendered = render_scan(scene, system, true_phases, reference, h, roi, sensor,
-                           oversample=oversample, return_positions=False)
+                           oversample=oversample, margin_px=margin_px, return_positions=False)
     frames = expose(rendered.irradiance, sensor, generator)
     placed = rendered.scene
     record = {
@@ -96,6 +117,7 @@ def simulate_stack(
         "sensor": sensor.to_dict(),
         "seed": int(seed),
         "oversample": int(oversample),
+        "margin_px": float(margin_px),
         "phase_error_deg": float(phase_error_deg),
     }
     if phase_error_deg:

@@ -1,0 +1,154 @@
+"""``hbis simulate``: a synthetic stack (and its ground truth) through the Risley model."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import textwrap
+from pathlib import Path
+
+from ..errors import HbisInputError
+from .common import add_system_args, system_from_args
+
+DEFAULT_CROP = 256
+
+
+def _numbers(text: str, count: tuple[int, ...], kind=float, name: str = "value"):
+    try:
+        values = tuple(kind(t) for t in text.replace(" ", "").split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{name}: expected {' or '.join(map(str, count))} comma-separated numbers, got {text!r}") from None
+    if len(values) not in count:
+        raise argparse.ArgumentTypeError(f"{name}: expected {' or '.join(map(str, count))} numbers, got {text!r}")
+    return values
+
+
+def _roi(text: str):
+    if text.strip().lower() in ("full", "all"):
+        return "full"
+    return _numbers(text, (4,), int, "--roi")
+
+
+def _bit_depth(text: str):
+    if text.strip().lower() == "float":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--bit-depth: expected 1..16 or 'float', got {text!r}") from None
+
+
+def register(sub) -> None:
+    from ..simulate import BUILTIN_SCENES
+    from ..simulate.sensor import SensorModel
+
+    defaults = SensorModel()
+    p = sub.add_parser(
+        "simulate",
+        help="synthesise a stack (and its ground truth) through the Risley model",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Simulate the frames a sub-pixel scan of h x h prism positions records, through the\n"
+            "exact per-pixel landing map of every frame, the lens's diffraction-limited PSF, the\n"
+            "pixel aperture and sensor noise, and write them as an hbis-stack/1 TIFF. --truth also\n"
+            "writes what an ideal sensor of pitch p/h sees at the reference (initial) phases,\n"
+            "float32 (h*H, h*W), the image a reconstruction should produce (docs/data.md).\n\n"
+            "Scenes: an image file (PNG, JPEG, TIFF, ...) or a built-in name:\n"
+            + textwrap.fill(", ".join(sorted(BUILTIN_SCENES)), 88, initial_indent="  ", subsequent_indent="  ")
+            + "\nBy default a scene is scaled to cover the view of the frame region (--roi)."
+        ),
+        epilog="example: hbis simulate --scene siemens-star --h 4 --out star.tif --truth star_truth.tif",
+    )
+    p.add_argument("--scene", required=True, help="built-in scene name or image path")
+    p.add_argument("--h", type=int, required=True, help="resolution improvement factor (h x h frames)")
+    p.add_argument("--out", required=True, help="output stack (hbis-stack/1 TIFF)")
+    p.add_argument("--truth", help="also write the ground truth here (float32 TIFF)")
+    g = p.add_argument_group("scan and scene")
+    g.add_argument("--roi", type=_roi, default=None,
+                   help=f"frame region U0,V0,WIDTH,HEIGHT in sensor pixels, or 'full' "
+                   f"(default: {DEFAULT_CROP} x {DEFAULT_CROP} at the sensor's centre)")
+    g.add_argument("--phases-deg", type=lambda t: _numbers(t, (2,), float, "--phases-deg"), default=(5.0, 70.0),
+                   help="initial prism phases PHI1,PHI2 [deg] of the scan (default 5,70)")
+    g.add_argument("--method", choices=("exact", "paper"), default="exact",
+                   help="scan-plan inverse: exact (default) or the paper's eqs. 8-9")
+    g.add_argument("--scene-size-mm", type=lambda t: _numbers(t, (1, 2), float, "--scene-size-mm"),
+                   help="scene size on the object plane WIDTH[,HEIGHT] in mm (default: cover the view)")
+    g.add_argument("--seed", type=int, default=0, help="seed of the noise and of random scenes (default 0)")
+    g.add_argument("--phase-error-deg", type=float, default=0.0,
+                   help="std. dev. of random prism phase errors [deg]; frames are rendered at the "
+                   "erroneous phases, the stack records the planned ones (default 0)")
+    s = p.add_argument_group("sensor")
+    s.add_argument("--bit-depth", type=_bit_depth, default=defaults.bit_depth,
+                   help=f"ADC bits 1..16 (uint8/uint16 frames) or 'float' (default {defaults.bit_depth})")
+    s.add_argument("--full-well", type=float, default=defaults.full_well_e,
+                   help=f"full well [electrons] (shot noise; default {defaults.full_well_e:g})")
+    s.add_argument("--read-noise", type=float, default=defaults.read_noise_e,
+                   help=f"read noise [electrons] (default {defaults.read_noise_e:g})")
+    s.add_argument("--black-level", type=float, default=defaults.black_level_dn,
+                   help=f"black level [DN] (default {defaults.black_level_dn:g})")
+    s.add_argument("--fill-factor", type=float, default=defaults.fill_factor,
+                   help=f"light-sensitive fraction of the pixel area (default {defaults.fill_factor:g})")
+    s.add_argument("--defocus-um", type=float, default=defaults.defocus_um,
+                   help=f"sensor distance from best focus [um] (default {defaults.defocus_um:g})")
+    s.add_argument("--no-noise", action="store_true", help="noise-free frames (still quantised)")
+    a = p.add_argument_group("forward model (advanced)")
+    a.add_argument("--oversample", type=int, default=8,
+                   help="fine-grid points per sensor pixel, at least (default 8)")
+    a.add_argument("--margin-px", type=float, default=8.0,
+                   help="grid margin [pixels] around the frames (default 8; see docs/data.md)")
+    add_system_args(p)
+    p.set_defaults(func=run)
+
+
+def default_roi(camera) -> tuple[int, int, int, int]:
+    """A DEFAULT_CROP square (or the whole sensor if smaller) at the sensor's centre."""
+    w, h = min(DEFAULT_CROP, camera.cols), min(DEFAULT_CROP, camera.rows)
+    return ((camera.cols - w) // 2, (camera.rows - h) // 2, w, h)
+
+
+def run(args) -> int:
+    from ..optics import check_roi
+    from ..scan import plan_scan
+    from ..simulate import SensorModel, simulate_stack
+    from ..simulate.stacks import scene_for_roi
+    from ..stack_io import write_image, write_stack
+
+    system = system_from_args(args)
+    if args.h < 1:
+        raise HbisInputError(f"--h must be at least 1, got {args.h}")
+    if args.oversample < 1 or not math.isfinite(args.margin_px) or args.margin_px < 0:
+        raise HbisInputError("--oversample must be >= 1 and --margin-px >= 0")
+    if args.roi is None:
+        roi = default_roi(system.camera)
+    elif args.roi == "full":
+        roi = check_roi(system.camera, None)
+    else:
+        roi = check_roi(system.camera, args.roi)
+    sensor = SensorModel(
+        fill_factor=args.fill_factor,
+        defocus_um=args.defocus_um,
+        full_well_e=args.full_well,
+        read_noise_e=args.read_noise,
+        black_level_dn=args.black_level,
+        bit_depth=args.bit_depth,
+        noise=not args.no_noise,
+    )
+    plan = plan_scan(system, args.h, args.phases_deg, method=args.method)
+    size = args.scene_size_mm
+    if size is not None and len(size) == 1:
+        size = size[0]
+    scene = scene_for_roi(args.scene, system, roi, args.h, args.seed, size, args.margin_px, args.oversample)
+    stack, truth = simulate_stack(scene, system, plan, roi, sensor, seed=args.seed,
+                                  phase_error_deg=args.phase_error_deg, oversample=args.oversample,
+                                  margin_px=args.margin_px)
+    out = Path(args.out)
+    write_stack(out, stack)
+    message = (f"wrote {out}: {stack.frames.shape[0]} frames of {roi[2]} x {roi[3]} "
+               f"({stack.frames.dtype}), h = {args.h}, roi {list(roi)}, scene {scene.name} "
+               f"{scene.size_mm[0]:.3f} x {scene.size_mm[1]:.3f} mm")
+    if args.truth:
+        write_image(args.truth, truth, {"format": "hbis-truth/1", "h": args.h, "roi": list(roi),
+                                        "reference_index": stack.reference_index, "stack": out.name})
+        message += f"; truth {args.truth}: {truth.shape[1]} x {truth.shape[0]} float32"
+    print(message)
+    return 0
