@@ -190,8 +190,7 @@ def _check_frames(frames) -> Tensor:
         raise HbisInputError(f"frames must be at least one 16 x 16 frame, got shape {(F, H, W)}")
     if frames.dtype == torch.bool or frames.is_complex():
         raise HbisInputError(f"frames must be real numbers, got dtype {frames.dtype}")
-    frames = frames.to(torch.float64)
-    if not torch.isfinite(frames).all():
+    if frames.is_floating_point() and not torch.isfinite(frames).all():
         raise HbisInputError("frames contain non-finite values (NaN or inf)")
     return frames
 
@@ -216,11 +215,11 @@ def _check_prediction(prediction, F: int) -> Tensor | None:
 
 # --------------------------------------------------------------------------- resampling
 
-def prefilter(images: Tensor, blur_sigma: float = 0.0) -> tuple[Tensor, Tensor]:
+def prefilter(images: Tensor, blur_sigma: float = 0.0, blurred: list[int] | None = None) -> tuple[Tensor, Tensor]:
     """Gaussian-blurred images and their cubic B-spline coefficients, both (F, H, W).
 
     Both filters are applied at once in the Fourier domain on mirror-padded images (the pad is
-    wide enough that the result equals mirrored-border convolution to float precision): the
+    wide enough that the result equals mirrored-border convolution to about 3e-5): the
     Gaussian exp(-sigma^2 w^2 / 2), and the inverse of the B-spline's sampled kernel
     [1, 4, 1] / 6, whose response (4 + 2 cos w) / 6 never falls below 1/3.
 
@@ -229,15 +228,18 @@ def prefilter(images: Tensor, blur_sigma: float = 0.0) -> tuple[Tensor, Tensor]:
     images : Tensor, shape (F, H, W)
     blur_sigma : float
         Standard deviation of the Gaussian in px (0: no blur).
+    blurred : list of int, optional
+        Frames whose blurred image is wanted (default: all).
 
     Returns
     -------
-    blurred, coefficients : Tensor, shape (F, H, W) each, in the images' dtype.
-        ``bspline_sample(coefficients, p)`` interpolates ``blurred`` at points p.
+    blurred : Tensor, shape (len(blurred) or F, H, W)
+    coefficients : Tensor, shape (F, H, W)
+        ``bspline_sample(coefficients, p)`` interpolates the blurred frames at points p.
     """
     F, H, W = images.shape
-    # The B-spline inverse decays as 0.268^n (1e-7 after 12 px); the Gaussian within 4 sigma.
-    pad = min(12 + int(math.ceil(4 * blur_sigma)), H - 1, W - 1)
+    # The B-spline inverse decays as 0.268^n (1e-5 after 8 px); the Gaussian within 3 sigma.
+    pad = min(8 + int(math.ceil(3 * blur_sigma)), H - 1, W - 1)
     padded = torch.nn.functional.pad(images[:, None], (pad, pad, pad, pad), mode="reflect")[:, 0]
     Hp, Wp = padded.shape[-2:]
     wy = 2 * math.pi * torch.fft.fftfreq(Hp, dtype=images.dtype)[:, None]
@@ -246,8 +248,8 @@ def prefilter(images: Tensor, blur_sigma: float = 0.0) -> tuple[Tensor, Tensor]:
     spline = (4 + 2 * torch.cos(wx)) * (4 + 2 * torch.cos(wy)) / 36
     spectrum = torch.fft.rfft2(padded) * blur
     crop = (slice(None), slice(pad, pad + H), slice(pad, pad + W))
-    blurred = torch.fft.irfft2(spectrum, s=(Hp, Wp))[crop]
-    coefficients = torch.fft.irfft2(spectrum / spline, s=(Hp, Wp))[crop]
+    blurred = torch.fft.irfft2(spectrum if blurred is None else spectrum[blurred], s=(Hp, Wp))[crop]
+    coefficients = torch.fft.irfft2(spectrum / spline, s=(Hp, Wp))[crop].contiguous()
     return blurred, coefficients
 
 
@@ -272,32 +274,37 @@ def bspline_sample(coefficients: Tensor, points: Tensor) -> Tensor:
     """
     F, H, W = coefficients.shape
     points = points.to(coefficients.dtype)
+    n = points.shape[1]
 
-    def axis(t):
+    def axis(t, size):
+        """Weights of the two bilinear fetches along one axis, and their positions already in
+        grid_sample's [-1, 1] coordinates (align_corners=True)."""
         i = torch.floor(t)
         f = t - i
         f2 = f * f
         f3 = f2 * f
         w0 = (1 - 3 * f + 3 * f2 - f3) / 6
         w1 = (4 - 6 * f2 + 3 * f3) / 6
-        w3 = f3 / 6
         g0 = w0 + w1
-        return g0, 1 - g0, i - 1 + w1 / g0, i + 1 + w3 / (1 - g0)
+        scale = 2.0 / (size - 1)
+        return g0, 1 - g0, (i - 1 + w1 / g0) * scale - 1, (i + 1 + f3 / (6 * (1 - g0))) * scale - 1
 
-    gu0, gu1, u0, u1 = axis(points[..., 0])
-    gv0, gv1, v0, v1 = axis(points[..., 1])
-    # To grid_sample's [-1, 1] coordinates (align_corners=True: -1 and 1 are pixel centres).
-    u0, u1 = u0 * (2 / (W - 1)) - 1, u1 * (2 / (W - 1)) - 1
-    v0, v1 = v0 * (2 / (H - 1)) - 1, v1 * (2 / (H - 1)) - 1
-    n = points.shape[1]
-    grid = torch.stack(
-        (torch.cat((u0, u1, u0, u1), 1), torch.cat((v0, v0, v1, v1), 1)), -1
-    )[:, None]
+    gu0, gu1, u0, u1 = axis(points[..., 0], W)
+    gv0, gv1, v0, v1 = axis(points[..., 1], H)
+    grid = torch.empty(F, 4, n, 2, dtype=coefficients.dtype, device=coefficients.device)
+    grid[:, 0, :, 0] = u0
+    grid[:, 1, :, 0] = u1
+    grid[:, 2, :, 0] = u0
+    grid[:, 3, :, 0] = u1
+    grid[:, 0, :, 1] = v0
+    grid[:, 1, :, 1] = v0
+    grid[:, 2, :, 1] = v1
+    grid[:, 3, :, 1] = v1
     got = torch.nn.functional.grid_sample(
-        coefficients[:, None], grid, mode="bilinear", padding_mode="reflection", align_corners=True
-    )[:, 0, 0]
-    f00, f10, f01, f11 = got[:, :n], got[:, n:2 * n], got[:, 2 * n:3 * n], got[:, 3 * n:]
-    return gv0 * (gu0 * f00 + gu1 * f10) + gv1 * (gu0 * f01 + gu1 * f11)
+        coefficients[:, None], grid.view(F, 1, 4 * n, 2), mode="bilinear", padding_mode="reflection",
+        align_corners=True,
+    ).view(F, 4, n)
+    return gv0 * (gu0 * got[:, 0] + gu1 * got[:, 1]) + gv1 * (gu0 * got[:, 2] + gu1 * got[:, 3])
 
 
 # --------------------------------------------------------------------------- Lucas-Kanade
@@ -329,9 +336,9 @@ class _LucasKanade:
     huber = 1.345  # Huber's constant: 95% efficiency on Gaussian residuals
     tile_ratio = 4.0  # a tile this many times worse than the median tile does not match
 
-    def __init__(self, reference: Tensor, margin: int, keep_fraction: float):
+    def __init__(self, reference: Tensor, margin: int, keep_fraction: float, dtype=torch.float32):
         H, W = reference.shape
-        self.H, self.W, self.margin = H, W, margin
+        self.H, self.W, self.margin, self.dtype = H, W, margin, dtype
         self.scale = max(H, W) / 2.0
         self.norm = _normaliser(H, W, torch.float64)
         self.norm_inv = torch.linalg.inv(self.norm)
@@ -347,17 +354,23 @@ class _LucasKanade:
                                 torch.arange(W, dtype=torch.float64), indexing="ij")
         u, v = uu.reshape(-1)[self.index], vv.reshape(-1)[self.index]
         self.points = torch.stack((u, v), -1)  # (N, 2)
-        self.template = ref.reshape(-1)[self.index]
+        self.template = ref.reshape(-1)[self.index].to(dtype)
         # 8 x 8 tiles over the frame, for the mismatch (occlusion) measure.
         self.n_tiles = 64
         self.tile_index = ((v * 8 / H).long() * 8 + (u * 8 / W).long())[None]
         # Template gradient per normalised unit times the warp Jacobian: (N, k) per model.
         x, y = (u - (W - 1) / 2) / self.scale, (v - (H - 1) / 2) / self.scale
         gxs, gys = gx.reshape(-1)[self.index] * self.scale, gy.reshape(-1)[self.index] * self.scale
-        self.steepest = {}
-        for m in MODELS:
-            jx, jy = _warp_jacobian(x, y, m)
-            self.steepest[m] = torch.stack([gxs * a + gys * b for a, b in zip(jx, jy)], -1)
+        self._xy, self._g = (x, y), (gxs, gys)
+        self._steepest: dict[str, Tensor] = {}
+
+    def steepest(self, model: str) -> Tensor:
+        """Template gradient per normalised unit times the warp Jacobian, (N, k), made on demand."""
+        if model not in self._steepest:
+            (x, y), (gx, gy) = self._xy, self._g
+            jx, jy = _warp_jacobian(x, y, model)
+            self._steepest[model] = torch.stack([gx * a + gy * b for a, b in zip(jx, jy)], -1).to(self.dtype)
+        return self._steepest[model]
 
     def residual(self, coefficients: Tensor, homographies: Tensor, keep: Tensor | None = None):
         """Aligned difference at the reference's points, with robust weights.
@@ -377,17 +390,18 @@ class _LucasKanade:
         sigma : Tensor, shape (F,)
             Robust scale of r.
         """
-        q = apply_homography(torch.linalg.inv(homographies), self.points)  # reference -> frame
+        # Reference -> frame, per point in float32 (1e-5 px at these coordinates).
+        q = apply_homography(torch.linalg.inv(homographies).to(self.dtype), self.points.to(self.dtype))
         m = self.margin
         mask = ((q[..., 0] >= m) & (q[..., 0] <= self.W - 1 - m)
                 & (q[..., 1] >= m) & (q[..., 1] <= self.H - 1 - m))
         if keep is not None:
             mask = mask & keep
-        warped = bspline_sample(coefficients, q).double()
-        r = self._photometric(warped, mask.double()) * mask
+        warped = bspline_sample(coefficients, q).to(self.dtype)
+        r = self._photometric(warped, mask.to(self.dtype)) * mask
         w, sigma = self._huber(r, mask)
-        r = self._photometric(warped, w) * mask
-        w, sigma = self._huber(r, mask)
+        r = self._photometric(warped, w) * mask  # again, with an occluder's points down-weighted
+        w, _ = self._huber(r, mask, sigma)
         return r, mask, w, sigma
 
     def _photometric(self, warped: Tensor, w: Tensor) -> Tensor:
@@ -401,8 +415,9 @@ class _LucasKanade:
                            torch.ones_like(var))
         return gain[:, None] * dx + mt[:, None] - t
 
-    def _huber(self, r: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
-        sigma = _robust_scale(r, mask)
+    def _huber(self, r: Tensor, mask: Tensor, sigma: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        if sigma is None:
+            sigma = _robust_scale(r, mask)
         a = r.abs() / (self.huber * sigma[:, None])
         w = torch.where(a <= 1, torch.ones_like(a), 1 / a.clamp_min(1e-12)) * mask
         return w, sigma
@@ -423,28 +438,40 @@ class _LucasKanade:
 
         ``keep`` (F, N) bool, optional, leaves out points (for example an occluded region).
         """
-        F = coefficients.shape[0]
+        F, N = coefficients.shape[0], self.points.shape[0]
         k = N_PARAMS[model]
-        sd = self.steepest[model]
+        sd = self.steepest(model)
         eye = 1e-12 * torch.eye(k, dtype=torch.float64)
         Hk = init.clone()
         converged = torch.zeros(F, dtype=torch.bool)
+        # A frame whose step exceeds 2 px, or that wanders over 3 px from its start, has no basin
+        # to converge in: it is left where it is (and flagged by the caller).
+        diverged = torch.zeros(F, dtype=torch.bool)
+        # Each frame's residual at its last evaluation; a converged frame moved less than
+        # ``tol`` since (its last, small step is applied), so these are its statistics.
+        r = torch.zeros(F, N, dtype=self.dtype)
+        w = torch.zeros(F, N, dtype=self.dtype)
+        mask = torch.zeros(F, N, dtype=torch.bool)
+        sigma = torch.ones(F, dtype=self.dtype)
         for _ in range(iterations):
-            active = (~converged).nonzero()[:, 0]
-            r, _, w, _ = self.residual(coefficients[active], Hk[active],
-                                       None if keep is None else keep[active])
-            hess = _normal_matrix(w, sd)
-            dp = torch.linalg.solve(hess + eye, (w * r) @ sd)
+            active = (~(converged | diverged)).nonzero()[:, 0]
+            ra, ma, wa, sa = self.residual(coefficients[active], Hk[active],
+                                           None if keep is None else keep[active])
+            r[active], mask[active], w[active], sigma[active] = ra, ma, wa, sa
+            dp = torch.linalg.solve(_normal_matrix(wa, sd) + eye, ((wa * ra) @ sd).double())
             # Inverse composition: G <- G o W(dp)^-1 for G = H^-1 (reference -> frame),
             # i.e. H <- W(dp) H, with W expressed in normalised coordinates.
             upd = self.norm_inv @ _params_to_matrix(dp, model) @ self.norm @ Hk[active]
             Hk[active] = upd / upd[:, 2:3, 2:3]
-            converged[active] = self.motion_px(dp, model) < tol
-            if bool(converged.all()):
+            move = self.motion_px(dp, model)
+            converged[active] = move < tol
+            wandered = lk_motion_difference(Hk[active], init[active], self.H, self.W, None)
+            diverged[active] = ~torch.isfinite(move) | (move > 2.0) | (wandered > 3.0)
+            if bool((converged | diverged).all()):
                 break
-        r, mask, w, sigma = self.residual(coefficients, Hk, keep)
         hess = _normal_matrix(w, sd)
         n_valid = mask.sum(-1).double()
+        r, w, sigma = r.double(), w.double(), sigma.double()
         rss = (w * r * r).sum(-1)
         # Noise-limited covariance: the robust scale, not the RSS, so that an occluder shows up
         # as a mismatch and not as a loss of precision.
@@ -473,26 +500,35 @@ class _LucasKanade:
         grown = torch.nn.functional.max_pool2d(bad.reshape(F, 1, 8, 8).to(r.dtype), 3, 1, 1)
         return fraction, grown.reshape(F, -1).bool().gather(1, tiles) & mask
 
-    def score_test(self, fit: _Fit, model: str, corr_area: float, skip: int) -> tuple[float, float]:
+    def score_test(self, fit: _Fit, model: str, corr_area: float, use: Tensor) -> tuple[float, float]:
         """What one Gauss-Newton step of a richer ``model`` would gain from ``fit``'s solution.
 
-        Returns (BIC gain summed over frames, largest extra motion in px over the frames);
-        a positive gain means the richer model explains enough more to pay for its parameters.
+        Returns (BIC gain summed over the frames in ``use`` (F,) bool, largest extra motion in px
+        over them); the gain is compared with the extra parameters' penalty by the caller.
         """
-        sd = self.steepest[model]
+        sd = self.steepest(model).double()
         hess = _normal_matrix(fit.weights, sd)
         grad = (fit.weights * fit.residual) @ sd
         dp = torch.linalg.solve(hess + 1e-12 * torch.eye(sd.shape[1], dtype=torch.float64), grad)
         drop = (dp * grad).sum(-1).clamp_min(0)
-        keep = torch.arange(len(dp)) != skip
         n_eff = (fit.n_valid / corr_area).clamp_min(1.0)
         gain = n_eff * torch.log(fit.rss / (fit.rss - drop).clamp_min(1e-300))
-        return float(gain[keep].sum()), float(self.motion_px(dp, model)[keep].max())
+        return float(gain[use].sum()), float(self.motion_px(dp, model)[use].max())
+
+
+def _merge(fit: _Fit, part: _Fit, index: Tensor) -> _Fit:
+    """``fit`` with the frames ``index`` replaced by those of ``part`` (fitted on them alone)."""
+    out = _Fit(**{name: getattr(fit, name).clone() for name in fit.__dataclass_fields__})
+    for name in fit.__dataclass_fields__:
+        getattr(out, name)[index] = getattr(part, name)
+    return out
 
 
 def _normal_matrix(w: Tensor, sd: Tensor) -> Tensor:
-    """J^T W J for every frame: weights (F, N), steepest-descent images (N, k) -> (F, k, k)."""
-    return (w[:, :, None] * sd).transpose(1, 2) @ sd
+    """J^T W J for every frame: weights (F, N), steepest-descent images (N, k) -> (F, k, k),
+    float64 (summed in the inputs' precision: float32 sums of a few thousand terms are good to
+    1e-6, far below what the motion needs)."""
+    return ((w[:, :, None] * sd.to(w.dtype)).transpose(1, 2) @ sd.to(w.dtype)).double()
 
 
 def _robust_scale(r: Tensor, mask: Tensor) -> Tensor:
@@ -504,18 +540,17 @@ def _robust_scale(r: Tensor, mask: Tensor) -> Tensor:
     return (1.4826 * mad).nan_to_num(1.0).clamp_min(1e-12)
 
 
-def _bic(fit: _Fit, k: int, corr_area: float, skip: int) -> float:
-    """Bayesian information criterion of a fit, summed over frames (lower is better)."""
+def _bic(fit: _Fit, k: int, corr_area: float, use: Tensor) -> float:
+    """Bayesian information criterion of a fit, summed over the frames in ``use`` (lower is
+    better), with the effective number of independent residuals n / corr_area."""
     n_eff = (fit.n_valid / corr_area).clamp_min(k + 1.0)
     per_frame = n_eff * torch.log(fit.rss.clamp_min(1e-300) / fit.n_valid.clamp_min(1)) + k * torch.log(n_eff)
-    keep = torch.arange(len(per_frame)) != skip
-    return float(per_frame[keep].sum())
+    return float(per_frame[use].sum())
 
 
-def _penalty(fit: _Fit, k_extra: int, corr_area: float, skip: int) -> float:
+def _penalty(fit: _Fit, k_extra: int, corr_area: float, use: Tensor) -> float:
     n_eff = (fit.n_valid / corr_area).clamp_min(2.0)
-    keep = torch.arange(len(n_eff)) != skip
-    return float(k_extra * torch.log(n_eff[keep]).sum())
+    return float(k_extra * torch.log(n_eff[use]).sum())
 
 
 # --------------------------------------------------------------------------- coarse start
@@ -568,9 +603,9 @@ def register_stack(
     model: str = "auto",
     *,
     blur_sigma: float = 0.7,
-    keep_fraction: float = 0.5,
+    keep_fraction: float = 0.2,
     iterations: int = 30,
-    tolerance_px: float = 1e-3,
+    tolerance_px: float = 1e-2,
     motion_tolerance_px: float = 0.01,
     min_confidence: float = 0.5,
     dtype=torch.float32,
@@ -632,39 +667,46 @@ def register_stack(
         raise HbisInputError(f"dtype must be torch.float32 or torch.float64, got {dtype!r}")
 
     # Photometric normalisation: every frame to zero mean and unit standard deviation.
+    frames = frames.to(dtype)
     x = frames - frames.mean((-2, -1), keepdim=True)
     spread = x.std((-2, -1))
-    tiny = 1e-9 * max(1.0, float(frames.abs().max()))
+    tiny = 1e-6 * max(1.0, float(frames.abs().max()))
     flat = spread < tiny
     x = x / spread.clamp_min(tiny)[:, None, None]
-    noise = noise_sigma(x)
+    noise = noise_sigma(x[ref:ref + 1]).expand(F)  # the same sensor: one frame says enough
     margin = 2 + int(math.ceil(2 * blur_sigma))
     if min(H, W) <= 2 * margin + 8:
         raise HbisInputError(f"frames of {H} x {W} px are too small to register (blur_sigma={blur_sigma})")
     # Blurred residuals are correlated over about this many pixels (for the statistics).
     corr_area = max(1.0, 4 * math.pi * blur_sigma ** 2)
 
-    x, coefficients = prefilter(x.to(dtype), blur_sigma)
+    template, coefficients = prefilter(x, blur_sigma, blurred=[ref])
     init = prediction.clone() if prediction is not None else _translation(phase_correlation_shifts(x, x[ref]))
     init[ref] = torch.eye(3, dtype=torch.float64)
-    lk = _LucasKanade(x[ref], margin, keep_fraction)
+    lk = _LucasKanade(template[0], margin, keep_fraction, dtype)
 
     chosen = "translation" if model == "auto" else model
     fit = lk.fit(coefficients, init, chosen, iterations, tolerance_px)
-    # Occlusion: leave out the tiles that do not match and fit again.
+    # Occlusion: leave out the tiles that do not match and fit those frames again.
     keep, mismatch = None, fit.mismatch_fraction
-    if bool((mismatch > 0).any()):
+    redo = (mismatch > 0).nonzero()[:, 0]
+    if len(redo):
         keep = ~fit.mismatch_points
-        fit = lk.fit(coefficients, fit.homographies, chosen, iterations, tolerance_px, keep)
-    if model == "auto" and F > 1:
+        again = lk.fit(coefficients[redo], fit.homographies[redo], chosen, iterations, tolerance_px, keep[redo])
+        fit = _merge(fit, again, redo)
+    # The model is chosen on the frames that registered sensibly (converged, residual about
+    # what the frame's contrast allows), not on the failures flagged below.
+    use = fit.converged & (fit.sigma < MISMATCH_RESIDUAL) & ~flat
+    use[ref] = False
+    if model == "auto" and bool(use.any()):
         for richer in MODELS[1:]:
             extra = N_PARAMS[richer] - N_PARAMS[chosen]
-            gain, moved = lk.score_test(fit, richer, corr_area, ref)
-            if gain <= _penalty(fit, extra, corr_area, ref) or moved <= motion_tolerance_px:
+            gain, moved = lk.score_test(fit, richer, corr_area, use)
+            if gain <= _penalty(fit, extra, corr_area, use) or moved <= motion_tolerance_px:
                 continue
             trial = lk.fit(coefficients, fit.homographies, richer, iterations, tolerance_px, keep)
-            moved = float(lk_motion_difference(trial.homographies, fit.homographies, H, W, ref))
-            if _bic(trial, N_PARAMS[richer], corr_area, ref) < _bic(fit, N_PARAMS[chosen], corr_area, ref) \
+            moved = float(lk_motion_difference(trial.homographies, fit.homographies, H, W, use))
+            if _bic(trial, N_PARAMS[richer], corr_area, use) < _bic(fit, N_PARAMS[chosen], corr_area, use) \
                     and moved > motion_tolerance_px:
                 chosen, fit = richer, trial
 
@@ -701,8 +743,9 @@ def noise_sigma(frames: Tensor) -> Tensor:
     """
     kernel = torch.tensor([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]],
                           dtype=frames.dtype)[None, None]
-    out = torch.nn.functional.conv2d(frames[:, None], kernel)[:, 0]
-    return 1.4826 * out.abs().flatten(1).median(-1).values / 6.0
+    out = torch.nn.functional.conv2d(frames[:, None], kernel)[:, 0].flatten(1)
+    step = max(1, out.shape[1] // 4096)  # a few thousand values make a good median
+    return 1.4826 * out[:, ::step].abs().median(-1).values / 6.0
 
 
 def _assess(fit: _Fit, model: str, flat: Tensor, noise: Tensor, ref: int, H: int, W: int,
@@ -750,12 +793,12 @@ def _assess(fit: _Fit, model: str, flat: Tensor, noise: Tensor, ref: int, H: int
     return confidence.clamp(0, 1), messages
 
 
-def lk_motion_difference(a: Tensor, b: Tensor, H: int, W: int, skip: int) -> Tensor:
-    """Largest distance (px) between where two sets of homographies send the frame's corners."""
+def lk_motion_difference(a: Tensor, b: Tensor, H: int, W: int, use: Tensor | None) -> Tensor:
+    """Distance (px) between where two sets of homographies send the frame's corners: the
+    largest over the frames in ``use`` (F,) bool, or per frame (F,) when ``use`` is None."""
     corners = torch.tensor([[0, 0], [W - 1, 0], [0, H - 1], [W - 1, H - 1]], dtype=torch.float64)
     d = (apply_homography(a, corners) - apply_homography(b, corners)).norm(dim=-1).amax(-1)
-    d[skip] = 0
-    return d.max()
+    return d if use is None else d[use].max()
 
 
 def _precision_px(fit: _Fit, model: str, H: int, W: int, corr_area: float) -> Tensor:

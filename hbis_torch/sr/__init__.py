@@ -1,6 +1,7 @@
 """Super-resolution of HBIS stacks: the classical baseline (scattered-sample interpolation and
-Wiener deblurring) and the choice of h for a scene."""
+Wiener deblurring, :mod:`.classical`) and the choice of h for a scene (:mod:`.adaptive_h`)."""
 
-from .classical import classical_sr, optical_sample_positions, reconstruct
+from .adaptive_h import HChoice, recommend_h
+from .classical import METHODS, classical_sr, optical_sample_positions, reconstruct
 
-__all__ = ["classical_sr", "optical_sample_positions", "reconstruct"]
+__all__ = ["HChoice", "METHODS", "classical_sr", "optical_sample_positions", "reconstruct", "recommend_h"]

@@ -1,0 +1,195 @@
+"""Classical SR from given samples and positions: conventions, accuracy, bad input."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from skimage.metrics import peak_signal_noise_ratio as psnr
+
+from hbis_torch.errors import HbisInputError
+from hbis_torch.sr.classical import classical_sr, lattice_noise, periodic_smooth, splat
+
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """These tensors are small: on cores shared with other jobs, extra threads only wait on
+    each other (up to 100x slower here), so this module runs on one and then restores."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+def lattice_stack(scene: np.ndarray, h: int, m: int, frames=None):
+    """An ideal h x h scan of a scene raster with m scene pixels per HR pixel.
+
+    LR pixels average (h m)^2 scene pixels, HR (truth) pixels m^2; frame (ox, oy) is displaced
+    by (ox, oy) / h LR px. The frames see real scene beyond their ROI (no wrap-around), which
+    starts h m scene pixels in. Returns frames (F, N, N), positions (F, N, N, 2), truth.
+    """
+    L = h * m
+    n = (min(scene.shape) // L) * L - 2 * L
+    N = n // L
+    offsets = [(i % h - h // 2, i // h - h // 2) for i in range(h * h)] if frames is None else frames
+    out = []
+    for ox, oy in offsets:
+        part = scene[L + m * oy: L + m * oy + n, L + m * ox: L + m * ox + n]
+        out.append(part.reshape(N, L, N, L).mean(axis=(1, 3)))
+    truth = scene[L:L + n, L:L + n].reshape(N * h, m, N * h, m).mean(axis=(1, 3))
+    vv, uu = np.meshgrid(np.arange(N, dtype=float), np.arange(N, dtype=float), indexing="ij")
+    positions = np.stack([np.stack((uu + ox / h, vv + oy / h), -1) for ox, oy in offsets])
+    return np.stack(out), positions, truth
+
+
+def band_limited_scene(n: int, cutoff: float, seed: int = 0) -> np.ndarray:
+    """A random scene with a flat spectrum below ``cutoff`` cycles per scene pixel, in [0.1, 0.9]."""
+    rng = np.random.default_rng(seed)
+    f = np.fft.fftfreq(n)
+    keep = np.hypot(f[:, None], f[None, :]) < cutoff
+    s = np.real(np.fft.ifft2(np.fft.fft2(rng.normal(size=(n, n))) * keep))
+    return 0.1 + 0.8 * (s - s.min()) / (s.max() - s.min())
+
+
+def natural_scene(n: int = 384, seed: int = 1) -> np.ndarray:
+    """A 1/f (natural-image-like) random scene in [0.05, 0.95]."""
+    rng = np.random.default_rng(seed)
+    f = np.fft.fftfreq(n)
+    r = np.hypot(f[:, None], f[None, :])
+    r[0, 0] = 1.0
+    s = np.real(np.fft.ifft2(np.fft.fft2(rng.normal(size=(n, n))) / r))
+    return 0.05 + 0.9 * (s - s.min()) / (s.max() - s.min())
+
+
+def _bicubic(frame: np.ndarray, h: int) -> np.ndarray:
+    x = torch.tensor(frame)[None, None]
+    return torch.nn.functional.interpolate(x, scale_factor=h, mode="bicubic", align_corners=False)[0, 0].clamp(0, 1).numpy()
+
+
+def _interior_psnr(truth, image, h):
+    c = slice(2 * h, -2 * h)
+    return psnr(truth[c, c], image[c, c], data_range=1.0)
+
+
+def test_identity_stack_reconstructs_to_itself():
+    frame = natural_scene(48)
+    frames = np.stack([frame] * 3)
+    vv, uu = np.meshgrid(np.arange(48.0), np.arange(48.0), indexing="ij")
+    positions = np.stack([np.stack((uu, vv), -1)] * 3)
+    out = classical_sr(frames, positions, 1)
+    assert out.dtype == torch.float32 and out.shape == (48, 48)
+    # h = 1: nothing to deblur; only the splat's own smoothing is undone (exactly, inside).
+    assert np.abs(out.numpy() - frame)[2:-2, 2:-2].max() < 1e-4
+    assert np.abs(out.numpy() - frame).max() < 5e-3
+    # Interpolation alone smooths a little (the splat kernel) but stays close.
+    plain = classical_sr(frames, positions, 1, deblur=False).numpy()
+    assert 1e-4 < np.abs(plain - frame).max() < 0.1
+
+
+def test_output_grid_convention_on_a_ramp():
+    """HR pixel U is centred at LR coordinate (U + 0.5)/h - 0.5: a ramp must land there."""
+    h, n = 2, 40
+    vv, uu = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    offsets = [(0, 0), (1, 0), (0, 1), (1, 1)]
+    positions = np.stack([np.stack((uu + ox / h, vv + oy / h), -1) for ox, oy in offsets])
+    frames = 0.2 + 0.01 * positions[..., 0] + 0.005 * positions[..., 1]  # box average of a ramp
+    out = classical_sr(frames, positions, h).numpy()
+    V, U = np.meshgrid(np.arange(h * n), np.arange(h * n), indexing="ij")
+    expected = 0.2 + 0.01 * ((U + 0.5) / h - 0.5) + 0.005 * ((V + 0.5) / h - 0.5)
+    c = slice(6, -6)
+    assert np.abs(out[c, c] - expected[c, c]).max() < 1e-3
+
+
+def test_band_limited_scene_from_exact_shifts_approaches_the_truth():
+    h, m = 4, 2
+    scene = band_limited_scene(512, cutoff=0.2 / m)  # below the LR aperture's first zero
+    frames, positions, truth = lattice_stack(scene, h, m)
+    full = _interior_psnr(truth, classical_sr(frames, positions, h).numpy(), h)
+    quarter = [0, 2, 8, 10]  # a 2 x 2 scan's worth of the same frames
+    partial = _interior_psnr(truth, classical_sr(frames[quarter], positions[quarter], h).numpy(), h)
+    single = _interior_psnr(truth, _bicubic(frames[(h // 2) * (h + 1)], h), h)
+    # Noise-free: the error is bounded by the deblurring's noise floor (2e-3), about 39 dB here.
+    assert full > 37.0
+    assert full > partial + 8.0 > single + 8.0
+
+
+@pytest.mark.parametrize("h", [3, 4])
+def test_noisy_natural_scene_gains_over_bicubic_and_over_interpolation_alone(h):
+    m = 2
+    frames, positions, truth = lattice_stack(natural_scene(384), h, m)
+    rng = np.random.default_rng(0)
+    sigma = 0.01 * frames.std()  # 40 dB
+    noisy = np.clip(frames + rng.normal(0, sigma, frames.shape), 0, 1)
+    deblurred = _interior_psnr(truth, classical_sr(noisy, positions, h).numpy(), h)
+    interpolated = _interior_psnr(truth, classical_sr(noisy, positions, h, deblur=False).numpy(), h)
+    bicubic = _interior_psnr(truth, _bicubic(noisy[(h // 2) * (h + 1)], h), h)
+    assert deblurred > interpolated + 1.0
+    assert deblurred > bicubic + 3.0
+
+
+def test_missing_frames_leave_no_holes_and_no_nan():
+    h, m = 3, 2
+    frames, positions, truth = lattice_stack(natural_scene(240), h, m)
+    weights = np.ones(len(frames))
+    weights[[1, 5, 6]] = 0.0  # three frames the registration could not trust
+    out = classical_sr(frames, positions, h, weights=weights).numpy()
+    assert np.isfinite(out).all() and out.min() >= 0 and out.max() <= 1
+    assert _interior_psnr(truth, out, h) > _interior_psnr(truth, _bicubic(frames[4], h), h)
+
+
+def test_lattice_noise_measures_white_noise():
+    rng = np.random.default_rng(0)
+    x = torch.tensor(rng.normal(0, 0.01, (120, 120)))
+    vv, uu = torch.meshgrid(torch.arange(120.0), torch.arange(120.0), indexing="ij")
+    num, den = splat(x.reshape(-1), uu.reshape(-1).double(), vv.reshape(-1).double(), (120, 120), 0.45)
+    assert lattice_noise(num / den, 0.45) == pytest.approx(0.01, rel=0.1)
+
+
+def test_periodic_smooth_decomposition_is_exact_and_periodic():
+    img = torch.tensor(natural_scene(64))
+    p, s = periodic_smooth(img)
+    assert torch.allclose(p + s, img, atol=1e-12)
+    # p has no jump across opposite borders larger than its interior steps
+    jump = max(float((p[0] - p[-1]).abs().max()), float((p[:, 0] - p[:, -1]).abs().max()))
+    assert jump < float(img.diff(dim=0).abs().max())
+
+
+def test_float64_computation_and_float32_output_agree_with_float64_input():
+    h, m = 3, 2
+    frames, positions, _ = lattice_stack(natural_scene(240), h, m)
+    a = classical_sr(frames.astype(np.float32), positions.astype(np.float32), h)
+    b = classical_sr(frames, positions, h)
+    assert a.dtype == b.dtype == torch.float32
+    assert float((a - b).abs().max()) < 1e-4  # only the float32 rounding of the inputs differs
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(h=0), "h must be an integer"),
+        (dict(h=True), "h must be an integer"),
+        (dict(h=2.5), "h must be an integer"),
+        (dict(positions=np.zeros((2, 8, 8))), "positions must have shape"),
+        (dict(frames=np.full((2, 8, 8), np.nan)), "non-finite"),
+        (dict(frames=np.zeros((8, 8))), "frames must have shape"),
+        (dict(weights=np.array([1.0, -1.0])), "weights must be non-negative"),
+        (dict(weights=np.zeros(2)), "weight 0"),
+        (dict(fill_factor=1.5), "fill_factor"),
+        (dict(cutoff=-1.0), "cutoff"),
+        (dict(noise=float("nan")), "noise"),
+    ],
+)
+def test_bad_input_is_rejected_with_a_clear_message(kwargs, match):
+    args = dict(frames=np.random.default_rng(0).random((2, 8, 8)),
+                positions=np.zeros((2, 8, 8, 2)) + np.arange(8.0)[None, None, :, None], h=2)
+    args.update(kwargs)
+    with pytest.raises(HbisInputError, match=match):
+        classical_sr(args.pop("frames"), args.pop("positions"), args.pop("h"), **args)
+
+
+def test_no_nan_escapes_for_samples_off_the_grid():
+    frames = np.random.default_rng(0).random((1, 8, 8))
+    positions = np.full((1, 8, 8, 2), 1000.0)  # every sample far outside the ROI
+    with pytest.raises(HbisInputError, match="no sample"):
+        classical_sr(frames, positions, 2)
+    assert math.isfinite(float(classical_sr(frames, np.zeros((1, 8, 8, 2)) + 3.0, 2).sum()))

@@ -1,0 +1,214 @@
+"""Registration of shifted frames: known motions recovered, failures flagged, bad input refused."""
+
+import numpy as np
+import pytest
+import torch
+from scipy import ndimage
+from skimage import data
+
+from hbis_torch.errors import HbisInputError
+from hbis_torch.registration import (
+    apply_homography,
+    bspline_sample,
+    homographies_from_positions,
+    prefilter,
+    register_stack,
+)
+
+H_FACTOR = 4  # frames are box averages of h x h photo pixels
+
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """These tensors are small: on cores shared with other jobs, extra threads only wait on
+    each other (up to 100x slower here), so this module runs on one and then restores."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+def _photo() -> np.ndarray:
+    return data.camera().astype(np.float64) / 255.0
+
+
+def shifted_frames(shifts, snr_db=40.0, seed=0, image=None, crop=8):
+    """Frames of a 512 px photo box-averaged 4 x 4, each with its content moved by shifts[k]
+    (du, dv) in frame pixels (an exact Fourier shift of the photo, then the pixel's box), so
+    that content at (u, v) of frame k sits at (u, v) - shifts[k] in frame 0 when shifts[0] = 0.
+    """
+    img = _photo() if image is None else image
+    n = img.shape[0]
+    spectrum = np.fft.fft2(img)
+    k = np.fft.fftfreq(n)
+    out = []
+    for du, dv in shifts:
+        moved = np.real(np.fft.ifft2(spectrum * np.exp(-2j * np.pi * (k[None, :] * du + k[:, None] * dv) * H_FACTOR)))
+        m = n // H_FACTOR
+        out.append(moved.reshape(m, H_FACTOR, m, H_FACTOR).mean(axis=(1, 3))[crop:-crop, crop:-crop])
+    out = np.stack(out)
+    rng = np.random.default_rng(seed)
+    return out + rng.normal(0, out[0].std() * 10 ** (-snr_db / 20), out.shape)
+
+
+@pytest.fixture(scope="module")
+def shifts():
+    rng = np.random.default_rng(3)
+    s = rng.uniform(-1, 1, (9, 2))
+    s[0] = 0
+    return s
+
+
+@pytest.fixture(scope="module")
+def frames(shifts):
+    return torch.tensor(shifted_frames(shifts))
+
+
+def _centre_error(reg, shifts, frames):
+    H, W = frames.shape[-2:]
+    d = reg.displacement((W - 1) / 2, (H - 1) / 2).numpy()
+    return np.abs(d + shifts).max(axis=1)
+
+
+def test_known_translations_are_recovered(frames, shifts):
+    reg = register_stack(frames, 0)
+    assert reg.model == "translation"  # the data needs nothing richer
+    err = _centre_error(reg, shifts, frames)
+    assert err.max() < 0.01, err
+    assert bool(reg.ok.all()) and float(reg.confidence.min()) > 0.8
+    assert reg.messages == []
+    assert torch.equal(reg.homographies[0], torch.eye(3, dtype=torch.float64))
+
+
+def test_float32_agrees_with_float64(frames):
+    a = register_stack(frames[:4], 0, model="translation", dtype=torch.float32).homographies
+    b = register_stack(frames[:4], 0, model="translation", dtype=torch.float64).homographies
+    pts = torch.tensor([[0.0, 0.0], [95.0, 95.0]], dtype=torch.float64)
+    assert (apply_homography(a, pts) - apply_homography(b, pts)).abs().max() < 1e-3
+
+
+def test_similarity_motion_is_chosen_and_recovered():
+    """A small rotation and zoom about the centre: auto must pick a richer model and map the
+    frame's corners to within 0.02 px."""
+    img = _photo()
+    motions = [(0.0, 0.0, 0.0, 1.0), (0.3, -0.2, 0.2, 1.0015), (-0.4, 0.5, -0.25, 0.998), (0.1, 0.7, 0.15, 1.001)]
+    frames, truths = [], []
+    c = (img.shape[0] - 1) / 2
+    for tx, ty, angle_deg, zoom in motions:
+        a = np.deg2rad(angle_deg)
+        rot = zoom * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        # photo px -> frame content: out(x) = img(R^-1 (x - c - t h) + c), (row, col) order for ndimage
+        t = np.array([tx, ty]) * H_FACTOR
+        inv = np.linalg.inv(rot)
+        matrix = inv[::-1, ::-1]
+        offset = (np.array([c, c]) - inv @ (np.array([c, c]) + t))[::-1]
+        moved = ndimage.affine_transform(img, matrix, offset=offset, order=3, mode="reflect")
+        m = img.shape[0] // H_FACTOR
+        frames.append(moved.reshape(m, H_FACTOR, m, H_FACTOR).mean(axis=(1, 3))[8:-8, 8:-8])
+        # frame px (u, v) -> reference px: undo the motion in photo px, then back to frame px
+        truths.append((rot, t))
+    frames = np.stack(frames)
+    frames += np.random.default_rng(1).normal(0, 0.01 * frames[0].std(), frames.shape)
+    reg = register_stack(torch.tensor(frames), 0)
+    assert reg.model in ("similarity", "homography")
+    corners = np.array([[0.0, 0.0], [95.0, 0.0], [0.0, 95.0], [95.0, 95.0]])
+    for k, (rot, t) in enumerate(truths):
+        photo_pts = (corners + 8 + 0.5) * H_FACTOR - 0.5  # frame px centre -> photo px
+        ref_photo = np.linalg.inv(rot) @ (photo_pts - c - t).T
+        expected = (ref_photo.T + c + 0.5) / H_FACTOR - 0.5 - 8
+        got = apply_homography(reg.homographies[k:k + 1], torch.tensor(corners))[0].numpy()
+        assert np.abs(got - expected).max() < 0.02, (k, got - expected)
+
+
+def test_occlusion_is_flagged_and_left_out(shifts):
+    frames = shifted_frames(shifts)
+    frames[4, 20:60, 30:70] = 0.5  # a flat occluder over a sixth of the frame
+    reg = register_stack(torch.tensor(frames), 0)
+    assert any("frame 4" in m and "do not match" in m for m in reg.messages)
+    assert _centre_error(reg, shifts, frames)[4] < 0.01  # the rest of the frame still registers
+    assert float(reg.confidence[4]) < float(reg.confidence[3])
+
+
+def test_a_frame_of_another_scene_is_not_ok(shifts):
+    frames = shifted_frames(shifts)
+    other = data.astronaut().mean(-1)[:512, :512] / 255.0
+    frames[3] = shifted_frames([(0.0, 0.0)], image=other)[0]
+    reg = register_stack(torch.tensor(frames), 0)
+    assert not bool(reg.ok[3]) and bool(reg.ok[[0, 1, 2, 4]].all())
+    assert any(m.startswith("frame 3 does not match") for m in reg.messages)
+
+
+def test_low_texture_is_flagged(shifts):
+    faint = np.full((512, 512), 0.5) + 0.001 * _photo()
+    frames = shifted_frames(shifts, image=faint, snr_db=200)
+    frames += np.random.default_rng(2).normal(0, 0.002, frames.shape)  # noise swamps the texture
+    reg = register_stack(torch.tensor(frames), 0)
+    assert not bool(reg.ok[1:].any())
+    assert any("too little texture" in m for m in reg.messages)
+
+
+def test_flat_frame_is_not_ok(frames):
+    bad = frames.clone()
+    bad[2] = 0.3
+    reg = register_stack(bad, 0)
+    assert not bool(reg.ok[2]) and float(reg.confidence[2]) == 0.0
+    assert "frame 2 is flat (no image)" in reg.messages
+
+
+def test_prediction_is_refined_and_frames_out_of_order_are_detected(frames, shifts):
+    predicted = torch.eye(3, dtype=torch.float64).repeat(len(shifts), 1, 1)
+    predicted[:, :2, 2] = -torch.tensor(shifts) + 0.05  # the optics are a little off
+    reg = register_stack(frames, 0, prediction=predicted)
+    assert _centre_error(reg, shifts, frames).max() < 0.01
+    assert not bool(reg.out_of_order.any())
+
+    swapped = frames.clone()
+    swapped[[3, 5]] = frames[[5, 3]]
+    reg = register_stack(swapped, 0, prediction=predicted)
+    assert reg.out_of_order.nonzero()[:, 0].tolist() == [3, 5]
+    assert any("frame 3 sits where frame 5 was planned" in m for m in reg.messages)
+    # The measured motions are still right (they follow the data, not the plan).
+    assert _centre_error(reg, shifts[[0, 1, 2, 5, 4, 3, 6, 7, 8]], swapped).max() < 0.01
+
+
+def test_homographies_from_positions_recovers_a_homography():
+    true = torch.tensor([[1.001, 0.002, 0.3], [-0.001, 0.999, -0.2], [1e-5, -2e-5, 1.0]], dtype=torch.float64)
+    vv, uu = torch.meshgrid(torch.arange(40.0), torch.arange(50.0), indexing="ij")
+    grid = torch.stack((uu, vv), -1).double()
+    pos = apply_homography(true[None], grid.reshape(-1, 2)).reshape(1, 40, 50, 2)
+    est = homographies_from_positions(pos)
+    assert torch.allclose(apply_homography(est, grid.reshape(-1, 2)), pos.reshape(1, -1, 2), atol=1e-8)
+
+
+def test_bspline_interpolation_is_exact_at_nodes_and_matches_scipy():
+    rng = np.random.default_rng(0)
+    img = torch.tensor(rng.normal(size=(1, 30, 40)))
+    _, coef = prefilter(img)
+    vv, uu = torch.meshgrid(torch.arange(30.0), torch.arange(40.0), indexing="ij")
+    nodes = torch.stack((uu, vv), -1).reshape(1, -1, 2).double()
+    assert (bspline_sample(coef, nodes).reshape(30, 40) - img[0]).abs().max() < 1e-4
+    pts = torch.tensor(rng.uniform(3, 26, (1, 50, 2)))
+    ref = ndimage.map_coordinates(img[0].numpy(), [pts[0, :, 1].numpy(), pts[0, :, 0].numpy()], order=3, mode="mirror")
+    assert np.abs(bspline_sample(coef, pts)[0].numpy() - ref).max() < 1e-4
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(frames=np.zeros((4, 32))), "shape"),
+        (dict(frames=np.full((2, 32, 32), np.nan)), "non-finite"),
+        (dict(frames=np.zeros((2, 8, 8))), "16 x 16"),
+        (dict(reference_index=5), "reference_index"),
+        (dict(reference_index=1.5), "integer"),
+        (dict(prediction=np.zeros((3, 3))), "prediction must have shape"),
+        (dict(prediction=np.zeros((2, 3, 3))), "singular"),
+        (dict(model="affine"), "model must be"),
+        (dict(blur_sigma=-1.0), "blur_sigma"),
+        (dict(keep_fraction=0.0), "keep_fraction"),
+    ],
+)
+def test_bad_input_is_rejected_with_a_clear_message(kwargs, match):
+    args = dict(frames=np.random.default_rng(0).random((2, 32, 32)), reference_index=0)
+    args.update(kwargs)
+    with pytest.raises(HbisInputError, match=match):
+        register_stack(args.pop("frames"), args.pop("reference_index"), **args)
