@@ -81,3 +81,18 @@ def test_bad_method_and_phases_are_rejected():
         plan_scan(SYSTEM, 3, (float("nan"), 3.0))
     with pytest.raises(HbisInputError, match="phases"):
         plan_scan(SYSTEM, 3, (1.0, 2.0, 3.0))
+
+
+@pytest.mark.parametrize("method", ["exact", "paper"])
+def test_plan_at_opposed_prisms_scans_round_the_centre_without_nan(method):
+    """Initial phases 180 deg apart put the axis at the centre, where the azimuth is undefined:
+    the scan's targets surround it, so the phases swing widely (the paper's control
+    singularity), but every number is finite and the exact plan still lands on target."""
+    plan = plan_scan(SYSTEM, 3, (0.0, 180.0), method=method)
+    assert torch.isfinite(plan.phases_deg).all()
+    assert float(plan.targets_mm[plan.reference_index].norm()) < 1e-12
+    ae = axis_alignment_error(SYSTEM, plan)
+    assert torch.isfinite(ae).all()
+    if method == "exact":
+        assert float(ae.max()) < 1e-6
+    assert float(plan.phase_range_deg().max()) > 30.0

@@ -1,4 +1,4 @@
-"""Sub-pixel scan plans (paper section 2.2, Fig. 3, eq. 7) and their alignment error (section 3.2).
+"""Sub-pixel scan plans (paper section 2.2, Fig. 3, eq. 7).
 
 A scan of resolution improvement factor h moves the optical axis over an h x h grid of points
 spaced by the step SL = (p / h) v / f' on the object plane, around the point DV^0 where the axis
