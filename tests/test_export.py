@@ -78,7 +78,7 @@ def test_space_to_depth_survives_the_dynamo_exporter(tmp_path):
 
     rows, cols = torch.export.Dim("rows", min=1, max=512), torch.export.Dim("cols", min=1, max=512)
     path = tmp_path / "s2d.onnx"
-    torch.onnx.export(Packer(), (torch.randn(1, 2, 16, 24),), str(path), dynamo=True,
+    torch.onnx.export(Packer().eval(), (torch.randn(1, 2, 16, 24),), str(path), dynamo=True,
                       dynamic_shapes={"x": {2: 4 * rows, 3: 4 * cols}}, external_data=False)
     x = torch.randn(1, 2, 28, 12)
     got = ort.InferenceSession(str(path)).run(None, {"x": x.numpy()})[0]
