@@ -16,7 +16,7 @@ from .cmd_figures import FIGURE_SETS
 
 
 def _methods() -> list[str]:
-    from ..sr.classical import METHODS
+    from ..sr import METHODS
 
     return sorted(METHODS)
 
@@ -32,8 +32,9 @@ def register(sub) -> None:
         "report.json and report.html into --out.",
     )
     p.add_argument("--out", default="hbis-out", help="output folder (default: ./hbis-out)")
-    p.add_argument("--method", default="classical",
-                   help="super-resolution method, a name hbis reconstruct knows (default: classical)")
+    p.add_argument("--method", default="learned",
+                   help="super-resolution method, a name hbis reconstruct knows (default: learned, "
+                   "the shipped ONNX model run in onnxruntime)")
     p.add_argument("--model", default=None, help="model file for a learned method (optional)")
     p.add_argument("--h", type=int, default=4, help="resolution improvement factor (default: 4)")
     p.add_argument("--roi", type=int, default=160, help="side of the fovea's ROI in pixels (default: 160)")

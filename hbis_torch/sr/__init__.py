@@ -1,6 +1,8 @@
 """Super-resolution of HBIS stacks: the classical baseline (scattered-sample interpolation and
-Wiener deblurring, :mod:`.classical`) and the choice of h for a scene (:mod:`.adaptive_h`)."""
+Wiener deblurring, :mod:`.classical`), the learned network run in onnxruntime (:mod:`.learned`)
+and the choice of h for a scene (:mod:`.adaptive_h`)."""
 
+from . import learned  # noqa: F401  (registers METHODS["learned"], so reconstruct() knows it)
 from .adaptive_h import HChoice, recommend_h
 from .classical import METHODS, classical_sr, optical_sample_positions, reconstruct
 
