@@ -19,13 +19,7 @@ from hbis_torch.simulate import SensorModel
 ARRAY = CameraArray()
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Many small tensor operations: one thread avoids hand-off costs on a shared 2-core box."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
