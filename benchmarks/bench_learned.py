@@ -176,6 +176,27 @@ def markdown(table, positions_s, load):
     return "\n".join(lines) + "\n"
 
 
+def wide_table(table) -> str:
+    """One row per (h, ROI, scenes), one column per method: "PSNR dB, time s"."""
+    groups = {}
+    for r in table:
+        groups.setdefault((r["h"], r["size"], r["kind"], r["n"]), {})[r["method"]] = r
+    lines = ["| h | ROI | scenes | " + " | ".join(METHODS) + " |", "| --- | --- | --- |" + " --- |" * len(METHODS)]
+    for (h, size, kind, n), methods in groups.items():
+        best = max(methods.values(), key=lambda r: r["psnr"])["psnr"]
+        cells = []
+        for m in METHODS:
+            r = methods.get(m)
+            if r is None:
+                cells.append("-")
+                continue
+            text = f"{r['psnr']:.2f} dB, {r['seconds']:.3g} s"
+            cells.append(f"**{text}**" if r["psnr"] == best else text)
+        roi = "960x1280" if size == "full" else f"{size}^2"
+        lines.append(f"| {h} | {roi} | {kind} ({n}) | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def pareto_plot(table, path):
     """Time (log) against PSNR; colour = method, marker = ROI size, filled = h 4, hollow = h 2."""
     import matplotlib
@@ -301,6 +322,7 @@ def main(argv=None) -> int:
     if args.replot:
         table = json.loads((args.out / "bench_learned.json").read_text())["table"]
         pareto_plot(table, args.plot)
+        print(wide_table(table))
         return 0
     if args.network_only:
         text = network_speed(args.hs, args.sizes, args.repeats)
@@ -337,7 +359,7 @@ def main(argv=None) -> int:
     atomic_write_text(args.out / "bench_learned.json",
                       json.dumps({"load_average": load, "results": results, "table": table,
                                   "positions_s": positions_s}, indent=1))
-    text = markdown(table, positions_s, load)
+    text = markdown(table, positions_s, load) + "\n" + wide_table(table)
     atomic_write_text(args.out / "bench_learned.md", text)
     pareto_plot(table, args.plot)
     print(text)
