@@ -17,16 +17,10 @@ exposure; then more frames always average noise down and the best h is h_max.
 
 from __future__ import annotations
 
-import os
+import benchutil  # first: pins numpy/scipy to one thread before they load
 
-# numpy/scipy on one thread too (set before they load), as torch below: a single-core comparison
-# that other jobs on the machine do not tilt (idle BLAS threads spinning on busy cores).
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
-import argparse  # noqa: E402
+import argparse
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
@@ -121,12 +115,7 @@ def main(argv=None) -> dict:
           f"{summary['frames_recommended_total']} recommended vs {summary['frames_best_total']} for the best h "
           f"and {summary['frames_h_max_total']} at h_max; one frame alone: within 0.5 dB in "
           f"{summary['single_frame_within_0p5_db']}/{summary['cases']}")
-    result = {"settings": {k: v for k, v in vars(args).items() if k != "json"}, "rows": rows, "summary": summary}
-    if args.json:
-        from hbis_torch.io_utils import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps(result, indent=2) + "\n")
-    return result
+    return benchutil.finish(args, rows, summary)
 
 
 if __name__ == "__main__":

@@ -13,17 +13,9 @@ than the wall clock on shared cores; the positions (common to all methods) are n
 
 from __future__ import annotations
 
-import os
+import benchutil  # first: pins numpy/scipy to one thread before they load
 
-# numpy/scipy on one thread too (set before they load), as torch below: a single-core comparison
-# that other jobs on the machine do not tilt (idle BLAS threads spinning on busy cores).
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
-import argparse  # noqa: E402
-import json
-import statistics
-import time
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -38,14 +30,6 @@ from hbis_torch.sr.classical import classical_sr, optical_sample_positions, opti
 
 SENSOR_40DB = SensorModel(full_well_e=20000.0, read_noise_e=2.0, bit_depth=12)
 
-
-def timed(fn, repeats: int):
-    times, result = [], None
-    for _ in range(repeats):
-        t = time.process_time()
-        result = fn()
-        times.append(time.process_time() - t)
-    return result, statistics.median(times)
 
 
 def griddata_sr(frames: np.ndarray, positions: np.ndarray, h: int) -> np.ndarray:
@@ -110,7 +94,7 @@ def main(argv=None) -> dict:
         }
         row = {"scene": name}
         for method, fn in runs.items():
-            image, seconds = timed(fn, 1 if method == "griddata_linear" else args.repeats)
+            image, seconds = benchutil.cpu_timed(fn, 1 if method == "griddata_linear" else args.repeats)
             p, s = score(truth, image, args.h)
             row[method] = {"psnr_db": p, "ssim": s, "cpu_s": seconds}
         rows.append(row)
@@ -128,12 +112,7 @@ def main(argv=None) -> dict:
           f"{summary['psnr_gain_vs_griddata_db']:+.2f} dB; vs bicubic: {summary['psnr_gain_vs_bicubic_db']:+.2f} dB; "
           f"interpolation alone (no deblurring) vs griddata: {summary['speedup_vs_griddata_no_deblur']:.0f}x faster, "
           f"{summary['ours_no_deblur']['psnr_db'] - summary['griddata_linear']['psnr_db']:+.2f} dB")
-    result = {"settings": {k: v for k, v in vars(args).items() if k != "json"}, "rows": rows, "summary": summary}
-    if args.json:
-        from hbis_torch.io_utils import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps(result, indent=2) + "\n")
-    return result
+    return benchutil.finish(args, rows, summary)
 
 
 if __name__ == "__main__":

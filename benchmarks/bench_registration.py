@@ -14,18 +14,10 @@ with other jobs), both methods on one thread (numpy and scipy included).
 
 from __future__ import annotations
 
-import os
+import benchutil  # first: pins numpy/scipy to one thread before they load
 
-# numpy/scipy on one thread too (set before they load), as torch below: a single-core comparison
-# that other jobs on the machine do not tilt (idle BLAS threads spinning on busy cores).
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
-import argparse  # noqa: E402
+import argparse
 import copy
-import json
-import statistics
-import time
 from pathlib import Path
 
 import numpy as np
@@ -59,16 +51,6 @@ def rms_error(homographies: torch.Tensor, true_positions: torch.Tensor, ref: int
     keep = torch.arange(F) != ref
     return float(err[keep].mean().sqrt())
 
-
-def timed(fn, repeats: int):
-    """(result, median CPU seconds of this process): on cores shared with other jobs the CPU
-    time of a single-threaded run is steadier than the wall clock (both methods alike)."""
-    times, result = [], None
-    for _ in range(repeats):
-        t = time.process_time()
-        result = fn()
-        times.append(time.process_time() - t)
-    return result, statistics.median(times)
 
 
 def main(argv=None) -> dict:
@@ -104,9 +86,9 @@ def main(argv=None) -> dict:
         frames_np = frames.numpy().astype(np.float64)
         register_stack(frames, ref, prediction=planned)  # warm-up
         pcc_homographies(frames_np[:2], ref if ref < 2 else 0)
-        ours_plan, t_ours_plan = timed(lambda: register_stack(frames, ref, prediction=planned), args.repeats)
-        ours, t_ours = timed(lambda: register_stack(frames, ref), args.repeats)
-        pcc, t_pcc = timed(lambda: pcc_homographies(frames_np, ref), args.repeats)
+        ours_plan, t_ours_plan = benchutil.cpu_timed(lambda: register_stack(frames, ref, prediction=planned), args.repeats)
+        ours, t_ours = benchutil.cpu_timed(lambda: register_stack(frames, ref), args.repeats)
+        pcc, t_pcc = benchutil.cpu_timed(lambda: pcc_homographies(frames_np, ref), args.repeats)
         row = {
             "scene": name,
             "rms_px": {"plan_only": rms_error(planned, true_pos, ref),
@@ -131,12 +113,7 @@ def main(argv=None) -> dict:
     print("mean RMS error (px): " + ", ".join(f"{k} {v:.4f}" for k, v in summary["rms_px_mean"].items()))
     print(f"median speed-up over phase_cross_correlation: {summary['speedup_vs_pcc_with_plan']:.1f}x with the "
           f"plan, {summary['speedup_vs_pcc_data_only']:.1f}x from the data alone")
-    result = {"settings": {k: v for k, v in vars(args).items() if k != "json"}, "rows": rows, "summary": summary}
-    if args.json:
-        from hbis_torch.io_utils import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps(result, indent=2, default=str) + "\n")
-    return result
+    return benchutil.finish(args, rows, summary)
 
 
 if __name__ == "__main__":
