@@ -293,4 +293,9 @@ def train() -> None:
 
 train()
 if ddp:
+    # Let every rank finish (rank 0 still writes the last checkpoint) and drop DDP's hold on
+    # the process group before tearing it down: a rank that exits while DDP or a peer still
+    # uses gloo aborts at interpreter shutdown ("terminate called without an active exception").
+    dist.barrier()
+    del net
     dist.destroy_process_group()
