@@ -134,23 +134,42 @@ def splat(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: f
         sum of w g v and sum of w g over the samples near each node.
     """
     rows, cols = shape
-    num = torch.zeros(rows * cols, dtype=values.dtype)
-    den = torch.zeros(rows * cols, dtype=values.dtype)
     xi, yi = torch.round(x), torch.round(y)
     on_nodes = bool(((xi - x).abs().max() < 1e-9) & ((yi - y).abs().max() < 1e-9))
     w0 = torch.ones_like(values) if weights is None else weights
+    if on_nodes:
+        return _splat_on_nodes(values, xi, yi, shape, sigma, w0)
+    num = torch.zeros(rows * cols, dtype=values.dtype)
+    den = torch.zeros(rows * cols, dtype=values.dtype)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             nx, ny = xi + dx, yi + dy
             inside = (nx >= 0) & (nx < cols) & (ny >= 0) & (ny < rows)
-            if on_nodes:  # samples on the nodes: one weight per offset
-                g = math.exp(-(dx * dx + dy * dy) / (2 * sigma * sigma)) * w0 * inside
-            else:
-                g = torch.exp(-((nx - x) ** 2 + (ny - y) ** 2) / (2 * sigma * sigma)) * w0 * inside
+            g = torch.exp(-((nx - x) ** 2 + (ny - y) ** 2) / (2 * sigma * sigma)) * w0 * inside
             idx = (ny.clamp(0, rows - 1) * cols + nx.clamp(0, cols - 1)).long()
             num.index_add_(0, idx, g * values)
             den.index_add_(0, idx, g)
     return num.reshape(rows, cols), den.reshape(rows, cols)
+
+
+def _splat_on_nodes(values: Tensor, xi: Tensor, yi: Tensor, shape: tuple[int, int], sigma: float,
+                    weights: Tensor) -> tuple[Tensor, Tensor]:
+    """:func:`splat` for samples that sit on nodes: the Gaussian's 3 x 3 weights are then the
+    same for every sample, so the samples are summed per node once and the sums spread with the
+    separable kernel [a, 1, a] x [a, 1, a], a = exp(-1 / (2 sigma^2))."""
+    rows, cols = shape
+    # A one-node frame around the grid keeps what samples just outside give to the border nodes.
+    near = (xi >= -1) & (xi <= cols) & (yi >= -1) & (yi <= rows)
+    idx = ((yi + 1) * (cols + 2) + xi + 1).clamp(0, (rows + 2) * (cols + 2) - 1).long()
+    w = weights * near
+    sums = torch.zeros(2, (rows + 2) * (cols + 2), dtype=values.dtype)
+    sums[0].index_add_(0, idx, w * values)
+    sums[1].index_add_(0, idx, w)
+    sums = sums.view(2, rows + 2, cols + 2)
+    a = math.exp(-1 / (2 * sigma * sigma))
+    sums = a * (sums[:, :, :-2] + sums[:, :, 2:]) + sums[:, :, 1:-1]
+    sums = a * (sums[:, :-2] + sums[:, 2:]) + sums[:, 1:-1]
+    return sums[0], sums[1]
 
 
 def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: float,
@@ -309,7 +328,8 @@ def wiener_deblur(
                 optics = diffraction_otf(torch.sqrt(r2) * h / cutoff)
             k_mag = optics * _box(gx, h * aperture) * _box(gy, h * aperture)
             w = optics * _box(gx, aperture) * _box(gy, aperture)
-            phase = torch.exp(-2j * math.pi * (gx * offset[0] + gy * offset[1]))
+            # The lattice's phase factor is separable: two 1-D exponentials, one product.
+            phase = torch.exp(-2j * math.pi * gx * offset[0]) * torch.exp(-2j * math.pi * gy * offset[1])
             terms.append((k_mag, w, phase, r2))
     if h == 1:  # nothing to deblur: only the splat's smoothing is undone
         return torch.fft.irfft2(spectrum, s=p.shape) + shift_image(smooth, offset)
@@ -378,8 +398,8 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, terms, noise2: float)
     pick = pick[inside[pick]]
     sub_ring = ring[pick]
     sub_count = torch.bincount(sub_ring, minlength=24)
-    k2 = [(t[0] * t[0]).expand(spectrum.shape).reshape(-1)[pick] for t in terms]
-    log_r2 = [torch.log(t[3].expand(spectrum.shape).reshape(-1)[pick]) for t in terms]
+    k2 = torch.stack([(t[0] * t[0]).expand(spectrum.shape).reshape(-1)[pick] for t in terms])  # (aliases, n)
+    log_r2 = torch.stack([torch.log(t[3].expand(spectrum.shape).reshape(-1)[pick]) for t in terms])
     clear = (count >= 8) & (sub_count >= 1) & (m > 2 * noise2)
     betas = torch.arange(1.5, 4.01, 0.25).tolist()
     if int(clear.sum()) < 3:
@@ -387,12 +407,13 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, terms, noise2: float)
         # that do, or, with none, a scene far below the noise at every frequency.
         betas = [2.0]
         if not bool(clear.any()):
-            shape = sum(a * torch.exp(-b) for a, b in zip(k2, log_r2))
+            shape = (k2 * torch.exp(-log_r2)).sum(0)
             return 1e-3 * noise2 / max(float(shape.max()), 1e-300), 2.0
     target = (m[clear] - noise2).log()
+    # S_beta on the subsample for every beta at once: (betas, n).
+    shapes = (k2 * torch.exp(-0.5 * torch.tensor(betas, dtype=k2.dtype)[:, None, None] * log_r2)).sum(1)
     best = None
-    for beta in betas:
-        shape = sum(a * torch.exp(-0.5 * beta * b) for a, b in zip(k2, log_r2))
+    for beta, shape in zip(betas, shapes):
         S = (torch.bincount(sub_ring, shape, minlength=24) / sub_count.clamp_min(1))[clear]
         gap = target - S.clamp_min(1e-300).log()
         level, scatter = float(gap.mean()), float(((gap - gap.mean()) ** 2).mean())
