@@ -8,8 +8,11 @@ from skimage import data
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.registration import (
+    _mean_and_spread,
     apply_homography,
     bspline_sample,
+    bspline_sample_shared,
+    gaussian_kernel,
     homographies_from_positions,
     prefilter,
     register_stack,
@@ -185,6 +188,30 @@ def test_bspline_interpolation_is_exact_at_nodes_and_matches_scipy():
     assert np.abs(bspline_sample(coef, pts)[0].numpy() - ref).max() < 1e-4
 
 
+def test_prefilter_with_a_sampled_kernel_is_mirrored_convolution():
+    rng = np.random.default_rng(1)
+    img = torch.tensor(rng.normal(size=(2, 31, 44)))
+    kernel = gaussian_kernel(0.7)
+    blurred, coef = prefilter(img, kernel=kernel)
+    k2 = np.outer(kernel.numpy(), kernel.numpy())
+    for k in range(2):
+        ref = ndimage.convolve(img[k].numpy(), k2, mode="mirror")
+        assert np.abs(blurred[k].numpy() - ref).max() < 1e-9
+    # The shared sampler agrees with the per-frame one on every frame's points.
+    pts = torch.tensor(rng.uniform(2, 28, (3, 40, 2)))
+    shared = bspline_sample_shared(coef[:1], pts)[0]
+    single = bspline_sample(coef[:1].expand(3, -1, -1), pts)
+    assert (shared - single).abs().max() < 1e-9
+
+
+def test_mean_and_spread_survive_a_nearly_flat_frame():
+    x = torch.rand(3, 40, 50)
+    x[1] = 0.6 + 1e-5 * torch.randn(40, 50)  # spread far below the mean: the one-pass form cancels
+    mean, spread = _mean_and_spread(x)
+    torch.testing.assert_close(mean, x.double().mean((-2, -1)).float())
+    torch.testing.assert_close(spread, x.double().std((-2, -1), correction=0).float(), rtol=1e-3, atol=0)
+
+
 @pytest.mark.parametrize(
     "kwargs, match",
     [
@@ -198,6 +225,7 @@ def test_bspline_interpolation_is_exact_at_nodes_and_matches_scipy():
         (dict(model="affine"), "model must be"),
         (dict(blur_sigma=-1.0), "blur_sigma"),
         (dict(keep_fraction=0.0), "keep_fraction"),
+        (dict(max_points=10), "max_points"),
     ],
 )
 def test_bad_input_is_rejected_with_a_clear_message(kwargs, match):
