@@ -9,7 +9,10 @@ the reference frame and where the exact tracer at the true phases puts it. Times
 ``--repeats`` runs of the CPU time of this process (steadier than the wall clock on cores shared
 with other jobs), both methods on one thread (numpy and scipy included).
 
-    python3 benchmarks/bench_registration.py [--quick] [--json benchmarks/results/bench_registration.json]
+Each ROI size is a separate table: our cost is mostly per point compared (at most
+``max_points`` of them), plus a few passes over the stack, so the ratio grows with the ROI.
+
+    python3 benchmarks/bench_registration.py [--quick] [--sizes 128 256 512] [--json benchmarks/results/bench_registration.json]
 """
 
 from __future__ import annotations
@@ -53,24 +56,11 @@ def rms_error(homographies: torch.Tensor, true_positions: torch.Tensor, ref: int
 
 
 
-def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenes", default="camera,texture,words,bars")
-    parser.add_argument("--h", type=int, default=4)
-    parser.add_argument("--size", type=int, default=128, help="ROI width and height, px")
-    parser.add_argument("--phase-error-deg", type=float, default=0.02)
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--quick", action="store_true", help="two scenes, 96 px, one repeat")
-    parser.add_argument("--json", type=Path, help="also write the results here")
-    args = parser.parse_args(argv)
-    if args.quick:
-        args.scenes, args.size, args.repeats = "camera,texture", 96, 1
-    torch.set_num_threads(1)
-    system = System()
-    plan = plan_scan(system, args.h)
-    roi = (640 - args.size // 2, 480 - args.size // 2, args.size, args.size)
+def measure(system, plan, size: int, args) -> list[dict]:
+    """Rows of one ROI size: every scene, both methods, errors and CPU times."""
+    roi = (640 - size // 2, 480 - size // 2, size, size)
     rows = []
-    print(f"h={args.h}, ROI {args.size}x{args.size} px at the sensor centre, motors off by "
+    print(f"h={args.h}, ROI {size}x{size} px at the sensor centre, motors off by "
           f"{args.phase_error_deg} deg (1 sigma), ~40 dB SNR, 1 thread")
     print(f"{'scene':10s} {'plan only':>10s} {'ours+plan':>10s} {'ours':>10s} {'pcc':>10s}   "
           f"{'t ours+plan':>11s} {'t ours':>8s} {'t pcc':>8s} {'speed-up':>8s}")
@@ -91,6 +81,7 @@ def main(argv=None) -> dict:
         pcc, t_pcc = benchutil.cpu_timed(lambda: pcc_homographies(frames_np, ref), args.repeats)
         row = {
             "scene": name,
+            "size": size,
             "rms_px": {"plan_only": rms_error(planned, true_pos, ref),
                        "ours_with_plan": rms_error(ours_plan.homographies, true_pos, ref),
                        "ours_data_only": rms_error(ours.homographies, true_pos, ref),
@@ -105,14 +96,38 @@ def main(argv=None) -> dict:
         print(f"{name:10s} {e['plan_only']:10.4f} {e['ours_with_plan']:10.4f} {e['ours_data_only']:10.4f} "
               f"{e['pcc_upsample100']:10.4f}   {t['ours_with_plan']:10.3f}s {t['ours_data_only']:7.3f}s "
               f"{t['pcc_upsample100']:7.3f}s {t['pcc_upsample100'] / t['ours_with_plan']:7.1f}x")
-    summary = {
-        "rms_px_mean": {k: float(np.mean([r["rms_px"][k] for r in rows])) for k in rows[0]["rms_px"]},
-        "speedup_vs_pcc_with_plan": float(np.median([r["time_s"]["pcc_upsample100"] / r["time_s"]["ours_with_plan"] for r in rows])),
-        "speedup_vs_pcc_data_only": float(np.median([r["time_s"]["pcc_upsample100"] / r["time_s"]["ours_data_only"] for r in rows])),
-    }
-    print("mean RMS error (px): " + ", ".join(f"{k} {v:.4f}" for k, v in summary["rms_px_mean"].items()))
-    print(f"median speed-up over phase_cross_correlation: {summary['speedup_vs_pcc_with_plan']:.1f}x with the "
-          f"plan, {summary['speedup_vs_pcc_data_only']:.1f}x from the data alone")
+    return rows
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", default="camera,texture,words,bars")
+    parser.add_argument("--h", type=int, default=4)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512], help="ROI widths (= heights), px")
+    parser.add_argument("--phase-error-deg", type=float, default=0.02)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--quick", action="store_true", help="two scenes, 96 px, one repeat")
+    parser.add_argument("--json", type=Path, help="also write the results here")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.scenes, args.sizes, args.repeats = "camera,texture", [96], 1
+    torch.set_num_threads(1)
+    system = System()
+    plan = plan_scan(system, args.h)
+    rows = []
+    summary = {}
+    for size in args.sizes:
+        part = measure(system, plan, size, args)
+        rows += part
+        summary[str(size)] = {
+            "rms_px_mean": {k: float(np.mean([r["rms_px"][k] for r in part])) for k in part[0]["rms_px"]},
+            "speedup_vs_pcc_with_plan": float(np.median([r["time_s"]["pcc_upsample100"] / r["time_s"]["ours_with_plan"] for r in part])),
+            "speedup_vs_pcc_data_only": float(np.median([r["time_s"]["pcc_upsample100"] / r["time_s"]["ours_data_only"] for r in part])),
+        }
+        s = summary[str(size)]
+        print("mean RMS error (px): " + ", ".join(f"{k} {v:.4f}" for k, v in s["rms_px_mean"].items()))
+        print(f"median speed-up over phase_cross_correlation at {size}^2: {s['speedup_vs_pcc_with_plan']:.1f}x with "
+              f"the plan, {s['speedup_vs_pcc_data_only']:.1f}x from the data alone\n")
     return benchutil.finish(args, rows, summary)
 
 
