@@ -986,26 +986,30 @@ def _assess(fit: _Fit, precision: Tensor, flat: Tensor, noise: Tensor, ref: int,
     match = ((fit.correlation - MIN_CORRELATION) / (1 - MIN_CORRELATION)).clamp(0, 1)
     confidence = torch.where(unexplained, confidence * match, confidence)
     confidence = torch.where(fit.converged, confidence, 0.5 * confidence)
+    confidence = torch.where(flat, torch.zeros_like(confidence), confidence)
     messages: list[str] = []
     if bool(flat[ref]):
         messages.append(f"reference frame {ref} is flat: there is nothing to register against")
         confidence[:] = 0.0
+    # Plain Python lists from here: one conversion each instead of one tensor op per frame.
+    is_flat, converged = flat.tolist(), fit.converged.tolist()
+    other_scene = ((fit.correlation < MIN_CORRELATION) & unexplained).tolist()
+    correlation, occluded, error = fit.correlation.tolist(), mismatch.tolist(), precision.tolist()
     for k in range(F):
-        if k == ref or bool(flat[ref]):
+        if k == ref or is_flat[ref]:
             continue
-        if bool(flat[k]):
+        if is_flat[k]:
             messages.append(f"frame {k} is flat (no image)")
-            confidence[k] = 0.0
-        elif float(fit.correlation[k]) < MIN_CORRELATION and bool(unexplained[k]):
+        elif other_scene[k]:
             messages.append(f"frame {k} does not match the reference (correlation "
-                            f"{float(fit.correlation[k]):.2f} where they are compared): a different scene?")
-        elif float(mismatch[k]) > OCCLUSION_FRACTION:
-            messages.append(f"frame {k}: {100 * float(mismatch[k]):.0f}% of its pixels do not match "
+                            f"{correlation[k]:.2f} where they are compared): a different scene?")
+        elif occluded[k] > OCCLUSION_FRACTION:
+            messages.append(f"frame {k}: {100 * occluded[k]:.0f}% of its pixels do not match "
                             "the reference and were left out (occlusion or a moving object?)")
-        elif float(precision[k]) > PRECISION_SCALE_PX:
+        elif error[k] > PRECISION_SCALE_PX:
             messages.append(f"frame {k}: too little texture above the noise to register "
-                            f"(expected error {float(precision[k]):.3f} px)")
-        if not bool(fit.converged[k]) and not bool(flat[k]):
+                            f"(expected error {error[k]:.3f} px)")
+        if not converged[k] and not is_flat[k]:
             messages.append(f"frame {k}: registration did not converge in {iterations} iterations")
     confidence[ref] = 1.0
     return confidence.clamp(0, 1), messages
@@ -1048,16 +1052,16 @@ def _check_order(measured: Tensor, predicted: Tensor, H: int, W: int, ref: int, 
     spacing.fill_diagonal_(float("inf"))
     half_step = 0.5 * float(spacing.min())
     dist = torch.cdist(m, p)
-    flags = torch.zeros(len(m), dtype=torch.bool)
+    nearest, own, registered = dist.argmin(1).tolist(), dist.diagonal().tolist(), ok.tolist()
+    flags = [False] * len(m)
     out = []
-    for k in range(len(m)):
-        if k == ref or not bool(ok[k]):
+    for k, (j, d) in enumerate(zip(nearest, own)):
+        if k == ref or not registered[k] or d <= half_step:
             continue
-        j = int(dist[k].argmin())
-        if j != k and float(dist[k, k]) > half_step:
+        if j != k:
             flags[k] = True
             out.append(f"frame {k} sits where frame {j} was planned "
-                       f"({float(dist[k, k]):.3f} px from its own plan): frames out of order?")
-        elif float(dist[k, k]) > half_step:
-            out.append(f"frame {k} is {float(dist[k, k]):.3f} px from its planned position")
-    return flags, out
+                       f"({d:.3f} px from its own plan): frames out of order?")
+        else:
+            out.append(f"frame {k} is {d:.3f} px from its planned position")
+    return torch.tensor(flags), out
