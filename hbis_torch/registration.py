@@ -98,10 +98,9 @@ def apply_homography(homographies: Tensor, points: Tensor) -> Tensor:
     Tensor, shape (F, N, 2), in the homographies' dtype.
     """
     points = points.to(homographies.dtype)
-    lin = torch.matmul(points, homographies[:, :2, :2].transpose(-1, -2))
-    lin = lin + homographies[:, None, :2, 2]
-    den = torch.matmul(points, homographies[:, 2:3, :2].transpose(-1, -2)) + homographies[:, None, 2:3, 2]
-    return lin / den
+    ones = torch.ones(points.shape[:-1] + (1,), dtype=points.dtype)
+    mapped = torch.cat((points, ones), -1) @ homographies.mT  # (F, N, 3)
+    return mapped[..., :2] / mapped[..., 2:]
 
 
 def homographies_from_positions(positions, step: int = 4) -> Tensor:
@@ -344,35 +343,27 @@ def _bilinear_fetches(images: Tensor, points: Tensor) -> tuple[Tensor, tuple[Ten
     B, C, H, W = images.shape
     n = points.shape[1]
     dtype = images.dtype
-
-    def axis(t, size):
-        """Weights of the two bilinear fetches along one axis, and their positions already in
-        grid_sample's [-1, 1] coordinates (align_corners=True)."""
-        i = torch.floor(t)
-        f = (t - i).to(dtype)  # the sub-pixel part, exact even when t is large
-        f2 = f * f
-        f3 = f2 * f
-        w0 = (1 - 3 * f + 3 * f2 - f3) / 6
-        w1 = (4 - 6 * f2 + 3 * f3) / 6
-        g0 = w0 + w1
-        scale = 2.0 / (size - 1)
-        i = i.to(dtype)
-        return g0, 1 - g0, (i - 1 + w1 / g0) * scale - 1, (i + 1 + f3 / (6 * (1 - g0))) * scale - 1
-
-    gu0, gu1, u0, u1 = axis(points[..., 0], W)
-    gv0, gv1, v0, v1 = axis(points[..., 1], H)
-    grid = torch.empty(B, 4, n, 2, dtype=dtype, device=images.device)
-    grid[:, 0, :, 0] = u0
-    grid[:, 1, :, 0] = u1
-    grid[:, 2, :, 0] = u0
-    grid[:, 3, :, 0] = u1
-    grid[:, 0, :, 1] = v0
-    grid[:, 1, :, 1] = v0
-    grid[:, 2, :, 1] = v1
-    grid[:, 3, :, 1] = v1
+    # Both axes at once, (B, n, 2): the weights of the two fetches along each axis and their
+    # positions already in grid_sample's [-1, 1] coordinates (align_corners=True).
+    i = torch.floor(points)
+    f = (points - i).to(dtype)  # the sub-pixel part, exact even when the coordinate is large
+    i = i.to(dtype)
+    f2 = f * f
+    f3 = f2 * f
+    w1 = (4 - 6 * f2 + 3 * f3) / 6
+    g0 = (1 - f) ** 3 / 6 + w1
+    g1 = 1 - g0
+    scale = torch.tensor([2.0 / (W - 1), 2.0 / (H - 1)], dtype=dtype)
+    p0 = (i - 1 + w1 / g0) * scale - 1
+    p1 = (i + 1 + f3 / (6 * g1)) * scale - 1
+    # The four fetches: (u0, v0), (u1, v0), (u0, v1), (u1, v1).
+    u = torch.stack((p0[..., 0], p1[..., 0]), 1).repeat(1, 2, 1)
+    v = torch.stack((p0[..., 1], p1[..., 1]), 1).repeat_interleave(2, 1)
+    grid = torch.stack((u, v), -1)  # (B, 4, n, 2)
     got = torch.nn.functional.grid_sample(
         images, grid.view(B, 1, 4 * n, 2), mode="bilinear", padding_mode="reflection", align_corners=True,
     )
+    gu0, gu1, gv0, gv1 = g0[..., 0], g1[..., 0], g0[..., 1], g1[..., 1]
     return got.view(B, C, 4 * n), (gu0, gu1, gv0, gv1)
 
 
@@ -572,21 +563,23 @@ class _LucasKanade:
         # to converge in: it is left where it is (and flagged by the caller).
         diverged = torch.zeros(F, dtype=torch.bool)
         # Each frame's residual at its last evaluation; a converged frame moved less than
-        # ``tol`` since (its last, small step is applied), so these are its statistics.
-        r = torch.zeros(F, N, dtype=self.dtype)
-        w = torch.zeros(F, N, dtype=self.dtype)
-        slope = torch.zeros(F, N, 2, dtype=self.dtype)
-        mask = torch.zeros(F, N, dtype=torch.bool)
-        sigma = torch.ones(F, dtype=self.dtype)
-        target = torch.zeros(F, N, dtype=self.dtype)
-        hess = torch.zeros(F, k, k, dtype=torch.float64)
+        # ``tol`` since (its last, small step is applied), so these are its statistics:
+        # [r, mask, w, sigma, slope, target, normal matrix], each with the frames first.
+        last: list[Tensor] = []
         for _ in range(iterations):
-            active = (~(converged | diverged)).nonzero()[:, 0]
-            ra, ma, wa, sa, ga, ta = self.residual(Hk[active], samples[active], None if keep is None else keep[active])
-            r[active], mask[active], w[active], sigma[active], slope[active], target[active] = ra, ma, wa, sa, ga, ta
+            todo = ~(converged | diverged)
+            everyone = bool(todo.all())
+            active = slice(None) if everyone else todo.nonzero()[:, 0]
+            found = list(self.residual(Hk[active], samples[active], None if keep is None else keep[active]))
+            ra, wa, ga = found[0], found[2], found[4]
             sd = self.steepest(ga, model)
-            hess[active] = _normal_matrix(wa, sd)
-            dp = torch.linalg.solve(hess[active] + eye, _gradient(wa, ra, sd))
+            found.append(_normal_matrix(wa, sd))
+            if everyone:
+                last = found
+            else:
+                for full, part in zip(last, found):
+                    full[active] = part
+            dp = torch.linalg.solve(found[-1] + eye, _gradient(wa, ra, sd))
             # Forward composition: H <- H W(dp), with W expressed in normalised coordinates.
             upd = Hk[active] @ self.norm_inv @ _params_to_matrix(dp, model) @ self.norm
             Hk[active] = upd / upd[:, 2:3, 2:3]
@@ -596,6 +589,7 @@ class _LucasKanade:
             diverged[active] = ~torch.isfinite(move) | (move > 2.0) | (wandered > 3.0)
             if bool((converged | diverged).all()):
                 break
+        r, mask, w, sigma, slope, target, hess = last
         n_valid = mask.sum(-1).double()
         r, w, sigma = r.double(), w.double(), sigma.double()
         rss = (w * r * r).sum(-1)
