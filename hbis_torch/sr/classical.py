@@ -316,42 +316,45 @@ def wiener_deblur(
     fx = torch.fft.rfftfreq(p.shape[1], dtype=image.dtype)[None, :]
     spectrum = torch.fft.rfft2(p) / (splat_transfer(fx, kernel_sigma) * splat_transfer(fy, kernel_sigma))
 
-    # Per alias k: |K|, W, the lattice phase, and |f + k|^2.
-    eps2 = (0.5 / max(p.shape)) ** 2  # keeps the prior finite at f = 0
-    terms = []
-    for ky in range(-aliases, aliases + 1):
-        for kx in range(-aliases, aliases + 1):
-            gx, gy = fx + kx, fy + ky
-            r2 = gx * gx + gy * gy + eps2
-            optics = torch.ones_like(r2)
-            if cutoff is not None:
-                optics = diffraction_otf(torch.sqrt(r2) * h / cutoff)
-            k_mag = optics * _box(gx, h * aperture) * _box(gy, h * aperture)
-            w = optics * _box(gx, aperture) * _box(gy, aperture)
-            # The lattice's phase factor is separable: two 1-D exponentials, one product.
-            phase = torch.exp(-2j * math.pi * gx * offset[0]) * torch.exp(-2j * math.pi * gy * offset[1])
-            terms.append((k_mag, w, phase, r2))
     if h == 1:  # nothing to deblur: only the splat's smoothing is undone
         return torch.fft.irfft2(spectrum, s=p.shape) + shift_image(smooth, offset)
+    eps2 = (0.5 / max(p.shape)) ** 2  # keeps the prior finite at f = 0
+
+    def kernel(gx: Tensor, gy: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """|K|, W, the lattice phase and |f + k|^2 at the aliased frequencies (gx, gy)."""
+        r2 = gx * gx + gy * gy + eps2
+        optics = torch.ones_like(r2) if cutoff is None else diffraction_otf(torch.sqrt(r2) * h / cutoff)
+        k_mag = optics * _box(gx, h * aperture) * _box(gy, h * aperture)
+        w = optics * _box(gx, aperture) * _box(gy, aperture)
+        # The lattice's phase factor is separable: two 1-D exponentials, one product.
+        phase = torch.exp(-2j * math.pi * gx * offset[0]) * torch.exp(-2j * math.pi * gy * offset[1])
+        return k_mag, w, phase, r2
+
+    shifts = [(kx, ky) for ky in range(-aliases, aliases + 1) for kx in range(-aliases, aliases + 1)]
     noise2 = max(noise, NOISE_FLOOR) ** 2
-    s2, beta = fit_spectrum(spectrum, fx, fy, terms, noise2)
-    priors = [s2 * torch.exp(-0.5 * beta * torch.log(r2)) for _, _, _, r2 in terms]
+    s2, beta = fit_spectrum(spectrum, fx, fy, kernel, shifts, noise2)
+    # The aliases one at a time (the whole-image arrays of all nine would not fit for a full
+    # frame at h = 4); the unaliased term last, since its prior depends on the others' sum.
+    cross = torch.zeros_like(spectrum)
+    power = torch.zeros(spectrum.shape, dtype=image.dtype)
+    for kx, ky in shifts:
+        if (kx, ky) != (0, 0):
+            k_mag, w, phase, r2 = kernel(fx + kx, fy + ky)
+            weighted = s2 * torch.exp(-0.5 * beta * torch.log(r2)) * k_mag
+            cross += weighted * w * phase
+            power += weighted * k_mag
     # Where the image holds more power than the power law explains (a grating, a texture), the
     # prior of the unaliased frequency is raised to what is measured (power smoothed over 3 x 3
     # frequencies, less the noise and the aliases' share), as long as the aperture passes it.
-    centre = len(terms) // 2
-    k0 = terms[centre][0]
+    k0, w0, phase0, r20 = kernel(fx, fy)
+    prior = s2 * torch.exp(-0.5 * beta * torch.log(r20))
     measured = torch.nn.functional.avg_pool2d(
         (spectrum.abs() ** 2 / (p.shape[0] * p.shape[1]))[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
-    aliased = sum(prior * t[0] ** 2 for i, (prior, t) in enumerate(zip(priors, terms)) if i != centre)
     seen = (k0 * k0).expand_as(measured)
-    empirical = (measured - noise2 - aliased).clamp_min(0) / seen.clamp_min(1e-12)
-    priors[centre] = torch.where(seen > 0.05, torch.maximum(priors[centre], empirical), priors[centre])
-    cross = torch.zeros_like(spectrum)
-    power = torch.zeros_like(measured)
-    for prior, (k_mag, w, phase, _) in zip(priors, terms):
-        cross = cross + prior * w * k_mag * phase
-        power = power + prior * k_mag * k_mag
+    empirical = (measured - noise2 - power).clamp_min(0) / seen.clamp_min(1e-12)
+    prior = torch.where(seen > 0.05, torch.maximum(prior, empirical), prior)
+    cross += prior * w0 * k0 * phase0
+    power += prior * k0 * k0
     filt = cross / (power + strength * noise2)
     return torch.fft.irfft2(spectrum * filt, s=p.shape) + shift_image(smooth, offset)
 
@@ -370,11 +373,12 @@ def shift_image(image: Tensor, offset: tuple[float, float]) -> Tensor:
                                            padding_mode="reflection", align_corners=True)[0, 0]
 
 
-def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, terms, noise2: float) -> tuple[float, float]:
+def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: float) -> tuple[float, float]:
     """Fit the scene prior s^2 / |f|^beta to an image's power spectrum, the noise being known.
 
     The model of the (splat-corrected) image's power is E|Z(f)|^2 / n = s^2 S_beta(f) + sigma^2
-    with S_beta(f) = sum_k |K(f+k)|^2 / |f+k|^beta (``terms`` holds |K| and |f+k|^2 per alias).
+    with S_beta(f) = sum_k |K(f+k)|^2 / |f+k|^beta over the aliases k in ``shifts`` ((kx, ky)
+    pairs); ``kernel(gx, gy)`` gives (|K|, W, phase, |f+k|^2) at frequencies (gx, gy).
     In log-spaced frequency rings where the image stands clear of the noise (twice its power),
     log(power - sigma^2) - log S_beta is fitted by a constant (log s^2); the beta of a grid over
     [1.5, 4] (steps of 0.25) with the smallest scatter is kept.
@@ -398,8 +402,11 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, terms, noise2: float)
     pick = pick[inside[pick]]
     sub_ring = ring[pick]
     sub_count = torch.bincount(sub_ring, minlength=24)
-    k2 = torch.stack([(t[0] * t[0]).expand(spectrum.shape).reshape(-1)[pick] for t in terms])  # (aliases, n)
-    log_r2 = torch.stack([torch.log(t[3].expand(spectrum.shape).reshape(-1)[pick]) for t in terms])
+    fx_sub = fx.expand(spectrum.shape).reshape(-1)[pick]
+    fy_sub = fy.expand(spectrum.shape).reshape(-1)[pick]
+    at = [kernel(fx_sub + kx, fy_sub + ky) for kx, ky in shifts]
+    k2 = torch.stack([t[0] * t[0] for t in at])  # (aliases, n)
+    log_r2 = torch.stack([torch.log(t[3]) for t in at])
     clear = (count >= 8) & (sub_count >= 1) & (m > 2 * noise2)
     betas = torch.arange(1.5, 4.01, 0.25).tolist()
     if int(clear.sum()) < 3:
