@@ -433,8 +433,7 @@ class _LucasKanade:
 
     The reference's gradient only steers the Gauss-Newton steps (the answer is where the
     residual balances, whatever the steering), so it is its central differences, interpolated
-    bilinearly.
-    The warp update is parametrised in normalised coordinates (centred, half-size 1) so that
+    bilinearly. The warp update is parametrised in normalised coordinates (centred, half-size 1) so that
     the normal equations stay well conditioned for every model.
     """
 
@@ -888,8 +887,8 @@ def register_stack(
         keep = ~fit.mismatch_points
         again = lk.fit(fit.homographies[redo], chosen, iterations, tolerance_px, redo, keep[redo])
         fit = _merge(fit, again, redo)
-    # The model is chosen on the frames that registered sensibly (converged, residual about
-    # what the frame's contrast allows), not on the failures flagged below.
+    # The model is chosen on the frames that registered sensibly (converged, and correlating
+    # with the reference where compared), not on the failures flagged below.
     use = fit.converged & (fit.correlation >= MIN_CORRELATION) & ~flat
     use[ref] = False
     if model == "auto" and bool(use.any()):
