@@ -119,7 +119,9 @@ def run_case(system, h, roi, scene_name, seed, runner, model, repeats):
                 return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
         gain = exposure_gain(frames_reg)  # what LearnedSR does (1 for these normal exposures)
-        return np.clip(run_tiled(infer, frames_reg * gain, offsets, h, runner.tile, runner.halo) / gain, 0, 1)
+        if gain == 1.0:
+            return np.clip(run_tiled(infer, frames_reg, offsets, h, runner.tile, runner.halo), 0, 1)
+        return np.clip(run_tiled(infer, frames_reg * np.float32(gain), offsets, h, runner.tile, runner.halo) / gain, 0, 1)
 
     def learned_onnx():
         return runner(frames_np, positions_np)
@@ -198,7 +200,7 @@ def wide_table(table) -> str:
 
 
 def pareto_plot(table, path):
-    """Time (log) against PSNR; colour = method, marker = ROI size, filled = h 4, hollow = h 2."""
+    """Time (log) against PSNR; colour = method, marker = ROI size, fill = h."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -210,12 +212,12 @@ def pareto_plot(table, path):
     colours = {"bicubic": "tab:gray", "classical": "tab:blue", "learned-torch": "tab:orange", "learned-onnx": "tab:red"}
     markers = {128: "o", 256: "s", "full": "^"}
     hs = sorted({r["h"] for r in table})
+    fills = dict(zip(hs, ("none", "full", "left", "bottom")))
     for ax, kind in zip(axes[0], kinds):
         for row in (r for r in table if r["kind"] == kind):
             colour = colours[row["method"]]
-            filled = row["h"] == max(hs)
-            ax.scatter(row["seconds"], row["psnr"], marker=markers.get(row["size"], "x"), s=55,
-                       facecolors=colour if filled else "none", edgecolors=colour, linewidths=1.5)
+            ax.plot(row["seconds"], row["psnr"], ls="", marker=markers.get(row["size"], "x"), ms=8,
+                    color=colour, fillstyle=fills[row["h"]], markeredgewidth=1.5)
         ax.set_xscale("log")
         ax.set_xlabel("time per reconstruction [s] (2 CPU threads)")
         ax.set_ylabel("PSNR [dB]")
@@ -223,8 +225,7 @@ def pareto_plot(table, path):
         ax.grid(alpha=0.3, which="both")
     handles = [Line2D([], [], ls="", marker="o", color=c, label=m) for m, c in colours.items()]
     handles += [Line2D([], [], ls="", marker=mk, color="k", mfc="none", label=f"ROI {sz}") for sz, mk in markers.items()]
-    handles += [Line2D([], [], ls="", marker="o", color="k", mfc="k" if h == max(hs) else "none", label=f"h = {h}")
-                for h in hs]
+    handles += [Line2D([], [], ls="", marker="o", color="k", fillstyle=fills[h], label=f"h = {h}") for h in hs]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
     with atomic_path(path) as tmp:
