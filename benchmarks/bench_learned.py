@@ -303,6 +303,82 @@ def network_speed(hs, sizes, repeats: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def session_variants(h: int, sizes, repeats: int) -> str:
+    """onnxruntime session settings side by side, network alone, against eager torch.
+
+    Variants: the shipped settings (:func:`hbis_torch.sr.learned.session_options`: all graph
+    optimisations, sequential, 2 intra-op threads with spinning), no thread spinning, no memory
+    arena or pattern, the "extended" optimisation level (no NCHWc layout), and IO binding to a
+    preallocated output. Each variant runs a whole-ROI pass (one tile); the full frame compares
+    256^2 against 512^2 tiles.
+    """
+    import onnxruntime as ort
+
+    from hbis_torch.sr.learned import session_options
+
+    runner, model = LearnedSR(h=h, threads=THREADS), load_torch_model(h)
+    path = str(runner.path)
+
+    def session(**settings):
+        options = session_options(THREADS)
+        for key, value in settings.items():
+            if key == "config":
+                for k, v in value.items():
+                    options.add_session_config_entry(k, v)
+            else:
+                setattr(options, key, value)
+        return ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
+
+    variants = {
+        "shipped": session(),
+        "no spinning": session(config={"session.intra_op.allow_spinning": "0"}),
+        "no arena/pattern": session(enable_cpu_mem_arena=False, enable_mem_pattern=False),
+        "extended (no NCHWc)": session(graph_optimization_level=ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED),
+    }
+    cam = System().camera
+    lines = ["| ROI (LR px) | eager torch [s] | " + " | ".join(f"{k} [s]" for k in variants) + " | IO binding [s] | shipped speed-up |",
+             "| --- | ---: |" + " ---: |" * (len(variants) + 2)]
+    for size_arg in sizes:
+        rows, cols = (cam.rows, cam.cols) if size_arg == "full" else (int(size_arg), int(size_arg))
+        rng = np.random.default_rng(0)
+        frames = rng.random((1, h * h, rows, cols), dtype=np.float32)
+        offsets = (rng.random((1, 2 * h * h, rows, cols), dtype=np.float32) - 0.5) * 0.5
+        reps = repeats if size_arg != "full" else 1
+        if size_arg == "full":  # tiles: the shipped 256^2 against 512^2, same for torch
+            def torch_infer(a, b):
+                with torch.inference_mode():
+                    return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
+
+            t_torch = timed(lambda: run_tiled(torch_infer, frames[0], offsets[0], h, runner.tile, runner.halo), reps)[1]
+            times = {name: timed(lambda: run_tiled(lambda a, b: sess.run(["image"], {"frames": a, "offsets": b})[0],
+                                                   frames[0], offsets[0], h, runner.tile, runner.halo), reps)[1]
+                     for name, sess in variants.items()}
+            big = timed(lambda: run_tiled(runner.infer, frames[0], offsets[0], h, 512, runner.halo), reps)[1]
+            lines.append(f"| {size_arg} | {t_torch:.3f} | " + " | ".join(f"{t:.3f}" for t in times.values())
+                         + f" | 512^2 tiles: {big:.3f} | {t_torch / times['shipped']:.2f}x |")
+            print(lines[-1], flush=True)
+            continue
+
+        def torch_pass():
+            with torch.inference_mode():
+                return model(torch.from_numpy(frames), torch.from_numpy(offsets)).numpy()
+
+        t_torch = timed(torch_pass, reps)[1]
+        times = {name: timed(lambda: sess.run(["image"], {"frames": frames, "offsets": offsets}), reps)[1]
+                 for name, sess in variants.items()}
+        binding = variants["shipped"].io_binding()
+        out = np.empty((1, 1, h * rows, h * cols), np.float32)
+        binding.bind_cpu_input("frames", frames)
+        binding.bind_cpu_input("offsets", offsets)
+        binding.bind_output("image", "cpu", 0, np.float32, out.shape, out.ctypes.data)
+        t_bound = timed(lambda: variants["shipped"].run_with_iobinding(binding), reps)[1]
+        t_torch = min(t_torch, timed(torch_pass, reps)[1])  # torch timed before and after
+        lines.append(f"| {size_arg} | {t_torch:.3f} | " + " | ".join(f"{t:.3f}" for t in times.values())
+                     + f" | {t_bound:.3f} | {t_torch / times['shipped']:.2f}x |")
+        print(lines[-1], flush=True)
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hs", type=int, nargs="+", default=[2, 4, 7], help="factors (those with a model)")
@@ -313,6 +389,8 @@ def main(argv=None) -> int:
     parser.add_argument("--replot", action="store_true", help="redraw the plot from the saved results and exit")
     parser.add_argument("--network-only", action="store_true",
                         help="only time the network, eager torch against onnxruntime, and exit")
+    parser.add_argument("--session-variants", action="store_true",
+                        help="only compare onnxruntime session settings (h = 4 unless --hs) and exit")
     parser.add_argument("--hard-cases", action="store_true",
                         help="only print the hard-case table (learned fp32 vs classical fp64) and exit")
     args = parser.parse_args(argv)
@@ -324,6 +402,14 @@ def main(argv=None) -> int:
         table = json.loads((args.out / "bench_learned.json").read_text())["table"]
         pareto_plot(table, args.plot)
         print(wide_table(table))
+        return 0
+    if args.session_variants:
+        h = args.hs[0] if len(args.hs) == 1 else 4
+        text = session_variants(h, args.sizes, args.repeats)
+        load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+        args.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(args.out / "bench_learned_session.md", f"h = {h}, load average (1/5/15 min): {load}\n\n{text}")
+        print(text)
         return 0
     if args.network_only:
         text = network_speed(args.hs, args.sizes, args.repeats)
