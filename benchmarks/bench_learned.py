@@ -119,7 +119,9 @@ def run_case(system, h, roi, scene_name, seed, runner, model, repeats):
                 return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
         gain = exposure_gain(frames_reg)  # what LearnedSR does (1 for these normal exposures)
-        return np.clip(run_tiled(infer, frames_reg * gain, offsets, h, runner.tile, runner.halo) / gain, 0, 1)
+        if gain == 1.0:
+            return np.clip(run_tiled(infer, frames_reg, offsets, h, runner.tile, runner.halo), 0, 1)
+        return np.clip(run_tiled(infer, frames_reg * np.float32(gain), offsets, h, runner.tile, runner.halo) / gain, 0, 1)
 
     def learned_onnx():
         return runner(frames_np, positions_np)
@@ -198,7 +200,7 @@ def wide_table(table) -> str:
 
 
 def pareto_plot(table, path):
-    """Time (log) against PSNR; colour = method, marker = ROI size, filled = h 4, hollow = h 2."""
+    """Time (log) against PSNR; colour = method, marker = ROI size, fill = h."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -210,12 +212,12 @@ def pareto_plot(table, path):
     colours = {"bicubic": "tab:gray", "classical": "tab:blue", "learned-torch": "tab:orange", "learned-onnx": "tab:red"}
     markers = {128: "o", 256: "s", "full": "^"}
     hs = sorted({r["h"] for r in table})
+    fills = dict(zip(hs, ("none", "full", "left", "bottom")))
     for ax, kind in zip(axes[0], kinds):
         for row in (r for r in table if r["kind"] == kind):
             colour = colours[row["method"]]
-            filled = row["h"] == max(hs)
-            ax.scatter(row["seconds"], row["psnr"], marker=markers.get(row["size"], "x"), s=55,
-                       facecolors=colour if filled else "none", edgecolors=colour, linewidths=1.5)
+            ax.plot(row["seconds"], row["psnr"], ls="", marker=markers.get(row["size"], "x"), ms=8,
+                    color=colour, fillstyle=fills[row["h"]], markeredgewidth=1.5)
         ax.set_xscale("log")
         ax.set_xlabel("time per reconstruction [s] (2 CPU threads)")
         ax.set_ylabel("PSNR [dB]")
@@ -223,8 +225,7 @@ def pareto_plot(table, path):
         ax.grid(alpha=0.3, which="both")
     handles = [Line2D([], [], ls="", marker="o", color=c, label=m) for m, c in colours.items()]
     handles += [Line2D([], [], ls="", marker=mk, color="k", mfc="none", label=f"ROI {sz}") for sz, mk in markers.items()]
-    handles += [Line2D([], [], ls="", marker="o", color="k", mfc="k" if h == max(hs) else "none", label=f"h = {h}")
-                for h in hs]
+    handles += [Line2D([], [], ls="", marker="o", color="k", fillstyle=fills[h], label=f"h = {h}") for h in hs]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
     with atomic_path(path) as tmp:
@@ -302,6 +303,82 @@ def network_speed(hs, sizes, repeats: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def session_variants(h: int, sizes, repeats: int) -> str:
+    """onnxruntime session settings side by side, network alone, against eager torch.
+
+    Variants: the shipped settings (:func:`hbis_torch.sr.learned.session_options`: all graph
+    optimisations, sequential, 2 intra-op threads with spinning), no thread spinning, no memory
+    arena or pattern, the "extended" optimisation level (no NCHWc layout), and IO binding to a
+    preallocated output. Each variant runs a whole-ROI pass (one tile); the full frame compares
+    256^2 against 512^2 tiles.
+    """
+    import onnxruntime as ort
+
+    from hbis_torch.sr.learned import session_options
+
+    runner, model = LearnedSR(h=h, threads=THREADS), load_torch_model(h)
+    path = str(runner.path)
+
+    def session(**settings):
+        options = session_options(THREADS)
+        for key, value in settings.items():
+            if key == "config":
+                for k, v in value.items():
+                    options.add_session_config_entry(k, v)
+            else:
+                setattr(options, key, value)
+        return ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
+
+    variants = {
+        "shipped": session(),
+        "no spinning": session(config={"session.intra_op.allow_spinning": "0"}),
+        "no arena/pattern": session(enable_cpu_mem_arena=False, enable_mem_pattern=False),
+        "extended (no NCHWc)": session(graph_optimization_level=ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED),
+    }
+    cam = System().camera
+    lines = ["| ROI (LR px) | eager torch [s] | " + " | ".join(f"{k} [s]" for k in variants) + " | IO binding [s] | shipped speed-up |",
+             "| --- | ---: |" + " ---: |" * (len(variants) + 2)]
+    for size_arg in sizes:
+        rows, cols = (cam.rows, cam.cols) if size_arg == "full" else (int(size_arg), int(size_arg))
+        rng = np.random.default_rng(0)
+        frames = rng.random((1, h * h, rows, cols), dtype=np.float32)
+        offsets = (rng.random((1, 2 * h * h, rows, cols), dtype=np.float32) - 0.5) * 0.5
+        reps = repeats if size_arg != "full" else 1
+        if size_arg == "full":  # tiles: the shipped 256^2 against 512^2, same for torch
+            def torch_infer(a, b):
+                with torch.inference_mode():
+                    return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
+
+            t_torch = timed(lambda: run_tiled(torch_infer, frames[0], offsets[0], h, runner.tile, runner.halo), reps)[1]
+            times = {name: timed(lambda: run_tiled(lambda a, b: sess.run(["image"], {"frames": a, "offsets": b})[0],
+                                                   frames[0], offsets[0], h, runner.tile, runner.halo), reps)[1]
+                     for name, sess in variants.items()}
+            big = timed(lambda: run_tiled(runner.infer, frames[0], offsets[0], h, 512, runner.halo), reps)[1]
+            lines.append(f"| {size_arg} | {t_torch:.3f} | " + " | ".join(f"{t:.3f}" for t in times.values())
+                         + f" | 512^2 tiles: {big:.3f} | {t_torch / times['shipped']:.2f}x |")
+            print(lines[-1], flush=True)
+            continue
+
+        def torch_pass():
+            with torch.inference_mode():
+                return model(torch.from_numpy(frames), torch.from_numpy(offsets)).numpy()
+
+        t_torch = timed(torch_pass, reps)[1]
+        times = {name: timed(lambda: sess.run(["image"], {"frames": frames, "offsets": offsets}), reps)[1]
+                 for name, sess in variants.items()}
+        binding = variants["shipped"].io_binding()
+        out = np.empty((1, 1, h * rows, h * cols), np.float32)
+        binding.bind_cpu_input("frames", frames)
+        binding.bind_cpu_input("offsets", offsets)
+        binding.bind_output("image", "cpu", 0, np.float32, out.shape, out.ctypes.data)
+        t_bound = timed(lambda: variants["shipped"].run_with_iobinding(binding), reps)[1]
+        t_torch = min(t_torch, timed(torch_pass, reps)[1])  # torch timed before and after
+        lines.append(f"| {size_arg} | {t_torch:.3f} | " + " | ".join(f"{t:.3f}" for t in times.values())
+                     + f" | {t_bound:.3f} | {t_torch / times['shipped']:.2f}x |")
+        print(lines[-1], flush=True)
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hs", type=int, nargs="+", default=[2, 4, 7], help="factors (those with a model)")
@@ -312,6 +389,8 @@ def main(argv=None) -> int:
     parser.add_argument("--replot", action="store_true", help="redraw the plot from the saved results and exit")
     parser.add_argument("--network-only", action="store_true",
                         help="only time the network, eager torch against onnxruntime, and exit")
+    parser.add_argument("--session-variants", action="store_true",
+                        help="only compare onnxruntime session settings (h = 4 unless --hs) and exit")
     parser.add_argument("--hard-cases", action="store_true",
                         help="only print the hard-case table (learned fp32 vs classical fp64) and exit")
     args = parser.parse_args(argv)
@@ -323,6 +402,14 @@ def main(argv=None) -> int:
         table = json.loads((args.out / "bench_learned.json").read_text())["table"]
         pareto_plot(table, args.plot)
         print(wide_table(table))
+        return 0
+    if args.session_variants:
+        h = args.hs[0] if len(args.hs) == 1 else 4
+        text = session_variants(h, args.sizes, args.repeats)
+        load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+        args.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(args.out / "bench_learned_session.md", f"h = {h}, load average (1/5/15 min): {load}\n\n{text}")
+        print(text)
         return 0
     if args.network_only:
         text = network_speed(args.hs, args.sizes, args.repeats)

@@ -14,12 +14,14 @@ from hbis_torch.sr.learned import LearnedSR, read_model_metadata
 from hbis_torch.sr.net import HbisSRNet, space_to_depth
 
 
-@pytest.fixture(scope="module")
-def exported(tmp_path_factory):
+@pytest.fixture(scope="module", params=[0, 5], ids=["bilinear-base", "linear-base"])
+def exported(tmp_path_factory, request):
     torch.manual_seed(0)
-    model = HbisSRNet(3, width=12, blocks=2).eval()
+    model = HbisSRNet(3, width=12, blocks=2, skip=request.param).eval()
     for p in model.tail.parameters():  # the tail starts at zero; make the whole net matter
         torch.nn.init.normal_(p, std=0.1)
+    if model.linear is not None:  # and the linear base more than bilinear upsampling
+        torch.nn.init.normal_(model.linear.weight, std=0.05)
     path = tmp_path_factory.mktemp("onnx") / "net.onnx"
     info = {"git_commit": "abc123", "val_psnr": 30.5, "step": 7, "config": {"h": 3}}
     export_model(model, path, info)
@@ -52,9 +54,11 @@ def test_metadata_props_carry_h_frames_normalisation_and_commit(exported):
     assert "[0, 1]" in meta["normalisation"]
     assert meta["training_commit"] == "abc123"
     assert len(meta["export_commit"]) >= 7
-    assert json.loads(meta["model_config"]) == {"h": 3, "width": 12, "blocks": 2}
+    config = json.loads(meta["model_config"])
+    assert {k: config[k] for k in ("h", "width", "blocks")} == {"h": 3, "width": 12, "blocks": 2}
     runner = LearnedSR(path)
     assert runner.h == 3 and runner.frame_count == 9
+    assert runner.halo > 2 * 2 + 2 + config["skip"] // 2  # wider than the receptive field
 
 
 def test_tiled_inference_equals_one_pass(exported):

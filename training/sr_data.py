@@ -2,9 +2,11 @@
 
 A *pool* is a list of simulated stacks (hbis_torch.simulate.simulate_stack, the project's physical
 forward model: exact Risley geometry, Airy PSF, pixel aperture, shot and read noise, 12-bit ADC)
-of procedural scenes (words, texture, edges, bars, Siemens stars, gradients) at random places on
-the sensor, so that the network sees the off-grid shifts of the sensor's corners as well as its
-centre. Photographs are *not* used for training: they are the held-out test of the benchmark.
+of procedural scenes (words, texture, edges, bars, Siemens stars, gradients) and of procedural
+*natural-image* rasters (dead leaves and 1/f^2 random fields, see :func:`natural_image`) at
+random places on the sensor, so that the network sees the off-grid shifts of the sensor's
+corners as well as its centre. Photographs are *not* used for training: they are the held-out
+test of the benchmark.
 
 Training examples are random crops of pool stacks under the 8 flips/transposes of the square.
 Flipping a stack is a valid new scan: the crop's sample positions are flipped with it and
@@ -14,15 +16,67 @@ Flipping a stack is a valid new scan: the crop's sample positions are flipped wi
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from hbis_torch.config import System
 from hbis_torch.io_utils import atomic_path
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, SensorModel, load_scene, sample_positions, simulate_stack
+from hbis_torch.simulate.scenes import ImageScene, texture_image
 from hbis_torch.sr.learned import prepare_inputs
 
-TRAIN_SCENES = ("words", "texture", "edges", "bars", "siemens-star", "gradient", "slanted-edge")
-SCENE_WEIGHTS = (0.3, 0.25, 0.15, 0.1, 0.1, 0.05, 0.05)
+NATURAL_SCENES = ("dead-leaves", "natural-field")
+TRAIN_SCENES = ("words", "texture", "edges", "bars", "siemens-star", "gradient", "slanted-edge") + NATURAL_SCENES
+SCENE_WEIGHTS = (0.2, 0.15, 0.1, 0.05, 0.05, 0.05, 0.05, 0.2, 0.15)
+# Bumped whenever the scene mix changes, so that cached pools of another mix are not reused.
+POOL_VERSION = 2
+
+
+def dead_leaves(shape, rng: np.random.Generator, r_min: float = 1.0) -> np.ndarray:
+    """Dead-leaves raster (rows, cols) float32 in [0, 1]: opaque discs of random grey, radii with
+    density ~ r^-3 (scale invariant, the 1/f^2 power spectrum of natural images), painted front
+    to back until the raster is covered."""
+    rows, cols = shape
+    r_max = max(rows, cols) / 2
+    out = np.full(shape, np.nan, np.float32)
+    yy, xx = np.mgrid[0:rows, 0:cols]
+    for _ in range(5000):
+        # inverse-CDF sample of p(r) ~ r^-3 on [r_min, r_max]
+        u = rng.random()
+        r = 1.0 / np.sqrt(1.0 / r_min**2 - u * (1.0 / r_min**2 - 1.0 / r_max**2))
+        cy, cx = rng.uniform(-r, rows + r), rng.uniform(-r, cols + r)
+        y0, y1 = max(int(cy - r), 0), min(int(cy + r) + 1, rows)
+        x0, x1 = max(int(cx - r), 0), min(int(cx + r) + 1, cols)
+        if y0 >= y1 or x0 >= x1:
+            continue
+        win = out[y0:y1, x0:x1]
+        disc = ((yy[y0:y1, x0:x1] - cy) ** 2 + (xx[y0:y1, x0:x1] - cx) ** 2 <= r * r) & np.isnan(win)
+        win[disc] = rng.uniform(0.0, 1.0)
+        if not np.isnan(out).any():
+            break
+    return np.nan_to_num(out, nan=0.5)
+
+
+def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator) -> ImageScene:
+    """A procedural stand-in for a photograph: a dead-leaves raster or a 1/f^2 random field.
+
+    The raster pixel is 1/4 to 4 sensor pixels (log-uniform) and the scene reads it by bilinear
+    interpolation, as a photograph stretched over the view is read: coarse rasters give the
+    smooth, interpolated content on which a linear (Wiener-like) prior is strong, fine ones give
+    sharp natural detail. Contrast and mean level are random.
+    """
+    raster_px = float(np.exp(rng.uniform(np.log(0.25), np.log(4.0))))  # sensor pixels per raster pixel
+    cols = max(8, int(np.ceil(spec.size_mm[0] / (spec.pixel_mm * raster_px))))
+    rows = max(8, int(np.ceil(spec.size_mm[1] / (spec.pixel_mm * raster_px))))
+    if name == "dead-leaves":
+        image = dead_leaves((rows, cols), rng, r_min=float(rng.uniform(0.5, 2.0)))
+    else:
+        image = texture_image((rows, cols), correlation_px=float(rng.uniform(0.0, 1.0)), rng=rng,
+                              beta=float(rng.uniform(0.8, 1.3)))
+    contrast, gamma = rng.uniform(0.3, 1.0), float(np.exp(rng.uniform(-0.5, 0.5)))
+    image = image**gamma
+    image = rng.uniform(0.0, 1.0 - contrast) + contrast * image
+    return ImageScene(size_mm=spec.size_mm, image=torch.from_numpy(image.astype(np.float32)), name=name)
 
 
 def simulate_example(system: System, plan, size: int, seed: int) -> dict:
@@ -39,7 +93,11 @@ def simulate_example(system: System, plan, size: int, seed: int) -> dict:
     pixel = system.object_pixel_mm
     side = size * pixel * 1.25  # a margin so the scene covers every frame of the scan
     spec = SceneSpec(size_mm=(side, side), pixel_mm=pixel, detail_mm=pixel / 16)
-    scene = load_scene(name, spec, seed=int(rng.integers(2**31)))
+    scene_seed = int(rng.integers(2**31))
+    if name in NATURAL_SCENES:
+        scene = natural_image(name, spec, np.random.default_rng(scene_seed))
+    else:
+        scene = load_scene(name, spec, seed=scene_seed)
     # Exposure varies from dim (noisy) to bright; the ADC is the default 12 bits.
     sensor = SensorModel(full_well_e=float(np.exp(rng.uniform(np.log(2000), np.log(30000)))))
     stack, truth = simulate_stack(scene, system, plan, roi=roi, sensor=sensor, seed=int(rng.integers(2**31)))

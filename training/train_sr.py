@@ -33,12 +33,13 @@ import torch.nn.functional as F
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
 from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet, count_parameters  # noqa: E402
-from training.sr_data import build_pool, load_pool, make_batch, save_pool, whole_example  # noqa: E402
+from training.sr_data import POOL_VERSION, build_pool, load_pool, make_batch, save_pool, whole_example  # noqa: E402
 
 # ---------------------------------------------------------------------------- config
 h = 4  # resolution improvement factor; the model takes h*h frames
 width = 48  # feature channels
 blocks = 5  # residual blocks
+skip = 7  # kernel of the linear multi-frame base (0: bilinear base of the reference frame only)
 patch = 32  # LR patch side of a training example (the output patch is h times larger)
 pool_size = 480  # simulated training stacks (procedural scenes, random places on the sensor)
 pool_roi = 96  # LR side of each simulated training stack; patches are cropped from them
@@ -50,6 +51,9 @@ cache_dir = "training/runs/cache"  # simulated pools are generated once and reus
 batch_size = 8  # per process
 lr = 2e-3  # peak learning rate (AdamW), cosine decay to lr/20 over the budget
 weight_decay = 1e-4
+skip_lr = 0.1  # learning rate of the linear base relative to lr: Adam moves each of its many
+# correlated weights by about lr per step, which at the full lr makes the output jump around
+grad_clip = 1.0  # largest gradient norm (0: no clipping); guards against loss spikes at the peak lr
 warmup_steps = 50
 max_steps = 100_000  # whichever of max_steps / max_minutes comes first ends the run
 max_minutes = 20.0  # wall-clock budget for training (validation included)
@@ -101,8 +105,11 @@ commit = git_commit()
 if master:
     out.mkdir(parents=True, exist_ok=True)
 
-model = HbisSRNet(h, width=width, blocks=blocks)
-optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
+model = HbisSRNet(h, width=width, blocks=blocks, skip=skip)
+linear_params = list(model.linear.parameters()) if model.linear is not None else []
+other_params = [p for p in model.parameters() if all(p is not q for q in linear_params)]
+optimizer = torch.optim.AdamW([{"params": other_params, "lr_scale": 1.0},
+                               {"params": linear_params, "lr_scale": skip_lr}], lr=lr, weight_decay=weight_decay)
 step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
 ckpt_path = out / "ckpt.pt"
 if resume and ckpt_path.exists():
@@ -120,7 +127,7 @@ if master:
 # ---------------------------------------------------------------------------- data
 def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
     """A simulated pool, built once (split across the ranks) and cached as an .npz file."""
-    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}.npz"
+    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}_v{POOL_VERSION}.npz"
     if not path.exists():
         part = Path(f"{path}.part{rank}of{world}.npz")
         if not part.exists():
@@ -148,7 +155,7 @@ val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across
 
 def classical_baseline() -> float:
     """Mean PSNR of the classical method (hbis_torch.sr.classical) on the validation set, cached."""
-    path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}.classical_optics.json"
+    path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}_v{POOL_VERSION}.classical_optics.json"
     if not path.exists():
         from hbis_torch.config import System
         from hbis_torch.sr.classical import classical_sr, optics_cutoff
@@ -275,16 +282,17 @@ def train() -> None:
         if done:
             break
         for group in optimizer.param_groups:
-            group["lr"] = learning_rate(progress.item(), step)
+            group["lr"] = learning_rate(progress.item(), step) * group["lr_scale"]
         frames, offsets, truth = train_batch(step)
         loss = F.l1_loss(net(frames, offsets), truth)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip if grad_clip > 0 else math.inf)
         optimizer.step()
         step += 1
         if bar:
             bar.update(1)
-            bar.set_postfix(loss=f"{loss.item():.4f}", lr=f"{optimizer.param_groups[0]['lr']:.1e}")
+            bar.set_postfix(loss=f"{loss.item():.4f}", grad=f"{grad_norm.item():.2f}", lr=f"{optimizer.param_groups[0]['lr']:.1e}")
     if bar:
         bar.close()
     if master:

@@ -12,7 +12,15 @@ low-resolution grid, where it is h^2 times cheaper than on the output grid:
     offsets (B, 2 h^2, H, W)  -- per pixel, how far each sample sits from its nominal phase,
                                   in output (HR) pixels, (x, y) per frame
       -> 3x3 conv -> residual blocks -> 3x3 conv to h^2 channels -> depth-to-space (B, 1, hH, hW)
-      -> plus the bilinearly upsampled reference frame (channel 0)
+      -> plus a linear base: a k x k conv of all h^2 frames to h^2 channels, depth-to-space
+         (``skip = k``; it starts as bilinear upsampling of the reference frame, channel 0),
+         or, with ``skip = 0`` (the first models), the bilinearly upsampled reference frame
+
+Why the linear base: with only the bilinear base, every bit of detail and all the deblurring has
+to pass through the nonlinear body, which stops near 48 dB on smooth content where a linear
+Wiener-like deconvolution of the h^2 frames (the classical method's prior) does better. The
+k x k conv *is* such a linear multi-frame deconvolution, learned directly (on the LR grid it
+reaches k * h output pixels), and the body only learns what is left.
 
 The shifts are not exactly on the 1/h grid (the pattern is scaled and offset by up to a quarter
 of an output pixel at the sensor's corners at h = 4), so the per-pixel residual offsets are
@@ -24,7 +32,7 @@ One model per h (not one model conditioned on h): the input channel count (3 h^2
 depth-to-space factor are h itself, so a conditioned model would have to pad to the largest h
 and pay for it at every h; separate models are small (< 2 MB) and each ONNX file states its h.
 
-Only plain operators are used (Conv, Relu, Add, Reshape, Transpose, Resize), so the model exports
+Only plain operators are used (Conv, Relu, Add, Pad, Reshape, Transpose, Resize), so the model exports
 to ONNX with dynamic height and width. Depth-to-space and space-to-depth are written as
 reshape/permute because the dynamo ONNX exporter mistranslates ``pixel_unshuffle``.
 
@@ -80,6 +88,20 @@ def depth_to_space(x: Tensor, block: int) -> Tensor:
     return x.reshape(b, c, h * block, w * block)
 
 
+def bilinear_kernel(h: int, size: int) -> Tensor:
+    """Conv weights (h^2, size, size) that, followed by depth-to-space, upsample one LR channel
+    bilinearly by h (``F.interpolate(..., mode="bilinear", align_corners=False)``).
+
+    Found by upsampling a unit impulse: output channel ``dy * h + dx`` at LR pixel (y, x) takes
+    the impulse's response at output pixel (h y + dy, h x + dx); a convolution reads its input
+    mirrored, hence the flip.
+    """
+    impulse = torch.zeros(1, 1, size, size)
+    impulse[..., size // 2, size // 2] = 1.0
+    response = F.interpolate(impulse, scale_factor=h, mode="bilinear", align_corners=False)
+    return space_to_depth(response, h)[0].flip(-1, -2)
+
+
 class ResidualBlock(nn.Module):
     """conv3x3 -> ReLU -> conv3x3, added to the input. (B, C, H, W) -> (B, C, H, W)."""
 
@@ -103,6 +125,9 @@ class HbisSRNet(nn.Module):
         Feature channels of the residual body.
     blocks : int
         Number of residual blocks.
+    skip : int
+        Kernel size (odd) of the linear multi-frame base; 0 for the bilinear base of the first
+        models (their checkpoints have no ``skip`` entry and rebuild with 0).
 
     Notes
     -----
@@ -111,11 +136,13 @@ class HbisSRNet(nn.Module):
     clipped (callers clip to [0, 1]).
     """
 
-    def __init__(self, h: int, width: int = 48, blocks: int = 5) -> None:
+    def __init__(self, h: int, width: int = 48, blocks: int = 5, skip: int = 0) -> None:
         super().__init__()
         if int(h) != h or h < 2:
             raise HbisInputError(f"the network needs an integer h >= 2, got {h!r}")
-        self.h, self.width, self.blocks = int(h), int(width), int(blocks)
+        if int(skip) != skip or skip < 0 or (skip and skip % 2 == 0):
+            raise HbisInputError(f"skip must be 0 or an odd kernel size, got {skip!r}")
+        self.h, self.width, self.blocks, self.skip = int(h), int(width), int(blocks), int(skip)
         frames = self.h * self.h
         self.head = nn.Conv2d(3 * frames, width, 3, padding=1)
         self.body = nn.Sequential(*[ResidualBlock(width) for _ in range(blocks)])
@@ -123,6 +150,15 @@ class HbisSRNet(nn.Module):
         # Start as "bilinear upsampling of the reference frame": the residual branch begins at 0.
         nn.init.zeros_(self.tail.weight)
         nn.init.zeros_(self.tail.bias)
+        self.linear = None
+        if self.skip:
+            # Replicate padding makes the initial base equal to bilinear upsampling (which clamps
+            # at the border), edges included.
+            self.linear = nn.Conv2d(frames, frames, self.skip, padding=self.skip // 2, padding_mode="replicate")
+            with torch.no_grad():
+                self.linear.weight.zero_()
+                self.linear.weight[:, 0] = bilinear_kernel(self.h, self.skip)
+                self.linear.bias.fill_(0.5)  # the frames come in centred on 0.5
 
     @property
     def frame_count(self) -> int:
@@ -130,15 +166,17 @@ class HbisSRNet(nn.Module):
 
     def config(self) -> dict:
         """The constructor arguments, to rebuild the model from a checkpoint."""
-        return {"h": self.h, "width": self.width, "blocks": self.blocks}
+        return {"h": self.h, "width": self.width, "blocks": self.blocks, "skip": self.skip}
 
     def forward(self, frames: Tensor, offsets: Tensor) -> Tensor:
-        x = torch.cat((frames - 0.5, offsets), dim=1)
-        features = self.head(x)
+        centred = frames - 0.5
+        features = self.head(torch.cat((centred, offsets), dim=1))
         features = features + self.body(features)
-        residual = depth_to_space(self.tail(features), self.h)
+        out = self.tail(features)
+        if self.linear is not None:
+            return depth_to_space(out + self.linear(centred), self.h)
         base = F.interpolate(frames[:, :1], scale_factor=self.h, mode="bilinear", align_corners=False)
-        return base + residual
+        return base + depth_to_space(out, self.h)
 
 
 def count_parameters(model: nn.Module) -> int:

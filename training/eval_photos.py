@@ -1,0 +1,87 @@
+"""Score a checkpoint on the benchmark's photograph stacks (a development aid, torch only).
+
+    python training/eval_photos.py training/runs/sr_h4/model.pt [--sizes 128 256 full]
+
+Simulates (once, cached in training/runs/cache) exactly the photograph stacks that
+benchmarks/bench_learned.py uses for the checkpoint's h (same scenes, ROIs and seeds) and prints
+the network's PSNR on each, next to the classical method's (computed once and cached too).
+The photographs are never trained on; this only saves rerunning the whole benchmark to
+compare training runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+from benchmarks.bench_learned import PHOTOS, SYNTHETIC, make_stack, psnr, roi_for  # noqa: E402
+from hbis_torch.config import System  # noqa: E402
+from hbis_torch.simulate import sample_positions  # noqa: E402
+from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
+from hbis_torch.sr.learned import exposure_gain, prepare_inputs, run_tiled  # noqa: E402
+from hbis_torch.sr.net import HbisSRNet  # noqa: E402
+
+
+def bench_cases(size):
+    """(kind, scene, index) as bench_learned.main picks them for one ROI size."""
+    cases = [("synthetic", s) for s in SYNTHETIC] + [("photo", p) for p in PHOTOS]
+    if size is None or size > 128:
+        cases = [("synthetic", "words"), ("photo", "camera"), ("photo", "astronaut")][:2 if size is None else 3]
+    return [(kind, scene, i) for i, (kind, scene) in enumerate(cases)]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoint", type=Path)
+    parser.add_argument("--sizes", nargs="+", default=["128", "256"])
+    parser.add_argument("--cache", type=Path, default=REPO / "training" / "runs" / "cache")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    ckpt = torch.load(args.checkpoint, map_location="cpu", weights_only=False)
+    model = HbisSRNet(**ckpt["model_config"])
+    model.load_state_dict(ckpt["model"])
+    model.eval()
+    h, system = model.h, System()
+    means = {}
+    for size_arg in args.sizes:
+        size = None if size_arg == "full" else int(size_arg)
+        for kind, scene, i in bench_cases(size):
+            roi = roi_for(system, size, i)
+            path = args.cache / f"bench_h{h}_{size_arg}_{scene}_{i}.npz"
+            if not path.exists():
+                stack, truth = make_stack(system, h, roi, scene, 1000 + i)
+                frames = stack.to_float()
+                positions = sample_positions(system, stack.phases_deg, stack.reference_index, stack.roi)
+                classical = classical_sr(frames, positions, h, cutoff=optics_cutoff(system), fill_factor=1.0).numpy()
+                path.parent.mkdir(parents=True, exist_ok=True)
+                np.savez(path, frames=frames.numpy(), positions=positions.numpy(), truth=truth,
+                         classical=np.float64(psnr(classical, truth)))
+            data = np.load(path)
+            frames_reg, offsets = prepare_inputs(data["frames"], data["positions"], h)
+            gain = exposure_gain(frames_reg)
+
+            def infer(a, b):
+                with torch.inference_mode():
+                    return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
+
+            image = run_tiled(infer, frames_reg * gain, offsets, h) / gain
+            score, classical = psnr(image, data["truth"]), float(data["classical"])
+            means.setdefault((size_arg, kind), []).append((score, classical))
+            print(f"h={h} {size_arg} {kind} {scene}: learned {score:.2f} dB, classical {classical:.2f} dB", flush=True)
+    summary = {f"{s} {k}": [float(np.mean([a for a, _ in v])), float(np.mean([b for _, b in v]))] for (s, k), v in means.items()}
+    for key, (a, b) in summary.items():
+        print(f"mean {key}: learned {a:.2f} dB, classical {b:.2f} dB, difference {a - b:+.2f} dB")
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
