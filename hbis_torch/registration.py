@@ -769,7 +769,7 @@ def register_stack(
     prediction=None,
     model: str = "auto",
     *,
-    blur_sigma: float = 0.7,
+    blur_sigma: float = 1.0,
     keep_fraction: float = 0.2,
     max_points: int = 1024,
     iterations: int = 30,
@@ -796,7 +796,9 @@ def register_stack(
         Motion model of the data's correction (on top of the prediction, if any).
     blur_sigma : float
         Gaussian pre-filter (px) on every frame, against noise and the aliased content that
-        differs between shifted frames.
+        differs between shifted frames. The default 1.0 was chosen on bench_registration's
+        stacks (4 scenes x 128, 256, 512 px, h = 4, 40 dB): mean error 0.0036 px against
+        0.0066 at 0.7 and 0.0036 at 1.4; the aliased bars gain most.
     keep_fraction : float in (0, 1]
         Share of reference pixels (strongest gradients) that take part in the fit.
     max_points : int
