@@ -320,13 +320,23 @@ def wiener_deblur(
         return torch.fft.irfft2(spectrum, s=p.shape) + shift_image(smooth, offset)
     eps2 = (0.5 / max(p.shape)) ** 2  # keeps the prior finite at f = 0
 
-    def kernel(gx: Tensor, gy: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """|K|, W, the lattice phase and |f + k|^2 at the aliased frequencies (gx, gy)."""
+    def kernel(kx: int, ky: int, pick: tuple[Tensor, Tensor] | None = None):
+        """|K|, W, the lattice phase and |f + k|^2 of alias (kx, ky): on the whole spectrum's
+        grid, or at the (row, column) pairs ``pick`` (then without the phase). The separable
+        factors are computed along each axis once."""
+        gx, gy = fx + kx, fy + ky  # (1, cols), (rows, 1)
+        box_x, box_y = _box(gx, h * aperture), _box(gy, h * aperture)
+        pix_x, pix_y = _box(gx, aperture), _box(gy, aperture)
+        if pick is not None:
+            rows, cols = pick
+            gx, box_x, pix_x = (t[0].index_select(0, cols) for t in (gx, box_x, pix_x))
+            gy, box_y, pix_y = (t[:, 0].index_select(0, rows) for t in (gy, box_y, pix_y))
         r2 = gx * gx + gy * gy + eps2
         optics = torch.ones_like(r2) if cutoff is None else diffraction_otf(torch.sqrt(r2) * h / cutoff)
-        k_mag = optics * _box(gx, h * aperture) * _box(gy, h * aperture)
-        w = optics * _box(gx, aperture) * _box(gy, aperture)
-        # The lattice's phase factor is separable: two 1-D exponentials, one product.
+        k_mag, w = optics * box_x * box_y, optics * pix_x * pix_y
+        if pick is not None:
+            return k_mag, w, None, r2
+        # The lattice's phase factor is separable too: two 1-D exponentials, one product.
         phase = torch.exp(-2j * math.pi * gx * offset[0]) * torch.exp(-2j * math.pi * gy * offset[1])
         return k_mag, w, phase, r2
 
@@ -339,14 +349,14 @@ def wiener_deblur(
     power = torch.zeros(spectrum.shape, dtype=image.dtype)
     for kx, ky in shifts:
         if (kx, ky) != (0, 0):
-            k_mag, w, phase, r2 = kernel(fx + kx, fy + ky)
+            k_mag, w, phase, r2 = kernel(kx, ky)
             weighted = s2 * torch.exp(-0.5 * beta * torch.log(r2)) * k_mag
             cross += weighted * w * phase
             power += weighted * k_mag
     # Where the image holds more power than the power law explains (a grating, a texture), the
     # prior of the unaliased frequency is raised to what is measured (power smoothed over 3 x 3
     # frequencies, less the noise and the aliases' share), as long as the aperture passes it.
-    k0, w0, phase0, r20 = kernel(fx, fy)
+    k0, w0, phase0, r20 = kernel(0, 0)
     prior = s2 * torch.exp(-0.5 * beta * torch.log(r20))
     measured = torch.nn.functional.avg_pool2d(
         (spectrum.abs() ** 2 / (p.shape[0] * p.shape[1]))[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
@@ -378,7 +388,8 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
 
     The model of the (splat-corrected) image's power is E|Z(f)|^2 / n = s^2 S_beta(f) + sigma^2
     with S_beta(f) = sum_k |K(f+k)|^2 / |f+k|^beta over the aliases k in ``shifts`` ((kx, ky)
-    pairs); ``kernel(gx, gy)`` gives (|K|, W, phase, |f+k|^2) at frequencies (gx, gy).
+    pairs); ``kernel(kx, ky, (rows, cols))`` gives (|K|, W, phase, |f+k|^2) of alias k at
+    those entries of the spectrum.
     In log-spaced frequency rings where the image stands clear of the noise (twice its power),
     log(power - sigma^2) - log S_beta is fitted by a constant (log s^2); the beta of a grid over
     [1.5, 4] (steps of 0.25) with the smallest scatter is kept.
@@ -402,9 +413,7 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
     pick = pick[inside[pick]]
     sub_ring = ring[pick]
     sub_count = torch.bincount(sub_ring, minlength=24)
-    fx_sub = fx.expand(spectrum.shape).reshape(-1)[pick]
-    fy_sub = fy.expand(spectrum.shape).reshape(-1)[pick]
-    at = [kernel(fx_sub + kx, fy_sub + ky) for kx, ky in shifts]
+    at = [kernel(kx, ky, (pick // half, pick % half)) for kx, ky in shifts]
     k2 = torch.stack([t[0] * t[0] for t in at])  # (aliases, n)
     log_r2 = torch.stack([torch.log(t[3]) for t in at])
     clear = (count >= 8) & (sub_count >= 1) & (m > 2 * noise2)
@@ -417,10 +426,15 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
             shape = (k2 * torch.exp(-log_r2)).sum(0)
             return 1e-3 * noise2 / max(float(shape.max()), 1e-300), 2.0
     target = (m[clear] - noise2).log()
-    # S_beta on the subsample for every beta at once: (betas, n).
-    shapes = (k2 * torch.exp(-0.5 * torch.tensor(betas, dtype=k2.dtype)[:, None, None] * log_r2)).sum(1)
+    # S_beta on the subsample for every beta of the evenly spaced grid: |f+k|^-beta by repeated
+    # multiplication with |f+k|^-step (one exp for all the betas, not one per beta).
+    power = torch.exp(-0.5 * betas[0] * log_r2)
+    step = torch.exp(-0.5 * (betas[1] - betas[0]) * log_r2) if len(betas) > 1 else None
     best = None
-    for beta, shape in zip(betas, shapes):
+    for j, beta in enumerate(betas):
+        if j:
+            power = power * step
+        shape = (k2 * power).sum(0)
         S = (torch.bincount(sub_ring, shape, minlength=24) / sub_count.clamp_min(1))[clear]
         gap = target - S.clamp_min(1e-300).log()
         level, scatter = float(gap.mean()), float(((gap - gap.mean()) ** 2).mean())
