@@ -193,7 +193,7 @@ def wide_table(table) -> str:
                 cells.append("-")
                 continue
             text = f"{r['psnr']:.2f} dB, {r['seconds']:.3g} s"
-            cells.append(f"**{text}**" if r["psnr"] == best else text)
+            cells.append(f"**{text}**" if r["psnr"] >= best - 0.005 else text)  # ties at 2 decimals
         roi = "960x1280" if size == "full" else f"{size}^2"
         lines.append(f"| {h} | {roi} | {kind} ({n}) | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
