@@ -68,6 +68,14 @@ def timed(fn, repeats: int):
     return result, float(np.median(times))
 
 
+def scene_cases(size) -> list[tuple[str, str]]:
+    """(kind, scene) pairs measured at one ROI size (None: the full frame), in order; case i
+    sits at ``roi_for(system, size, i)`` and is simulated with seed 1000 + i."""
+    if size is None or size > 128:  # fewer scenes where every run takes long
+        return [("synthetic", "words"), ("photo", "camera"), ("photo", "astronaut")][:2 if size is None else 3]
+    return [("synthetic", s) for s in SYNTHETIC] + [("photo", p) for p in PHOTOS]
+
+
 def roi_for(system: System, size, index: int):
     """ROI of ``size`` (side or None for the full frame) at the centre, or near a corner."""
     cam = system.camera
@@ -428,10 +436,7 @@ def main(argv=None) -> int:
         model = load_torch_model(h)
         for size_arg in args.sizes:
             size = None if size_arg == "full" else int(size_arg)
-            cases = [("synthetic", s) for s in SYNTHETIC] + [("photo", p) for p in PHOTOS]
-            if size is None or size > 128:  # fewer scenes where every run takes long
-                cases = [("synthetic", "words"), ("photo", "camera"), ("photo", "astronaut")][:2 if size is None else 3]
-            for i, (kind, scene) in enumerate(cases):
+            for i, (kind, scene) in enumerate(scene_cases(size)):
                 roi = roi_for(system, size, i)
                 t0 = time.perf_counter()
                 rows, t_pos = run_case(system, h, roi, scene, 1000 + i, runner, model, args.repeats)

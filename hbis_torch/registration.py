@@ -242,8 +242,7 @@ def _fast_fft_size(n: int) -> int:
         n += 1
 
 
-def prefilter(images: Tensor, blur_sigma: float = 0.0, blurred: list[int] | None = None,
-              kernel: Tensor | None = None) -> tuple[Tensor, Tensor]:
+def prefilter(images: Tensor, blur_sigma: float = 0.0, kernel: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """Gaussian-blurred images and their cubic B-spline coefficients, both (F, H, W).
 
     Both filters are applied at once in the Fourier domain on mirror-padded images (the pad is
@@ -256,15 +255,13 @@ def prefilter(images: Tensor, blur_sigma: float = 0.0, blurred: list[int] | None
     images : Tensor, shape (F, H, W)
     blur_sigma : float
         Standard deviation of the Gaussian in px (0: no blur).
-    blurred : list of int, optional
-        Frames whose blurred image is wanted (default: all).
     kernel : Tensor, shape (2 r + 1,), optional
         A symmetric sampled kernel to blur with instead of the Gaussian (applied separably,
         through its exact frequency response: the same as convolution with mirrored borders).
 
     Returns
     -------
-    blurred : Tensor, shape (len(blurred) or F, H, W)
+    blurred : Tensor, shape (F, H, W)
     coefficients : Tensor, shape (F, H, W)
         ``bspline_sample(coefficients, p)`` interpolates the blurred frames at points p.
     """
@@ -289,7 +286,7 @@ def prefilter(images: Tensor, blur_sigma: float = 0.0, blurred: list[int] | None
     spline = (4 + 2 * torch.cos(wx)) * (4 + 2 * torch.cos(wy)) / 36
     spectrum = torch.fft.rfft2(padded) * blur
     crop = (slice(None), slice(pad, pad + H), slice(pad, pad + W))
-    blurred = torch.fft.irfft2(spectrum if blurred is None else spectrum[blurred], s=(Hp, Wp))[crop]
+    blurred = torch.fft.irfft2(spectrum, s=(Hp, Wp))[crop]
     coefficients = torch.fft.irfft2(spectrum / spline, s=(Hp, Wp))[crop].contiguous()
     return blurred, coefficients
 

@@ -21,20 +21,12 @@ import torch
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from benchmarks.bench_learned import PHOTOS, SYNTHETIC, make_stack, psnr, roi_for  # noqa: E402
+from benchmarks.bench_learned import make_stack, psnr, roi_for, scene_cases  # noqa: E402
 from hbis_torch.config import System  # noqa: E402
 from hbis_torch.simulate import sample_positions  # noqa: E402
 from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
 from hbis_torch.sr.learned import exposure_gain, prepare_inputs, run_tiled  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet  # noqa: E402
-
-
-def bench_cases(size):
-    """(kind, scene, index) as bench_learned.main picks them for one ROI size."""
-    cases = [("synthetic", s) for s in SYNTHETIC] + [("photo", p) for p in PHOTOS]
-    if size is None or size > 128:
-        cases = [("synthetic", "words"), ("photo", "camera"), ("photo", "astronaut")][:2 if size is None else 3]
-    return [(kind, scene, i) for i, (kind, scene) in enumerate(cases)]
 
 
 def main(argv=None) -> int:
@@ -53,7 +45,7 @@ def main(argv=None) -> int:
     means = {}
     for size_arg in args.sizes:
         size = None if size_arg == "full" else int(size_arg)
-        for kind, scene, i in bench_cases(size):
+        for i, (kind, scene) in enumerate(scene_cases(size)):
             roi = roi_for(system, size, i)
             path = args.cache / f"bench_h{h}_{size_arg}_{scene}_{i}.npz"
             if not path.exists():

@@ -106,8 +106,8 @@ if master:
     out.mkdir(parents=True, exist_ok=True)
 
 model = HbisSRNet(h, width=width, blocks=blocks, skip=skip)
-linear_params = list(model.linear.parameters()) if model.linear is not None else []
-other_params = [p for p in model.parameters() if all(p is not q for q in linear_params)]
+linear_params = [p for name, p in model.named_parameters() if name.startswith("linear.")]
+other_params = [p for name, p in model.named_parameters() if not name.startswith("linear.")]
 optimizer = torch.optim.AdamW([{"params": other_params, "lr_scale": 1.0},
                                {"params": linear_params, "lr_scale": skip_lr}], lr=lr, weight_decay=weight_decay)
 step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
