@@ -25,6 +25,7 @@ be (frames out of order).
 
 from __future__ import annotations
 
+import functools
 import math
 import operator
 from dataclasses import dataclass, field
@@ -242,11 +243,54 @@ def _fast_fft_size(n: int) -> int:
         n += 1
 
 
+@functools.lru_cache(maxsize=32)
+def _frequency_filters(Hp: int, Wp: int, blur: tuple, dtype) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Responses on the (Hp, Wp // 2 + 1) rfft2 grid, cached per size and blur: the blur (the
+    Gaussian exp(-sigma^2 w^2 / 2) for ``blur = ("gaussian", sigma)``, or a symmetric sampled
+    kernel's exact response for ``blur = ("kernel", k_0, ..., k_r)``), the cubic B-spline's
+    sampled kernel [1, 4, 1] / 6 ((4 + 2 cos w) / 6 per axis, never below 1/3), and the central
+    differences d/du, d/dv (i sin w per axis). Callers must not modify them."""
+    wy = 2 * math.pi * torch.fft.fftfreq(Hp, dtype=dtype)[:, None]
+    wx = 2 * math.pi * torch.fft.rfftfreq(Wp, dtype=dtype)[None, :]
+    if blur[0] == "gaussian":
+        response = torch.exp(-0.5 * blur[1] ** 2 * (wx * wx + wy * wy))
+    else:
+        taps = torch.tensor(blur[1:], dtype=dtype)  # k_0, k_1, ..., k_r
+        j = torch.arange(1, len(taps), dtype=dtype)
+        response = ((taps[0] + 2 * (taps[1:] * torch.cos(wx[..., None] * j)).sum(-1))
+                    * (taps[0] + 2 * (taps[1:] * torch.cos(wy[..., None] * j)).sum(-1)))
+    spline = (4 + 2 * torch.cos(wx)) * (4 + 2 * torch.cos(wy)) / 36
+    d_u = 1j * torch.sin(wx) * torch.ones_like(wy)
+    d_v = 1j * torch.sin(wy) * torch.ones_like(wx)
+    return response, spline, d_u, d_v
+
+
+def _padded_spectrum(images: Tensor, blur_sigma: float, kernel: Tensor | None):
+    """rfft2 of the mirror-padded images times the blur's response, (F, Hp, Wp // 2 + 1), with
+    the filters of :func:`_frequency_filters`, the padded size and the crop back to (H, W).
+
+    The pad is wide enough that filtering equals mirrored-border convolution to about 3e-5 (the
+    B-spline inverse decays as 0.268^n, 1e-5 after 8 px; the Gaussian within 3 sigma), and a
+    little wider at the far sides to reach a size the FFT is fast at (factors 2, 3, 5).
+    """
+    F, H, W = images.shape
+    radius = int(math.ceil(3 * blur_sigma)) if kernel is None else (len(kernel) - 1) // 2
+    pad = min(8 + radius, H - 1, W - 1)
+    extra_h = min(_fast_fft_size(H + 2 * pad) - H - 2 * pad, H - 1 - pad)
+    extra_w = min(_fast_fft_size(W + 2 * pad) - W - 2 * pad, W - 1 - pad)
+    padded = torch.nn.functional.pad(images[:, None], (pad, pad + extra_w, pad, pad + extra_h), mode="reflect")[:, 0]
+    Hp, Wp = padded.shape[-2:]
+    blur = ("gaussian", float(blur_sigma)) if kernel is None else ("kernel", *kernel[radius:].tolist())
+    filters = _frequency_filters(Hp, Wp, blur, images.dtype)
+    spectrum = torch.fft.rfft2(padded) * filters[0]
+    crop = (slice(None), slice(pad, pad + H), slice(pad, pad + W))
+    return spectrum, filters, (Hp, Wp), crop
+
+
 def prefilter(images: Tensor, blur_sigma: float = 0.0, kernel: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """Gaussian-blurred images and their cubic B-spline coefficients, both (F, H, W).
 
-    Both filters are applied at once in the Fourier domain on mirror-padded images (the pad is
-    wide enough that the result equals mirrored-border convolution to about 3e-5): the
+    Both filters are applied at once in the Fourier domain on mirror-padded images: the
     Gaussian exp(-sigma^2 w^2 / 2), and the inverse of the B-spline's sampled kernel
     [1, 4, 1] / 6, whose response (4 + 2 cos w) / 6 never falls below 1/3.
 
@@ -265,30 +309,26 @@ def prefilter(images: Tensor, blur_sigma: float = 0.0, kernel: Tensor | None = N
     coefficients : Tensor, shape (F, H, W)
         ``bspline_sample(coefficients, p)`` interpolates the blurred frames at points p.
     """
-    F, H, W = images.shape
-    # The B-spline inverse decays as 0.268^n (1e-5 after 8 px); the Gaussian within 3 sigma.
-    radius = int(math.ceil(3 * blur_sigma)) if kernel is None else (len(kernel) - 1) // 2
-    pad = min(8 + radius, H - 1, W - 1)
-    # Pad a little more at the far sides to sizes the FFT is fast at (factors 2, 3, 5).
-    extra_h = min(_fast_fft_size(H + 2 * pad) - H - 2 * pad, H - 1 - pad)
-    extra_w = min(_fast_fft_size(W + 2 * pad) - W - 2 * pad, W - 1 - pad)
-    padded = torch.nn.functional.pad(images[:, None], (pad, pad + extra_w, pad, pad + extra_h), mode="reflect")[:, 0]
-    Hp, Wp = padded.shape[-2:]
-    wy = 2 * math.pi * torch.fft.fftfreq(Hp, dtype=images.dtype)[:, None]
-    wx = 2 * math.pi * torch.fft.rfftfreq(Wp, dtype=images.dtype)[None, :]
-    if kernel is None:
-        blur = torch.exp(-0.5 * blur_sigma ** 2 * (wx * wx + wy * wy))
-    else:
-        taps = kernel.to(images.dtype)[radius:]  # k_0, k_1, ..., k_r
-        j = torch.arange(1, radius + 1, dtype=images.dtype)
-        blur = ((taps[0] + 2 * (taps[1:] * torch.cos(wx[..., None] * j)).sum(-1))
-                * (taps[0] + 2 * (taps[1:] * torch.cos(wy[..., None] * j)).sum(-1)))
-    spline = (4 + 2 * torch.cos(wx)) * (4 + 2 * torch.cos(wy)) / 36
-    spectrum = torch.fft.rfft2(padded) * blur
-    crop = (slice(None), slice(pad, pad + H), slice(pad, pad + W))
-    blurred = torch.fft.irfft2(spectrum, s=(Hp, Wp))[crop]
-    coefficients = torch.fft.irfft2(spectrum / spline, s=(Hp, Wp))[crop].contiguous()
+    spectrum, (_, spline, _, _), size, crop = _padded_spectrum(images, blur_sigma, kernel)
+    blurred = torch.fft.irfft2(spectrum, s=size)[crop]
+    coefficients = torch.fft.irfft2(spectrum / spline, s=size)[crop].contiguous()
     return blurred, coefficients
+
+
+def _reference_splines(reference: Tensor, kernel: Tensor) -> tuple[Tensor, Tensor]:
+    """What the fit needs of the reference (H, W), blurred by ``kernel``, from one FFT.
+
+    Returns
+    -------
+    coefficients : Tensor, shape (1, H, W)
+        Cubic B-spline coefficients of the blurred reference.
+    gradient : Tensor, shape (2, H, W)
+        Its d/du and d/dv at the pixels (central differences, as Kornia's ``spatial_gradient``
+        in ``diff`` mode; mirrored borders).
+    """
+    spectrum, (_, spline, d_u, d_v), size, crop = _padded_spectrum(reference[None], 0.0, kernel)
+    parts = torch.fft.irfft2(spectrum * torch.stack((1 / spline, d_u, d_v)), s=size)[crop]
+    return parts[:1].contiguous(), parts[1:].contiguous()
 
 
 def bspline_sample(coefficients: Tensor, points: Tensor) -> Tensor:
@@ -402,6 +442,46 @@ def bspline_sample_shared(coefficients: Tensor, points: Tensor) -> Tensor:
     return gv0 * (gu0 * got[:, 0] + gu1 * got[:, 1]) + gv1 * (gu0 * got[:, 2] + gu1 * got[:, 3])
 
 
+def _spline_fetch(coefficients: Tensor, points: Tensor) -> Tensor:
+    """Evaluate C cubic B-spline images (C, H, W) at every frame's points (F, N, 2) -> (C, F, N).
+
+    The same four-bilinear-fetch evaluation as :func:`bspline_sample_shared`, with fewer
+    operations: the fit calls it with value and gradient channels at once, and its cost at
+    small frames is mostly per operation. ``points`` are float64 (u, v) px, so that the
+    sub-pixel part stays exact at any frame size; the rest is in the coefficients' dtype.
+    """
+    C, H, W = coefficients.shape
+    F, N = points.shape[:2]
+    dtype = coefficients.dtype
+    i = torch.floor(points)
+    f = (points - i).to(dtype)
+    f2 = f * f
+    w1 = torch.addcmul(_TWO_THIRDS[dtype], f2, 0.5 * f - 1)  # (4 - 6 f^2 + 3 f^3) / 6
+    g0 = (1 - f) ** 3 / 6 + w1  # weight of the lower fetch
+    g1 = 1 - g0
+    # Fetch positions in grid_sample's [-1, 1] (align_corners=True), (2, F, N, 2): lower, upper.
+    scale = _GRID_SCALE[(W, H, dtype)] if (W, H, dtype) in _GRID_SCALE else _grid_scale(W, H, dtype)
+    at = (torch.stack((w1 / g0 - 1, 1 + f2 * f / (6 * g1))) + i.to(dtype)) * scale - 1
+    # The four fetches (u0, v0), (u1, v0), (u0, v1), (u1, v1): index [v fetch, u fetch].
+    grid = torch.stack((at[None, :, ..., 0].expand(2, 2, F, N), at[:, None, ..., 1].expand(2, 2, F, N)), -1)
+    got = torch.nn.functional.grid_sample(coefficients[None], grid.view(1, 1, 4 * F * N, 2), mode="bilinear",
+                                          padding_mode="reflection", align_corners=True).view(C, 2, 2, F, N)
+    weights = torch.stack((g0, g1))  # (2, F, N, 2): [fetch, ..., axis]
+    rows = (got * weights[..., 0]).sum(2)  # along u: (C, 2, F, N), one per v fetch
+    return (rows * weights[..., 1]).sum(1)
+
+
+_TWO_THIRDS = {torch.float32: torch.tensor(2 / 3, dtype=torch.float32),
+               torch.float64: torch.tensor(2 / 3, dtype=torch.float64)}
+_GRID_SCALE: dict = {}
+
+
+def _grid_scale(W: int, H: int, dtype) -> Tensor:
+    """(2,) factors from px to grid_sample's align_corners=True coordinates, cached."""
+    _GRID_SCALE[(W, H, dtype)] = torch.tensor([2.0 / (W - 1), 2.0 / (H - 1)], dtype=dtype)
+    return _GRID_SCALE[(W, H, dtype)]
+
+
 @dataclass
 class _Fit:
     homographies: Tensor  # (F, 3, 3) frame -> reference, float64
@@ -444,13 +524,20 @@ class _LucasKanade:
         H, W = coefficients.shape[-2:]
         self.H, self.W, self.margin, self.dtype = H, W, margin, coefficients.dtype
         self.coefficients, self.gradient, self.samples, self.points = coefficients, gradient, samples, points
-        self.points32 = points.to(self.dtype)
+        self.points_h = torch.cat((points, torch.ones(len(points), 1, dtype=torch.float64)), -1)  # (N, 3)
+        self.inside = (torch.tensor([float(margin)] * 2, dtype=torch.float64),
+                       torch.tensor([W - 1.0 - margin, H - 1.0 - margin], dtype=torch.float64))
+        self.centre_h = torch.tensor([(W - 1) / 2, (H - 1) / 2, 1.0], dtype=torch.float64)
         self.scale = max(H, W) / 2.0
         self.norm = _normaliser(H, W, torch.float64)
         self.norm_inv = torch.linalg.inv(self.norm)
         u, v = points[:, 0], points[:, 1]
         self.xy = ((u - (W - 1) / 2) / self.scale, (v - (H - 1) / 2) / self.scale)
         self._jacobian: dict[str, tuple[Tensor, Tensor]] = {}
+        self._corner_jacobian: dict[str, Tensor] = {}
+        self._update_basis: dict[str, Tensor] = {}
+        self.eye3 = torch.eye(3, dtype=torch.float64)
+        self.corners_h = torch.tensor([[0, 0, 1], [W - 1, 0, 1], [0, H - 1, 1], [W - 1, H - 1, 1]], dtype=torch.float64)
         self._score_cache: tuple | None = None
         # 8 x 8 tiles over the frame, for the mismatch (occlusion) measure.
         self.n_tiles = 64
@@ -465,6 +552,8 @@ class _LucasKanade:
 
     def steepest(self, slope: Tensor, model: str) -> Tensor:
         """Steepest-descent images (F, N, k): minus d residual / d parameters."""
+        if model == "translation":  # the warp's Jacobian is the identity
+            return slope
         jx, jy = self.jacobian(model)
         return slope[..., :1] * jx + slope[..., 1:] * jy
 
@@ -491,55 +580,77 @@ class _LucasKanade:
         target : Tensor, shape (F, N)
             The reference at the points, through each frame's homography.
         """
-        q = apply_homography(homographies, self.points)  # (F, N, 2) float64
+        qh = homographies @ self.points_h.T  # (F, 3, N) float64
+        q = (qh[:, :2] / qh[:, 2:]).mT.contiguous()  # (F, N, 2)
+        u, v = q[..., 0], q[..., 1]
         m = self.margin
-        mask = ((q[..., 0] >= m) & (q[..., 0] <= self.W - 1 - m)
-                & (q[..., 1] >= m) & (q[..., 1] <= self.H - 1 - m))
+        mask = (u >= m) & (u <= self.W - 1 - m) & (v >= m) & (v <= self.H - 1 - m)
         if keep is not None:
             mask = mask & keep
-        target = bspline_sample_shared(self.coefficients, q)[0]
-        t_u, t_v = _bilinear_sample(self.gradient, q)
+        target = _spline_fetch(self.coefficients, q)[0]
+        # The gradient, bilinearly: smoother than the spline's, which steers the fit of the
+        # richer models better (on bench_registration's stacks it kept the translation model
+        # where the spline's gradient let a similarity in at twice the error).
+        t_uv = _bilinear_sample(self.gradient, q)  # (2, F, N)
         r = self._photometric(samples, target, mask.to(self.dtype)) * mask
         w, sigma = self._huber(r, mask)
         r = self._photometric(samples, target, w) * mask  # again, with an occluder's points down-weighted
         w, _ = self._huber(r, mask, sigma)
-        # The reference's gradient at q, through dq/dp of the homography at p (the motion is a
-        # change of p), times the normalised unit: how fast the reference value at q changes.
-        # dq/dp of a homography is (H[i, j] - q_i H[2, j]) / (H[2] . [p, 1]).
-        hom = homographies.to(self.dtype)[:, None]  # (F, 1, 3, 3)
-        qu, qv = q[..., 0].to(self.dtype), q[..., 1].to(self.dtype)
-        den = hom[..., 2, 0] * self.points32[:, 0] + hom[..., 2, 1] * self.points32[:, 1] + hom[..., 2, 2]
-        along_u = t_u * (hom[..., 0, 0] - qu * hom[..., 2, 0]) + t_v * (hom[..., 1, 0] - qv * hom[..., 2, 0])
-        along_v = t_u * (hom[..., 0, 1] - qu * hom[..., 2, 1]) + t_v * (hom[..., 1, 1] - qv * hom[..., 2, 1])
-        slope = torch.stack((along_u, along_v), -1) * (self.scale / den)[..., None]
+        # The reference's gradient at q, through dq/dp of the homography (the motion is a change
+        # of p), times the normalised unit: how fast the reference value at q changes. dq/dp is
+        # (H[i, j] - q_i H[2, j]) / (H[2] . [p, 1]); it is taken at the frame's centre, where it
+        # differs from its value at any point of these nearly affine motions by far less than
+        # the gradient's own noise (it steers the steps; the solution is where r balances).
+        c = homographies @ self.centre_h  # (F, 3)
+        jac = (homographies[:, :2, :2] - (c[:, :2, None] / c[:, 2:, None]) * homographies[:, 2:, :2])
+        jac = jac * (self.scale / c[:, 2, None, None])
+        slope = t_uv.permute(1, 2, 0) @ jac.to(self.dtype)
         return r, mask, w, sigma, slope, target
 
     def _photometric(self, values: Tensor, target: Tensor, w: Tensor) -> Tensor:
         """gain * values + offset - target, gain and offset fitted by weighted least squares."""
         sw = w.sum(-1).clamp_min(1e-12)
-        mx, mt = (w * values).sum(-1) / sw, (w * target).sum(-1) / sw
-        dx = values - mx[:, None]
-        var = (w * dx * dx).sum(-1)
-        gain = torch.where(var > 1e-12, (w * dx * (target - mt[:, None])).sum(-1) / var.clamp_min(1e-12),
-                           torch.ones_like(var))
-        return gain[:, None] * dx + mt[:, None] - target
+        wx = w * values
+        mx, mt = wx.sum(-1) / sw, (w * target).sum(-1) / sw
+        # Weighted (co)variances from the raw sums: the frames are normalised to unit spread, so
+        # nothing cancels badly.
+        var = (wx * values).sum(-1) - sw * mx * mx
+        cov = (wx * target).sum(-1) - sw * mx * mt
+        gain = torch.where(var > 1e-12, cov / var.clamp_min(1e-12), 1.0)
+        return gain[:, None] * (values - mx[:, None]) + (mt[:, None] - target)
 
     def _huber(self, r: Tensor, mask: Tensor, sigma: Tensor | None = None) -> tuple[Tensor, Tensor]:
         if sigma is None:
             sigma = _robust_scale(r, mask)
-        a = r.abs() / (self.huber * sigma[:, None])
-        w = torch.where(a <= 1, torch.ones_like(a), 1 / a.clamp_min(1e-12)) * mask
+        # Huber weights min(1, c sigma / |r|), 0 where not compared.
+        w = ((self.huber * sigma[:, None]) / r.abs()).clamp_max(1.0) * mask
         return w, sigma
+
+    def update_basis(self, model: str) -> Tensor:
+        """(3, 3, k): the warp update W(dp) = I + basis @ dp in pixel coordinates (the parameters
+        are normalised: W is conjugated by the normaliser)."""
+        if model not in self._update_basis:
+            k = N_PARAMS[model]
+            steps = _params_to_matrix(torch.eye(k, dtype=torch.float64), model) - self.eye3  # (k, 3, 3)
+            self._update_basis[model] = (self.norm_inv @ steps @ self.norm).permute(1, 2, 0).contiguous()
+        return self._update_basis[model]
+
+    def corner_distance(self, a: Tensor, b: Tensor) -> Tensor:
+        """Largest distance (px) between where homographies a and b (F, 3, 3) send the frame's
+        corners, (F,)."""
+        qa, qb = self.corners_h @ a.mT, self.corners_h @ b.mT  # (F, 4, 3)
+        return (qa[..., :2] / qa[..., 2:] - qb[..., :2] / qb[..., 2:]).norm(dim=-1).amax(-1)
 
     def motion_px(self, dp: Tensor, model: str) -> Tensor:
         """Largest displacement (px) a small parameter step causes at the frame's corners, (F,)."""
-        hx, hy = (self.W - 1) / 2 / self.scale, (self.H - 1) / 2 / self.scale
-        x = torch.tensor([-hx, hx, -hx, hx], dtype=torch.float64)
-        y = torch.tensor([-hy, -hy, hy, hy], dtype=torch.float64)
-        jx, jy = _warp_jacobian(x, y, model)
-        dx = torch.stack(jx, -1) @ dp.T  # (4, F)
-        dy = torch.stack(jy, -1) @ dp.T
-        return torch.hypot(dx, dy).amax(0) * self.scale
+        if model not in self._corner_jacobian:
+            hx, hy = (self.W - 1) / 2 / self.scale, (self.H - 1) / 2 / self.scale
+            x = torch.tensor([-hx, hx, -hx, hx], dtype=torch.float64)
+            y = torch.tensor([-hy, -hy, hy, hy], dtype=torch.float64)
+            jx, jy = _warp_jacobian(x, y, model)
+            self._corner_jacobian[model] = torch.cat((torch.stack(jx, -1), torch.stack(jy, -1))) * self.scale
+        moves = self._corner_jacobian[model] @ dp.T  # (8, F): dx at the 4 corners, then dy
+        return torch.hypot(moves[:4], moves[4:]).amax(0)
 
     def fit(self, init: Tensor, model: str, iterations: int, tol: float,
             frames: Tensor | None = None, keep: Tensor | None = None) -> _Fit:
@@ -577,11 +688,11 @@ class _LucasKanade:
                     full[active] = part
             dp = torch.linalg.solve(found[-1] + eye, _gradient(wa, ra, sd))
             # Forward composition: H <- H W(dp), with W expressed in normalised coordinates.
-            upd = Hk[active] @ self.norm_inv @ _params_to_matrix(dp, model) @ self.norm
+            upd = Hk[active] @ (self.update_basis(model) @ dp.T).permute(2, 0, 1).add_(self.eye3)
             Hk[active] = upd / upd[:, 2:3, 2:3]
             move = self.motion_px(dp, model)
             converged[active] = move < tol
-            wandered = lk_motion_difference(Hk[active], init[active], self.H, self.W, None)
+            wandered = self.corner_distance(Hk[active], init[active])
             diverged[active] = ~torch.isfinite(move) | (move > 2.0) | (wandered > 3.0)
             if bool((converged | diverged).all()):
                 break
@@ -853,8 +964,7 @@ def register_stack(
         raise HbisInputError(f"frames of {H} x {W} px are too small to register (blur_sigma={blur_sigma})")
 
     # The points: the reference's strongest gradients, away from the border.
-    template, coefficients = prefilter(reference[None], kernel=kernel)
-    grads = kornia.filters.spatial_gradient(template[None], mode="diff")[0, 0]
+    coefficients, grads = _reference_splines(reference, kernel)
     index = _strongest_points(grads[0] ** 2 + grads[1] ** 2, margin, keep_fraction, max_points)
     n_points = len(index)
     # Blurred residuals are correlated over about 4 pi sigma^2 pixels; what the statistics need
@@ -875,7 +985,7 @@ def register_stack(
         window = frames[:, v0:v0 + 256, u0:u0 + 256]
         init = _translation(phase_correlation_shifts(window, window[ref]))
     init[ref] = torch.eye(3, dtype=torch.float64)
-    lk = _LucasKanade(coefficients, grads.to(dtype), samples, points, margin)
+    lk = _LucasKanade(coefficients, grads, samples, points, margin)
 
     chosen = "translation" if model == "auto" else model
     fit = lk.fit(init, chosen, iterations, tolerance_px)
