@@ -147,6 +147,12 @@ def _normaliser(H: int, W: int, dtype) -> Tensor:
     )
 
 
+def _normaliser_inverse(H: int, W: int) -> Tensor:
+    """Inverse of ``_normaliser(H, W, float64)``: normalised -> pixel coordinates."""
+    s = max(H, W) / 2.0
+    return torch.tensor([[s, 0, (W - 1) / 2], [0, s, (H - 1) / 2], [0, 0, 1]], dtype=torch.float64)
+
+
 def _params_to_matrix(p: Tensor, model: str) -> Tensor:
     """(F, k) parameters of a small motion -> (F, 3, 3) matrices (identity at p = 0)."""
     m = torch.eye(3, dtype=p.dtype).repeat(p.shape[0], 1, 1)
@@ -530,7 +536,7 @@ class _LucasKanade:
         self.centre_h = torch.tensor([(W - 1) / 2, (H - 1) / 2, 1.0], dtype=torch.float64)
         self.scale = max(H, W) / 2.0
         self.norm = _normaliser(H, W, torch.float64)
-        self.norm_inv = torch.linalg.inv(self.norm)
+        self.norm_inv = _normaliser_inverse(H, W)
         u, v = points[:, 0], points[:, 1]
         self.xy = ((u - (W - 1) / 2) / self.scale, (v - (H - 1) / 2) / self.scale)
         self._jacobian: dict[str, tuple[Tensor, Tensor]] = {}
@@ -811,14 +817,14 @@ def _strongest_points(strength: Tensor, margin: int, keep_fraction: float, max_p
 
     Thinning a large strong set, rather than taking only the very strongest pixels, keeps the
     set's mix: on fine, aliased bars the strongest pixels are exactly those where the shifted
-    frames disagree most. The quantile is read from a subsample of about 16k inner pixels.
+    frames disagree most. The quantile is read from a subsample of about 4k inner pixels.
     """
     H, W = strength.shape
     inner = strength[margin:H - margin, margin:W - margin]
     h, w = inner.shape
     values = inner.reshape(-1)
     n_keep = min(h * w, max(64, int(keep_fraction * h * w)))
-    sub = values[::max(1, values.numel() // 16384)]
+    sub = values[::max(1, values.numel() // 4096)]
     threshold = torch.kthvalue(sub, max(1, min(len(sub), int(round(len(sub) * (1 - n_keep / (h * w))))))).values
     local = (values >= threshold).nonzero()[:, 0]
     if len(local) < min(64, h * w):
@@ -989,9 +995,11 @@ def register_stack(
 
     chosen = "translation" if model == "auto" else model
     fit = lk.fit(init, chosen, iterations, tolerance_px)
-    # Occlusion: leave out the tiles that do not match and fit those frames again.
+    # Occlusion: leave out the tiles that do not match and fit those frames again. Only frames
+    # that converged: one that did not has no tiles that match for a reason (another scene, no
+    # texture), and leaving out its worst tiles would only flatter its correlation.
     keep, mismatch = None, fit.mismatch_fraction
-    redo = (mismatch > 0).nonzero()[:, 0]
+    redo = ((mismatch > 0) & fit.converged).nonzero()[:, 0]
     if len(redo):
         keep = ~fit.mismatch_points
         again = lk.fit(fit.homographies[redo], chosen, iterations, tolerance_px, redo, keep[redo])
@@ -1131,14 +1139,20 @@ def _precision_px(fit: _Fit, model: str, H: int, W: int, corr_area: float) -> Te
     The least-squares covariance assumes independent residuals; the blurred frames have
     residuals correlated over about ``corr_area`` pixels, so the variance is scaled by it.
     """
+    jac = _grid_jacobian(H, W, model)  # (2 P, k)
+    var = ((jac @ fit.covariance) * jac).sum(-1)  # (F, 2 P): variance of dx, dy at each point
+    return torch.sqrt(var.clamp_min(0).mean(-1) * 2 * corr_area) * (max(H, W) / 2.0)
+
+
+@functools.lru_cache(maxsize=16)
+def _grid_jacobian(H: int, W: int, model: str) -> Tensor:
+    """d(x', y')/dp of ``model`` at a 5 x 5 grid over the frame, stacked as (2 * 25, k)."""
     s = max(H, W) / 2.0
     x = torch.linspace(-(W - 1) / 2, (W - 1) / 2, 5, dtype=torch.float64) / s
     y = torch.linspace(-(H - 1) / 2, (H - 1) / 2, 5, dtype=torch.float64) / s
     x, y = (t.reshape(-1) for t in torch.meshgrid(x, y, indexing="ij"))
     jx, jy = _warp_jacobian(x, y, model)
-    jac = torch.stack((torch.stack(jx, -1), torch.stack(jy, -1)), -2)  # (P, 2, k)
-    var = torch.einsum("pai,fij,paj->fp", jac, fit.covariance, jac)
-    return torch.sqrt(var.clamp_min(0).mean(-1) * corr_area) * s
+    return torch.cat((torch.stack(jx, -1), torch.stack(jy, -1)))
 
 
 def _check_order(measured: Tensor, predicted: Tensor, H: int, W: int, ref: int, ok: Tensor):
