@@ -42,6 +42,7 @@ N_PARAMS = {"translation": 2, "similarity": 4, "homography": 8}
 # Thresholds behind the flags (px unless said otherwise).
 PRECISION_SCALE_PX = 0.05  # confidence exp(-(precision / this)^2); "too little texture" above it
 OCCLUSION_FRACTION = 0.10  # share of compared pixels in non-matching tiles that is reported
+COARSE_POINTS = 256  # points of a fit's first Gauss-Newton step (see _LucasKanade)
 MIN_CORRELATION = 0.5  # frame and reference correlate less than this at the compared points: another scene
 
 
@@ -545,6 +546,12 @@ class _LucasKanade:
         self.eye3 = torch.eye(3, dtype=torch.float64)
         self.corners_h = torch.tensor([[0, 0, 1], [W - 1, 0, 1], [0, H - 1, 1], [W - 1, H - 1, 1]], dtype=torch.float64)
         self._score_cache: tuple | None = None
+        # The first step of a fit only has to get near the solution: on large point sets it
+        # is taken on every few points (at most COARSE_POINTS), and the full set then needs
+        # one evaluation fewer.
+        step = len(points) // COARSE_POINTS
+        self.coarse = None if step < 2 else _LucasKanade(coefficients, gradient, samples[:, ::step],
+                                                         points[::step], margin)
         # 8 x 8 tiles over the frame, for the mismatch (occlusion) measure.
         self.n_tiles = 64
         self.tile_index = ((v * 8 / H).long() * 8 + (u * 8 / W).long())[None]
@@ -632,6 +639,22 @@ class _LucasKanade:
         w = ((self.huber * sigma[:, None]) / r.abs()).clamp_max(1.0) * mask
         return w, sigma
 
+    def first_step(self, init: Tensor, samples: Tensor, model: str) -> Tensor:
+        """One Gauss-Newton step from ``init`` (F, 3, 3) on these (few) points; frames whose step
+        is not finite or over 2 px stay where they were."""
+        r, _, w, _, slope, _ = self.residual(init, samples)
+        sd = self.steepest(slope, model)
+        eye = 1e-12 * torch.eye(sd.shape[-1], dtype=torch.float64)
+        dp = torch.linalg.solve(_normal_matrix(w, sd) + eye, _gradient(w, r, sd))
+        move = self.motion_px(dp, model)
+        good = torch.isfinite(move) & (move <= 2.0)
+        return torch.where(good[:, None, None], self.compose(init, dp.nan_to_num(0.0), model), init)
+
+    def compose(self, homographies: Tensor, dp: Tensor, model: str) -> Tensor:
+        """Forward composition H <- H W(dp), W in normalised coordinates; (F, 3, 3), (F, k)."""
+        upd = homographies @ (self.update_basis(model) @ dp.T).permute(2, 0, 1).add_(self.eye3)
+        return upd / upd[:, 2:3, 2:3]
+
     def update_basis(self, model: str) -> Tensor:
         """(3, 3, k): the warp update W(dp) = I + basis @ dp in pixel coordinates (the parameters
         are normalised: W is conjugated by the normaliser)."""
@@ -671,6 +694,8 @@ class _LucasKanade:
         k = N_PARAMS[model]
         eye = 1e-12 * torch.eye(k, dtype=torch.float64)
         Hk = init.clone()
+        if self.coarse is not None and keep is None:
+            Hk = self.coarse.first_step(Hk, self.coarse.samples if frames is None else self.coarse.samples[frames], model)
         converged = torch.zeros(F, dtype=torch.bool)
         # A frame whose step exceeds 2 px, or that wanders over 3 px from its start, has no basin
         # to converge in: it is left where it is (and flagged by the caller).
@@ -693,9 +718,7 @@ class _LucasKanade:
                 for full, part in zip(last, found):
                     full[active] = part
             dp = torch.linalg.solve(found[-1] + eye, _gradient(wa, ra, sd))
-            # Forward composition: H <- H W(dp), with W expressed in normalised coordinates.
-            upd = Hk[active] @ (self.update_basis(model) @ dp.T).permute(2, 0, 1).add_(self.eye3)
-            Hk[active] = upd / upd[:, 2:3, 2:3]
+            Hk[active] = self.compose(Hk[active], dp, model)
             move = self.motion_px(dp, model)
             converged[active] = move < tol
             wandered = self.corner_distance(Hk[active], init[active])
@@ -734,27 +757,36 @@ class _LucasKanade:
         grown = torch.nn.functional.max_pool2d(bad.reshape(F, 1, 8, 8).to(r.dtype), 3, 1, 1)
         return fraction, grown.reshape(F, -1).bool().gather(1, tiles) & mask
 
-    def score_test(self, fit: _Fit, model: str, corr_area: float, use: Tensor) -> tuple[float, float]:
-        """What one Gauss-Newton step of a richer ``model`` would gain from ``fit``'s solution.
+    def score_test(self, fit: _Fit, model: str, base: str, corr_area: float, use: Tensor) -> tuple[float, float]:
+        """What one Gauss-Newton step of a richer ``model`` would gain over one of ``base``, the
+        model of ``fit``, from ``fit``'s last evaluation.
+
+        Both steps are taken, so that what is left of ``base``'s own convergence (less than the
+        fit's tolerance) is not counted for the richer model.
 
         Returns (BIC gain summed over the frames in ``use`` (F,) bool, largest extra motion in px
         over them); the gain is compared with the extra parameters' penalty by the caller.
         """
         # Every model's warp is a linear map of the homography's parameters: one set of normal
-        # equations serves every richer model tested against the same fit.
+        # equations serves every model tested against the same fit.
         if self._score_cache is None or self._score_cache[0] is not fit:
             sd = self.steepest(fit.slope, "homography")
             w, r = fit.weights.to(sd.dtype), fit.residual.to(sd.dtype)
             self._score_cache = (fit, _normal_matrix(w, sd), _gradient(w, r, sd))
         _, hess8, grad8 = self._score_cache
-        embed = _EMBEDDING[model]
-        k = embed.shape[1]
-        hess, grad = embed.T @ hess8 @ embed, grad8 @ embed
-        dp = torch.linalg.solve(hess + 1e-12 * torch.eye(k, dtype=torch.float64), grad)
-        drop = (dp * grad).sum(-1).clamp_min(0)
+
+        def step(m: str) -> tuple[Tensor, Tensor]:
+            """The step as homography parameters (F, 8), and the drop of the RSS it brings (F,)."""
+            embed = _EMBEDDING[m]
+            grad = grad8 @ embed
+            dp = torch.linalg.solve(embed.T @ hess8 @ embed + 1e-12 * torch.eye(embed.shape[1], dtype=torch.float64), grad)
+            return dp @ embed.T, (dp * grad).sum(-1).clamp_min(0)
+
+        rich, drop = step(model)
+        simple, drop_simple = step(base)
         n_eff = (fit.n_valid / corr_area).clamp_min(1.0)
-        gain = n_eff * torch.log(fit.rss / (fit.rss - drop).clamp_min(1e-300))
-        return float(gain[use].sum()), float(self.motion_px(dp, model)[use].max())
+        gain = n_eff * torch.log((fit.rss - drop_simple).clamp_min(1e-300) / (fit.rss - drop).clamp_min(1e-300))
+        return float(gain[use].sum()), float(self.motion_px(rich - simple, "homography")[use].max())
 
 
 def _merge(fit: _Fit, part: _Fit, index: Tensor) -> _Fit:
@@ -1011,7 +1043,7 @@ def register_stack(
     if model == "auto" and bool(use.any()):
         for richer in MODELS[1:]:
             extra = N_PARAMS[richer] - N_PARAMS[chosen]
-            gain, moved = lk.score_test(fit, richer, corr_area, use)
+            gain, moved = lk.score_test(fit, richer, chosen, corr_area, use)
             if gain <= _penalty(fit, extra, corr_area, use) or moved <= motion_tolerance_px:
                 continue
             trial = lk.fit(fit.homographies, richer, iterations, tolerance_px, keep=keep)
