@@ -252,12 +252,13 @@ def _fast_fft_size(n: int) -> int:
 
 
 @functools.lru_cache(maxsize=32)
-def _frequency_filters(Hp: int, Wp: int, blur: tuple, dtype) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def _frequency_filters(Hp: int, Wp: int, blur: tuple, dtype) -> tuple[Tensor, ...]:
     """Responses on the (Hp, Wp // 2 + 1) rfft2 grid, cached per size and blur: the blur (the
     Gaussian exp(-sigma^2 w^2 / 2) for ``blur = ("gaussian", sigma)``, or a symmetric sampled
     kernel's exact response for ``blur = ("kernel", k_0, ..., k_r)``), the cubic B-spline's
-    sampled kernel [1, 4, 1] / 6 ((4 + 2 cos w) / 6 per axis, never below 1/3), and the central
-    differences d/du, d/dv (i sin w per axis). Callers must not modify them."""
+    sampled kernel [1, 4, 1] / 6 ((4 + 2 cos w) / 6 per axis, never below 1/3), the central
+    differences d/du, d/dv (i sin w per axis) and the exact derivatives (i w). Callers must not
+    modify them."""
     wy = 2 * math.pi * torch.fft.fftfreq(Hp, dtype=dtype)[:, None]
     wx = 2 * math.pi * torch.fft.rfftfreq(Wp, dtype=dtype)[None, :]
     if blur[0] == "gaussian":
@@ -270,7 +271,7 @@ def _frequency_filters(Hp: int, Wp: int, blur: tuple, dtype) -> tuple[Tensor, Te
     spline = (4 + 2 * torch.cos(wx)) * (4 + 2 * torch.cos(wy)) / 36
     d_u = 1j * torch.sin(wx) * torch.ones_like(wy)
     d_v = 1j * torch.sin(wy) * torch.ones_like(wx)
-    return response, spline, d_u, d_v
+    return response, spline, d_u, d_v, 1j * wx * torch.ones_like(wy), 1j * wy * torch.ones_like(wx)
 
 
 def _padded_spectrum(images: Tensor, blur_sigma: float, kernel: Tensor | None):
@@ -317,26 +318,28 @@ def prefilter(images: Tensor, blur_sigma: float = 0.0, kernel: Tensor | None = N
     coefficients : Tensor, shape (F, H, W)
         ``bspline_sample(coefficients, p)`` interpolates the blurred frames at points p.
     """
-    spectrum, (_, spline, _, _), size, crop = _padded_spectrum(images, blur_sigma, kernel)
+    spectrum, (_, spline, *_), size, crop = _padded_spectrum(images, blur_sigma, kernel)
     blurred = torch.fft.irfft2(spectrum, s=size)[crop]
     coefficients = torch.fft.irfft2(spectrum / spline, s=size)[crop].contiguous()
     return blurred, coefficients
 
 
-def _reference_splines(reference: Tensor, kernel: Tensor) -> tuple[Tensor, Tensor]:
+def _reference_splines(reference: Tensor, kernel: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """What the fit needs of the reference (H, W), blurred by ``kernel``, from one FFT.
 
     Returns
     -------
-    coefficients : Tensor, shape (1, H, W)
-        Cubic B-spline coefficients of the blurred reference.
+    coefficients : Tensor, shape (3, H, W)
+        Cubic B-spline coefficients of the blurred reference and of its exact derivatives d/du
+        and d/dv (so that one fetch interpolates value and gradient at any point).
     gradient : Tensor, shape (2, H, W)
         Its d/du and d/dv at the pixels (central differences, as Kornia's ``spatial_gradient``
         in ``diff`` mode; mirrored borders).
     """
-    spectrum, (_, spline, d_u, d_v), size, crop = _padded_spectrum(reference[None], 0.0, kernel)
-    parts = torch.fft.irfft2(spectrum * torch.stack((1 / spline, d_u, d_v)), s=size)[crop]
-    return parts[:1].contiguous(), parts[1:].contiguous()
+    spectrum, (_, spline, d_u, d_v, dx_u, dx_v), size, crop = _padded_spectrum(reference[None], 0.0, kernel)
+    coef = spectrum / spline
+    parts = torch.fft.irfft2(torch.cat((coef, coef * dx_u, coef * dx_v, spectrum * d_u, spectrum * d_v)), s=size)[crop]
+    return parts[:3].contiguous(), parts[3:].contiguous()
 
 
 def bspline_sample(coefficients: Tensor, points: Tensor) -> Tensor:
@@ -532,7 +535,8 @@ class _LucasKanade:
     tile_ratio = 4.0  # a tile this many times worse than the median tile does not match
 
     def __init__(self, coefficients: Tensor, gradient: Tensor, samples: Tensor, points: Tensor, margin: int):
-        """``coefficients`` (1, H, W): B-spline coefficients of the blurred reference;
+        """``coefficients`` (3, H, W): B-spline coefficients of the blurred reference and of its
+        exact d/du and d/dv (:func:`_reference_splines`);
         ``gradient`` (2, H, W): its d/du and d/dv at the pixels; ``samples`` (F, N): the blurred
         frames at ``points`` (N, 2), (u, v) integer pixel coordinates in float64."""
         H, W = coefficients.shape[-2:]
@@ -552,9 +556,13 @@ class _LucasKanade:
         # one evaluation fewer.
         step = len(points) // COARSE_POINTS
         self.coarse = None
+        self.exact_gradient = False
         if step >= 2:
+            # The coarse steps follow the interpolant's exact gradient: they converge in about
+            # one step, where the smoother gradient of the full fit converges linearly.
             self.coarse = copy.copy(self)
             self.coarse._set_points(samples[:, ::step], points[::step])
+            self.coarse.exact_gradient = True
 
     def _set_points(self, samples: Tensor, points: Tensor) -> None:
         """What depends on the compared points (everything else is shared with ``coarse``)."""
@@ -612,11 +620,15 @@ class _LucasKanade:
         mask = (u >= m) & (u <= self.W - 1 - m) & (v >= m) & (v <= self.H - 1 - m)
         if keep is not None:
             mask = mask & keep
-        target = _spline_fetch(self.coefficients, q)[0]
-        # The gradient, bilinearly: smoother than the spline's, which steers the fit of the
-        # richer models better (on bench_registration's stacks it kept the translation model
-        # where the spline's gradient let a similarity in at twice the error).
-        t_uv = _bilinear_sample(self.gradient, q)  # (2, F, N)
+        if self.exact_gradient:
+            values = _spline_fetch(self.coefficients, q)
+            target, t_uv = values[0], values[1:]
+        else:
+            target = _spline_fetch(self.coefficients[:1], q)[0]
+            # The gradient, bilinearly: smoother than the spline's, which steers the fit of the
+            # richer models better (on bench_registration's stacks it kept the translation model
+            # where the spline's gradient let a similarity in at twice the error).
+            t_uv = _bilinear_sample(self.gradient, q)  # (2, F, N)
         w = mask.to(self.dtype)
         r = self._photometric(samples, target, w) * w
         sigma = None
@@ -784,12 +796,6 @@ class _LucasKanade:
         """
         # Every model's warp is a linear map of the homography's parameters: one set of normal
         # equations serves every model tested against the same fit.
-        if self._score_cache is None or self._score_cache[0] is not fit:
-            sd = self.steepest(fit.slope, "homography")
-            w, r = fit.weights.to(sd.dtype), fit.residual.to(sd.dtype)
-            self._score_cache = (fit, _normal_matrix(w, sd), _gradient(w, r, sd))
-        _, hess8, grad8 = self._score_cache
-
         def step(m: str) -> tuple[Tensor, Tensor]:
             """The step as homography parameters (F, 8), and the drop of the RSS it brings (F,)."""
             embed = _EMBEDDING[m]
@@ -797,8 +803,13 @@ class _LucasKanade:
             dp = torch.linalg.solve(embed.T @ hess8 @ embed + 1e-12 * torch.eye(embed.shape[1], dtype=torch.float64), grad)
             return dp @ embed.T, (dp * grad).sum(-1).clamp_min(0)
 
+        if self._score_cache is None or self._score_cache[0] is not fit or self._score_cache[1] != base:
+            sd = self.steepest(fit.slope, "homography")
+            w, r = fit.weights.to(sd.dtype), fit.residual.to(sd.dtype)
+            hess8, grad8 = _normal_matrix(w, sd), _gradient(w, r, sd)
+            self._score_cache = (fit, base, hess8, grad8, step(base))
+        _, _, hess8, grad8, (simple, drop_simple) = self._score_cache
         rich, drop = step(model)
-        simple, drop_simple = step(base)
         n_eff = (fit.n_valid / corr_area).clamp_min(1.0)
         gain = n_eff * torch.log((fit.rss - drop_simple).clamp_min(1e-300) / (fit.rss - drop).clamp_min(1e-300))
         return float(gain[use].sum()), float(self.motion_px(rich - simple, "homography")[use].max())
