@@ -2,10 +2,12 @@
 
 The Risley scan moves the image by fractions of a pixel between frames. The tracer predicts that
 motion (``prediction``); the data then corrects it, because motors miss their targets and the
-optics are never exactly the model. The correction is an inverse-compositional Lucas-Kanade fit
-(Baker & Matthews 2004) on Kornia's spatial gradients, with robust (Huber) weights so that a small
-occluder does not drag the estimate, and cubic B-spline resampling so that the warp itself does
-not bias the sub-pixel answer (torch's bicubic kernel would, by about 0.04 px).
+optics are never exactly the model. The correction is a forward-compositional Lucas-Kanade fit
+(Baker & Matthews 2004) of the reference, sampled through each frame's homography, to the frame,
+with robust (Huber) weights so that a small occluder does not drag the estimate, and cubic
+B-spline resampling (value and exact gradient) so that the warp itself does not bias the
+sub-pixel answer (torch's bicubic kernel would, by about 0.04 px). The optics' prediction comes
+in as homographies fitted with Kornia's DLT (:func:`homographies_from_positions`).
 
 Frames are (F, H, W); pixel (u, v) is the centre of column u and row v. A homography ``H_k``
 maps frame-k pixel coordinates to reference pixel coordinates: ``[u_r, v_r, 1] ~ H_k [u, v, 1]``.
@@ -324,7 +326,7 @@ def prefilter(images: Tensor, blur_sigma: float = 0.0, kernel: Tensor | None = N
     return blurred, coefficients
 
 
-def _reference_splines(reference: Tensor, kernel: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def _reference_splines(reference: Tensor, kernel: Tensor) -> tuple[Tensor, Tensor]:
     """What the fit needs of the reference (H, W), blurred by ``kernel``, from one FFT.
 
     Returns
@@ -332,14 +334,14 @@ def _reference_splines(reference: Tensor, kernel: Tensor) -> tuple[Tensor, Tenso
     coefficients : Tensor, shape (3, H, W)
         Cubic B-spline coefficients of the blurred reference and of its exact derivatives d/du
         and d/dv (so that one fetch interpolates value and gradient at any point).
-    gradient : Tensor, shape (2, H, W)
-        Its d/du and d/dv at the pixels (central differences, as Kornia's ``spatial_gradient``
-        in ``diff`` mode; mirrored borders).
+    strength : Tensor, shape (H, W)
+        Squared gradient of the blurred reference at the pixels, by central differences (as
+        Kornia's ``spatial_gradient`` in ``diff`` mode; mirrored borders): where to compare.
     """
     spectrum, (_, spline, d_u, d_v, dx_u, dx_v), size, crop = _padded_spectrum(reference[None], 0.0, kernel)
     coef = spectrum / spline
     parts = torch.fft.irfft2(torch.cat((coef, coef * dx_u, coef * dx_v, spectrum * d_u, spectrum * d_v)), s=size)[crop]
-    return parts[:3].contiguous(), parts[3:].contiguous()
+    return parts[:3].contiguous(), parts[3] ** 2 + parts[4] ** 2
 
 
 def bspline_sample(coefficients: Tensor, points: Tensor) -> Tensor:
@@ -366,18 +368,6 @@ def bspline_sample(coefficients: Tensor, points: Tensor) -> Tensor:
     got, (gu0, gu1, gv0, gv1) = _bilinear_fetches(coefficients[:, None], points)
     got = got.view(F, 4, n)
     return gv0 * (gu0 * got[:, 0] + gu1 * got[:, 1]) + gv1 * (gu0 * got[:, 2] + gu1 * got[:, 3])
-
-
-def _bilinear_sample(images: Tensor, points: Tensor) -> Tensor:
-    """Bilinear interpolation of C images (C, H, W), shared by every frame, at each frame's
-    points (F, N, 2) (u, v) px, mirrored at the border; (C, F, N) in the images' dtype."""
-    C, H, W = images.shape
-    F, N = points.shape[:2]
-    scale = torch.tensor([2.0 / (W - 1), 2.0 / (H - 1)], dtype=torch.float64)
-    grid = (points * scale - 1).to(images.dtype).view(1, 1, F * N, 2)
-    got = torch.nn.functional.grid_sample(images[None], grid, mode="bilinear", padding_mode="reflection",
-                                          align_corners=True)
-    return got.view(C, F, N)
 
 
 def _bilinear_fetches(images: Tensor, points: Tensor) -> tuple[Tensor, tuple[Tensor, ...]]:
@@ -525,23 +515,24 @@ class _LucasKanade:
     cubic B-spline), and the frames are read at the points alone, so a fit costs in proportion
     to the number of points, not to the number of frame pixels.
 
-    The reference's gradient only steers the Gauss-Newton steps (the answer is where the
-    residual balances, whatever the steering), so it is its central differences, interpolated
-    bilinearly. The warp update is parametrised in normalised coordinates (centred, half-size 1) so that
-    the normal equations stay well conditioned for every model.
+    The reference's gradient is the exact derivative of its interpolant (B-spline coefficients of
+    the Fourier derivative, fetched with the value), so the Gauss-Newton steps converge in about
+    one step; an earlier bilinear gradient of central differences converged only linearly. The
+    first steps use a few of the points (``coarse``), so the full set usually needs one
+    evaluation. The warp update is parametrised in normalised coordinates (centred, half-size 1)
+    so that the normal equations stay well conditioned for every model.
     """
 
     huber = 1.345  # Huber's constant: 95% efficiency on Gaussian residuals
     tile_ratio = 4.0  # a tile this many times worse than the median tile does not match
 
-    def __init__(self, coefficients: Tensor, gradient: Tensor, samples: Tensor, points: Tensor, margin: int):
+    def __init__(self, coefficients: Tensor, samples: Tensor, points: Tensor, margin: int):
         """``coefficients`` (3, H, W): B-spline coefficients of the blurred reference and of its
-        exact d/du and d/dv (:func:`_reference_splines`);
-        ``gradient`` (2, H, W): its d/du and d/dv at the pixels; ``samples`` (F, N): the blurred
-        frames at ``points`` (N, 2), (u, v) integer pixel coordinates in float64."""
+        exact d/du and d/dv (:func:`_reference_splines`); ``samples`` (F, N): the blurred frames
+        at ``points`` (N, 2), (u, v) integer pixel coordinates in float64."""
         H, W = coefficients.shape[-2:]
         self.H, self.W, self.margin, self.dtype = H, W, margin, coefficients.dtype
-        self.coefficients, self.gradient = coefficients, gradient
+        self.coefficients = coefficients
         self.centre_h = torch.tensor([(W - 1) / 2, (H - 1) / 2, 1.0], dtype=torch.float64)
         self.scale = max(H, W) / 2.0
         self.norm = _normaliser(H, W, torch.float64)
@@ -556,13 +547,9 @@ class _LucasKanade:
         # one evaluation fewer.
         step = len(points) // COARSE_POINTS
         self.coarse = None
-        self.exact_gradient = False
         if step >= 2:
-            # The coarse steps follow the interpolant's exact gradient: they converge in about
-            # one step, where the smoother gradient of the full fit converges linearly.
             self.coarse = copy.copy(self)
             self.coarse._set_points(samples[:, ::step], points[::step])
-            self.coarse.exact_gradient = True
 
     def _set_points(self, samples: Tensor, points: Tensor) -> None:
         """What depends on the compared points (everything else is shared with ``coarse``)."""
@@ -620,15 +607,8 @@ class _LucasKanade:
         mask = (u >= m) & (u <= self.W - 1 - m) & (v >= m) & (v <= self.H - 1 - m)
         if keep is not None:
             mask = mask & keep
-        if self.exact_gradient:
-            values = _spline_fetch(self.coefficients, q)
-            target, t_uv = values[0], values[1:]
-        else:
-            target = _spline_fetch(self.coefficients[:1], q)[0]
-            # The gradient, bilinearly: smoother than the spline's, which steers the fit of the
-            # richer models better (on bench_registration's stacks it kept the translation model
-            # where the spline's gradient let a similarity in at twice the error).
-            t_uv = _bilinear_sample(self.gradient, q)  # (2, F, N)
+        values = _spline_fetch(self.coefficients, q)  # value, d/du, d/dv: (3, F, N)
+        target, t_uv = values[0], values[1:]
         w = mask.to(self.dtype)
         r = self._photometric(samples, target, w) * w
         sigma = None
@@ -1028,8 +1008,8 @@ def register_stack(
         raise HbisInputError(f"frames of {H} x {W} px are too small to register (blur_sigma={blur_sigma})")
 
     # The points: the reference's strongest gradients, away from the border.
-    coefficients, grads = _reference_splines(reference, kernel)
-    index = _strongest_points(grads[0] ** 2 + grads[1] ** 2, margin, keep_fraction, max_points)
+    coefficients, strength = _reference_splines(reference, kernel)
+    index = _strongest_points(strength, margin, keep_fraction, max_points)
     n_points = len(index)
     # Blurred residuals are correlated over about 4 pi sigma^2 pixels; what the statistics need
     # is how many of the compared points share one such area.
@@ -1049,7 +1029,7 @@ def register_stack(
         window = frames[:, v0:v0 + 256, u0:u0 + 256]
         init = _translation(phase_correlation_shifts(window, window[ref]))
     init[ref] = torch.eye(3, dtype=torch.float64)
-    lk = _LucasKanade(coefficients, grads, samples, points, margin)
+    lk = _LucasKanade(coefficients, samples, points, margin)
 
     chosen = "translation" if model == "auto" else model
     fit = lk.fit(init, chosen, iterations, tolerance_px)
