@@ -28,6 +28,20 @@ from hbis_torch.sr.learned import prepare_inputs
 NATURAL_SCENES = ("dead-leaves", "natural-field")
 TRAIN_SCENES = ("words", "texture", "edges", "bars", "siemens-star", "gradient", "slanted-edge") + NATURAL_SCENES
 SCENE_WEIGHTS = (0.2, 0.15, 0.1, 0.05, 0.05, 0.05, 0.05, 0.2, 0.15)
+NATURAL_SHARE = 0.35  # of SCENE_WEIGHTS: the natural scenes' share of the standard mix
+
+
+def scene_weights(natural_share: float = NATURAL_SHARE) -> tuple[float, ...]:
+    """SCENE_WEIGHTS with the natural scenes rescaled to ``natural_share`` of the mix (the
+    procedural ones to the rest, in their standard proportions)."""
+    if not 0.0 <= natural_share <= 1.0:
+        raise ValueError(f"natural_share must lie in [0, 1], got {natural_share!r}")
+    if natural_share == NATURAL_SHARE:
+        return SCENE_WEIGHTS
+    n = len(NATURAL_SCENES)
+    procedural = [w * (1 - natural_share) / (1 - NATURAL_SHARE) for w in SCENE_WEIGHTS[:-n]]
+    natural = [w * natural_share / NATURAL_SHARE for w in SCENE_WEIGHTS[-n:]]
+    return tuple(procedural + natural)
 # Bumped whenever the scene mix changes, so that cached pools of another mix are not reused.
 POOL_VERSION = 2
 
@@ -79,8 +93,9 @@ def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator) -> Image
     return ImageScene(size_mm=spec.size_mm, image=torch.from_numpy(image.astype(np.float32)), name=name)
 
 
-def simulate_example(system: System, plan, size: int, seed: int) -> dict:
-    """One simulated stack of a random procedural scene at a random place on the sensor.
+def simulate_example(system: System, plan, size: int, seed: int, natural_share: float = NATURAL_SHARE) -> dict:
+    """One simulated stack of a random scene of the mix (:func:`scene_weights`) at a random
+    place on the sensor.
 
     Returns a dict with ``frames`` (F, size, size) float32 in [0, 1], ``positions``
     (F, size, size, 2) float32 ROI-local LR pixels, ``truth`` (h size, h size) float32,
@@ -89,7 +104,7 @@ def simulate_example(system: System, plan, size: int, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     cam = system.camera
     roi = (int(rng.integers(0, cam.cols - size + 1)), int(rng.integers(0, cam.rows - size + 1)), size, size)
-    name = str(rng.choice(TRAIN_SCENES, p=SCENE_WEIGHTS))
+    name = str(rng.choice(TRAIN_SCENES, p=scene_weights(natural_share)))
     pixel = system.object_pixel_mm
     side = size * pixel * 1.25  # a margin so the scene covers every frame of the scan
     spec = SceneSpec(size_mm=(side, side), pixel_mm=pixel, detail_mm=pixel / 16)
@@ -111,12 +126,12 @@ def simulate_example(system: System, plan, size: int, seed: int) -> dict:
     }
 
 
-def build_pool(h: int, count: int, size: int, seed: int, indices=None) -> list[dict]:
+def build_pool(h: int, count: int, size: int, seed: int, indices=None, natural_share: float = NATURAL_SHARE) -> list[dict]:
     """``count`` simulated examples (or those of ``indices``) with seeds derived from ``seed``."""
     system = System()
     plan = plan_scan(system, h)
     indices = range(count) if indices is None else indices
-    return [simulate_example(system, plan, size, int(np.random.SeedSequence([seed, i]).generate_state(1)[0]))
+    return [simulate_example(system, plan, size, int(np.random.SeedSequence([seed, i]).generate_state(1)[0]), natural_share)
             for i in indices]
 
 

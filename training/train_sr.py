@@ -33,7 +33,7 @@ import torch.nn.functional as F
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
 from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet, count_parameters  # noqa: E402
-from training.sr_data import POOL_VERSION, build_pool, load_pool, make_batch, save_pool, whole_example  # noqa: E402
+from training.sr_data import NATURAL_SHARE, POOL_VERSION, build_pool, load_pool, make_batch, save_pool, whole_example  # noqa: E402
 
 # ---------------------------------------------------------------------------- config
 h = 4  # resolution improvement factor; the model takes h*h frames
@@ -43,6 +43,8 @@ skip = 7  # kernel of the linear multi-frame base (0: bilinear base of the refer
 patch = 32  # LR patch side of a training example (the output patch is h times larger)
 pool_size = 480  # simulated training stacks (procedural scenes, random places on the sensor)
 pool_roi = 96  # LR side of each simulated training stack; patches are cropped from them
+natural_share = 0.35  # share of natural-image scenes (dead leaves, 1/f^2 fields) in the training
+# pool; the validation pool always has the standard mix (0.35), so that runs compare
 noise_prob = 0.5  # share of training crops that get extra Gaussian noise ...
 noise_max = 0.06  # ... of a standard deviation uniform in [0, noise_max] (frames in [0, 1])
 val_size = 24  # held-out simulated stacks (their own seeds, never trained on)
@@ -125,14 +127,15 @@ if master:
     print(f"HbisSRNet h={h}: {count_parameters(model)} parameters, {world} process(es)")
 
 # ---------------------------------------------------------------------------- data
-def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
+def cached_pool(name: str, count: int, size: int, pool_seed: int, share: float = NATURAL_SHARE) -> list[dict]:
     """A simulated pool, built once (split across the ranks) and cached as an .npz file."""
-    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}_v{POOL_VERSION}.npz"
+    mix = "" if share == NATURAL_SHARE else f"_natural{share:g}"
+    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}_v{POOL_VERSION}{mix}.npz"
     if not path.exists():
         part = Path(f"{path}.part{rank}of{world}.npz")
         if not part.exists():
             t0 = time.monotonic()
-            save_pool(part, build_pool(h, count, size, pool_seed, range(rank, count, world)))
+            save_pool(part, build_pool(h, count, size, pool_seed, range(rank, count, world), share))
             print(f"rank {rank}: simulated {len(range(rank, count, world))} {name} stacks in {time.monotonic() - t0:.0f} s")
         if ddp:
             dist.barrier()
@@ -148,7 +151,7 @@ def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
 
 
 # Training and validation stacks come from disjoint seed streams (seed and seed + 1).
-train_pool = cached_pool("train", pool_size, pool_roi, seed)
+train_pool = cached_pool("train", pool_size, pool_roi, seed, natural_share)
 val_pool = cached_pool("val", val_size, val_roi, seed + 1)
 val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across the ranks
 
