@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from hbis_torch.sr.learned import prepare_inputs
-from training.sr_data import build_pool, crop_example, dead_leaves, dihedral, natural_image
+from training.sr_data import (NATURAL_SCENES, NATURAL_SHARE, SCENE_WEIGHTS, TRAIN_SCENES, build_pool, crop_example,
+                              dead_leaves, dihedral, natural_image, scene_weights)
 
 
 @pytest.fixture(scope="module")
@@ -72,3 +73,17 @@ def test_natural_images_fill_the_view_in_range(name):
         assert 0 <= image.min() and image.max() <= 1 and image.std() > 0.005
         # raster pixels of 1/4 to 4 sensor pixels
         assert 40 / 4 - 1 <= image.shape[1] <= 40 * 4 + 1
+
+
+def test_natural_share_rescales_the_mix_and_keeps_the_standard_one():
+    assert scene_weights() is SCENE_WEIGHTS  # the standard pools stay bit for bit
+    assert np.isclose(sum(SCENE_WEIGHTS[-len(NATURAL_SCENES):]), NATURAL_SHARE)
+    w = np.array(scene_weights(0.55))
+    natural = np.isin(TRAIN_SCENES, NATURAL_SCENES)
+    assert np.isclose(w.sum(), 1.0) and np.isclose(w[natural].sum(), 0.55)
+    # Proportions within each group are kept.
+    base = np.array(SCENE_WEIGHTS)
+    assert np.allclose(w[~natural] / w[~natural].sum(), base[~natural] / base[~natural].sum())
+    assert np.allclose(w[natural] / w[natural].sum(), base[natural] / base[natural].sum())
+    with pytest.raises(ValueError, match="natural_share"):
+        scene_weights(1.5)
