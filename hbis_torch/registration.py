@@ -258,9 +258,8 @@ def _frequency_filters(Hp: int, Wp: int, blur: tuple, dtype) -> tuple[Tensor, ..
     """Responses on the (Hp, Wp // 2 + 1) rfft2 grid, cached per size and blur: the blur (the
     Gaussian exp(-sigma^2 w^2 / 2) for ``blur = ("gaussian", sigma)``, or a symmetric sampled
     kernel's exact response for ``blur = ("kernel", k_0, ..., k_r)``), the cubic B-spline's
-    sampled kernel [1, 4, 1] / 6 ((4 + 2 cos w) / 6 per axis, never below 1/3), the central
-    differences d/du, d/dv (i sin w per axis) and the exact derivatives (i w). Callers must not
-    modify them."""
+    sampled kernel [1, 4, 1] / 6 ((4 + 2 cos w) / 6 per axis, never below 1/3), and the
+    derivatives d/du, d/dv (i w per axis). Callers must not modify them."""
     wy = 2 * math.pi * torch.fft.fftfreq(Hp, dtype=dtype)[:, None]
     wx = 2 * math.pi * torch.fft.rfftfreq(Wp, dtype=dtype)[None, :]
     if blur[0] == "gaussian":
@@ -271,9 +270,7 @@ def _frequency_filters(Hp: int, Wp: int, blur: tuple, dtype) -> tuple[Tensor, ..
         response = ((taps[0] + 2 * (taps[1:] * torch.cos(wx[..., None] * j)).sum(-1))
                     * (taps[0] + 2 * (taps[1:] * torch.cos(wy[..., None] * j)).sum(-1)))
     spline = (4 + 2 * torch.cos(wx)) * (4 + 2 * torch.cos(wy)) / 36
-    d_u = 1j * torch.sin(wx) * torch.ones_like(wy)
-    d_v = 1j * torch.sin(wy) * torch.ones_like(wx)
-    return response, spline, d_u, d_v, 1j * wx * torch.ones_like(wy), 1j * wy * torch.ones_like(wx)
+    return response, spline, 1j * wx * torch.ones_like(wy), 1j * wy * torch.ones_like(wx)
 
 
 def _padded_spectrum(images: Tensor, blur_sigma: float, kernel: Tensor | None):
@@ -335,13 +332,15 @@ def _reference_splines(reference: Tensor, kernel: Tensor) -> tuple[Tensor, Tenso
         Cubic B-spline coefficients of the blurred reference and of its exact derivatives d/du
         and d/dv (so that one fetch interpolates value and gradient at any point).
     strength : Tensor, shape (H, W)
-        Squared gradient of the blurred reference at the pixels, by central differences (as
-        Kornia's ``spatial_gradient`` in ``diff`` mode; mirrored borders): where to compare.
+        Squared gradient of the coefficients at the pixels: where to compare. (The coefficients
+        are the blurred reference sharpened by the spline's prefilter; on bench_registration's
+        stacks choosing points by their gradient was as accurate as by the blurred image's
+        central differences, and it needs no extra transform.)
     """
-    spectrum, (_, spline, d_u, d_v, dx_u, dx_v), size, crop = _padded_spectrum(reference[None], 0.0, kernel)
+    spectrum, (_, spline, d_u, d_v), size, crop = _padded_spectrum(reference[None], 0.0, kernel)
     coef = spectrum / spline
-    parts = torch.fft.irfft2(torch.cat((coef, coef * dx_u, coef * dx_v, spectrum * d_u, spectrum * d_v)), s=size)[crop]
-    return parts[:3].contiguous(), parts[3] ** 2 + parts[4] ** 2
+    parts = torch.fft.irfft2(torch.cat((coef, coef * d_u, coef * d_v)), s=size)[crop].contiguous()
+    return parts, parts[1] ** 2 + parts[2] ** 2
 
 
 def bspline_sample(coefficients: Tensor, points: Tensor) -> Tensor:
@@ -456,6 +455,8 @@ def _spline_fetch(coefficients: Tensor, points: Tensor) -> Tensor:
     operations: the fit calls it with value and gradient channels at once, and its cost at
     small frames is mostly per operation. ``points`` are float64 (u, v) px, so that the
     sub-pixel part stays exact at any frame size; the rest is in the coefficients' dtype.
+    Coefficients outside the image read as 0 (the cheapest padding): the values are exact at
+    points at least 2 px inside the image, and the fit compares no others.
     """
     C, H, W = coefficients.shape
     F, N = points.shape[:2]
@@ -472,7 +473,7 @@ def _spline_fetch(coefficients: Tensor, points: Tensor) -> Tensor:
     # The four fetches (u0, v0), (u1, v0), (u0, v1), (u1, v1): index [v fetch, u fetch].
     grid = torch.stack((at[None, :, ..., 0].expand(2, 2, F, N), at[:, None, ..., 1].expand(2, 2, F, N)), -1)
     got = torch.nn.functional.grid_sample(coefficients[None], grid.view(1, 1, 4 * F * N, 2), mode="bilinear",
-                                          padding_mode="reflection", align_corners=True).view(C, 2, 2, F, N)
+                                          padding_mode="zeros", align_corners=True).view(C, 2, 2, F, N)
     weights = torch.stack((g0, g1))  # (2, F, N, 2): [fetch, ..., axis]
     rows = (got * weights[..., 0]).sum(2)  # along u: (C, 2, F, N), one per v fetch
     return (rows * weights[..., 1]).sum(1)
