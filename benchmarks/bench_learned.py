@@ -50,6 +50,7 @@ SYNTHETIC = ("words", "texture")
 PHOTOS = ("camera", "astronaut", "brick")
 METHODS = ("bicubic", "classical", "learned-torch", "learned-onnx")
 THREADS = 2
+PAUSE_S = 0.2  # seconds of idle cores before each call timed in turn (timed_in_turn)
 
 
 def psnr(image: np.ndarray, truth: np.ndarray) -> float:
@@ -66,6 +67,25 @@ def timed(fn, repeats: int):
         result = fn()
         times.append(time.perf_counter() - t0)
     return result, float(np.median(times))
+
+
+def timed_in_turn(fns: dict, repeats: int, warm_up: bool = True):
+    """({name: result}, {name: median seconds}): one call of each function in turn, ``repeats``
+    rounds (after one warm-up round), so that a change of load on the cores hits all alike.
+
+    Each timed call starts after a pause of ``PAUSE_S``: without it, the worker threads that one
+    library leaves spinning after its call (onnxruntime's intra-op pool, torch's OpenMP team)
+    take the cores from the next call of the other library (measured: eager torch 30 % slower
+    at 128^2 right after an onnxruntime call).
+    """
+    results = {name: fn() for name, fn in fns.items()} if warm_up else {}
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            time.sleep(PAUSE_S)
+            results[name], seconds = timed_once(fn)
+            times[name].append(seconds)
+    return results, {name: float(np.median(t)) for name, t in times.items()}
 
 
 def scene_cases(size) -> list[tuple[str, str]]:
@@ -104,7 +124,7 @@ def load_torch_model(h: int) -> HbisSRNet | None:
     return model.eval()
 
 
-def run_case(system, h, roi, scene_name, seed, runner, model, repeats):
+def run_case(system, h, roi, scene_name, seed, runner, model, repeats, only=METHODS, interleave=False):
     stack, truth = make_stack(system, h, roi, scene_name, seed)
     frames = stack.to_float()
     positions, t_pos = timed_once(
@@ -137,7 +157,13 @@ def run_case(system, h, roi, scene_name, seed, runner, model, repeats):
     methods = {"bicubic": bicubic, "classical": classical, "learned-onnx": learned_onnx}
     if model is not None:
         methods["learned-torch"] = learned_torch
+    methods = {name: fn for name, fn in methods.items() if name in only}
     small = roi[2] * roi[3] <= 256 * 256
+    if interleave:
+        images, times = timed_in_turn(methods, repeats if small else 1, warm_up=small)
+        for name in methods:
+            rows[name] = {"psnr": psnr(images[name], truth), "seconds": times[name]}
+        return rows, t_pos
     for name, fn in methods.items():
         # Small ROIs: median of repeats after a warm-up; the full frame: one run.
         image, seconds = timed(fn, repeats) if small else timed_once(fn)
@@ -285,7 +311,8 @@ def hard_cases() -> str:
 def network_speed(hs, sizes, repeats: int) -> str:
     """Network alone (no input preparation), eager torch against onnxruntime, same tiles and threads.
 
-    The input content does not change the work, so the inputs are random (seeded).
+    The input content does not change the work, so the inputs are random (seeded). The two run in
+    turn (see :func:`timed_in_turn`), after one warm-up each.
     """
     cam = System().camera
     lines = ["| h | ROI (LR px) | eager torch [s] | onnxruntime [s] | speed-up |", "| --- | --- | ---: | ---: | ---: |"]
@@ -304,8 +331,9 @@ def network_speed(hs, sizes, repeats: int) -> str:
                     return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
             reps = repeats if size_arg != "full" else 1
-            _, t_torch = timed(lambda: run_tiled(torch_infer, frames, offsets, h, runner.tile, runner.halo), reps)
-            _, t_onnx = timed(lambda: runner.run_network(frames, offsets), reps)
+            _, t = timed_in_turn({"torch": lambda: run_tiled(torch_infer, frames, offsets, h, runner.tile, runner.halo),
+                                  "onnx": lambda: runner.run_network(frames, offsets)}, reps)
+            t_torch, t_onnx = t["torch"], t["onnx"]
             lines.append(f"| {h} | {size_arg} | {t_torch:.3f} | {t_onnx:.3f} | {t_torch / t_onnx:.2f}x |")
             print(lines[-1], flush=True)
     return "\n".join(lines) + "\n"
@@ -387,6 +415,29 @@ def session_variants(h: int, sizes, repeats: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def end_to_end(hs, sizes, repeats: int) -> str:
+    """learned-torch against learned-onnx only, end to end (input preparation, exposure gain,
+    tiles, clipping), on the stacks of the main table; one row per stack. The two run in turn
+    (torch, onnx, torch, onnx, ...), medians of ``repeats`` after a warm-up (the full frame: one
+    run each), so that other jobs on the cores slow both alike."""
+    system = System()
+    lines = ["| h | ROI | scene | learned-torch [s] | learned-onnx [s] | speed-up |", "| --- | --- | --- | ---: | ---: | ---: |"]
+    for h in hs:
+        if not (models_dir() / f"hbis_sr_h{h}.onnx").exists():
+            continue
+        runner, model = LearnedSR(h=h, threads=THREADS), load_torch_model(h)
+        for size_arg in sizes:
+            size = None if size_arg == "full" else int(size_arg)
+            for i, (_, scene) in enumerate(scene_cases(size)):
+                rows, _ = run_case(system, h, roi_for(system, size, i), scene, 1000 + i, runner, model, repeats,
+                                   only=("learned-torch", "learned-onnx"), interleave=True)
+                t_torch, t_onnx = rows["learned-torch"]["seconds"], rows["learned-onnx"]["seconds"]
+                assert abs(rows["learned-torch"]["psnr"] - rows["learned-onnx"]["psnr"]) < 0.01
+                lines.append(f"| {h} | {size_arg} | {scene} | {t_torch:.4f} | {t_onnx:.4f} | {t_torch / t_onnx:.2f}x |")
+                print(lines[-1], flush=True)
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hs", type=int, nargs="+", default=[2, 4, 7], help="factors (those with a model)")
@@ -399,6 +450,8 @@ def main(argv=None) -> int:
                         help="only time the network, eager torch against onnxruntime, and exit")
     parser.add_argument("--session-variants", action="store_true",
                         help="only compare onnxruntime session settings (h = 4 unless --hs) and exit")
+    parser.add_argument("--end-to-end", action="store_true",
+                        help="only time learned-torch against learned-onnx end to end and exit")
     parser.add_argument("--hard-cases", action="store_true",
                         help="only print the hard-case table (learned fp32 vs classical fp64) and exit")
     args = parser.parse_args(argv)
@@ -417,6 +470,13 @@ def main(argv=None) -> int:
         load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
         args.out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(args.out / "bench_learned_session.md", f"h = {h}, load average (1/5/15 min): {load}\n\n{text}")
+        print(text)
+        return 0
+    if args.end_to_end:
+        text = end_to_end(args.hs, args.sizes, args.repeats)
+        load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+        args.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(args.out / "bench_learned_e2e.md", f"Load average (1/5/15 min): {load}\n\n{text}")
         print(text)
         return 0
     if args.network_only:
