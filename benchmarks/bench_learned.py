@@ -43,7 +43,7 @@ from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
 from hbis_torch.scan import plan_scan  # noqa: E402
 from hbis_torch.simulate import SceneSpec, load_scene, sample_positions, simulate_stack  # noqa: E402
 from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
-from hbis_torch.sr.learned import LearnedSR, exposure_gain, models_dir, prepare_inputs, run_tiled  # noqa: E402
+from hbis_torch.sr.learned import LearnedSR, models_dir, run_tiled, super_resolve  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet  # noqa: E402
 
 SYNTHETIC = ("words", "texture")
@@ -139,17 +139,13 @@ def run_case(system, h, roi, scene_name, seed, runner, model, repeats, only=METH
     def classical():
         return classical_sr(frames, positions, h, cutoff=optics_cutoff(system), fill_factor=1.0).numpy()
 
-    def learned_torch():
-        frames_reg, offsets = prepare_inputs(frames_np, positions_np, h)
-
+    def learned_torch():  # LearnedSR.__call__ with eager torch in place of the session
         def infer(a, b):
             with torch.inference_mode():
                 return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
-        gain = exposure_gain(frames_reg)  # what LearnedSR does (1 for these normal exposures)
-        if gain == 1.0:
-            return np.clip(run_tiled(infer, frames_reg, offsets, h, runner.tile, runner.halo), 0, 1)
-        return np.clip(run_tiled(infer, frames_reg * np.float32(gain), offsets, h, runner.tile, runner.halo) / gain, 0, 1)
+        return super_resolve(lambda a, b: run_tiled(infer, a, b, h, runner.tile, runner.halo),
+                             frames_np, positions_np, h)
 
     def learned_onnx():
         return runner(frames_np, positions_np)
