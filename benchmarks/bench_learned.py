@@ -14,10 +14,16 @@ Methods, all on the same simulated stacks (hbis_torch.simulate, 12-bit sensor, e
 Every method gets the same frames and the same sample positions (from the tracer, via
 :func:`hbis_torch.simulate.sample_positions`; their cost is reported on its own line, it is shared
 by classical and learned). Times are wall-clock medians of
-``--repeats`` runs after one warm-up, with 2 threads for torch and onnxruntime alike. PSNR is over
+``--repeats`` runs after one warm-up, with 2 threads for torch and onnxruntime alike, glibc's
+allocator kept from returning memory (:func:`steady_malloc`: eager torch's best, steady times;
+``--default-malloc`` leaves it alone). PSNR is over
 the whole output image against the simulator's ground truth (peak 1). Scenes: procedural
 (``words``, ``texture``: the kind the network was trained on, new seeds) and photographs from
 scikit-image (never seen in training).
+
+``--end-to-end`` times only learned-torch against learned-onnx (the same glue, :func:`super_resolve`),
+one call of each in turn; ``--network-only`` the network alone; ``--session-variants`` onnxruntime
+settings.
 
 Writes ``benchmarks/results/bench_learned.json``, the Pareto plot ``docs/pareto.png`` and the
 markdown table ``benchmarks/results/bench_learned.md`` (copied into docs/learned.md by hand).
@@ -51,6 +57,28 @@ PHOTOS = ("camera", "astronaut", "brick")
 METHODS = ("bicubic", "classical", "learned-torch", "learned-onnx")
 THREADS = 2
 PAUSE_S = 0.2  # seconds of idle cores before each call timed in turn (timed_in_turn)
+
+
+def steady_malloc() -> bool:
+    """Keep glibc from mapping fresh pages for every large block (True if it took).
+
+    Eager torch allocates each activation anew: 12-57 MB per conv output here. glibc serves such
+    blocks with ``mmap`` (fresh pages, zeroed by the kernel on first touch) until its adaptive
+    threshold happens to rise above them, so the same torch call ran 66 or 82 ms at 128^2,
+    263 or 294-373 ms at 256^2 and 6.2 or 7.3 s on the full frame depending on the process's
+    history (h = 4, 256^2 tiles, idle cores), and 512^2 tiles looked 40 % slower than 256^2
+    instead of 12 % faster. onnxruntime reuses its own arena and does not care. Serving every
+    block from the heap and never trimming it gives torch its best, steady times, so that the
+    speed-ups below are not flattered by torch's allocator.
+    """
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return False
+    m_mmap_max, m_trim_threshold = -4, -1  # mallopt parameters (malloc.h)
+    return bool(libc.mallopt(m_mmap_max, 0)) and bool(libc.mallopt(m_trim_threshold, 1 << 30))
 
 
 def psnr(image: np.ndarray, truth: np.ndarray) -> float:
@@ -457,10 +485,14 @@ def main(argv=None) -> int:
                         help="only compare onnxruntime session settings (h = 4 unless --hs) and exit")
     parser.add_argument("--end-to-end", action="store_true",
                         help="only time learned-torch against learned-onnx end to end and exit")
+    parser.add_argument("--default-malloc", action="store_true",
+                        help="leave glibc's allocator as it is (see steady_malloc; torch's times then vary)")
     parser.add_argument("--hard-cases", action="store_true",
                         help="only print the hard-case table (learned fp32 vs classical fp64) and exit")
     args = parser.parse_args(argv)
     torch.set_num_threads(THREADS)
+    if not args.default_malloc and not steady_malloc():
+        print("could not set glibc's malloc options; torch's times may vary by 10-40 %")
     if args.hard_cases:
         print(hard_cases())
         return 0
