@@ -14,10 +14,16 @@ Methods, all on the same simulated stacks (hbis_torch.simulate, 12-bit sensor, e
 Every method gets the same frames and the same sample positions (from the tracer, via
 :func:`hbis_torch.simulate.sample_positions`; their cost is reported on its own line, it is shared
 by classical and learned). Times are wall-clock medians of
-``--repeats`` runs after one warm-up, with 2 threads for torch and onnxruntime alike. PSNR is over
+``--repeats`` runs after one warm-up, with 2 threads for torch and onnxruntime alike, glibc's
+allocator kept from returning memory (:func:`steady_malloc`: eager torch's best, steady times;
+``--default-malloc`` leaves it alone). PSNR is over
 the whole output image against the simulator's ground truth (peak 1). Scenes: procedural
 (``words``, ``texture``: the kind the network was trained on, new seeds) and photographs from
 scikit-image (never seen in training).
+
+``--end-to-end`` times only learned-torch against learned-onnx (the same glue, :func:`super_resolve`),
+one call of each in turn; ``--network-only`` the network alone; ``--session-variants`` onnxruntime
+settings.
 
 Writes ``benchmarks/results/bench_learned.json``, the Pareto plot ``docs/pareto.png`` and the
 markdown table ``benchmarks/results/bench_learned.md`` (copied into docs/learned.md by hand).
@@ -43,13 +49,36 @@ from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
 from hbis_torch.scan import plan_scan  # noqa: E402
 from hbis_torch.simulate import SceneSpec, load_scene, sample_positions, simulate_stack  # noqa: E402
 from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
-from hbis_torch.sr.learned import LearnedSR, exposure_gain, models_dir, prepare_inputs, run_tiled  # noqa: E402
+from hbis_torch.sr.learned import LearnedSR, models_dir, run_tiled, super_resolve  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet  # noqa: E402
 
 SYNTHETIC = ("words", "texture")
 PHOTOS = ("camera", "astronaut", "brick")
 METHODS = ("bicubic", "classical", "learned-torch", "learned-onnx")
 THREADS = 2
+PAUSE_S = 0.2  # seconds of idle cores before each call timed in turn (timed_in_turn)
+
+
+def steady_malloc() -> bool:
+    """Keep glibc from mapping fresh pages for every large block (True if it took).
+
+    Eager torch allocates each activation anew: 12-57 MB per conv output here. glibc serves such
+    blocks with ``mmap`` (fresh pages, zeroed by the kernel on first touch) until its adaptive
+    threshold happens to rise above them, so the same torch call ran 66 or 82 ms at 128^2,
+    263 or 294-373 ms at 256^2 and 6.2 or 7.3 s on the full frame depending on the process's
+    history (h = 4, 256^2 tiles, idle cores), and 512^2 tiles looked 40 % slower than 256^2
+    instead of 12 % faster. onnxruntime reuses its own arena and does not care. Serving every
+    block from the heap and never trimming it gives torch its best, steady times, so that the
+    speed-ups below are not flattered by torch's allocator.
+    """
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return False
+    m_mmap_max, m_trim_threshold = -4, -1  # mallopt parameters (malloc.h)
+    return bool(libc.mallopt(m_mmap_max, 0)) and bool(libc.mallopt(m_trim_threshold, 1 << 30))
 
 
 def psnr(image: np.ndarray, truth: np.ndarray) -> float:
@@ -66,6 +95,27 @@ def timed(fn, repeats: int):
         result = fn()
         times.append(time.perf_counter() - t0)
     return result, float(np.median(times))
+
+
+def timed_in_turn(fns: dict, repeats: int, warm_up: bool = True):
+    """({name: result}, {name: median seconds}, {name: least seconds}): one call of each function
+    in turn, ``repeats`` rounds (after one warm-up round), so that a change of load on the cores
+    hits all alike. (On shared cores the least time is the one least disturbed by other jobs.)
+
+    Each timed call starts after a pause of ``PAUSE_S``: without it, the worker threads that one
+    library leaves spinning after its call (onnxruntime's intra-op pool, torch's OpenMP team)
+    take the cores from the next call of the other library (measured, h = 4, 128^2, idle cores:
+    torch 89-91 ms instead of 65, onnxruntime 59 instead of 53 ms without the pause).
+    """
+    results = {name: fn() for name, fn in fns.items()} if warm_up else {}
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            time.sleep(PAUSE_S)
+            results[name], seconds = timed_once(fn)
+            times[name].append(seconds)
+    return (results, {name: float(np.median(t)) for name, t in times.items()},
+            {name: float(np.min(t)) for name, t in times.items()})
 
 
 def scene_cases(size) -> list[tuple[str, str]]:
@@ -104,7 +154,8 @@ def load_torch_model(h: int) -> HbisSRNet | None:
     return model.eval()
 
 
-def run_case(system, h, roi, scene_name, seed, runner, model, repeats):
+def run_case(system, h, roi, scene_name, seed, runner, model, repeats, only=METHODS, interleave=False,
+             full_repeats: int = 1):
     stack, truth = make_stack(system, h, roi, scene_name, seed)
     frames = stack.to_float()
     positions, t_pos = timed_once(
@@ -119,17 +170,13 @@ def run_case(system, h, roi, scene_name, seed, runner, model, repeats):
     def classical():
         return classical_sr(frames, positions, h, cutoff=optics_cutoff(system), fill_factor=1.0).numpy()
 
-    def learned_torch():
-        frames_reg, offsets = prepare_inputs(frames_np, positions_np, h)
-
+    def learned_torch():  # LearnedSR.__call__ with eager torch in place of the session
         def infer(a, b):
             with torch.inference_mode():
                 return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
-        gain = exposure_gain(frames_reg)  # what LearnedSR does (1 for these normal exposures)
-        if gain == 1.0:
-            return np.clip(run_tiled(infer, frames_reg, offsets, h, runner.tile, runner.halo), 0, 1)
-        return np.clip(run_tiled(infer, frames_reg * np.float32(gain), offsets, h, runner.tile, runner.halo) / gain, 0, 1)
+        return super_resolve(lambda a, b: run_tiled(infer, a, b, h, runner.tile, runner.halo),
+                             frames_np, positions_np, h)
 
     def learned_onnx():
         return runner(frames_np, positions_np)
@@ -137,7 +184,13 @@ def run_case(system, h, roi, scene_name, seed, runner, model, repeats):
     methods = {"bicubic": bicubic, "classical": classical, "learned-onnx": learned_onnx}
     if model is not None:
         methods["learned-torch"] = learned_torch
+    methods = {name: fn for name, fn in methods.items() if name in only}
     small = roi[2] * roi[3] <= 256 * 256
+    if interleave:
+        images, times, least = timed_in_turn(methods, repeats if small else full_repeats, warm_up=small)
+        for name in methods:
+            rows[name] = {"psnr": psnr(images[name], truth), "seconds": times[name], "least_seconds": least[name]}
+        return rows, t_pos
     for name, fn in methods.items():
         # Small ROIs: median of repeats after a warm-up; the full frame: one run.
         image, seconds = timed(fn, repeats) if small else timed_once(fn)
@@ -285,10 +338,12 @@ def hard_cases() -> str:
 def network_speed(hs, sizes, repeats: int) -> str:
     """Network alone (no input preparation), eager torch against onnxruntime, same tiles and threads.
 
-    The input content does not change the work, so the inputs are random (seeded).
+    The input content does not change the work, so the inputs are random (seeded). The two run in
+    turn (see :func:`timed_in_turn`), after one warm-up each.
     """
     cam = System().camera
-    lines = ["| h | ROI (LR px) | eager torch [s] | onnxruntime [s] | speed-up |", "| --- | --- | ---: | ---: | ---: |"]
+    lines = ["| h | ROI (LR px) | eager torch [s] | onnxruntime [s] | speed-up | of the fastest runs |",
+             "| --- | --- | ---: | ---: | ---: | ---: |"]
     for h in hs:
         if not (models_dir() / f"hbis_sr_h{h}.onnx").exists():
             continue
@@ -304,9 +359,11 @@ def network_speed(hs, sizes, repeats: int) -> str:
                     return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
             reps = repeats if size_arg != "full" else 1
-            _, t_torch = timed(lambda: run_tiled(torch_infer, frames, offsets, h, runner.tile, runner.halo), reps)
-            _, t_onnx = timed(lambda: runner.run_network(frames, offsets), reps)
-            lines.append(f"| {h} | {size_arg} | {t_torch:.3f} | {t_onnx:.3f} | {t_torch / t_onnx:.2f}x |")
+            _, t, least = timed_in_turn({"torch": lambda: run_tiled(torch_infer, frames, offsets, h, runner.tile, runner.halo),
+                                         "onnx": lambda: runner.run_network(frames, offsets)}, reps)
+            t_torch, t_onnx = t["torch"], t["onnx"]
+            lines.append(f"| {h} | {size_arg} | {t_torch:.3f} | {t_onnx:.3f} | {t_torch / t_onnx:.2f}x | "
+                         f"{least['torch'] / least['onnx']:.2f}x |")
             print(lines[-1], flush=True)
     return "\n".join(lines) + "\n"
 
@@ -387,11 +444,38 @@ def session_variants(h: int, sizes, repeats: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def end_to_end(hs, sizes, repeats: int, full_repeats: int = 1) -> str:
+    """learned-torch against learned-onnx only, end to end (input preparation, exposure gain,
+    tiles, clipping), on the stacks of the main table; one row per stack. The two run in turn
+    (torch, onnx, torch, onnx, ...), medians of ``repeats`` after a warm-up (the full frame:
+    ``full_repeats`` runs each, no warm-up), so that other jobs on the cores slow both alike."""
+    system = System()
+    lines = ["| h | ROI | scene | learned-torch [s] | learned-onnx [s] | speed-up | of the fastest runs |",
+             "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
+    for h in hs:
+        if not (models_dir() / f"hbis_sr_h{h}.onnx").exists():
+            continue
+        runner, model = LearnedSR(h=h, threads=THREADS), load_torch_model(h)
+        for size_arg in sizes:
+            size = None if size_arg == "full" else int(size_arg)
+            for i, (_, scene) in enumerate(scene_cases(size)):
+                rows, _ = run_case(system, h, roi_for(system, size, i), scene, 1000 + i, runner, model, repeats,
+                                   only=("learned-torch", "learned-onnx"), interleave=True, full_repeats=full_repeats)
+                torch_row, onnx_row = rows["learned-torch"], rows["learned-onnx"]
+                assert abs(torch_row["psnr"] - onnx_row["psnr"]) < 0.01
+                t_torch, t_onnx = torch_row["seconds"], onnx_row["seconds"]
+                lines.append(f"| {h} | {size_arg} | {scene} | {t_torch:.4f} | {t_onnx:.4f} | {t_torch / t_onnx:.2f}x | "
+                             f"{torch_row['least_seconds'] / onnx_row['least_seconds']:.2f}x |")
+                print(lines[-1], flush=True)
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hs", type=int, nargs="+", default=[2, 4, 7], help="factors (those with a model)")
     parser.add_argument("--sizes", nargs="+", default=["128", "256", "full"])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--full-repeats", type=int, default=1, help="runs per method on the full frame (--end-to-end)")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results")
     parser.add_argument("--plot", type=Path, default=REPO / "docs" / "pareto.png")
     parser.add_argument("--replot", action="store_true", help="redraw the plot from the saved results and exit")
@@ -399,10 +483,16 @@ def main(argv=None) -> int:
                         help="only time the network, eager torch against onnxruntime, and exit")
     parser.add_argument("--session-variants", action="store_true",
                         help="only compare onnxruntime session settings (h = 4 unless --hs) and exit")
+    parser.add_argument("--end-to-end", action="store_true",
+                        help="only time learned-torch against learned-onnx end to end and exit")
+    parser.add_argument("--default-malloc", action="store_true",
+                        help="leave glibc's allocator as it is (see steady_malloc; torch's times then vary)")
     parser.add_argument("--hard-cases", action="store_true",
                         help="only print the hard-case table (learned fp32 vs classical fp64) and exit")
     args = parser.parse_args(argv)
     torch.set_num_threads(THREADS)
+    if not args.default_malloc and not steady_malloc():
+        print("could not set glibc's malloc options; torch's times may vary by 10-40 %")
     if args.hard_cases:
         print(hard_cases())
         return 0
@@ -417,6 +507,13 @@ def main(argv=None) -> int:
         load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
         args.out.mkdir(parents=True, exist_ok=True)
         atomic_write_text(args.out / "bench_learned_session.md", f"h = {h}, load average (1/5/15 min): {load}\n\n{text}")
+        print(text)
+        return 0
+    if args.end_to_end:
+        text = end_to_end(args.hs, args.sizes, args.repeats, args.full_repeats)
+        load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+        args.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(args.out / "bench_learned_e2e.md", f"Load average (1/5/15 min): {load}\n\n{text}")
         print(text)
         return 0
     if args.network_only:

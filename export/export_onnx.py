@@ -1,11 +1,13 @@
 """Export a trained SR checkpoint to ONNX (opset 18, dynamic batch, height and width).
 
     python export/export_onnx.py runs/sr_h4/model.pt models/hbis_sr_h4.onnx
+    python export/export_onnx.py models/hbis_sr_h4.pt models/hbis_sr_h4.onnx   # re-export shipped weights
 
 The file is self-contained (weights inside, no .data file) and its ``metadata_props`` carry
 what a user of the model needs: ``format``, ``h``, ``frames`` (= h^2), ``normalisation``,
 ``training_commit`` (git HEAD when the checkpoint was trained), ``export_commit``, ``opset``,
-``parameters``, ``val_psnr_db`` and ``training_config`` (JSON). After writing, the parity of
+``parameters``, ``val_psnr_db``, ``training_config`` (JSON) and ``graph_rewrites`` (what
+export/onnx_rewrite.py changed in the exporter's graph). After writing, the parity of
 torch and onnxruntime is checked at a size other than the export size (export/check_onnx.py).
 """
 
@@ -20,6 +22,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
+from export.onnx_rewrite import fuse_depth_to_space  # noqa: E402
 from hbis_torch.io_utils import atomic_path  # noqa: E402
 from hbis_torch.sr.learned import MODEL_FORMAT, NORMALISATION  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet, count_parameters  # noqa: E402
@@ -55,11 +58,14 @@ def example_inputs(h: int, rows: int, cols: int, seed: int = 0) -> tuple[torch.T
     return frames, offsets
 
 
-def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: int = OPSET) -> dict:
+def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: int = OPSET,
+                 rewrite: bool = True) -> dict:
     """Export ``model`` to ``out_path`` (written atomically); returns the metadata written.
 
     ``info`` is the training checkpoint (or any dict) with ``git_commit``, ``val_psnr``,
-    ``step`` and ``config``; missing entries are recorded as unknown.
+    ``step`` and ``config``; missing entries are recorded as unknown. ``rewrite``: replace the
+    exporter's reshape/transpose depth-to-space with ONNX DepthToSpace
+    (:func:`export.onnx_rewrite.fuse_depth_to_space`; same outputs, faster in onnxruntime).
     """
     import onnx
 
@@ -74,6 +80,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
         external_data=False, verbose=False,
     )
     proto = program.model_proto
+    fused = fuse_depth_to_space(proto, model.h) if rewrite else 0
     metadata = {
         "format": MODEL_FORMAT,
         "h": str(model.h),
@@ -87,6 +94,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
         "val_psnr_db": f"{float(info.get('val_psnr', float('nan'))):.3f}",
         "training_steps": str(info.get("step", "unknown")),
         "training_config": json.dumps(info.get("config", {})),
+        "graph_rewrites": f"DepthToSpace x{fused}",
     }
     del proto.metadata_props[:]
     for key, value in metadata.items():
@@ -99,15 +107,30 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     return metadata
 
 
+def training_info(ckpt: dict) -> dict:
+    """What :func:`export_model` records about training, from a training checkpoint or from a
+    weights file written by ``--weights`` (models/hbis_sr_h*.pt), whose ``metadata`` is that of
+    the first export: a re-export keeps the training commit, validation PSNR, steps and config."""
+    if "metadata" not in ckpt:
+        return ckpt
+    meta = ckpt["metadata"]
+    return {"git_commit": meta.get("training_commit", "unknown"),
+            "val_psnr": float(meta.get("val_psnr_db", "nan")),
+            "step": meta.get("training_steps", "unknown"),
+            "config": json.loads(meta.get("training_config", "{}"))}
+
+
 def export(checkpoint, out_path, opset: int = OPSET) -> dict:
-    """Export the checkpoint written by training/train_sr.py; returns the metadata written."""
+    """Export a checkpoint written by training/train_sr.py, or a weights file written by
+    ``--weights``; returns the metadata written."""
     model, ckpt = load_checkpoint(checkpoint)
-    return export_model(model, out_path, ckpt, opset)
+    return export_model(model, out_path, training_info(ckpt), opset)
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("checkpoint", help="model.pt written by training/train_sr.py")
+    parser.add_argument("checkpoint", help="model.pt written by training/train_sr.py, or a weights file "
+                        "written by --weights (models/hbis_sr_h*.pt)")
     parser.add_argument("out", help="the .onnx file to write")
     parser.add_argument("--opset", type=int, default=OPSET)
     parser.add_argument("--weights", help="also write the float32 weights (no optimizer state) to this .pt, "

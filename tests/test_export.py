@@ -96,3 +96,40 @@ def test_corrupt_model_file_is_a_clear_input_error(tmp_path):
     bad.write_bytes(b"not an onnx file")
     with pytest.raises(HbisInputError, match="cannot load ONNX model"):
         LearnedSR(bad)
+
+
+def test_depth_to_space_is_one_onnx_node_and_only_the_exact_pattern_is_rewritten(exported, tmp_path):
+    from export.onnx_rewrite import fuse_depth_to_space
+
+    model, path = exported
+    proto = onnx.load(str(path))
+    ops = [n.op_type for n in proto.graph.node]
+    assert ops.count("DepthToSpace") == 1 and "Transpose" not in ops and "Reshape" not in ops
+    (node,) = [n for n in proto.graph.node if n.op_type == "DepthToSpace"]
+    attrs = {a.name: onnx.helper.get_attribute_value(a) for a in node.attribute}
+    assert attrs == {"blocksize": 3, "mode": b"CRD"}
+    assert read_model_metadata(path)["graph_rewrites"] == "DepthToSpace x1"
+    # Without the rewrite the exporter's reshape/transpose is there; a wrong block size leaves it.
+    plain = tmp_path / "plain.onnx"
+    export_model(model, plain, rewrite=False)
+    proto = onnx.load(str(plain))
+    assert "Transpose" in [n.op_type for n in proto.graph.node]
+    assert fuse_depth_to_space(proto, 2) == 0 and fuse_depth_to_space(proto, 4) == 0
+    assert fuse_depth_to_space(proto, 3) == 1
+    onnx.checker.check_model(proto)
+
+
+def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):
+    from export.export_onnx import export
+
+    torch.manual_seed(1)
+    model = HbisSRNet(2, width=8, blocks=1, skip=3).eval()
+    first = export_model(model, tmp_path / "first.onnx", {"git_commit": "f00d", "val_psnr": 31.25, "step": 42,
+                                                          "config": {"h": 2, "lr": 0.001}})
+    weights = tmp_path / "weights.pt"
+    torch.save({"model": model.state_dict(), "model_config": model.config(), "metadata": first}, weights)
+    again = export(weights, tmp_path / "again.onnx")
+    for key in ("training_commit", "val_psnr_db", "training_steps", "training_config", "model_config", "h"):
+        assert again[key] == first[key], key
+    assert again["training_commit"] == "f00d" and json.loads(again["training_config"])["lr"] == 0.001
+    assert check_parity(tmp_path / "again.onnx", model) <= TOLERANCE

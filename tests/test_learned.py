@@ -92,3 +92,69 @@ def test_exposure_gain_leaves_normal_stacks_alone_and_lifts_dark_ones():
     dark = bright * 0.05
     assert exposure_gain(dark) == pytest.approx(0.5 / np.percentile(dark, 99.9))
     assert exposure_gain(np.zeros((4, 16, 16), np.float32)) == MAX_GAIN
+
+
+def reference_prepare_inputs(frames, positions, h):
+    """prepare_inputs written the plain way (index arrays, temporaries): what the fast one must equal."""
+    count, rows, cols = frames.shape
+    centre = np.array([(cols - 1) / 2, (rows - 1) / 2])
+    steps = np.rint(h * (positions.reshape(count, -1, 2).mean(axis=1) - centre)).astype(np.int64)
+    phases = np.mod(steps, h)
+    whole = (steps - phases) // h
+    frames_reg = np.empty((count, rows, cols), np.float32)
+    offsets = np.empty((2 * count, rows, cols), np.float32)
+    for k in range(count):
+        src_x = np.clip(np.arange(cols) - whole[k, 0], 0, cols - 1)
+        src_y = np.clip(np.arange(rows) - whole[k, 1], 0, rows - 1)
+        pos = positions[k][src_y][:, src_x]
+        c = phases[k, 1] * h + phases[k, 0]
+        frames_reg[c] = frames[k][src_y][:, src_x]
+        offsets[2 * c] = np.clip(h * (pos[..., 0] - np.arange(cols)) - phases[k, 0], -h, h)
+        offsets[2 * c + 1] = np.clip(h * (pos[..., 1] - np.arange(rows)[:, None]) - phases[k, 1], -h, h)
+    return frames_reg, offsets
+
+
+@pytest.mark.parametrize("h, rows, cols", [(2, 5, 7), (3, 4, 4), (4, 9, 6), (7, 6, 11)])
+def test_prepare_inputs_equals_the_plain_computation_bit_for_bit(h, rows, cols):
+    # Whole-pixel shifts of up to 12 LR pixels per frame and axis: more than the frame in places,
+    # so some frames are nothing but repeated edge pixels.
+    rng = np.random.default_rng(rows * cols + h)
+    pos = scan_positions(h, rows, cols, gain=1.02, bias=(0.04, -0.03), order=rng.permutation(h * h))
+    pos = pos + rng.integers(-12, 13, (h * h, 1, 1, 2)) + rng.normal(0, 0.02, pos.shape)
+    frames = rng.random((h * h, rows, cols), dtype=np.float32)
+    got = prepare_inputs(frames, pos, h)
+    want = reference_prepare_inputs(frames, pos, h)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_positions_too_large_to_sum_are_refused_by_name():
+    pos = scan_positions(2, 4, 4)
+    pos[1] = 1e308
+    with pytest.raises(HbisInputError, match="too large"):
+        prepare_inputs(np.zeros((4, 4, 4), np.float32), pos, 2)
+
+
+def test_exposure_gain_fast_path_gives_the_percentile_answer():
+    """The count that recognises bright stacks never answers 1 where the percentile would not."""
+    from hbis_torch.sr.learned import DARK_TARGET, MAX_GAIN, exposure_gain
+
+    def by_percentile(x):
+        high = float(np.percentile(x, 99.9))
+        return 1.0 if high >= DARK_TARGET else min(MAX_GAIN, DARK_TARGET / max(high, DARK_TARGET / MAX_GAIN))
+
+    rng = np.random.default_rng(2)
+    cases = []
+    for size in (16, 300, 4 * 37 * 29, 16 * 64 * 64):
+        cases.append(rng.random(size, dtype=np.float32))  # bright
+        cases.append(rng.random(size, dtype=np.float32) * 0.45)  # dark
+        cases.append(np.full(size, DARK_TARGET, np.float32))  # exactly at the target
+        for count in (size // 1000, size // 1000 + 1, size // 1000 + 2, 5):
+            # all just below the target but for `count` values at or just above it: the
+            # percentile crosses the target right here
+            x = np.full(size, np.nextafter(np.float32(DARK_TARGET), np.float32(0)), np.float32)
+            x[rng.choice(size, min(count, size), replace=False)] = rng.choice(
+                [DARK_TARGET, np.nextafter(np.float32(DARK_TARGET), np.float32(1)), 0.51, 1.0])
+            cases.append(x)
+    for x in cases:
+        assert exposure_gain(x) == by_percentile(x)
