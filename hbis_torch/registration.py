@@ -151,6 +151,17 @@ def _normaliser(H: int, W: int, dtype) -> Tensor:
     )
 
 
+@functools.lru_cache(maxsize=16)
+def _frame_constants(H: int, W: int) -> tuple[Tensor, ...]:
+    """Per frame size, float64, shared (callers must not modify them): the normaliser and its
+    inverse (3, 3), the identity (3, 3), the corners (4, 3) and the centre (3,) in homogeneous
+    pixel coordinates."""
+    corners = torch.tensor([[0, 0, 1], [W - 1, 0, 1], [0, H - 1, 1], [W - 1, H - 1, 1]], dtype=torch.float64)
+    centre = torch.tensor([(W - 1) / 2, (H - 1) / 2, 1.0], dtype=torch.float64)
+    return (_normaliser(H, W, torch.float64), _normaliser_inverse(H, W), torch.eye(3, dtype=torch.float64),
+            corners, centre)
+
+
 def _normaliser_inverse(H: int, W: int) -> Tensor:
     """Inverse of ``_normaliser(H, W, float64)``: normalised -> pixel coordinates."""
     s = max(H, W) / 2.0
@@ -407,6 +418,7 @@ def _bilinear_fetches(images: Tensor, points: Tensor) -> tuple[Tensor, tuple[Ten
 # --------------------------------------------------------------------------- Lucas-Kanade
 
 
+@functools.lru_cache(maxsize=8)
 def gaussian_kernel(sigma: float, dtype=torch.float64) -> Tensor:
     """Sampled, normalised 1-D Gaussian of standard deviation ``sigma`` px, radius ceil(2 sigma),
     shape (2 r + 1,); ``[1]`` for sigma = 0.
@@ -415,7 +427,7 @@ def gaussian_kernel(sigma: float, dtype=torch.float64) -> Tensor:
     what a registration costs per point; the reference is blurred by the same truncated kernel,
     so the two stay matched. On bench_registration's stacks radius 2 (sigma = 1) was as accurate
     as radius 3 (mean error 0.0031 / 0.0024 / 0.0043 px at 128^2 / 256^2 / 512^2, against
-    0.0032 / 0.0036 / 0.0051)."""
+    0.0032 / 0.0036 / 0.0051). Cached: callers must not modify the result."""
     radius = int(math.ceil(2 * sigma))
     if radius == 0:
         return torch.ones(1, dtype=dtype)
@@ -534,14 +546,10 @@ class _LucasKanade:
         H, W = coefficients.shape[-2:]
         self.H, self.W, self.margin, self.dtype = H, W, margin, coefficients.dtype
         self.coefficients = coefficients
-        self.centre_h = torch.tensor([(W - 1) / 2, (H - 1) / 2, 1.0], dtype=torch.float64)
         self.scale = max(H, W) / 2.0
-        self.norm = _normaliser(H, W, torch.float64)
-        self.norm_inv = _normaliser_inverse(H, W)
+        self.norm, self.norm_inv, self.eye3, self.corners_h, self.centre_h = _frame_constants(H, W)
         self._corner_jacobian: dict[str, Tensor] = {}
         self._update_basis: dict[str, Tensor] = {}
-        self.eye3 = torch.eye(3, dtype=torch.float64)
-        self.corners_h = torch.tensor([[0, 0, 1], [W - 1, 0, 1], [0, H - 1, 1], [W - 1, H - 1, 1]], dtype=torch.float64)
         self._set_points(samples, points)
         # The first step of a fit only has to get near the solution: on large point sets it
         # is taken on every few points (at most COARSE_POINTS), and the full set then needs
@@ -759,6 +767,8 @@ class _LucasKanade:
         mean = torch.where(used, total / count.clamp_min(1), torch.full_like(total, float("nan")))
         typical = torch.nanmedian(mean, dim=1).values.nan_to_num(0.0)
         bad = used & (mean > self.tile_ratio * typical[:, None])
+        if not bool(bad.any()):  # the usual case
+            return torch.zeros(F, dtype=r.dtype), torch.zeros_like(mask)
         fraction = (count * bad).sum(1) / count.sum(1).clamp_min(1)
         # The points to leave out: bad tiles and their neighbours (an occluder's edge rarely
         # follows the tiles).
@@ -1109,7 +1119,7 @@ def noise_sigma(frames: Tensor) -> Tensor:
     # The operator is [1, -2, 1] along rows times the same along columns: two second differences.
     d = frames[..., :-2] - 2 * frames[..., 1:-1] + frames[..., 2:]
     out = (d[..., :-2, :] - 2 * d[..., 1:-1, :] + d[..., 2:, :]).flatten(1)
-    step = max(1, out.shape[1] // 4096)  # a few thousand values make a good median
+    step = max(1, out.shape[1] // 2048)  # a couple of thousand values make a good median
     return 1.4826 * out[:, ::step].abs().median(-1).values / 6.0
 
 
