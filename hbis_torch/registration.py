@@ -485,10 +485,11 @@ def _spline_fetch(coefficients: Tensor, points: Tensor) -> Tensor:
     # The four fetches (u0, v0), (u1, v0), (u0, v1), (u1, v1): index [v fetch, u fetch].
     grid = torch.stack((at[None, :, ..., 0].expand(2, 2, F, N), at[:, None, ..., 1].expand(2, 2, F, N)), -1)
     got = torch.nn.functional.grid_sample(coefficients[None], grid.view(1, 1, 4 * F * N, 2), mode="bilinear",
-                                          padding_mode="zeros", align_corners=True).view(C, 2, 2, F, N)
+                                          padding_mode="zeros", align_corners=True).view(C, 4, F, N)
     weights = torch.stack((g0, g1))  # (2, F, N, 2): [fetch, ..., axis]
-    rows = (got * weights[..., 0]).sum(2)  # along u: (C, 2, F, N), one per v fetch
-    return (rows * weights[..., 1]).sum(1)
+    # The four fetches' weights (v weight times u weight), in the fetches' order: (4, F, N).
+    weights = (weights[:, None, ..., 1] * weights[None, ..., 0]).view(4, F, N)
+    return (got * weights).sum(1)
 
 
 @functools.lru_cache(maxsize=16)
