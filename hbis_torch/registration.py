@@ -162,6 +162,27 @@ def _frame_constants(H: int, W: int) -> tuple[Tensor, ...]:
             corners, centre)
 
 
+@functools.lru_cache(maxsize=32)
+def _update_basis(H: int, W: int, model: str) -> Tensor:
+    """(3, 3, k) for frames of H x W px: W(dp) = I + basis @ dp is the small warp of ``model`` with
+    normalised parameters dp, in pixel coordinates. Shared: callers must not modify it."""
+    norm, norm_inv, eye3 = _frame_constants(H, W)[:3]
+    steps = _params_to_matrix(torch.eye(N_PARAMS[model], dtype=torch.float64), model) - eye3  # (k, 3, 3)
+    return (norm_inv @ steps @ norm).permute(1, 2, 0).contiguous()
+
+
+@functools.lru_cache(maxsize=32)
+def _corner_jacobian(H: int, W: int, model: str) -> Tensor:
+    """(8, k): d(x', y')/dp in px at the four corners of an H x W frame (x' rows, then y'), for
+    ``model``'s normalised parameters. Shared: callers must not modify it."""
+    scale = max(H, W) / 2.0
+    hx, hy = (W - 1) / 2 / scale, (H - 1) / 2 / scale
+    x = torch.tensor([-hx, hx, -hx, hx], dtype=torch.float64)
+    y = torch.tensor([-hy, -hy, hy, hy], dtype=torch.float64)
+    jx, jy = _warp_jacobian(x, y, model)
+    return torch.cat((torch.stack(jx, -1), torch.stack(jy, -1))) * scale
+
+
 def _normaliser_inverse(H: int, W: int) -> Tensor:
     """Inverse of ``_normaliser(H, W, float64)``: normalised -> pixel coordinates."""
     s = max(H, W) / 2.0
@@ -545,8 +566,6 @@ class _LucasKanade:
         self.coefficients = coefficients
         self.scale = max(H, W) / 2.0
         self.norm, self.norm_inv, self.eye3, self.corners_h, self.centre_h = _frame_constants(H, W)
-        self._corner_jacobian: dict[str, Tensor] = {}
-        self._update_basis: dict[str, Tensor] = {}
         self._set_points(samples, points)
         # The first step of a fit only has to get near the solution: on large point sets it
         # is taken on every few points (at most COARSE_POINTS, plain least squares), and the
@@ -657,8 +676,8 @@ class _LucasKanade:
         points; frames whose step is not finite or over 2 px stay where they were."""
         r, _, w, _, slope, _ = self.residual(init, samples, robust=False)
         sd = self.steepest(slope, model)
-        eye = 1e-12 * torch.eye(sd.shape[-1], dtype=torch.float64)
-        dp = torch.linalg.solve(_normal_matrix(w, sd) + eye, _gradient(w, r, sd))
+        hess, grad = _normal_equations(w, sd, r)
+        dp = torch.linalg.solve(hess + 1e-12 * torch.eye(sd.shape[-1], dtype=torch.float64), grad)
         move = self.motion_px(dp, model)
         good = torch.isfinite(move) & (move <= 2.0)
         return torch.where(good[:, None, None], self.compose(init, dp.nan_to_num(0.0), model), init)
@@ -671,11 +690,7 @@ class _LucasKanade:
     def update_basis(self, model: str) -> Tensor:
         """(3, 3, k): the warp update W(dp) = I + basis @ dp in pixel coordinates (the parameters
         are normalised: W is conjugated by the normaliser)."""
-        if model not in self._update_basis:
-            k = N_PARAMS[model]
-            steps = _params_to_matrix(torch.eye(k, dtype=torch.float64), model) - self.eye3  # (k, 3, 3)
-            self._update_basis[model] = (self.norm_inv @ steps @ self.norm).permute(1, 2, 0).contiguous()
-        return self._update_basis[model]
+        return _update_basis(self.H, self.W, model)
 
     def corner_distance(self, a: Tensor, b: Tensor) -> Tensor:
         """Largest distance (px) between where homographies a and b (F, 3, 3) send the frame's
@@ -685,13 +700,7 @@ class _LucasKanade:
 
     def motion_px(self, dp: Tensor, model: str) -> Tensor:
         """Largest displacement (px) a small parameter step causes at the frame's corners, (F,)."""
-        if model not in self._corner_jacobian:
-            hx, hy = (self.W - 1) / 2 / self.scale, (self.H - 1) / 2 / self.scale
-            x = torch.tensor([-hx, hx, -hx, hx], dtype=torch.float64)
-            y = torch.tensor([-hy, -hy, hy, hy], dtype=torch.float64)
-            jx, jy = _warp_jacobian(x, y, model)
-            self._corner_jacobian[model] = torch.cat((torch.stack(jx, -1), torch.stack(jy, -1))) * self.scale
-        moves = self._corner_jacobian[model] @ dp.T  # (8, F): dx at the 4 corners, then dy
+        moves = _corner_jacobian(self.H, self.W, model) @ dp.T  # (8, F): dx at the 4 corners, then dy
         return torch.hypot(moves[:4], moves[4:]).amax(0)
 
     def fit(self, init: Tensor, model: str, iterations: int, tol: float,
@@ -724,13 +733,14 @@ class _LucasKanade:
             found = list(self.residual(Hk[active], samples[active], None if keep is None else keep[active]))
             ra, wa, ga = found[0], found[2], found[4]
             sd = self.steepest(ga, model)
-            found.append(_normal_matrix(wa, sd))
+            hess, grad = _normal_equations(wa, sd, ra)
+            found.append(hess)
             if everyone:
                 last = found
             else:
                 for full, part in zip(last, found):
                     full[active] = part
-            dp = torch.linalg.solve(found[-1] + eye, _gradient(wa, ra, sd))
+            dp = torch.linalg.solve(hess + eye, grad)
             Hk[active] = self.compose(Hk[active], dp, model)
             move = self.motion_px(dp, model)
             converged[active] = move < tol
@@ -793,8 +803,7 @@ class _LucasKanade:
 
         if self._score_cache is None or self._score_cache[0] is not fit or self._score_cache[1] != base:
             sd = self.steepest(fit.slope, "homography")
-            w, r = fit.weights.to(sd.dtype), fit.residual.to(sd.dtype)
-            hess8, grad8 = _normal_matrix(w, sd), _gradient(w, r, sd)
+            hess8, grad8 = _normal_equations(fit.weights.to(sd.dtype), sd, fit.residual.to(sd.dtype))
             self._score_cache = (fit, base, hess8, grad8, step(base))
         _, _, hess8, grad8, (simple, drop_simple) = self._score_cache
         rich, drop = step(model)
@@ -822,16 +831,15 @@ def _correlation(a: Tensor, b: Tensor, mask: Tensor) -> Tensor:
     return torch.where(den > 0, (da * db).sum(-1) / den.clamp_min(1e-300), torch.zeros_like(den))
 
 
-def _normal_matrix(w: Tensor, sd: Tensor) -> Tensor:
-    """J^T W J for every frame: weights (F, N), steepest-descent images (F, N, k) -> (F, k, k),
-    float64 (summed in the inputs' precision: float32 sums of a few thousand terms are good to
-    1e-6, far below what the motion needs)."""
-    return ((w[..., None] * sd).transpose(1, 2) @ sd).double()
-
-
-def _gradient(w: Tensor, r: Tensor, sd: Tensor) -> Tensor:
-    """J^T W r for every frame: (F, N), (F, N), (F, N, k) -> (F, k), float64."""
-    return ((w * r)[:, None, :] @ sd)[:, 0].double()
+def _normal_equations(w: Tensor, sd: Tensor, r: Tensor) -> tuple[Tensor, Tensor]:
+    """J^T W J (F, k, k) and J^T W r (F, k) for every frame, from one batched product, float64:
+    weights (F, N), steepest-descent images (F, N, k), residuals (F, N). (Summed in the inputs'
+    precision: float32 sums of a few thousand terms are good to 1e-6, far below what the motion
+    needs.)"""
+    k = sd.shape[-1]
+    both = torch.cat((sd, r[..., None]), -1)  # (F, N, k + 1)
+    product = ((w[..., None] * both).mT @ sd).double()  # (F, k + 1, k)
+    return product[:, :k], product[:, k]
 
 
 def _robust_scale(r: Tensor, mask: Tensor) -> Tensor:
