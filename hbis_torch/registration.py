@@ -28,6 +28,7 @@ be (frames out of order).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import math
 import operator
@@ -931,6 +932,21 @@ def _translation(shifts: Tensor) -> Tensor:
 # --------------------------------------------------------------------------- public entry
 
 
+def _in_inference_mode(fn):
+    """Run ``fn`` under ``torch.inference_mode`` (no autograd bookkeeping: at small frames the
+    registration's cost is mostly per tensor operation, and this takes about a tenth off) and
+    hand back ordinary tensors, which callers may modify in place."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with torch.inference_mode():
+            result = fn(*args, **kwargs)
+        tensors = {name: value.clone() for name, value in vars(result).items() if isinstance(value, Tensor)}
+        return dataclasses.replace(result, **tensors)
+
+    return wrapper
+
+
+@_in_inference_mode
 def register_stack(
     frames,
     reference_index: int,

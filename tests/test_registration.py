@@ -233,3 +233,13 @@ def test_bad_input_is_rejected_with_a_clear_message(kwargs, match):
     args.update(kwargs)
     with pytest.raises(HbisInputError, match=match):
         register_stack(args.pop("frames"), args.pop("reference_index"), **args)
+
+
+def test_results_are_ordinary_tensors_callers_may_modify(frames):
+    """The registration runs under torch.inference_mode; what it returns must not be inference
+    tensors, or a caller's in-place edit would fail."""
+    reg = register_stack(frames[:3], 0)
+    for t in (reg.homographies, reg.confidence, reg.ok, reg.precision_px, reg.residual, reg.out_of_order):
+        assert not t.is_inference()
+    reg.homographies[1, 0, 2] += 1.0  # an in-place edit outside inference mode
+    assert torch.isfinite(reg.homographies).all()
