@@ -144,6 +144,13 @@ def make_stack(system: System, h: int, roi, scene_name: str, seed: int):
     return simulate_stack(scene, system, plan_scan(system, h), roi=roi, seed=seed)
 
 
+def shipped_models(hs):
+    """(h, onnxruntime runner, eager torch model) for each h in ``hs`` that has a shipped model."""
+    for h in hs:
+        if (models_dir() / f"hbis_sr_h{h}.onnx").exists():
+            yield h, LearnedSR(h=h, threads=THREADS), load_torch_model(h)
+
+
 def load_torch_model(h: int) -> HbisSRNet | None:
     path = models_dir() / f"hbis_sr_h{h}.pt"
     if not path.exists():
@@ -344,10 +351,7 @@ def network_speed(hs, sizes, repeats: int) -> str:
     cam = System().camera
     lines = ["| h | ROI (LR px) | eager torch [s] | onnxruntime [s] | speed-up | of the fastest runs |",
              "| --- | --- | ---: | ---: | ---: | ---: |"]
-    for h in hs:
-        if not (models_dir() / f"hbis_sr_h{h}.onnx").exists():
-            continue
-        runner, model = LearnedSR(h=h, threads=THREADS), load_torch_model(h)
+    for h, runner, model in shipped_models(hs):
         for size_arg in sizes:
             rows, cols = (cam.rows, cam.cols) if size_arg == "full" else (int(size_arg), int(size_arg))
             rng = np.random.default_rng(0)
@@ -452,10 +456,7 @@ def end_to_end(hs, sizes, repeats: int, full_repeats: int = 1) -> str:
     system = System()
     lines = ["| h | ROI | scene | learned-torch [s] | learned-onnx [s] | speed-up | of the fastest runs |",
              "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
-    for h in hs:
-        if not (models_dir() / f"hbis_sr_h{h}.onnx").exists():
-            continue
-        runner, model = LearnedSR(h=h, threads=THREADS), load_torch_model(h)
+    for h, runner, model in shipped_models(hs):
         for size_arg in sizes:
             size = None if size_arg == "full" else int(size_arg)
             for i, (_, scene) in enumerate(scene_cases(size)):
