@@ -408,7 +408,7 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
     count = torch.bincount(ring[inside], minlength=24)
     m = torch.bincount(ring[inside], measured[inside], minlength=24) / count.clamp_min(1)
     # The model's shape is smooth in frequency: evaluate it on a subsample (about 16k points).
-    stride = max(1, int(math.sqrt(rad.numel() / 16384)))
+    stride = max(1, rad.numel() // 16384)
     pick = torch.arange(0, rad.numel(), stride)
     pick = pick[inside[pick]]
     sub_ring = ring[pick]
