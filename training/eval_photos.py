@@ -4,7 +4,8 @@
 
 Simulates (once, cached in training/runs/cache) exactly the photograph stacks that
 benchmarks/bench_learned.py uses for the checkpoint's h (same scenes, ROIs and seeds) and prints
-the network's PSNR on each, next to the classical method's (computed once and cached too).
+the network's PSNR on each, next to the classical method's (computed once per version of
+hbis_torch/sr/classical.py and cached too, written atomically).
 The photographs are never trained on; this only saves rerunning the whole benchmark to
 compare training runs.
 """
@@ -12,6 +13,7 @@ compare training runs.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 from pathlib import Path
@@ -23,7 +25,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 from benchmarks.bench_learned import make_stack, psnr, roi_for, scene_cases  # noqa: E402
 from hbis_torch.config import System  # noqa: E402
+from hbis_torch.io_utils import atomic_path  # noqa: E402
 from hbis_torch.simulate import sample_positions  # noqa: E402
+from hbis_torch.sr import classical as classical_module  # noqa: E402
 from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
 from hbis_torch.sr.learned import exposure_gain, prepare_inputs, run_tiled  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet  # noqa: E402
@@ -42,20 +46,22 @@ def main(argv=None) -> int:
     model.load_state_dict(ckpt["model"])
     model.eval()
     h, system = model.h, System()
+    # The cached classical PSNRs belong to one version of the classical method.
+    version = hashlib.sha256(Path(classical_module.__file__).read_bytes()).hexdigest()[:8]
     means = {}
     for size_arg in args.sizes:
         size = None if size_arg == "full" else int(size_arg)
         for i, (kind, scene) in enumerate(scene_cases(size)):
             roi = roi_for(system, size, i)
-            path = args.cache / f"bench_h{h}_{size_arg}_{scene}_{i}.npz"
+            path = args.cache / f"bench_h{h}_{size_arg}_{scene}_{i}_classical{version}.npz"
             if not path.exists():
                 stack, truth = make_stack(system, h, roi, scene, 1000 + i)
                 frames = stack.to_float()
                 positions = sample_positions(system, stack.phases_deg, stack.reference_index, stack.roi)
                 classical = classical_sr(frames, positions, h, cutoff=optics_cutoff(system), fill_factor=1.0).numpy()
-                path.parent.mkdir(parents=True, exist_ok=True)
-                np.savez(path, frames=frames.numpy(), positions=positions.numpy(), truth=truth,
-                         classical=np.float64(psnr(classical, truth)))
+                with atomic_path(path) as tmp, open(tmp, "wb") as out:
+                    np.savez(out, frames=frames.numpy(), positions=positions.numpy(), truth=truth,
+                             classical=np.float64(psnr(classical, truth)))
             data = np.load(path)
             frames_reg, offsets = prepare_inputs(data["frames"], data["positions"], h)
             gain = exposure_gain(frames_reg)
