@@ -17,6 +17,7 @@ run and starting the same command again resumes from ``out_dir/ckpt.pt``. The ou
 from __future__ import annotations
 
 import ast
+import hashlib
 import json
 import math
 import os
@@ -158,7 +159,11 @@ val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across
 
 def classical_baseline() -> float:
     """Mean PSNR of the classical method (hbis_torch.sr.classical) on the validation set, cached."""
-    path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}_v{POOL_VERSION}.classical_optics.json"
+    # Cached per version of the classical method (a hash of its source).
+    import hbis_torch.sr.classical as classical_module
+
+    version = hashlib.sha256(Path(classical_module.__file__).read_bytes()).hexdigest()[:8]
+    path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}_v{POOL_VERSION}.classical{version}.json"
     if not path.exists():
         from hbis_torch.config import System
         from hbis_torch.sr.classical import classical_sr, optics_cutoff
