@@ -54,7 +54,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--scenes", default="gradient,camera,astronaut,texture,words,bars,siemens-star")
     parser.add_argument("--sensors", default="40dB,25dB")
     parser.add_argument("--size", type=int, default=64, help="ROI width and height, px")
-    parser.add_argument("--tolerance-db", type=float, default=0.1)
+    parser.add_argument("--tolerance-db", type=float, default=0.07)
     parser.add_argument("--budget", choices=("total", "frame"), default="total")
     parser.add_argument("--quick", action="store_true", help="three scenes, 40 dB only, 48 px")
     parser.add_argument("--json", type=Path)
