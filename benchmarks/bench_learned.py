@@ -471,6 +471,14 @@ def end_to_end(hs, sizes, repeats: int, full_repeats: int = 1) -> str:
     return "\n".join(lines) + "\n"
 
 
+def save_side_table(out: Path, name: str, text: str, head: str = "Load") -> str:
+    """Write ``text`` to ``out / name`` (atomically) under a line with the load average; return it."""
+    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / name, f"{head} average (1/5/15 min): {load}\n\n{text}")
+    return text
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hs", type=int, nargs="+", default=[2, 4, 7], help="factors (those with a model)")
@@ -504,25 +512,15 @@ def main(argv=None) -> int:
         return 0
     if args.session_variants:
         h = args.hs[0] if len(args.hs) == 1 else 4
-        text = session_variants(h, args.sizes, args.repeats)
-        load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-        args.out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(args.out / "bench_learned_session.md", f"h = {h}, load average (1/5/15 min): {load}\n\n{text}")
-        print(text)
+        print(save_side_table(args.out, "bench_learned_session.md", session_variants(h, args.sizes, args.repeats),
+                              f"h = {h}, load"))
         return 0
     if args.end_to_end:
-        text = end_to_end(args.hs, args.sizes, args.repeats, args.full_repeats)
-        load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-        args.out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(args.out / "bench_learned_e2e.md", f"Load average (1/5/15 min): {load}\n\n{text}")
-        print(text)
+        print(save_side_table(args.out, "bench_learned_e2e.md",
+                              end_to_end(args.hs, args.sizes, args.repeats, args.full_repeats)))
         return 0
     if args.network_only:
-        text = network_speed(args.hs, args.sizes, args.repeats)
-        load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-        args.out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(args.out / "bench_learned_network.md", f"Load average (1/5/15 min): {load}\n\n{text}")
-        print(text)
+        print(save_side_table(args.out, "bench_learned_network.md", network_speed(args.hs, args.sizes, args.repeats)))
         return 0
     system = System()
     results, positions_s = [], {}
