@@ -458,36 +458,12 @@ def gaussian_kernel(sigma: float, dtype=torch.float64) -> Tensor:
     return (k / k.sum()).to(dtype)
 
 
-def bspline_sample_shared(coefficients: Tensor, points: Tensor) -> Tensor:
-    """Evaluate C cubic B-spline images, shared by every frame, at each frame's points.
-
-    The same four-bilinear-fetch evaluation as :func:`bspline_sample`, in one ``grid_sample``
-    call for all channels and frames.
-
-    Parameters
-    ----------
-    coefficients : Tensor, shape (C, H, W)
-    points : Tensor, shape (F, N, 2)
-        (u, v) pixel coordinates (float64 keeps the sub-pixel part exact at any frame size).
-
-    Returns
-    -------
-    Tensor, shape (C, F, N), in the coefficients' dtype.
-    """
-    C, H, W = coefficients.shape
-    F, N = points.shape[:2]
-    got, (gu0, gu1, gv0, gv1) = _bilinear_fetches(coefficients[None], points.reshape(1, F * N, 2))
-    got = got.view(C, 4, F, N)
-    gu0, gu1, gv0, gv1 = (g.view(F, N) for g in (gu0, gu1, gv0, gv1))
-    return gv0 * (gu0 * got[:, 0] + gu1 * got[:, 1]) + gv1 * (gu0 * got[:, 2] + gu1 * got[:, 3])
-
-
 def _spline_fetch(coefficients: Tensor, points: Tensor) -> Tensor:
     """Evaluate C cubic B-spline images (C, H, W) at every frame's points (F, N, 2) -> (C, F, N).
 
-    The same four-bilinear-fetch evaluation as :func:`bspline_sample_shared`, with fewer
-    operations: the fit calls it with value and gradient channels at once, and its cost at
-    small frames is mostly per operation. ``points`` are float64 (u, v) px, so that the
+    The same four-bilinear-fetch evaluation as :func:`bspline_sample`, for C images shared by
+    every frame and with fewer operations: the fit calls it with value and gradient channels at
+    once, and its cost at small frames is mostly per operation. ``points`` are float64 (u, v) px, so that the
     sub-pixel part stays exact at any frame size; the rest is in the coefficients' dtype.
     Coefficients outside the image read as 0 (the cheapest padding): the values are exact at
     points at least 2 px inside the image, and the fit compares no others.
