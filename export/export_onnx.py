@@ -149,11 +149,12 @@ def main(argv=None) -> int:
         print(f"wrote {args.weights} ({Path(args.weights).stat().st_size / 1e6:.2f} MB)")
     if args.no_check:
         return 0
-    from export.check_onnx import TOLERANCE, check_parity
+    from export.check_onnx import TOLERANCE, check_parity_all
 
-    diff = check_parity(args.out, args.checkpoint)
-    print(f"parity torch vs onnxruntime: max abs diff {diff:.2e} (tolerance {TOLERANCE:.0e})")
-    return 0 if diff <= TOLERANCE else 1
+    diffs = check_parity_all(args.out, args.checkpoint)
+    for provider, diff in diffs.items():
+        print(f"parity torch vs onnxruntime ({provider}): max abs diff {diff:.2e} (tolerance {TOLERANCE:.0e})")
+    return 0 if max(diffs.values()) <= TOLERANCE else 1
 
 
 if __name__ == "__main__":

@@ -10,7 +10,8 @@ import torch.nn.functional as F
 
 from export.check_onnx import CHECK_SIZE, TOLERANCE, check_parity
 from export.export_onnx import EXPORT_SIZE, OPSET, export_model
-from hbis_torch.sr.learned import LearnedSR, read_model_metadata
+from hbis_torch.errors import HbisInputError
+from hbis_torch.sr.learned import OPENVINO, LearnedSR, available_providers, read_model_metadata
 from hbis_torch.sr.net import HbisSRNet, space_to_depth
 
 
@@ -28,11 +29,46 @@ def exported(tmp_path_factory, request):
     return model, path
 
 
-def test_parity_at_a_size_other_than_the_export_size(exported):
+@pytest.mark.parametrize("provider", available_providers())
+def test_parity_at_a_size_other_than_the_export_size(exported, provider):
     model, path = exported
     assert tuple(CHECK_SIZE) != tuple(EXPORT_SIZE)
-    assert check_parity(path, model) <= TOLERANCE
-    assert check_parity(path, model, size=(9, 130)) <= TOLERANCE
+    assert check_parity(path, model, provider=provider) <= TOLERANCE
+    assert check_parity(path, model, size=(9, 130), provider=provider) <= TOLERANCE
+
+
+def test_auto_takes_openvino_where_onnxruntime_has_it(exported):
+    runner = LearnedSR(exported[1])
+    assert runner.provider == ("openvino" if "openvino" in available_providers() else "cpu")
+    assert LearnedSR(exported[1], provider="cpu").provider == "cpu"
+
+
+def test_unknown_or_missing_provider_is_a_clear_input_error(exported, monkeypatch):
+    import onnxruntime as ort
+
+    with pytest.raises(HbisInputError, match="unknown execution provider 'gpu'"):
+        LearnedSR(exported[1], provider="gpu")
+    monkeypatch.setattr(ort, "get_available_providers", lambda: ["CPUExecutionProvider"])
+    with pytest.raises(HbisInputError, match="no OpenVINO execution provider.*onnxruntime-openvino"):
+        LearnedSR(exported[1], provider="openvino")
+    assert LearnedSR(exported[1]).provider == "cpu"
+
+
+def test_auto_falls_back_to_the_cpu_kernels_when_openvino_refuses_the_model(exported, monkeypatch):
+    import onnxruntime as ort
+
+    real = ort.InferenceSession
+
+    def refusing_openvino(path, options, providers):
+        if any(OPENVINO in p for p in providers):
+            raise RuntimeError("OpenVINO cannot compile this model")
+        return real(path, options, providers=providers)
+
+    monkeypatch.setattr(ort, "get_available_providers", lambda: [OPENVINO, "CPUExecutionProvider"])
+    monkeypatch.setattr(ort, "InferenceSession", refusing_openvino)
+    assert LearnedSR(exported[1]).provider == "cpu"
+    with pytest.raises(HbisInputError, match="cannot load ONNX model"):
+        LearnedSR(exported[1], provider="openvino")
 
 
 def test_height_and_width_are_dynamic_and_the_file_is_self_contained(exported):
@@ -90,8 +126,6 @@ def test_space_to_depth_survives_the_dynamo_exporter(tmp_path):
 
 
 def test_corrupt_model_file_is_a_clear_input_error(tmp_path):
-    from hbis_torch.errors import HbisInputError
-
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(b"not an onnx file")
     with pytest.raises(HbisInputError, match="cannot load ONNX model"):

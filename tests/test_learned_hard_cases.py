@@ -13,7 +13,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import EdgesScene, FlatScene, SensorModel, sample_positions, simulate_stack
 from hbis_torch.sr.classical import classical_sr, optics_cutoff
-from hbis_torch.sr.learned import LearnedSR, default_model_path
+from hbis_torch.sr.learned import LearnedSR, available_providers, default_model_path
 
 H = 4
 SYSTEM = System()
@@ -24,9 +24,10 @@ def psnr(a, b):
     return 10 * np.log10(1.0 / max(float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)), 1e-20))
 
 
-@pytest.fixture(scope="module")
-def runner():
-    return LearnedSR(default_model_path(H), threads=2)
+@pytest.fixture(scope="module", params=available_providers())
+def runner(request):
+    """The shipped model in each execution provider this onnxruntime has."""
+    return LearnedSR(default_model_path(H), threads=2, provider=request.param)
 
 
 @pytest.fixture(scope="module")

@@ -160,6 +160,8 @@ def test_cli_reconstruct_writes_the_image(centre, tmp_path, capsys):
     [
         (["--method", "magic"], "invalid choice"),
         (["--model", "m.onnx"], "--model is only for --method learned"),
+        (["--provider", "cpu"], "--provider is only for --method learned"),
+        (["--method", "learned", "--provider", "gpu"], "invalid choice"),
         (["--registration", "magic"], "invalid choice"),
     ],
 )

@@ -23,6 +23,9 @@ def register(sub) -> None:
     p.add_argument("--method", choices=METHOD_CHOICES, default="classical",
                    help="reconstruction method (default: classical)")
     p.add_argument("--model", type=Path, help="ONNX model file (only for --method learned)")
+    p.add_argument("--provider", choices=("auto", "openvino", "cpu"),
+                   help="learned: onnxruntime execution provider; 'auto' (the default) takes "
+                   "OpenVINO where onnxruntime has it (faster), else onnxruntime's own CPU kernels")
     p.add_argument("--out", type=Path, required=True, help="output TIFF")
     p.add_argument("--registration", choices=("auto", "optics", "data"), default="auto",
                    help="sample positions from the tracer ('optics'), the tracer corrected by "
@@ -45,11 +48,12 @@ def run(args) -> int:
         )
     kw = {}
     if args.method == "classical":
-        if args.model is not None:
-            raise HbisInputError("--model is only for --method learned; the classical method has no model")
+        for name in ("model", "provider"):
+            if getattr(args, name) is not None:
+                raise HbisInputError(f"--{name} is only for --method learned; the classical method has no ONNX model")
         kw["deblur"] = not args.no_deblur
-    elif args.model is not None:
-        kw["model"] = args.model
+    else:
+        kw.update({name: getattr(args, name) for name in ("model", "provider") if getattr(args, name) is not None})
     stack = read_stack(args.stack)
     messages: list[str] = []
     image = reconstruct(stack, method=args.method, registration=args.registration,
