@@ -9,7 +9,10 @@ Methods, all on the same simulated stacks (hbis_torch.simulate, 12-bit sensor, e
 - ``classical``: :func:`hbis_torch.sr.classical.classical_sr` with the optics' cutoff, i.e. what
   ``hbis reconstruct --method classical --registration optics`` computes.
 - ``learned-torch``: the network in eager PyTorch (float32, same tiling as below).
-- ``learned-onnx``: the exported network in onnxruntime (:class:`hbis_torch.sr.learned.LearnedSR`).
+- ``learned-onnx``: the exported network in onnxruntime as shipped (:class:`hbis_torch.sr.learned.LearnedSR`,
+  provider "auto": the OpenVINO execution provider where this onnxruntime has it).
+- ``learned-onnx-cpu``: the same in onnxruntime's own CPU kernels (provider "cpu"; only where the
+  shipped provider is another one).
 
 Every method gets the same frames and the same sample positions (from the tracer, via
 :func:`hbis_torch.simulate.sample_positions`; their cost is reported on its own line, it is shared
@@ -49,12 +52,13 @@ from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
 from hbis_torch.scan import plan_scan  # noqa: E402
 from hbis_torch.simulate import SceneSpec, load_scene, sample_positions, simulate_stack  # noqa: E402
 from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
-from hbis_torch.sr.learned import LearnedSR, models_dir, run_tiled, super_resolve  # noqa: E402
+from hbis_torch.sr.learned import LearnedSR, available_providers, models_dir, run_tiled, super_resolve  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet  # noqa: E402
 
 SYNTHETIC = ("words", "texture")
 PHOTOS = ("camera", "astronaut", "brick")
-METHODS = ("bicubic", "classical", "learned-torch", "learned-onnx")
+METHODS = ("bicubic", "classical", "learned-torch", "learned-onnx-cpu", "learned-onnx")
+ONNX_METHODS = ("learned-onnx-cpu", "learned-onnx")
 THREADS = 2
 PAUSE_S = 0.2  # seconds of idle cores before each call timed in turn (timed_in_turn)
 
@@ -145,10 +149,19 @@ def make_stack(system: System, h: int, roi, scene_name: str, seed: int):
 
 
 def shipped_models(hs):
-    """(h, onnxruntime runner, eager torch model) for each h in ``hs`` that has a shipped model."""
+    """(h, onnxruntime runners, eager torch model) for each h in ``hs`` that has a shipped model."""
     for h in hs:
         if (models_dir() / f"hbis_sr_h{h}.onnx").exists():
-            yield h, LearnedSR(h=h, threads=THREADS), load_torch_model(h)
+            yield h, onnx_runners(h), load_torch_model(h)
+
+
+def onnx_runners(h: int) -> dict[str, LearnedSR]:
+    """{"learned-onnx": the shipped provider, "learned-onnx-cpu": onnxruntime's own kernels}; the
+    second only where the shipped provider is another one."""
+    runners = {"learned-onnx": LearnedSR(h=h, threads=THREADS)}
+    if runners["learned-onnx"].provider != "cpu":
+        runners["learned-onnx-cpu"] = LearnedSR(h=h, threads=THREADS, provider="cpu")
+    return runners
 
 
 def load_torch_model(h: int) -> HbisSRNet | None:
@@ -161,7 +174,7 @@ def load_torch_model(h: int) -> HbisSRNet | None:
     return model.eval()
 
 
-def run_case(system, h, roi, scene_name, seed, runner, model, repeats, only=METHODS, interleave=False,
+def run_case(system, h, roi, scene_name, seed, runners, model, repeats, only=METHODS, interleave=False,
              full_repeats: int = 1):
     stack, truth = make_stack(system, h, roi, scene_name, seed)
     frames = stack.to_float()
@@ -182,15 +195,15 @@ def run_case(system, h, roi, scene_name, seed, runner, model, repeats, only=METH
             with torch.inference_mode():
                 return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
-        return super_resolve(lambda a, b: run_tiled(infer, a, b, h, runner.tile, runner.halo),
+        shipped = runners["learned-onnx"]
+        return super_resolve(lambda a, b: run_tiled(infer, a, b, h, shipped.tile, shipped.halo),
                              frames_np, positions_np, h)
 
-    def learned_onnx():
-        return runner(frames_np, positions_np)
-
-    methods = {"bicubic": bicubic, "classical": classical, "learned-onnx": learned_onnx}
+    methods = {"bicubic": bicubic, "classical": classical}
     if model is not None:
         methods["learned-torch"] = learned_torch
+    for name, runner in runners.items():
+        methods[name] = lambda runner=runner: runner(frames_np, positions_np)
     methods = {name: fn for name, fn in methods.items() if name in only}
     small = roi[2] * roi[3] <= 256 * 256
     if interleave:
@@ -239,10 +252,12 @@ def markdown(table, positions_s, load):
     speed = {}
     for row in table:
         speed.setdefault((row["h"], row["size"], row["kind"]), {})[row["method"]] = row["seconds"]
-    ratios = [f"{h}/{size}/{kind}: {m['learned-torch'] / m['learned-onnx']:.2f}x"
-              for (h, size, kind), m in speed.items() if "learned-torch" in m and "learned-onnx" in m]
-    lines.append("")
-    lines.append("onnxruntime speed-up over eager torch (same tiles, same threads): " + ", ".join(ratios))
+    for method in ONNX_METHODS:
+        ratios = [f"{h}/{size}/{kind}: {m['learned-torch'] / m[method]:.2f}x"
+                  for (h, size, kind), m in speed.items() if "learned-torch" in m and method in m]
+        if ratios:
+            lines.append("")
+            lines.append(f"{method} speed-up over eager torch (same tiles, same threads): " + ", ".join(ratios))
     return "\n".join(lines) + "\n"
 
 
@@ -277,7 +292,9 @@ def pareto_plot(table, path):
 
     kinds = sorted({r["kind"] for r in table})
     fig, axes = plt.subplots(1, len(kinds), figsize=(6 * len(kinds), 4.8), squeeze=False)
-    colours = {"bicubic": "tab:gray", "classical": "tab:blue", "learned-torch": "tab:orange", "learned-onnx": "tab:red"}
+    colours = {"bicubic": "tab:gray", "classical": "tab:blue", "learned-torch": "tab:orange",
+               "learned-onnx-cpu": "tab:purple", "learned-onnx": "tab:red"}
+    colours = {m: c for m, c in colours.items() if any(r["method"] == m for r in table)}
     markers = {128: "o", 256: "s", "full": "^"}
     hs = sorted({r["h"] for r in table})
     fills = dict(zip(hs, ("none", "full", "left", "bottom")))
@@ -312,7 +329,7 @@ def hard_cases() -> str:
     pixel = system.object_pixel_mm
     edges = EdgesScene(size_mm=(40 * pixel, 40 * pixel), normals_deg=(20.0, 110.0),
                        offsets_mm=(0.0, 3 * pixel), levels=(0.1, 0.4, 0.7, 0.95))
-    runner = LearnedSR(h=h, threads=THREADS)
+    runners = {p: LearnedSR(h=h, threads=THREADS, provider=p) for p in available_providers()}
 
     def simulate(scene):
         stack, truth = simulate_stack(scene, system, plan, roi=roi, sensor=SensorModel(), seed=3)
@@ -330,28 +347,32 @@ def hard_cases() -> str:
                                                  .astype(np.float32), base_truth),
         "flat 0.5": simulate(FlatScene(size_mm=(1.0, 1.0), level=0.5)),
     }
-    lines = ["| case | learned (fp32) | classical (fp64) | abs(mean difference) |", "| --- | ---: | ---: | ---: |"]
+    lines = ["| case | " + " | ".join(f"learned (fp32, {p})" for p in runners)
+             + " | classical (fp64) | largest abs(mean difference) |", "| --- |" + " ---: |" * (len(runners) + 2)]
     for name, (frames, truth) in cases.items():
-        learned = runner(frames, positions)
+        learned = {p: runner(frames, positions) for p, runner in runners.items()}
         reference = classical_sr(torch.from_numpy(frames.astype(np.float64)), torch.from_numpy(positions), h,
                                  cutoff=optics_cutoff(system)).double().clamp(0, 1).numpy()
         scale = max(float(truth.max()), 1e-3)
-        lines.append(f"| {name} | {psnr(learned / scale, truth / scale):.2f} dB | "
-                     f"{psnr(reference / scale, truth / scale):.2f} dB | "
-                     f"{abs(float(learned.mean()) - float(reference.mean())):.1e} |")
+        worst_mean = max(abs(float(image.mean()) - float(reference.mean())) for image in learned.values())
+        lines.append(f"| {name} | " + " | ".join(f"{psnr(image / scale, truth / scale):.2f} dB" for image in learned.values())
+                     + f" | {psnr(reference / scale, truth / scale):.2f} dB | {worst_mean:.1e} |")
     return "\n".join(lines) + "\n"
 
 
 def network_speed(hs, sizes, repeats: int) -> str:
-    """Network alone (no input preparation), eager torch against onnxruntime, same tiles and threads.
+    """Network alone (no input preparation), eager torch against onnxruntime (the shipped provider
+    and, where that is another one, onnxruntime's own CPU kernels), same tiles and threads.
 
-    The input content does not change the work, so the inputs are random (seeded). The two run in
+    The input content does not change the work, so the inputs are random (seeded). They run in
     turn (see :func:`timed_in_turn`), after one warm-up each.
     """
     cam = System().camera
-    lines = ["| h | ROI (LR px) | eager torch [s] | onnxruntime [s] | speed-up | of the fastest runs |",
-             "| --- | --- | ---: | ---: | ---: | ---: |"]
-    for h, runner, model in shipped_models(hs):
+    lines = []
+    for h, runners, model in shipped_models(hs):
+        shipped = runners["learned-onnx"]
+        if not lines:
+            lines = speed_table_head("ROI (LR px)", runners)
         for size_arg in sizes:
             rows, cols = (cam.rows, cam.cols) if size_arg == "full" else (int(size_arg), int(size_arg))
             rng = np.random.default_rng(0)
@@ -362,22 +383,43 @@ def network_speed(hs, sizes, repeats: int) -> str:
                 with torch.inference_mode():
                     return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
-            reps = repeats if size_arg != "full" else 1
-            _, t, least = timed_in_turn({"torch": lambda: run_tiled(torch_infer, frames, offsets, h, runner.tile, runner.halo),
-                                         "onnx": lambda: runner.run_network(frames, offsets)}, reps)
-            t_torch, t_onnx = t["torch"], t["onnx"]
-            lines.append(f"| {h} | {size_arg} | {t_torch:.3f} | {t_onnx:.3f} | {t_torch / t_onnx:.2f}x | "
-                         f"{least['torch'] / least['onnx']:.2f}x |")
+            calls = {"learned-torch": lambda: run_tiled(torch_infer, frames, offsets, h, shipped.tile, shipped.halo)}
+            calls.update({name: lambda r=runner: r.run_network(frames, offsets) for name, runner in runners.items()})
+            _, t, least = timed_in_turn(calls, repeats if size_arg != "full" else 1)
+            lines.append(speed_table_row(f"{h} | {size_arg}", t, least, runners))
             print(lines[-1], flush=True)
     return "\n".join(lines) + "\n"
+
+
+def speed_table_head(what: str, runners) -> list[str]:
+    """Head of a table of eager torch against each onnxruntime runner (:func:`speed_table_row`)."""
+    names = [name for name in ONNX_METHODS if name in runners]
+    cells = ["eager torch [s]"] + [f"{runner_label(runners[n])} [s]" for n in names]
+    cells += [f"speed-up, {runner_label(runners[n])}" for n in names]
+    cells += [f"(fastest runs, {runner_label(runners[n])})" for n in names]
+    return [f"| h | {what} | " + " | ".join(cells) + " |", "| --- | --- |" + " ---: |" * len(cells)]
+
+
+def speed_table_row(first_cells: str, medians: dict, least: dict, runners) -> str:
+    """Median seconds of eager torch and of each runner, then torch's median over each runner's."""
+    names = [name for name in ONNX_METHODS if name in runners]
+    cells = [f"{medians['learned-torch']:.4f}"] + [f"{medians[n]:.4f}" for n in names]
+    cells += [f"{medians['learned-torch'] / medians[n]:.2f}x" for n in names]
+    cells += [f"{least['learned-torch'] / least[n]:.2f}x" for n in names]
+    return f"| {first_cells} | " + " | ".join(cells) + " |"
+
+
+def runner_label(runner: LearnedSR) -> str:
+    return {"openvino": "ORT OpenVINO EP", "cpu": "ORT CPU EP"}[runner.provider]
 
 
 def session_variants(h: int, sizes, repeats: int) -> str:
     """onnxruntime session settings side by side, network alone, against eager torch.
 
     Variants: the shipped settings (:func:`hbis_torch.sr.learned.session_options`: all graph
-    optimisations, sequential, 2 intra-op threads with spinning), no thread spinning, no memory
-    arena or pattern, the "extended" optimisation level (no NCHWc layout), and IO binding to a
+    optimisations, sequential, 2 intra-op threads with spinning, onnxruntime's CPU kernels), no
+    thread spinning, no memory arena or pattern, the "extended" optimisation level (no NCHWc
+    layout), the OpenVINO execution provider (where installed), and IO binding to a
     preallocated output. Each variant runs a whole-ROI pass (one tile); the full frame compares
     256^2 against 512^2 tiles.
     """
@@ -385,7 +427,7 @@ def session_variants(h: int, sizes, repeats: int) -> str:
 
     from hbis_torch.sr.learned import session_options
 
-    runner, model = LearnedSR(h=h, threads=THREADS), load_torch_model(h)
+    runner, model = LearnedSR(h=h, threads=THREADS, provider="cpu"), load_torch_model(h)
     path = str(runner.path)
 
     def session(**settings):
@@ -404,6 +446,8 @@ def session_variants(h: int, sizes, repeats: int) -> str:
         "no arena/pattern": session(enable_cpu_mem_arena=False, enable_mem_pattern=False),
         "extended (no NCHWc)": session(graph_optimization_level=ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED),
     }
+    if "openvino" in available_providers():
+        variants["OpenVINO EP"] = LearnedSR(h=h, threads=THREADS, provider="openvino").session
     cam = System().camera
     lines = ["| ROI (LR px) | eager torch [s] | " + " | ".join(f"{k} [s]" for k in variants) + " | IO binding [s] | shipped speed-up |",
              "| --- | ---: |" + " ---: |" * (len(variants) + 2)]
@@ -449,24 +493,24 @@ def session_variants(h: int, sizes, repeats: int) -> str:
 
 
 def end_to_end(hs, sizes, repeats: int, full_repeats: int = 1) -> str:
-    """learned-torch against learned-onnx only, end to end (input preparation, exposure gain,
-    tiles, clipping), on the stacks of the main table; one row per stack. The two run in turn
+    """learned-torch against the onnxruntime runners only, end to end (input preparation, exposure
+    gain, tiles, clipping), on the stacks of the main table; one row per stack. They run in turn
     (torch, onnx, torch, onnx, ...), medians of ``repeats`` after a warm-up (the full frame:
-    ``full_repeats`` runs each, no warm-up), so that other jobs on the cores slow both alike."""
+    ``full_repeats`` runs each, no warm-up), so that other jobs on the cores slow all alike."""
     system = System()
-    lines = ["| h | ROI | scene | learned-torch [s] | learned-onnx [s] | speed-up | of the fastest runs |",
-             "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
-    for h, runner, model in shipped_models(hs):
+    lines = []
+    for h, runners, model in shipped_models(hs):
+        if not lines:
+            lines = speed_table_head("ROI | scene", runners)
         for size_arg in sizes:
             size = None if size_arg == "full" else int(size_arg)
             for i, (_, scene) in enumerate(scene_cases(size)):
-                rows, _ = run_case(system, h, roi_for(system, size, i), scene, 1000 + i, runner, model, repeats,
-                                   only=("learned-torch", "learned-onnx"), interleave=True, full_repeats=full_repeats)
-                torch_row, onnx_row = rows["learned-torch"], rows["learned-onnx"]
-                assert abs(torch_row["psnr"] - onnx_row["psnr"]) < 0.01
-                t_torch, t_onnx = torch_row["seconds"], onnx_row["seconds"]
-                lines.append(f"| {h} | {size_arg} | {scene} | {t_torch:.4f} | {t_onnx:.4f} | {t_torch / t_onnx:.2f}x | "
-                             f"{torch_row['least_seconds'] / onnx_row['least_seconds']:.2f}x |")
+                rows, _ = run_case(system, h, roi_for(system, size, i), scene, 1000 + i, runners, model, repeats,
+                                   only=("learned-torch", *runners), interleave=True, full_repeats=full_repeats)
+                for name in runners:
+                    assert abs(rows["learned-torch"]["psnr"] - rows[name]["psnr"]) < 0.01
+                lines.append(speed_table_row(f"{h} | {size_arg} | {scene}", {k: r["seconds"] for k, r in rows.items()},
+                                             {k: r["least_seconds"] for k, r in rows.items()}, runners))
                 print(lines[-1], flush=True)
     return "\n".join(lines) + "\n"
 
@@ -528,14 +572,13 @@ def main(argv=None) -> int:
         if not (models_dir() / f"hbis_sr_h{h}.onnx").exists():
             print(f"h = {h}: no model, skipped")
             continue
-        runner = LearnedSR(h=h, threads=THREADS)
-        model = load_torch_model(h)
+        runners, model = onnx_runners(h), load_torch_model(h)
         for size_arg in args.sizes:
             size = None if size_arg == "full" else int(size_arg)
             for i, (kind, scene) in enumerate(scene_cases(size)):
                 roi = roi_for(system, size, i)
                 t0 = time.perf_counter()
-                rows, t_pos = run_case(system, h, roi, scene, 1000 + i, runner, model, args.repeats)
+                rows, t_pos = run_case(system, h, roi, scene, 1000 + i, runners, model, args.repeats)
                 label = "full" if size is None else size
                 positions_s[f"h{h} {label}"] = t_pos
                 results.append({"h": h, "size": label, "kind": kind, "scene": scene, "roi": list(roi), "methods": rows})
