@@ -397,7 +397,7 @@ def speed_table_head(what: str, runners) -> list[str]:
     cells = ["eager torch [s]"] + [f"{runner_label(runners[n])} [s]" for n in names]
     cells += [f"speed-up, {runner_label(runners[n])}" for n in names]
     cells += [f"(fastest runs, {runner_label(runners[n])})" for n in names]
-    return [f"| h | {what} | " + " | ".join(cells) + " |", "| --- | --- |" + " ---: |" * len(cells)]
+    return [f"| h | {what} | " + " | ".join(cells) + " |", "|" + " --- |" * (what.count("|") + 2) + " ---: |" * len(cells)]
 
 
 def speed_table_row(first_cells: str, medians: dict, least: dict, runners) -> str:
