@@ -167,3 +167,11 @@ def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):
         assert again[key] == first[key], key
     assert again["training_commit"] == "f00d" and json.loads(again["training_config"])["lr"] == 0.001
     assert check_parity(tmp_path / "again.onnx", model) <= TOLERANCE
+
+
+def test_two_onnxruntime_distributions_are_warned_about(exported, monkeypatch):
+    from hbis_torch.sr import learned
+
+    monkeypatch.setattr(learned, "onnxruntime_distributions", lambda: ["onnxruntime", "onnxruntime-openvino"])
+    with pytest.warns(RuntimeWarning, match="both onnxruntime and onnxruntime-openvino"):
+        LearnedSR(exported[1])

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -288,11 +289,30 @@ def available_providers() -> list[str]:
     return ["cpu"] + (["openvino"] if OPENVINO in ort.get_available_providers() else [])
 
 
+def onnxruntime_distributions() -> list[str]:
+    """The installed distributions that provide the ``onnxruntime`` module."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found = []
+    for name in ("onnxruntime", "onnxruntime-openvino"):
+        try:
+            version(name)
+            found.append(name)
+        except PackageNotFoundError:
+            pass
+    return found
+
+
 def _open_session(path: Path, provider: str, threads: int | None):
     """(session, short provider name); with ``"auto"``, falls back to the CPU kernels if
     OpenVINO cannot take the model."""
     import onnxruntime as ort
 
+    if len(onnxruntime_distributions()) > 1:
+        warnings.warn("both onnxruntime and onnxruntime-openvino are installed; they write the same "
+                      "onnxruntime module over each other. Keep one: pip uninstall -y onnxruntime "
+                      "onnxruntime-openvino, then pip install onnxruntime-openvino (x86-64 Linux or "
+                      "Windows) or onnxruntime", RuntimeWarning, stacklevel=3)
     providers = execution_providers(provider, threads)
     try:
         session = ort.InferenceSession(str(path), session_options(threads), providers=providers)
