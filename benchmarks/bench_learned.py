@@ -416,12 +416,13 @@ def runner_label(runner: LearnedSR) -> str:
 def session_variants(h: int, sizes, repeats: int) -> str:
     """onnxruntime session settings side by side, network alone, against eager torch.
 
-    Variants: the shipped settings (:func:`hbis_torch.sr.learned.session_options`: all graph
-    optimisations, sequential, 2 intra-op threads with spinning, onnxruntime's CPU kernels), no
-    thread spinning, no memory arena or pattern, the "extended" optimisation level (no NCHWc
-    layout), the OpenVINO execution provider (where installed), and IO binding to a
-    preallocated output. Each variant runs a whole-ROI pass (one tile); the full frame compares
-    256^2 against 512^2 tiles.
+    Variants: onnxruntime's CPU kernels with the shipped settings
+    (:func:`hbis_torch.sr.learned.session_options`: all graph optimisations, sequential,
+    2 intra-op threads with spinning), with no thread spinning, with no memory arena or pattern,
+    with the "extended" optimisation level (no NCHWc layout), with IO binding to a preallocated
+    output, and the OpenVINO execution provider (where installed, the shipped default). All run
+    in turn (:func:`timed_in_turn`), each a whole-ROI pass (one tile); on the full frame the
+    shipped 256^2 tiles, and the OpenVINO provider with 512^2 tiles as well.
     """
     import onnxruntime as ort
 
@@ -441,53 +442,49 @@ def session_variants(h: int, sizes, repeats: int) -> str:
         return ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
 
     variants = {
-        "shipped": session(),
+        "CPU EP, shipped settings": session(),
         "no spinning": session(config={"session.intra_op.allow_spinning": "0"}),
         "no arena/pattern": session(enable_cpu_mem_arena=False, enable_mem_pattern=False),
         "extended (no NCHWc)": session(graph_optimization_level=ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED),
     }
-    if "openvino" in available_providers():
-        variants["OpenVINO EP"] = LearnedSR(h=h, threads=THREADS, provider="openvino").session
+    openvino = LearnedSR(h=h, threads=THREADS, provider="openvino") if "openvino" in available_providers() else None
+    columns = ["eager torch", *variants, "IO binding"]
+    columns += ["OpenVINO EP", "OpenVINO EP, 512^2 tiles"] if openvino is not None else []
+    lines = ["| ROI (LR px) | " + " | ".join(f"{name} [s]" for name in columns) + " | speed-up, CPU EP | speed-up, OpenVINO EP |",
+             "| --- |" + " ---: |" * (len(columns) + 2)]
     cam = System().camera
-    lines = ["| ROI (LR px) | eager torch [s] | " + " | ".join(f"{k} [s]" for k in variants) + " | IO binding [s] | shipped speed-up |",
-             "| --- | ---: |" + " ---: |" * (len(variants) + 2)]
     for size_arg in sizes:
         rows, cols = (cam.rows, cam.cols) if size_arg == "full" else (int(size_arg), int(size_arg))
         rng = np.random.default_rng(0)
         frames = rng.random((1, h * h, rows, cols), dtype=np.float32)
         offsets = (rng.random((1, 2 * h * h, rows, cols), dtype=np.float32) - 0.5) * 0.5
-        reps = repeats if size_arg != "full" else 1
-        if size_arg == "full":  # tiles: the shipped 256^2 against 512^2, same for torch
-            def torch_infer(a, b):
-                with torch.inference_mode():
-                    return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
-            t_torch = timed(lambda: run_tiled(torch_infer, frames[0], offsets[0], h, runner.tile, runner.halo), reps)[1]
-            times = {name: timed(lambda: run_tiled(lambda a, b: sess.run(["image"], {"frames": a, "offsets": b})[0],
-                                                   frames[0], offsets[0], h, runner.tile, runner.halo), reps)[1]
-                     for name, sess in variants.items()}
-            big = timed(lambda: run_tiled(runner.infer, frames[0], offsets[0], h, 512, runner.halo), reps)[1]
-            lines.append(f"| {size_arg} | {t_torch:.3f} | " + " | ".join(f"{t:.3f}" for t in times.values())
-                         + f" | 512^2 tiles: {big:.3f} | {t_torch / times['shipped']:.2f}x |")
-            print(lines[-1], flush=True)
-            continue
-
-        def torch_pass():
+        def torch_infer(a, b):
             with torch.inference_mode():
-                return model(torch.from_numpy(frames), torch.from_numpy(offsets)).numpy()
+                return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
-        t_torch = timed(torch_pass, reps)[1]
-        times = {name: timed(lambda: sess.run(["image"], {"frames": frames, "offsets": offsets}), reps)[1]
-                 for name, sess in variants.items()}
-        binding = variants["shipped"].io_binding()
-        out = np.empty((1, 1, h * rows, h * cols), np.float32)
-        binding.bind_cpu_input("frames", frames)
-        binding.bind_cpu_input("offsets", offsets)
-        binding.bind_output("image", "cpu", 0, np.float32, out.shape, out.ctypes.data)
-        t_bound = timed(lambda: variants["shipped"].run_with_iobinding(binding), reps)[1]
-        t_torch = min(t_torch, timed(torch_pass, reps)[1])  # torch timed before and after
-        lines.append(f"| {size_arg} | {t_torch:.3f} | " + " | ".join(f"{t:.3f}" for t in times.values())
-                     + f" | {t_bound:.3f} | {t_torch / times['shipped']:.2f}x |")
+        def tiled(infer, tile=runner.tile):
+            return lambda: run_tiled(infer, frames[0], offsets[0], h, tile, runner.halo)
+
+        calls = {"eager torch": tiled(torch_infer)}
+        for name, sess in variants.items():
+            calls[name] = tiled(lambda a, b, sess=sess: sess.run(["image"], {"frames": a, "offsets": b})[0])
+        if size_arg != "full":
+            binding = variants["CPU EP, shipped settings"].io_binding()
+            out = np.empty((1, 1, h * rows, h * cols), np.float32)
+            binding.bind_cpu_input("frames", frames)
+            binding.bind_cpu_input("offsets", offsets)
+            binding.bind_output("image", "cpu", 0, np.float32, out.shape, out.ctypes.data)
+            calls["IO binding"] = lambda: variants["CPU EP, shipped settings"].run_with_iobinding(binding)
+        if openvino is not None:
+            calls["OpenVINO EP"] = tiled(openvino.infer)
+            if size_arg == "full":
+                calls["OpenVINO EP, 512^2 tiles"] = tiled(openvino.infer, 512)
+        _, t, _ = timed_in_turn(calls, repeats if size_arg != "full" else 1)
+        cells = [f"{t[name]:.3f}" if name in t else "-" for name in columns]
+        ov = f"{t['eager torch'] / t['OpenVINO EP']:.2f}x" if "OpenVINO EP" in t else "-"
+        lines.append(f"| {size_arg} | " + " | ".join(cells)
+                     + f" | {t['eager torch'] / t['CPU EP, shipped settings']:.2f}x | {ov} |")
         print(lines[-1], flush=True)
     return "\n".join(lines) + "\n"
 
