@@ -8,7 +8,7 @@ from hbis_torch.cli import main
 from hbis_torch.config import System
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, load_scene, simulate_stack
-from hbis_torch.sr.learned import default_model_path, models_dir, read_model_metadata
+from hbis_torch.sr.learned import available_providers, default_model_path, models_dir, read_model_metadata
 from hbis_torch.stack_io import write_stack
 
 
@@ -41,6 +41,19 @@ def test_reconstruct_learned_writes_the_h_times_image(tmp_path, capsys):
     assert np.isfinite(image).all() and 0 <= image.min() and image.max() <= 1
     mse = float(np.mean((image.astype(np.float64) - truth) ** 2))
     assert 10 * np.log10(1 / mse) > 24  # a real reconstruction, not a blank
+
+
+def test_every_execution_provider_writes_the_same_image(tmp_path, capsys):
+    stack_path, _ = simulated_stack_file(tmp_path, 4)
+    images = {}
+    for provider in ("auto", *available_providers()):
+        out = tmp_path / f"sr_{provider}.tif"
+        code = main(["reconstruct", str(stack_path), "--method", "learned", "--registration", "optics",
+                     "--provider", provider, "--out", str(out)])
+        assert code == 0, capsys.readouterr().err
+        images[provider] = tifffile.imread(out)
+    for image in images.values():
+        assert np.abs(image - images["cpu"]).max() <= 1e-4
 
 
 def test_a_model_for_another_h_is_a_clear_input_error(tmp_path, capsys):
