@@ -29,7 +29,7 @@ from hbis_torch.io_utils import atomic_path  # noqa: E402
 from hbis_torch.simulate import sample_positions  # noqa: E402
 from hbis_torch.sr import classical as classical_module  # noqa: E402
 from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
-from hbis_torch.sr.learned import exposure_gain, prepare_inputs, run_tiled  # noqa: E402
+from hbis_torch.sr.learned import run_tiled, super_resolve  # noqa: E402
 from hbis_torch.sr.net import HbisSRNet  # noqa: E402
 
 
@@ -63,14 +63,12 @@ def main(argv=None) -> int:
                     np.savez(out, frames=frames.numpy(), positions=positions.numpy(), truth=truth,
                              classical=np.float64(psnr(classical, truth)))
             data = np.load(path)
-            frames_reg, offsets = prepare_inputs(data["frames"], data["positions"], h)
-            gain = exposure_gain(frames_reg)
 
             def infer(a, b):
                 with torch.inference_mode():
                     return model(torch.from_numpy(a), torch.from_numpy(b)).numpy()
 
-            image = run_tiled(infer, frames_reg * gain, offsets, h) / gain
+            image = super_resolve(lambda a, b: run_tiled(infer, a, b, h), data["frames"], data["positions"], h)
             score, classical = psnr(image, data["truth"]), float(data["classical"])
             means.setdefault((size_arg, kind), []).append((score, classical))
             print(f"h={h} {size_arg} {kind} {scene}: learned {score:.2f} dB, classical {classical:.2f} dB", flush=True)

@@ -261,9 +261,9 @@ def execution_providers(provider: str = "auto", threads: int | None = None) -> l
     which the project installs in place of ``onnxruntime`` on x86-64 Linux and Windows). It
     compiles the whole graph with the ReLUs and residual additions fused into the convolutions
     and ran the shipped models 1.4-1.6x faster than eager torch here, where onnxruntime's own CPU
-    kernels were 1.1-1.3x faster (docs/learned.md). Precision is pinned to FP32, so that a CPU with bf16 or fp16 units does
-    not lower it. ``"cpu"``: onnxruntime's own kernels. ``"auto"``: OpenVINO where this
-    onnxruntime has it, else the CPU kernels.
+    kernels were 1.1-1.3x faster (docs/learned.md). Precision is pinned to FP32, so that a CPU
+    with bf16 or fp16 units does not lower it. ``"cpu"``: onnxruntime's own kernels. ``"auto"``:
+    OpenVINO where this onnxruntime has it, else the CPU kernels.
     """
     import onnxruntime as ort
 
