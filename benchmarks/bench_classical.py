@@ -1,4 +1,4 @@
-"""Classical SR: hbis_torch.sr.classical.classical_sr against scipy.interpolate.griddata
+"""Classical SR: hbis_torch.reconstruct.classical.classical_sr against scipy.interpolate.griddata
 (linear) on the same samples, and against single-frame bicubic upsampling.
 
 Stacks are simulated through the Risley model (hbis_torch.simulate, ~40 dB SNR: shot noise, full
@@ -26,7 +26,7 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 from hbis_torch.config import System
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
-from hbis_torch.sr.classical import classical_sr, optical_sample_positions, optics_cutoff
+from hbis_torch.reconstruct.classical import classical_sr, optical_sample_positions, optics_cutoff
 
 SENSOR_40DB = SensorModel(full_well_e=20000.0, read_noise_e=2.0, bit_depth=12)
 

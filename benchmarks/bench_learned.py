@@ -6,10 +6,10 @@
 Methods, all on the same simulated stacks (hbis_torch.simulate, 12-bit sensor, exact optics):
 
 - ``bicubic``: the reference frame alone, bicubic upsampling (torch, ``align_corners=False``).
-- ``classical``: :func:`hbis_torch.sr.classical.classical_sr` with the optics' cutoff, i.e. what
+- ``classical``: :func:`hbis_torch.reconstruct.classical.classical_sr` with the optics' cutoff, i.e. what
   ``hbis reconstruct --method classical --registration optics`` computes.
 - ``learned-torch``: the network in eager PyTorch (float32, same tiling as below).
-- ``learned-onnx``: the exported network in onnxruntime as shipped (:class:`hbis_torch.sr.learned.LearnedSR`,
+- ``learned-onnx``: the exported network in onnxruntime as shipped (:class:`hbis_torch.reconstruct.learned.LearnedSR`,
   provider "auto": the OpenVINO execution provider where this onnxruntime has it).
 - ``learned-onnx-cpu``: the same in onnxruntime's own CPU kernels (provider "cpu"; only where the
   shipped provider is another one).
@@ -51,9 +51,9 @@ from hbis_torch.config import System  # noqa: E402
 from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
 from hbis_torch.scan import plan_scan  # noqa: E402
 from hbis_torch.simulate import SceneSpec, load_scene, sample_positions, simulate_stack  # noqa: E402
-from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
-from hbis_torch.sr.learned import LearnedSR, available_providers, models_dir, run_tiled, super_resolve  # noqa: E402
-from hbis_torch.sr.net import HbisSRNet  # noqa: E402
+from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff  # noqa: E402
+from hbis_torch.reconstruct.learned import LearnedSR, available_providers, models_dir, run_tiled, super_resolve  # noqa: E402
+from hbis_torch.reconstruct.net import HbisSRNet  # noqa: E402
 
 SYNTHETIC = ("words", "texture")
 PHOTOS = ("camera", "astronaut", "brick")
@@ -417,7 +417,7 @@ def session_variants(h: int, sizes, repeats: int) -> str:
     """onnxruntime session settings side by side, network alone, against eager torch.
 
     Variants: onnxruntime's CPU kernels with the shipped settings
-    (:func:`hbis_torch.sr.learned.session_options`: all graph optimisations, sequential,
+    (:func:`hbis_torch.reconstruct.learned.session_options`: all graph optimisations, sequential,
     2 intra-op threads with spinning), with no thread spinning, with no memory arena or pattern,
     with the "extended" optimisation level (no NCHWc layout), with IO binding to a preallocated
     output, and the OpenVINO execution provider (where installed, the shipped default). All run
@@ -426,7 +426,7 @@ def session_variants(h: int, sizes, repeats: int) -> str:
     """
     import onnxruntime as ort
 
-    from hbis_torch.sr.learned import session_options
+    from hbis_torch.reconstruct.learned import session_options
 
     runner, model = LearnedSR(h=h, threads=THREADS, provider="cpu"), load_torch_model(h)
     path = str(runner.path)

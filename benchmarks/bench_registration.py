@@ -31,7 +31,7 @@ from hbis_torch.config import System
 from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
-from hbis_torch.sr.classical import optical_sample_positions
+from hbis_torch.reconstruct.classical import optical_sample_positions
 
 SENSOR_40DB = SensorModel(full_well_e=20000.0, read_noise_e=2.0, bit_depth=12)
 

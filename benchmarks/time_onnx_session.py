@@ -7,8 +7,8 @@ this script from each environment in turn:
     /path/to/ort131-venv/bin/python benchmarks/time_onnx_session.py models/hbis_sr_h4.onnx --provider cpu
     python benchmarks/time_onnx_session.py models/hbis_sr_h4.onnx --provider openvino
 
-The session settings are those of :func:`hbis_torch.sr.learned.session_options` and
-:func:`~hbis_torch.sr.learned.execution_providers` (written out here, since the package is not
+The session settings are those of :func:`hbis_torch.reconstruct.learned.session_options` and
+:func:`~hbis_torch.reconstruct.learned.execution_providers` (written out here, since the package is not
 importable from a bare environment). Prints one JSON line: onnxruntime version, provider, median
 and least milliseconds of ``--repeats`` runs after a warm-up, each after a 0.2 s pause.
 """

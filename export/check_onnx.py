@@ -17,7 +17,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
 from export.export_onnx import EXPORT_SIZE, example_inputs, load_checkpoint  # noqa: E402
-from hbis_torch.sr.learned import LearnedSR, available_providers  # noqa: E402
+from hbis_torch.reconstruct.learned import LearnedSR, available_providers  # noqa: E402
 
 TOLERANCE = 1e-4
 CHECK_SIZE = (45, 67)  # deliberately not EXPORT_SIZE, and odd
@@ -27,7 +27,7 @@ def check_parity(onnx_path, checkpoint, size=CHECK_SIZE, seed: int = 1, provider
     """Max |torch - onnxruntime| of the raw network outputs on random inputs of ``size``.
 
     ``checkpoint`` is a model.pt path or the HbisSRNet itself; ``provider`` the onnxruntime
-    execution provider (:func:`hbis_torch.sr.learned.execution_providers`).
+    execution provider (:func:`hbis_torch.reconstruct.learned.execution_providers`).
     """
     if tuple(size) == tuple(EXPORT_SIZE):
         raise ValueError("check at a size other than the export size")

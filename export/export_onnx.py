@@ -24,8 +24,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
 from export.onnx_rewrite import fuse_depth_to_space  # noqa: E402
 from hbis_torch.io_utils import atomic_path  # noqa: E402
-from hbis_torch.sr.learned import MODEL_FORMAT, NORMALISATION  # noqa: E402
-from hbis_torch.sr.net import HbisSRNet, count_parameters  # noqa: E402
+from hbis_torch.reconstruct.learned import MODEL_FORMAT, NORMALISATION  # noqa: E402
+from hbis_torch.reconstruct.net import HbisSRNet, count_parameters  # noqa: E402
 
 OPSET = 18
 EXPORT_SIZE = (32, 40)  # (H, W) of the example inputs traced at export; any size runs after

@@ -1,6 +1,6 @@
 """Rewrites of the exported SR graph that onnxruntime runs faster, same function.
 
-The network's depth-to-space (:func:`hbis_torch.sr.net.depth_to_space`) is written as
+The network's depth-to-space (:func:`hbis_torch.reconstruct.net.depth_to_space`) is written as
 reshape/permute so that the dynamo exporter handles it; it arrives in the graph as
 ``Reshape (B, C, h, h, H, W) -> Transpose (0, 1, 4, 2, 5, 3) -> Reshape (B, C, hH, hW)``, and
 onnxruntime runs that 6-d Transpose about 4-5 times slower than its ``DepthToSpace`` kernel

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
-from .errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 
 def _check_positive(name: str, value: float) -> None:

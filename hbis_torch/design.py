@@ -22,9 +22,9 @@ from dataclasses import asdict, dataclass, field, replace
 
 import torch
 
-from .config import Camera, Prisms, System
-from .errors import HbisInputError
-from .optics.risley import exit_directions
+from hbis_torch.config import Camera, Prisms, System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics.risley import exit_directions
 
 
 def half_fov_deg(camera: Camera) -> tuple[float, float]:

@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .config import Camera, Prisms, System
-from .errors import HbisInputError
-from .io_utils import atomic_path
+from hbis_torch.config import Camera, Prisms, System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import atomic_path
 
 FORMAT = "hbis-stack/1"
 FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from hbis_torch.array.cameras import CAMERA_NAMES, FOVEA, CameraArray
-from hbis_torch.array.render import ArrayRenderer
-from hbis_torch.array.scene import MovingObject, PlanarScene, TextureLayer, Trajectory, photo_object
-from hbis_torch.array.sensor import SceneAtInstant, periphery_sensor, simulate_fovea_scan
+from hbis_torch.system.array.cameras import CAMERA_NAMES, FOVEA, CameraArray
+from hbis_torch.system.array.render import ArrayRenderer
+from hbis_torch.system.array.scene import MovingObject, PlanarScene, TextureLayer, Trajectory, photo_object
+from hbis_torch.system.array.sensor import SceneAtInstant, periphery_sensor, simulate_fovea_scan
 from hbis_torch.config import System
 from hbis_torch.design import varphi_c_deg
 from hbis_torch.errors import HbisInputError

@@ -8,7 +8,7 @@ import torch
 from skimage.metrics import peak_signal_noise_ratio as psnr
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.sr.classical import classical_sr, lattice_noise, periodic_smooth, splat
+from hbis_torch.reconstruct.classical import classical_sr, lattice_noise, periodic_smooth, splat
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -11,8 +11,8 @@ import torch.nn.functional as F
 from export.check_onnx import CHECK_SIZE, TOLERANCE, check_parity
 from export.export_onnx import EXPORT_SIZE, OPSET, export_model
 from hbis_torch.errors import HbisInputError
-from hbis_torch.sr.learned import OPENVINO, LearnedSR, available_providers, read_model_metadata
-from hbis_torch.sr.net import HbisSRNet, space_to_depth
+from hbis_torch.reconstruct.learned import OPENVINO, LearnedSR, available_providers, read_model_metadata
+from hbis_torch.reconstruct.net import HbisSRNet, space_to_depth
 
 
 @pytest.fixture(scope="module", params=[0, 5], ids=["bilinear-base", "linear-base"])
@@ -170,7 +170,7 @@ def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):
 
 
 def test_two_onnxruntime_distributions_are_warned_about(exported, monkeypatch):
-    from hbis_torch.sr import learned
+    from hbis_torch.reconstruct import learned
 
     monkeypatch.setattr(learned, "onnxruntime_distributions", lambda: ["onnxruntime", "onnxruntime-openvino"])
     with pytest.warns(RuntimeWarning, match="both onnxruntime and onnxruntime-openvino"):

@@ -6,19 +6,19 @@ import numpy as np
 import pytest
 import torch
 
-from hbis_torch.array.cameras import CameraArray
-from hbis_torch.array.composite import Inlay, composite
-from hbis_torch.array.detect import motion_blobs
-from hbis_torch.array.device import SimulatedHBIS
-from hbis_torch.array.loop import LoopConfig, TwoStageLoop
-from hbis_torch.array.render import ArrayRenderer
-from hbis_torch.array.scenario import default_path, default_scene
-from hbis_torch.array.scene import MovingObject, PlanarScene, TextureLayer, Trajectory
-from hbis_torch.array.sensor import periphery_sensor, simulate_fovea_scan
-from hbis_torch.array.steering import (OutOfScanField, deviation_window_mm, in_scan_field,
+from hbis_torch.system.array.cameras import CameraArray
+from hbis_torch.system.composite.composite import Inlay, composite
+from hbis_torch.system.foveation.detect import motion_blobs
+from hbis_torch.system.array.device import SimulatedHBIS
+from hbis_torch.system.foveation.loop import LoopConfig, TwoStageLoop
+from hbis_torch.system.array.render import ArrayRenderer
+from hbis_torch.system.array.scenario import default_path, default_scene
+from hbis_torch.system.array.scene import MovingObject, PlanarScene, TextureLayer, Trajectory
+from hbis_torch.system.array.sensor import periphery_sensor, simulate_fovea_scan
+from hbis_torch.system.foveation.steering import (OutOfScanField, deviation_window_mm, in_scan_field,
                                        parked_phases_near, plan_fovea_scan, steer)
-from hbis_torch.array.stitch import stitch_array
-from hbis_torch.array.volumes import bandwidth, foveal_ratio
+from hbis_torch.system.stitch.stitch import stitch_array
+from hbis_torch.system.composite.volumes import bandwidth, foveal_ratio
 from hbis_torch.design import bsr
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at

@@ -5,7 +5,7 @@ import pytest
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import scan_offsets
-from hbis_torch.sr.learned import prepare_inputs
+from hbis_torch.reconstruct.learned import prepare_inputs
 
 
 def scan_positions(h, rows, cols, gain=1.0, bias=(0.0, 0.0), order=None):
@@ -84,7 +84,7 @@ def test_non_finite_or_misshapen_input_is_refused(bad):
 
 
 def test_exposure_gain_leaves_normal_stacks_alone_and_lifts_dark_ones():
-    from hbis_torch.sr.learned import MAX_GAIN, exposure_gain
+    from hbis_torch.reconstruct.learned import MAX_GAIN, exposure_gain
 
     rng = np.random.default_rng(1)
     bright = rng.uniform(0, 0.9, (4, 16, 16)).astype(np.float32)
@@ -137,7 +137,7 @@ def test_positions_too_large_to_sum_are_refused_by_name():
 
 def test_exposure_gain_fast_path_gives_the_percentile_answer():
     """The count that recognises bright stacks never answers 1 where the percentile would not."""
-    from hbis_torch.sr.learned import DARK_TARGET, MAX_GAIN, exposure_gain
+    from hbis_torch.reconstruct.learned import DARK_TARGET, MAX_GAIN, exposure_gain
 
     def by_percentile(x):
         high = float(np.percentile(x, 99.9))

@@ -8,7 +8,7 @@ from hbis_torch.cli import main
 from hbis_torch.config import System
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, load_scene, simulate_stack
-from hbis_torch.sr.learned import available_providers, default_model_path, models_dir, read_model_metadata
+from hbis_torch.reconstruct.learned import available_providers, default_model_path, models_dir, read_model_metadata
 from hbis_torch.stack_io import write_stack
 
 

@@ -12,8 +12,8 @@ from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import EdgesScene, FlatScene, SensorModel, sample_positions, simulate_stack
-from hbis_torch.sr.classical import classical_sr, optics_cutoff
-from hbis_torch.sr.learned import LearnedSR, available_providers, default_model_path
+from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
+from hbis_torch.reconstruct.learned import LearnedSR, available_providers, default_model_path
 
 H = 4
 SYSTEM = System()

@@ -16,7 +16,7 @@ from hbis_torch.optics import landing_map, sensor_position
 from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, SensorModel, load_scene, sample_positions, simulate_stack
-from hbis_torch.sr.classical import classical_sr, optical_sample_positions, reconstruct
+from hbis_torch.reconstruct.classical import classical_sr, optical_sample_positions, reconstruct
 from hbis_torch.stack_io import write_stack
 
 SYSTEM = System()

@@ -11,13 +11,13 @@ import pytest
 import torch
 from PIL import Image
 
-from hbis_torch.array.pipeline import ChainConfig, run_chain
-from hbis_torch.array.scenario import default_path
+from hbis_torch.system.pipeline import ChainConfig, run_chain
+from hbis_torch.system.array.scenario import default_path
 from hbis_torch.cli import main
 from hbis_torch.config import System
 from hbis_torch.design import design
 from hbis_torch.figures.design_figures import make_figures
-from hbis_torch.report import image_links, write_report
+from hbis_torch.system.report.report import image_links, write_report
 
 BROWSER = shutil.which("chromium") or shutil.which("chromium-browser")
 

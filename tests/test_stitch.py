@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 import torch
 
-from hbis_torch.array.cameras import CAMERA_NAMES, CameraArray
-from hbis_torch.array.coverage import assembly_fer_study, largest_rectangle, measure_fer
-from hbis_torch.array.refine import fit_rotation, refine_homographies
-from hbis_torch.array.render import ArrayRenderer
-from hbis_torch.array.scenario import default_scene
-from hbis_torch.array.sensor import periphery_sensor
-from hbis_torch.array.stitch import (apply_homography, design_homographies, make_canvas, rebin_homographies,
+from hbis_torch.system.array.cameras import CAMERA_NAMES, CameraArray
+from hbis_torch.system.stitch.coverage import assembly_fer_study, largest_rectangle, measure_fer
+from hbis_torch.system.stitch.refine import fit_rotation, refine_homographies
+from hbis_torch.system.array.render import ArrayRenderer
+from hbis_torch.system.array.scenario import default_scene
+from hbis_torch.system.array.sensor import periphery_sensor
+from hbis_torch.system.stitch.stitch import (apply_homography, design_homographies, make_canvas, rebin_homographies,
                                      stitch, stitch_array, view_corners)
 from hbis_torch.design import design
 from hbis_torch.errors import HbisInputError

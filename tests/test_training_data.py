@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from hbis_torch.sr.learned import prepare_inputs
+from hbis_torch.reconstruct.learned import prepare_inputs
 from training.sr_data import (NATURAL_SCENES, NATURAL_SHARE, SCENE_WEIGHTS, TRAIN_SCENES, build_pool, crop_example,
                               dead_leaves, dihedral, natural_image, scene_weights)
 

@@ -27,10 +27,10 @@ from benchmarks.bench_learned import make_stack, psnr, roi_for, scene_cases  # n
 from hbis_torch.config import System  # noqa: E402
 from hbis_torch.io_utils import atomic_path  # noqa: E402
 from hbis_torch.simulate import sample_positions  # noqa: E402
-from hbis_torch.sr import classical as classical_module  # noqa: E402
-from hbis_torch.sr.classical import classical_sr, optics_cutoff  # noqa: E402
-from hbis_torch.sr.learned import run_tiled, super_resolve  # noqa: E402
-from hbis_torch.sr.net import HbisSRNet  # noqa: E402
+from hbis_torch.reconstruct import classical as classical_module  # noqa: E402
+from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff  # noqa: E402
+from hbis_torch.reconstruct.learned import run_tiled, super_resolve  # noqa: E402
+from hbis_torch.reconstruct.net import HbisSRNet  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -10,7 +10,7 @@ test of the benchmark.
 
 Training examples are random crops of pool stacks under the 8 flips/transposes of the square.
 Flipping a stack is a valid new scan: the crop's sample positions are flipped with it and
-:func:`~hbis_torch.sr.learned.prepare_inputs` finds the new registered order from them.
+:func:`~hbis_torch.reconstruct.learned.prepare_inputs` finds the new registered order from them.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from hbis_torch.io_utils import atomic_path
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, SensorModel, load_scene, sample_positions, simulate_stack
 from hbis_torch.simulate.scenes import ImageScene, texture_image
-from hbis_torch.sr.learned import prepare_inputs
+from hbis_torch.reconstruct.learned import prepare_inputs
 
 NATURAL_SCENES = ("dead-leaves", "natural-field")
 TRAIN_SCENES = ("words", "texture", "edges", "bars", "siemens-star", "gradient", "slanted-edge") + NATURAL_SCENES

@@ -1,4 +1,4 @@
-"""Train the multi-frame super-resolution network (hbis_torch.sr.net) on simulated scans.
+"""Train the multi-frame super-resolution network (hbis_torch.reconstruct.net) on simulated scans.
 
 Read it top to bottom: config, setup, data, the loop. One process:
 
@@ -33,7 +33,7 @@ import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
 from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
-from hbis_torch.sr.net import HbisSRNet, count_parameters  # noqa: E402
+from hbis_torch.reconstruct.net import HbisSRNet, count_parameters  # noqa: E402
 from training.sr_data import NATURAL_SHARE, POOL_VERSION, build_pool, load_pool, make_batch, save_pool, whole_example  # noqa: E402
 
 # ---------------------------------------------------------------------------- config
@@ -158,15 +158,15 @@ val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across
 
 
 def classical_baseline() -> float:
-    """Mean PSNR of the classical method (hbis_torch.sr.classical) on the validation set, cached."""
+    """Mean PSNR of the classical method (hbis_torch.reconstruct.classical) on the validation set, cached."""
     # Cached per version of the classical method (a hash of its source).
-    import hbis_torch.sr.classical as classical_module
+    import hbis_torch.reconstruct.classical as classical_module
 
     version = hashlib.sha256(Path(classical_module.__file__).read_bytes()).hexdigest()[:8]
     path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}_v{POOL_VERSION}.classical{version}.json"
     if not path.exists():
         from hbis_torch.config import System
-        from hbis_torch.sr.classical import classical_sr, optics_cutoff
+        from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
 
         # As reconstruct(stack, "classical", registration="optics") runs it on these stacks.
         cutoff = optics_cutoff(System())

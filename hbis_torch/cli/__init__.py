@@ -11,7 +11,7 @@ import importlib
 import pkgutil
 import sys
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 COMMANDS = sorted(m.name[4:] for m in pkgutil.iter_modules(__path__) if m.name.startswith("cmd_"))
 

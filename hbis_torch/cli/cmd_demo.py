@@ -8,15 +8,15 @@ from pathlib import Path
 
 import torch
 
-from ..config import System
-from ..design import design
-from ..errors import HbisInputError
-from ..io_utils import atomic_write_text
-from .cmd_figures import FIGURE_SETS
+from hbis_torch.config import System
+from hbis_torch.design import design
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.cli.cmd_figures import FIGURE_SETS
 
 
 def _methods() -> list[str]:
-    from ..sr import METHODS
+    from hbis_torch.reconstruct import METHODS
 
     return sorted(METHODS)
 
@@ -79,8 +79,8 @@ def _print_system(s: dict) -> None:
 
 def _run(args):
     """Design report and figures, then (unless --design-only) the chain and the HTML page."""
-    from ..array.pipeline import ChainConfig, run_chain
-    from ..report import write_report
+    from hbis_torch.system.pipeline import ChainConfig, run_chain
+    from hbis_torch.system.report.report import write_report
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import json
 
-from ..design import design
-from .common import add_system_args, system_from_args
+from hbis_torch.design import design
+from hbis_torch.cli.common import add_system_args, system_from_args
 
 
 def register(sub) -> None:

@@ -6,8 +6,8 @@ import importlib
 import pkgutil
 from pathlib import Path
 
-from .. import figures
-from .common import add_system_args, system_from_args
+from hbis_torch import figures
+from hbis_torch.cli.common import add_system_args, system_from_args
 
 # Every module hbis_torch/figures/<set>_figures.py with a function
 # make_figures(out_dir, system) -> list[Path] is one figure set, found automatically.

@@ -8,13 +8,13 @@ import shlex
 import subprocess
 from pathlib import Path
 
-from ..errors import HbisInputError
-from ..hardware.grbl import GrblController, GrblTimeouts
-from ..hardware.grbl_protocol import nearest_step_phase
-from ..hardware.scan_executor import run_scan
-from ..hardware.simulator import add_simulator_args, serve_until_done, simulator_from_args
-from ..io_utils import atomic_write_text
-from .common import add_system_args, system_from_args
+from hbis_torch.errors import HbisInputError
+from hbis_torch.hardware.grbl import GrblController, GrblTimeouts
+from hbis_torch.hardware.grbl_protocol import nearest_step_phase
+from hbis_torch.hardware.scan_executor import run_scan
+from hbis_torch.hardware.simulator import add_simulator_args, serve_until_done, simulator_from_args
+from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.cli.common import add_system_args, system_from_args
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:
@@ -145,7 +145,7 @@ def run_goto(args) -> int:
 def _plan_and_predict(args, steps_per_deg, initial_deg):
     """Plan from ``initial_deg`` (already on the motor step grid) and print the predicted AE."""
     try:
-        from ..scan import plan_scan, step_alignment_error
+        from hbis_torch.scan import plan_scan, step_alignment_error
     except ImportError as exc:
         raise HbisInputError(f"the scan planner (hbis_torch.scan) is not available in this build: {exc}") from None
     system = system_from_args(args)

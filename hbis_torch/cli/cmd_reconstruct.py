@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 # Every method the command line knows; the library says which are available in this build.
 METHOD_CHOICES = ("classical", "learned")
@@ -37,10 +37,10 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..io_utils import atomic_path
-    from ..sr.classical import METHODS, reconstruct
-    from ..sr.learned import reconstruct_learned  # noqa: F401  (importing it adds METHODS["learned"])
-    from ..stack_io import read_stack
+    from hbis_torch.io_utils import atomic_path
+    from hbis_torch.reconstruct.classical import METHODS, reconstruct
+    from hbis_torch.reconstruct.learned import reconstruct_learned  # noqa: F401  (importing it adds METHODS["learned"])
+    from hbis_torch.stack_io import read_stack
 
     if args.method not in METHODS:
         raise HbisInputError(

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import json
 
-from ..errors import HbisInputError
-from ..scan import CONVENTIONS, METHODS, plan_scan, scan_report, step_alignment_error
-from ..scan.motor_steps import required_steps_per_deg
-from .common import add_system_args, system_from_args
+from hbis_torch.errors import HbisInputError
+from hbis_torch.scan import CONVENTIONS, METHODS, plan_scan, scan_report, step_alignment_error
+from hbis_torch.scan.motor_steps import required_steps_per_deg
+from hbis_torch.cli.common import add_system_args, system_from_args
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:

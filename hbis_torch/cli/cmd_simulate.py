@@ -7,8 +7,8 @@ import math
 import textwrap
 from pathlib import Path
 
-from ..errors import HbisInputError
-from .common import add_system_args, system_from_args
+from hbis_torch.errors import HbisInputError
+from hbis_torch.cli.common import add_system_args, system_from_args
 
 DEFAULT_CROP = 256
 
@@ -39,8 +39,8 @@ def _bit_depth(text: str):
 
 
 def register(sub) -> None:
-    from ..simulate import BUILTIN_SCENES
-    from ..simulate.sensor import SensorModel
+    from hbis_torch.simulate import BUILTIN_SCENES
+    from hbis_torch.simulate.sensor import SensorModel
 
     defaults = SensorModel()
     p = sub.add_parser(
@@ -107,11 +107,11 @@ def default_roi(camera) -> tuple[int, int, int, int]:
 
 
 def run(args) -> int:
-    from ..optics import check_roi
-    from ..scan import plan_scan
-    from ..simulate import SensorModel, simulate_stack
-    from ..simulate.stacks import scene_for_roi
-    from ..stack_io import write_image, write_stack
+    from hbis_torch.optics import check_roi
+    from hbis_torch.scan import plan_scan
+    from hbis_torch.simulate import SensorModel, simulate_stack
+    from hbis_torch.simulate.stacks import scene_for_roi
+    from hbis_torch.stack_io import write_image, write_stack
 
     system = system_from_args(args)
     if args.h < 1:

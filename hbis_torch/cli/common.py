@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..config import Camera, Prisms, System
+from hbis_torch.config import Camera, Prisms, System
 
 
 def add_system_args(parser: argparse.ArgumentParser) -> None:

@@ -13,10 +13,10 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from ..array_geometry import array_rotations  # noqa: E402
-from ..config import System  # noqa: E402
-from ..design import bsr, half_fov_deg, limit_sweep, with_prisms  # noqa: E402
-from ..optics.risley import exit_directions  # noqa: E402
+from hbis_torch.system.array.geometry import array_rotations  # noqa: E402
+from hbis_torch.config import System  # noqa: E402
+from hbis_torch.design import bsr, half_fov_deg, limit_sweep, with_prisms  # noqa: E402
+from hbis_torch.optics.risley import exit_directions  # noqa: E402
 
 ALPHAS = np.arange(1.0, 15.01, 0.25)
 INDICES = np.arange(1.3, 3.001, 0.025)

@@ -14,10 +14,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from ..config import System  # noqa: E402
-from ..errors import HbisInputError  # noqa: E402
-from ..io_utils import atomic_path  # noqa: E402
-from ..scan import axis_alignment_error, pixel_alignment_error, plan_scan, scan_offsets  # noqa: E402
+from hbis_torch.config import System  # noqa: E402
+from hbis_torch.errors import HbisInputError  # noqa: E402
+from hbis_torch.io_utils import atomic_path  # noqa: E402
+from hbis_torch.scan import axis_alignment_error, pixel_alignment_error, plan_scan, scan_offsets  # noqa: E402
 
 EXAMPLES = ((5.0, 70.0), (45.0, 130.0), (80.0, 20.0))
 PHI1_CURVES = (5.0, 45.0, 80.0)

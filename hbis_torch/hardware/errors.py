@@ -7,7 +7,7 @@ vanishes is a problem with what the user plugged in, not a bug in the program.
 
 from __future__ import annotations
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 
 class GrblError(HbisInputError):

@@ -21,14 +21,14 @@ from dataclasses import dataclass
 
 import serial
 
-from ..errors import HbisInputError
-from .errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
+from hbis_torch.errors import HbisInputError
+from hbis_torch.hardware.errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
                      GrblProtocolError, GrblTimeout)
-from .grbl_codes import alarm_meaning, error_meaning
-from .grbl_protocol import (JOG_CANCEL, LINE_MAX_CHARS, SOFT_RESET, STATUS_QUERY, GrblStatus, Kind,
+from hbis_torch.hardware.grbl_codes import alarm_meaning, error_meaning
+from hbis_torch.hardware.grbl_protocol import (JOG_CANCEL, LINE_MAX_CHARS, SOFT_RESET, STATUS_QUERY, GrblStatus, Kind,
                             classify, format_jog, format_move, nearest_step_phase,
                             unwrap_near)
-from .motion_profile import axis_limited, move_duration_s
+from hbis_torch.hardware.motion_profile import axis_limited, move_duration_s
 
 try:  # pyserial's POSIX backend lets termios.error (not an OSError) out of flush() on a dead tty
     from termios import error as _TermiosError

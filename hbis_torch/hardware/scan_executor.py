@@ -19,9 +19,9 @@ from typing import Callable
 
 import torch
 
-from ..errors import HbisInputError
-from ..io_utils import atomic_write_text
-from .errors import GrblMoveLost, GrblTimeout, ScanInterrupted
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.hardware.errors import GrblMoveLost, GrblTimeout, ScanInterrupted
 
 JOURNAL_FORMAT = "hbis-motor-journal/1"
 RETRYABLE = (GrblTimeout, GrblMoveLost)

@@ -22,8 +22,8 @@ import re
 from collections import deque
 from dataclasses import dataclass, field
 
-from .grbl_protocol import CYCLE_START, FEED_HOLD, JOG_CANCEL, LINE_MAX_CHARS, SOFT_RESET, STATUS_QUERY
-from .motion_profile import axis_limited, distance_at, move_duration_s
+from hbis_torch.hardware.grbl_protocol import CYCLE_START, FEED_HOLD, JOG_CANCEL, LINE_MAX_CHARS, SOFT_RESET, STATUS_QUERY
+from hbis_torch.hardware.motion_profile import axis_limited, distance_at, move_duration_s
 
 VERSION = "1.1h"
 WELCOME = f"Grbl {VERSION} ['$' for help]"

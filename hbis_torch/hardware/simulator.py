@@ -26,7 +26,7 @@ import threading
 import time
 import tty
 
-from .sim_machine import FAULT_KINDS, VERSION, SimulatedGrbl
+from hbis_torch.hardware.sim_machine import FAULT_KINDS, VERSION, SimulatedGrbl
 
 
 class _PtyLine:
@@ -218,7 +218,7 @@ def add_simulator_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _parse_pair(text: str, what: str) -> tuple[float, float]:
-    from ..errors import HbisInputError
+    from hbis_torch.errors import HbisInputError
 
     try:
         a, b = (float(v) for v in text.split(","))
@@ -229,7 +229,7 @@ def _parse_pair(text: str, what: str) -> tuple[float, float]:
 
 def simulator_from_args(args) -> GrblSimulator:
     """Build (not start) the simulator the options describe; raises HbisInputError on bad ones."""
-    from ..errors import HbisInputError
+    from hbis_torch.errors import HbisInputError
 
     settings: dict[int, float] = {}
     if args.steps_per_deg:
@@ -269,7 +269,7 @@ def serve_until_done(sim: GrblSimulator, out=sys.stdout) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m hbis_torch.hardware.simulator``."""
-    from ..errors import HbisInputError
+    from hbis_torch.errors import HbisInputError
 
     parser = argparse.ArgumentParser(prog="python -m hbis_torch.hardware.simulator",
                                      description="A simulated GRBL 1.1 prism controller on a pseudo-terminal.")

@@ -1,6 +1,6 @@
 """Exact vector ray tracing through the Risley pair, and per-pixel landing maps."""
 
-from .pixels import (
+from hbis_torch.optics.pixels import (
     check_roi,
     landing_map,
     landing_map_interpolated,
@@ -10,7 +10,7 @@ from .pixels import (
     rays_at,
     sensor_position,
 )
-from .risley import (
+from hbis_torch.optics.risley import (
     RisleyTrace,
     axis_deviation,
     deviation_azimuth,
@@ -21,8 +21,8 @@ from .risley import (
     trace_faces,
     trace_risley,
 )
-from .snell import refract
-from .inverse import (  # noqa: E402 - after the forward model it inverts
+from hbis_torch.optics.snell import refract
+from hbis_torch.optics.inverse import (  # noqa: E402 - after the forward model it inverts
     axis_landing,
     exact_inverse,
     max_deviation_deg,

@@ -41,9 +41,9 @@ import math
 import torch
 from torch import Tensor
 
-from ..config import Prisms, System
-from ..errors import HbisInputError
-from .risley import exit_directions, land_on_plane
+from hbis_torch.config import Prisms, System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics.risley import exit_directions, land_on_plane
 
 # Targets this far (relative) beyond the reachable rim are rounding, and are put on the rim.
 RIM_TOLERANCE = 1e-9

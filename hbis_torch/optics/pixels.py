@@ -15,9 +15,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import Camera, System
-from ..errors import HbisInputError
-from .risley import exit_directions, land_on_plane
+from hbis_torch.config import Camera, System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics.risley import exit_directions, land_on_plane
 
 Roi = tuple[int, int, int, int]
 
@@ -87,7 +87,7 @@ def sensor_position(system: System, points_mm: Tensor, phi1_deg, phi2_deg) -> Te
     Tensor, shape (..., 2)
         Fractional pixel coordinates (u, v), 0-based pixel centres (may lie off the sensor).
     """
-    from .risley import trace_back
+    from hbis_torch.optics.risley import trace_back
 
     points_mm = torch.as_tensor(points_mm)
     if points_mm.ndim == 0 or points_mm.shape[-1] != 2:

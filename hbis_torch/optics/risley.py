@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..config import Prisms
-from ..errors import HbisInputError
-from .snell import refract_components
+from hbis_torch.config import Prisms
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics.snell import refract_components
 
 
 def _as_tensor(x, like: Tensor | None = None, name: str = "value") -> Tensor:

@@ -1,21 +1,21 @@
 """Sub-pixel scanning with the Risley pair: scan plans, their alignment error, motor steps and
 coarse ROI pointing (paper sections 2.2, 2.3 and 3.2). See docs/scanning.md."""
 
-from .alignment import (
+from hbis_torch.scan.alignment import (
     CONVENTIONS,
     axis_alignment_error,
     pixel_alignment_error,
     pixel_grid,
     scan_report,
 )
-from .motor_steps import (
+from hbis_torch.scan.motor_steps import (
     landing_jacobian,
     phase_steps,
     quantise_phases,
     required_steps_per_deg,
     step_alignment_error,
 )
-from .plan import (
+from hbis_torch.scan.plan import (
     METHODS,
     ScanPlan,
     check_h,
@@ -25,7 +25,7 @@ from .plan import (
     scan_offsets,
     step_mm,
 )
-from .pointing import Pointing, point_axis, point_sequence
+from hbis_torch.scan.pointing import Pointing, point_axis, point_sequence
 
 __all__ = [
     "CONVENTIONS",

@@ -25,11 +25,11 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..config import System
-from ..errors import HbisInputError
-from ..optics import exit_directions, land_on_plane, rays_at, sensor_position
-from ..optics.inverse import axis_landing
-from .plan import ScanPlan, phase_range_deg
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import exit_directions, land_on_plane, rays_at, sensor_position
+from hbis_torch.optics.inverse import axis_landing
+from hbis_torch.scan.plan import ScanPlan, phase_range_deg
 
 CONVENTIONS = ("sensor", "object")
 

@@ -14,11 +14,11 @@ import math
 import torch
 from torch import Tensor
 
-from ..config import System
-from ..errors import HbisInputError
-from ..optics.inverse import axis_landing
-from .alignment import axis_alignment_error
-from .plan import ScanPlan, check_phase_pair, plan_scan
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics.inverse import axis_landing
+from hbis_torch.scan.alignment import axis_alignment_error
+from hbis_torch.scan.plan import ScanPlan, check_phase_pair, plan_scan
 
 
 def _check_steps(steps_per_deg) -> tuple[float, float]:

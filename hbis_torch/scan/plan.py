@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..config import System
-from ..errors import HbisInputError
-from ..optics.inverse import axis_landing, exact_inverse, paper_inverse, paper_norms
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics.inverse import axis_landing, exact_inverse, paper_inverse, paper_norms
 
 METHODS = ("paper", "exact")
 

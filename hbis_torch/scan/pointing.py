@@ -18,10 +18,10 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..config import System
-from ..errors import HbisInputError
-from ..optics import axis_deviation
-from ..optics.inverse import exact_inverse, paraxial_inverse
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import axis_deviation
+from hbis_torch.optics.inverse import exact_inverse, paraxial_inverse
 
 
 @dataclass

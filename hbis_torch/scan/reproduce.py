@@ -17,12 +17,12 @@ from dataclasses import replace
 
 import torch
 
-from ..config import System
-from ..io_utils import atomic_write_text
-from ..optics import exit_directions, land_on_plane, rays_at
-from ..optics.inverse import axis_landing
-from .alignment import axis_alignment_error, pixel_alignment_error, pixel_grid
-from .plan import phase_range_deg, plan_scan
+from hbis_torch.config import System
+from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.optics import exit_directions, land_on_plane, rays_at
+from hbis_torch.optics.inverse import axis_landing
+from hbis_torch.scan.alignment import axis_alignment_error, pixel_alignment_error, pixel_grid
+from hbis_torch.scan.plan import phase_range_deg, plan_scan
 
 EXAMPLES = ((5.0, 70.0), (45.0, 130.0), (80.0, 20.0))
 PAPER = {  # section 3.2: phase range, axis AE max, pixel AE max, pixel AE mean

@@ -8,11 +8,11 @@ Main entry points::
 docs/data.md describes the model and the output-grid convention.
 """
 
-from .dataset import DatasetConfig, SameHBatchSampler, SyntheticStacks
-from .forward import RenderedScan, render_scan
-from .geometry import landing_on_grid, sample_positions
-from .psf import airy_otf, airy_psf, blur_transfer, lens_otf
-from .scenes import (
+from hbis_torch.simulate.dataset import DatasetConfig, SameHBatchSampler, SyntheticStacks
+from hbis_torch.simulate.forward import RenderedScan, render_scan
+from hbis_torch.simulate.geometry import landing_on_grid, sample_positions
+from hbis_torch.simulate.psf import airy_otf, airy_psf, blur_transfer, lens_otf
+from hbis_torch.simulate.scenes import (
     BUILTIN_SCENES,
     PHOTOS,
     BarTarget,
@@ -26,8 +26,8 @@ from .scenes import (
     SiemensStar,
     load_scene,
 )
-from .sensor import SensorModel, expose
-from .stacks import scene_for_roi, simulate_stack
+from hbis_torch.simulate.sensor import SensorModel, expose
+from hbis_torch.simulate.stacks import scene_for_roi, simulate_stack
 
 __all__ = [
     "BUILTIN_SCENES",

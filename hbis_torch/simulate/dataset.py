@@ -27,13 +27,13 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, Sampler
 
-from ..config import System
-from ..errors import HbisInputError
-from ..stack_io import Stack, make_meta
-from .forward import grid_factor, render_scan
-from .geometry import sample_positions
-from .scenes import BUILTIN_SCENES, PHOTOS, PROCEDURAL, ImageScene, SceneSpec, photo
-from .sensor import SensorModel, expose, normalise
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.stack_io import Stack, make_meta
+from hbis_torch.simulate.forward import grid_factor, render_scan
+from hbis_torch.simulate.geometry import sample_positions
+from hbis_torch.simulate.scenes import BUILTIN_SCENES, PHOTOS, PROCEDURAL, ImageScene, SceneSpec, photo
+from hbis_torch.simulate.sensor import SensorModel, expose, normalise
 
 DEFAULT_SCENES = PROCEDURAL + PHOTOS
 
@@ -116,7 +116,7 @@ class DatasetConfig:
 
 @lru_cache(maxsize=64)
 def _plan(system: System, h: int, initial: tuple[float, float]):
-    from ..scan import plan_scan
+    from hbis_torch.scan import plan_scan
 
     return plan_scan(system, h, initial)
 

@@ -46,13 +46,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..config import System
-from ..errors import HbisInputError
-from ..optics import check_roi
-from .geometry import check_phases, landing_at, landing_on_grid, sample_positions
-from .psf import blur_transfer, dct_frequencies, defocus_waves
-from .scenes import Scene
-from .sensor import SensorModel
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import check_roi
+from hbis_torch.simulate.geometry import check_phases, landing_at, landing_on_grid, sample_positions
+from hbis_torch.simulate.psf import blur_transfer, dct_frequencies, defocus_waves
+from hbis_torch.simulate.scenes import Scene
+from hbis_torch.simulate.sensor import SensorModel
 
 
 @dataclass

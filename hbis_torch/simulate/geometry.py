@@ -22,9 +22,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import System
-from ..errors import HbisInputError
-from ..optics import check_roi, exit_directions, land_on_plane, rays_at, sensor_position
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import check_roi, exit_directions, land_on_plane, rays_at, sensor_position
 
 Roi = tuple[int, int, int, int]
 

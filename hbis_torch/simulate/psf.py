@@ -24,7 +24,7 @@ from functools import lru_cache
 import numpy as np
 import torch
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 
 def airy_psf(r_um, f_number: float, wavelength_nm: float) -> np.ndarray:

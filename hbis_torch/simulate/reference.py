@@ -22,11 +22,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import System
-from .geometry import landing_at
-from .psf import defocus_waves, lens_otf, pixel_transfer
-from .scenes import GratingScene
-from .sensor import SensorModel
+from hbis_torch.config import System
+from hbis_torch.simulate.geometry import landing_at
+from hbis_torch.simulate.psf import defocus_waves, lens_otf, pixel_transfer
+from hbis_torch.simulate.scenes import GratingScene
+from hbis_torch.simulate.sensor import SensorModel
 
 
 def grating_pixels(

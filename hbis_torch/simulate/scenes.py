@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 Size = tuple[float, float]
 

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 
 @dataclass(frozen=True)

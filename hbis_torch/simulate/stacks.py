@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..config import System
-from ..errors import HbisInputError
-from ..optics import check_roi
-from ..stack_io import Stack, make_meta
-from .forward import grid_factor, render_scan
-from .geometry import check_phases
-from .scenes import Scene, SceneSpec, load_scene
-from .sensor import SensorModel, expose
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import check_roi
+from hbis_torch.stack_io import Stack, make_meta
+from hbis_torch.simulate.forward import grid_factor, render_scan
+from hbis_torch.simulate.geometry import check_phases
+from hbis_torch.simulate.scenes import Scene, SceneSpec, load_scene
+from hbis_torch.simulate.sensor import SensorModel, expose
 
 
 def scene_for_roi(name_or_path: str, system: System, roi, h: int, seed: int = 0, size_mm=None,
@@ -35,7 +35,7 @@ def resolve_plan(system: System, plan):
     :class:`hbis_torch.scan.ScanPlan`), or an integer h, planned with ``plan_scan(system, h)``.
     """
     if isinstance(plan, (int, np.integer)) and not isinstance(plan, bool):
-        from ..scan import plan_scan
+        from hbis_torch.scan import plan_scan
 
         plan = plan_scan(system, int(plan))
     try:

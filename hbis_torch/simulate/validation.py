@@ -22,10 +22,10 @@ import json
 import sys
 from pathlib import Path
 
-from ..errors import HbisInputError
-from ..io_utils import atomic_write_text
-from ..stack_io import write_image, write_stack
-from .dataset import DatasetConfig, SyntheticStacks
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.stack_io import write_image, write_stack
+from hbis_torch.simulate.dataset import DatasetConfig, SyntheticStacks
 
 
 def config_to_dict(config: DatasetConfig) -> dict:

@@ -24,24 +24,24 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..config import System
-from ..design import design
-from ..errors import HbisInputError
-from ..simulate import SensorModel
-from .cameras import CAMERA_NAMES, CameraArray
-from .composite import Inlay, composite, inlay_outline
-from .coverage import assembly_fer_study, measure_fer
-from .device import SimulatedHBIS
-from .loop import FoveaCapture, LoopConfig, TwoStageLoop
-from .plots import plot_panorama, plot_sr_pairs, plot_timeline, plot_views, save_png
-from .refine import refine_homographies
-from .render import ArrayRenderer
-from .scenario import default_scene
-from .scene import Trajectory
-from .sensor import periphery_sensor
-from .stitch import (apply_homography, design_homographies, rebin_homographies, stitch_array,
+from hbis_torch.config import System
+from hbis_torch.design import design
+from hbis_torch.errors import HbisInputError
+from hbis_torch.simulate import SensorModel
+from hbis_torch.system.array.cameras import CAMERA_NAMES, CameraArray
+from hbis_torch.system.composite.composite import Inlay, composite, inlay_outline
+from hbis_torch.system.stitch.coverage import assembly_fer_study, measure_fer
+from hbis_torch.system.array.device import SimulatedHBIS
+from hbis_torch.system.foveation.loop import FoveaCapture, LoopConfig, TwoStageLoop
+from hbis_torch.system.report.plots import plot_panorama, plot_sr_pairs, plot_timeline, plot_views, save_png
+from hbis_torch.system.stitch.refine import refine_homographies
+from hbis_torch.system.array.render import ArrayRenderer
+from hbis_torch.system.array.scenario import default_scene
+from hbis_torch.system.array.scene import Trajectory
+from hbis_torch.system.array.sensor import periphery_sensor
+from hbis_torch.system.stitch.stitch import (apply_homography, design_homographies, rebin_homographies, stitch_array,
                      view_corners)
-from .volumes import bandwidth, covered_native_pixels, foveal_ratio
+from hbis_torch.system.composite.volumes import bandwidth, covered_native_pixels, foveal_ratio
 
 #: The prototype's measured FER (paper section 4.2), for comparison.
 PAPER_MEASURED_FER = {"h": 2.2, "v": 2.0}
@@ -67,8 +67,8 @@ class ChainConfig:
 
 
 def make_reconstruct_fn(method: str, model: str | None = None):
-    """``reconstruct_fn`` for the loop: ``hbis_torch.sr.reconstruct(stack, method, ...)``."""
-    from ..sr import reconstruct
+    """``reconstruct_fn`` for the loop: ``hbis_torch.reconstruct.reconstruct(stack, method, ...)``."""
+    from hbis_torch.reconstruct import reconstruct
 
     kwargs = {} if model is None else {"model": model}
 

@@ -20,10 +20,10 @@ import math
 
 import torch
 
-from ..config import System
-from ..design import bsr as bsr_eq10
-from ..optics import exit_directions, land_on_plane, rays_at
-from .stitch import Canvas
+from hbis_torch.config import System
+from hbis_torch.design import bsr as bsr_eq10
+from hbis_torch.optics import exit_directions, land_on_plane, rays_at
+from hbis_torch.system.stitch.stitch import Canvas
 
 
 def _pixel_area_mm2(system: System, u: float, v: float, step: float, phases) -> float:
@@ -43,7 +43,7 @@ def foveal_ratio(system: System, roi, h: int, reference_phases_deg, parked_phase
     # the periphery pixel looking at the same scene point: trace it back through the parked pair
     rays = rays_at(system.camera, torch.tensor(u, dtype=torch.float64), torch.tensor(v, dtype=torch.float64))
     point = land_on_plane(exit_directions(rays, *reference_phases_deg, system.prisms), system.object_distance_mm)
-    from ..optics import sensor_position
+    from hbis_torch.optics import sensor_position
 
     pu, pv = (float(c) for c in sensor_position(system, point, *parked_phases_deg))
     native_area = _pixel_area_mm2(system, pu, pv, 1.0, parked_phases_deg)

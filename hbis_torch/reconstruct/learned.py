@@ -2,7 +2,7 @@
 
 (torch is used only where the rest of the package uses it: tracing the sample positions.)
 
-The network (:mod:`hbis_torch.sr.net`) sees the h^2 frames in *registered order* and, per pixel,
+The network (:mod:`hbis_torch.reconstruct.net`) sees the h^2 frames in *registered order* and, per pixel,
 how far each sample sits from its nominal sub-pixel phase. :func:`prepare_inputs` builds both
 from the frames and their sample positions (as given by the optics or by registration);
 :class:`LearnedSR` runs an exported model on them, in tiles so that a full 960 x 1280 frame fits
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 MODEL_FORMAT = "hbis-sr-onnx/1"
 NORMALISATION = (
@@ -433,16 +433,16 @@ def stack_positions(stack, registration: str = "optics", messages: list | None =
 
     ``"optics"``: the tracer, through :func:`hbis_torch.simulate.sample_positions` (exact at
     nodes 8 pixels apart, cubic splines between: < 1e-6 pixel from
-    :func:`~hbis_torch.sr.classical.optical_sample_positions`, and much faster).
+    :func:`~hbis_torch.reconstruct.classical.optical_sample_positions`, and much faster).
     ``"data"`` / ``"auto"``: the tracer corrected by registering the frames
     (:func:`~hbis_torch.registration.register_stack`), for the frames the registration trusts;
     the network needs every frame, so untrusted frames keep their optical positions.
     """
     import torch
 
-    from ..registration import apply_homography, homographies_from_positions, register_stack
-    from ..simulate import sample_positions
-    from .classical import REGISTRATIONS
+    from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
+    from hbis_torch.simulate import sample_positions
+    from hbis_torch.reconstruct.classical import REGISTRATIONS
 
     if registration not in REGISTRATIONS:
         raise HbisInputError(f"registration must be one of {REGISTRATIONS}, got {registration!r}")
@@ -502,13 +502,13 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
                         threads: int | None = None, provider: str = "auto") -> np.ndarray:
-    """The ``"learned"`` entry of :data:`hbis_torch.sr.classical.METHODS` (``hbis reconstruct``)."""
+    """The ``"learned"`` entry of :data:`hbis_torch.reconstruct.classical.METHODS` (``hbis reconstruct``)."""
     return learned_sr(stack, model=model, threads=threads, registration=registration, messages=messages,
                       provider=provider)
 
 
 def _register_method() -> None:
-    from .classical import METHODS
+    from hbis_torch.reconstruct.classical import METHODS
 
     METHODS.setdefault("learned", reconstruct_learned)
 

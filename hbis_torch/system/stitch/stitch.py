@@ -2,7 +2,7 @@
 
 Homographies map a view's pixel coordinates to the (parked) fovea's pixel coordinates at the
 same binning: ``H_k = K R_k K^-1`` from the design (or assembly) rotations, or estimated from
-the images (:mod:`hbis_torch.array.refine`). The panorama (the *canvas*) is the fovea's image
+the images (:mod:`hbis_torch.system.stitch.refine`). The panorama (the *canvas*) is the fovea's image
 plane extended to hold every view, scaled by ``scale``: canvas pixel = ``canvas.A @`` fovea pixel.
 Pixel coordinates are 0-based pixel centres throughout (Kornia's ``align_corners=True``).
 
@@ -19,8 +19,8 @@ import torch
 from kornia.geometry.transform import warp_perspective
 from torch import Tensor
 
-from ..errors import HbisInputError
-from .cameras import CAMERA_NAMES, CameraArray
+from hbis_torch.errors import HbisInputError
+from hbis_torch.system.array.cameras import CAMERA_NAMES, CameraArray
 
 
 def design_homographies(array: CameraArray, binning: int = 1, rotations: Tensor | None = None) -> Tensor:

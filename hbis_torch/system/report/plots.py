@@ -16,8 +16,8 @@ import numpy as np  # noqa: E402
 from matplotlib.patches import Polygon, Rectangle  # noqa: E402
 from PIL import Image  # noqa: E402
 
-from ..io_utils import atomic_path  # noqa: E402
-from .cameras import CAMERA_NAMES  # noqa: E402
+from hbis_torch.io_utils import atomic_path  # noqa: E402
+from hbis_torch.system.array.cameras import CAMERA_NAMES  # noqa: E402
 
 #: The paper's Fig. 8a marks these four cameras' fields with coloured dashed outlines.
 OUTLINE_COLOURS = {"C12": "tab:red", "C21": "tab:green", "C23": "tab:blue", "C32": "tab:orange"}

@@ -20,9 +20,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ..config import Camera
-from ..errors import HbisInputError
-from .stitch import Canvas
+from hbis_torch.config import Camera
+from hbis_torch.errors import HbisInputError
+from hbis_torch.system.stitch.stitch import Canvas
 
 
 @dataclass
@@ -117,7 +117,7 @@ def assembly_fer_study(array, sigma_deg: float, seeds=range(12), binning: int = 
     Each assembly is stitched with its true homographies (a perfect calibration), so what
     changes is the coverage itself. Returns means and minima of both measures over the seeds.
     """
-    from .stitch import design_homographies, make_canvas, stitch
+    from hbis_torch.system.stitch.stitch import design_homographies, make_canvas, stitch
 
     rows = []
     for seed in seeds:

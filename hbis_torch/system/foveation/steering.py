@@ -21,12 +21,12 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..config import System
-from ..errors import HbisInputError
-from ..optics import check_roi, sensor_position
-from ..optics.inverse import axis_landing, exact_inverse, max_landing_radius_mm
-from ..scan import plan_scan
-from ..scan.pointing import point_axis
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import check_roi, sensor_position
+from hbis_torch.optics.inverse import axis_landing, exact_inverse, max_landing_radius_mm
+from hbis_torch.scan import plan_scan
+from hbis_torch.scan.pointing import point_axis
 
 #: Default phase-difference window (deg): keeps clear of phi1 = phi2 and of |phi1 - phi2| = 180.
 PHASE_DIFFERENCE_DEG = (30.0, 150.0)

@@ -15,7 +15,7 @@ import torch
 from scipy import ndimage
 from torch import Tensor
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 
 @dataclass

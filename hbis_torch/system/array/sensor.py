@@ -18,11 +18,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import System
-from ..simulate import Scene, SensorModel, expose, simulate_stack
-from ..simulate.sensor import normalise
-from ..stack_io import Stack, make_meta
-from .scene import PlanarScene
+from hbis_torch.config import System
+from hbis_torch.simulate import Scene, SensorModel, expose, simulate_stack
+from hbis_torch.simulate.sensor import normalise
+from hbis_torch.stack_io import Stack, make_meta
+from hbis_torch.system.array.scene import PlanarScene
 
 
 def periphery_sensor(sensor: SensorModel, object_pixel_mm: float):
@@ -87,7 +87,7 @@ def simulate_fovea_scan(scene: PlanarScene, system: System, phases_deg: Tensor, 
     positions = [tuple(np.round(obj.trajectory.position(t), 12) for obj in scene.objects) for t in times_s]
     positions = [np.array(p).reshape(-1) for p in positions]
     u0, v0, w, hh = roi
-    from ..optics import landing_map
+    from hbis_torch.optics import landing_map
 
     anchor = landing_map(system, *phases_deg[reference_index].tolist(),
                          roi=(u0 + w // 2, v0 + hh // 2, 1, 1))[0, 0].tolist()

@@ -1,7 +1,7 @@
 """Rendering the array's nine views of a planar scene, through an exchangeable sensor model.
 
 (The fovea's full-resolution scan frames come from the data branch's forward model instead:
-:func:`hbis_torch.array.sensor.simulate_fovea_scan`.)
+:func:`hbis_torch.system.array.sensor.simulate_fovea_scan`.)
 
 A view is the scene box-integrated over each (binned) pixel: ``supersample`` x
 ``supersample`` rays per pixel, averaged. What a real sensor adds (optics blur, noise,
@@ -20,9 +20,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..errors import HbisInputError
-from .cameras import CAMERA_NAMES, FOVEA, PARKED_PHASES_DEG, CameraArray
-from .scene import PlanarScene
+from hbis_torch.errors import HbisInputError
+from hbis_torch.system.array.cameras import CAMERA_NAMES, FOVEA, PARKED_PHASES_DEG, CameraArray
+from hbis_torch.system.array.scene import PlanarScene
 
 #: sensor(ideal (..., H, W) float32, seed, pitch_mm) -> same shape, float32 in [0, 1]
 SensorFn = Callable[[Tensor, int, float], Tensor]

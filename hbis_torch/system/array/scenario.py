@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import torch
 
-from .cameras import CAMERA_NAMES, CameraArray
-from .scene import MovingObject, PlanarScene, Trajectory, photo_object, photo_wall
+from hbis_torch.system.array.cameras import CAMERA_NAMES, CameraArray
+from hbis_torch.system.array.scene import MovingObject, PlanarScene, Trajectory, photo_object, photo_wall
 
 
 def array_extent_mm(array: CameraArray, margin: float = 0.04) -> tuple[float, float, float, float]:

@@ -1,7 +1,7 @@
 """The 3 x 3 camera array: nine Table 1 cameras, the centre one (the fovea) behind the Risley pair.
 
 Camera C_ij (i = row 1..3 from the top, j = column 1..3 from the left) is rotated by
-``hbis_torch.array_geometry``'s rotation; C22 is the fovea and defines the frame. All cameras
+``hbis_torch.system.array.geometry``'s rotation; C22 is the fovea and defines the frame. All cameras
 are modelled with one common centre of projection (the pupil of the fovea), so a view of the
 plane scene is exactly a homography of another view (the real prototype's baselines of a few
 centimetres are neglected, as the paper's stitching by projective transforms does).
@@ -18,10 +18,10 @@ from dataclasses import dataclass, field, replace
 import torch
 from torch import Tensor
 
-from ..array_geometry import array_rotations
-from ..config import System
-from ..errors import HbisInputError
-from ..optics import exit_directions, land_on_plane, rays_at
+from hbis_torch.system.array.geometry import array_rotations
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import exit_directions, land_on_plane, rays_at
 
 #: Camera names in row-major order; index 4 is the fovea.
 CAMERA_NAMES = tuple(f"C{r}{c}" for r in (1, 2, 3) for c in (1, 2, 3))

@@ -4,7 +4,7 @@ Design (why it looks like this)
 -------------------------------
 An h x h scan shifts the scene by about 1/h pixel between frames, so the h^2 frames, put in
 *registered order* (channel ``py * h + px`` holds the frame whose samples sit at sub-pixel phase
-(px, py) / h, see :func:`hbis_torch.sr.learned.prepare_inputs`), are very nearly the h^2 polyphase
+(px, py) / h, see :func:`hbis_torch.reconstruct.learned.prepare_inputs`), are very nearly the h^2 polyphase
 components of the high-resolution image. The network therefore works entirely on the
 low-resolution grid, where it is h^2 times cheaper than on the output grid:
 
@@ -46,7 +46,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 
 def space_to_depth(x: Tensor, block: int) -> Tensor:

@@ -22,10 +22,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..config import System
-from ..errors import HbisInputError
-from ..optics import sensor_position
-from .stitch import Canvas
+from hbis_torch.config import System
+from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import sensor_position
+from hbis_torch.system.stitch.stitch import Canvas
 
 
 @dataclass
@@ -116,7 +116,7 @@ def composite(panorama: Tensor, canvas: Canvas, inlay: Inlay, binning: int, zoom
 
 def inlay_outline(canvas: Canvas, inlay: Inlay, samples: int = 16) -> Tensor:
     """The inlay's border in canvas pixels, (4 samples, 2), traced exactly (for drawing)."""
-    from ..optics import exit_directions, rays_at
+    from hbis_torch.optics import exit_directions, rays_at
 
     u0, v0, w, h = inlay.roi
     t = torch.linspace(0, 1, samples, dtype=torch.float64)

@@ -20,9 +20,9 @@ from kornia.geometry.homography import find_homography_dlt
 from kornia.geometry.ransac import RANSAC
 from torch import Tensor
 
-from ..errors import HbisInputError
-from .cameras import CAMERA_NAMES, FOVEA_INDEX
-from .stitch import apply_homography
+from hbis_torch.errors import HbisInputError
+from hbis_torch.system.array.cameras import CAMERA_NAMES, FOVEA_INDEX
+from hbis_torch.system.stitch.stitch import apply_homography
 
 
 @dataclass

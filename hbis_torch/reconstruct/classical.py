@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 # The deblurring never trusts the data more than this noise level (intensity units, [0, 1]):
 # below it the model's own errors (the periodic-border split, the prior, positions known to
@@ -656,7 +656,7 @@ def optical_sample_positions(stack) -> Tensor:
     Tensor, shape (F, H, W, 2), float64
         (u, v) in the reference frame's ROI-local LR pixel coordinates.
     """
-    from ..optics import landing_map, sensor_position
+    from hbis_torch.optics import landing_map, sensor_position
 
     system = stack.system
     roi = stack.roi
@@ -696,7 +696,7 @@ def reconstruct_classical(stack, registration: str = "auto", *, deblur: bool = T
                           messages: list | None = None, fill_factor: float | None = None,
                           **kw) -> np.ndarray:
     """Classical super-resolution of a stack (see :func:`reconstruct`)."""
-    from ..registration import apply_homography, homographies_from_positions, register_stack
+    from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
 
     if registration not in REGISTRATIONS:
         raise HbisInputError(f"registration must be one of {REGISTRATIONS}, got {registration!r}")

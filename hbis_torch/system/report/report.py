@@ -12,7 +12,7 @@ import html
 import re
 from pathlib import Path
 
-from .io_utils import atomic_write_text
+from hbis_torch.io_utils import atomic_write_text
 
 _CSS = """
 body { font-family: system-ui, sans-serif; max-width: 1180px; margin: 1.5em auto; padding: 0 1em;

@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..errors import HbisInputError
+from hbis_torch.errors import HbisInputError
 
 #: skimage.data photographs used for the default wall (all ship with scikit-image, no download).
 WALL_PHOTOS = (

@@ -40,8 +40,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..errors import HbisInputError
-from .classical import diffraction_otf, optics_cutoff
+from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.classical import diffraction_otf, optics_cutoff
 
 __all__ = ["BUDGETS", "HChoice", "predict_psnr", "recommend_h", "fit_scene_spectrum"]
 
@@ -264,7 +264,7 @@ def recommend_h(frames, system, positions=None, h_max: int | None = None, tolera
         frames_t = frames_t[None]
     first = _check_frame(frames_t[0])
     if h_max is None:
-        from ..design import design
+        from hbis_torch.design import design
 
         h_max = design(system).h_max
     if isinstance(h_max, bool) or not isinstance(h_max, (int, np.integer)) or not 1 <= h_max <= 16:
@@ -280,7 +280,7 @@ def recommend_h(frames, system, positions=None, h_max: int | None = None, tolera
     cutoff = optics_cutoff(system)
     aperture = math.sqrt(fill_factor)
     if positions is not None:
-        from .classical import _as_tensor, lattice_image, lattice_noise
+        from hbis_torch.reconstruct.classical import _as_tensor, lattice_image, lattice_noise
 
         stack = _as_tensor(frames_t, "frames")
         positions = _as_tensor(positions, "positions")
@@ -295,7 +295,7 @@ def recommend_h(frames, system, positions=None, h_max: int | None = None, tolera
         s2, beta = fit_scene_spectrum(image, 1.0 / h0, sample_noise ** 2 / h0 ** 2, cutoff, aperture)
     else:
         if noise is None:
-            from ..registration import noise_sigma
+            from hbis_torch.registration import noise_sigma
 
             noise = float(noise_sigma(first[None])[0])
         s2, beta = fit_scene_spectrum(first, 1.0, max(noise, 1e-4) ** 2, cutoff, aperture)
