@@ -2,7 +2,7 @@
 
 A stack holds the frames of one sub-pixel scan in scan order, shape (F, rows, cols), grayscale,
 uint8, uint16 or float32 (float in [0, 1]). Page 0's ImageDescription holds one JSON object
-(DESIGN.md section 3)::
+(docs/design.md section 3)::
 
     {"format": "hbis-stack/1", "h": 4,
      "camera": {"pixel_pitch_um": 3.75, "rows": 960, "cols": 1280, "focal_length_mm": 12.0,
@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from hbis_torch.config import Camera, Prisms, System
-from hbis_torch.errors import HbisInputError
+from hbis_torch.errors import HbisInputError, StackFormatError
 from hbis_torch.io_utils import atomic_path
 
 FORMAT = "hbis-stack/1"
@@ -42,10 +42,6 @@ FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
 _CAMERA_KEYS = ("pixel_pitch_um", "rows", "cols", "focal_length_mm", "f_number")
 _PRISM_KEYS = ("wedge_angle_deg", "refractive_index")
 _TOP_KEYS = ("format", "h", "camera", "prisms", "object_distance_mm", "roi", "phases_deg")
-
-
-class StackFormatError(HbisInputError):
-    """A stack file or a Stack object breaks the hbis-stack/1 format (one-line message)."""
 
 
 def _is_int(value) -> bool:

@@ -15,7 +15,8 @@ from hbis_torch.system.array.render import ArrayRenderer
 from hbis_torch.system.array.scenario import default_path, default_scene
 from hbis_torch.system.array.scene import MovingObject, PlanarScene, TextureLayer, Trajectory
 from hbis_torch.system.array.sensor import periphery_sensor, simulate_fovea_scan
-from hbis_torch.system.foveation.steering import (OutOfScanField, deviation_window_mm, in_scan_field,
+from hbis_torch.errors import OutOfScanField
+from hbis_torch.system.foveation.steering import (deviation_window_mm, in_scan_field,
                                        parked_phases_near, plan_fovea_scan, steer)
 from hbis_torch.system.stitch.stitch import stitch_array
 from hbis_torch.system.composite.volumes import bandwidth, foveal_ratio

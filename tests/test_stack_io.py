@@ -11,10 +11,9 @@ import tifffile
 import torch
 
 from hbis_torch.config import Camera, System
-from hbis_torch.errors import HbisInputError
+from hbis_torch.errors import HbisInputError, StackFormatError
 from hbis_torch.stack_io import (
     Stack,
-    StackFormatError,
     make_meta,
     read_image,
     read_stack,

@@ -4,8 +4,8 @@ Prism 1 turns on GRBL's X axis and prism 2 on Y, with degrees as GRBL units. See
 ``docs/hardware.md`` for wiring, settings and fault behaviour.
 """
 
-from hbis_torch.hardware.errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
-                     GrblProtocolError, GrblTimeout, ScanInterrupted)
+from hbis_torch.errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
+                               GrblProtocolError, GrblTimeout, ScanInterrupted)
 from hbis_torch.hardware.grbl import GrblController, GrblTimeouts, open_grbl
 from hbis_torch.hardware.grbl_codes import alarm_meaning, error_meaning
 from hbis_torch.hardware.grbl_protocol import GrblStatus, parse_status, unwrap_near

@@ -4,7 +4,7 @@ Prism 1 turns on the X axis and prism 2 on Y; GRBL's length unit is used as the 
 and ``$101`` are steps per degree of prism rotation (after the belt ratio) and the status report's
 ``MPos`` is the prism phase in degrees (plus an optional fixed offset).
 
-Every wait has a deadline; every failure is one clear :class:`~.errors.GrblError`:
+Every wait has a deadline; every failure is one clear :class:`~hbis_torch.errors.GrblError`:
 
 >>> with GrblController("/dev/ttyUSB0").open() as grbl:   # doctest: +SKIP
 ...     grbl.move_to(5.0, 70.0)
@@ -21,8 +21,7 @@ from dataclasses import dataclass
 
 import serial
 
-from hbis_torch.errors import HbisInputError
-from hbis_torch.hardware.errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
+from hbis_torch.errors import (HbisInputError, GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
                      GrblProtocolError, GrblTimeout)
 from hbis_torch.hardware.grbl_codes import alarm_meaning, error_meaning
 from hbis_torch.hardware.grbl_protocol import (JOG_CANCEL, LINE_MAX_CHARS, SOFT_RESET, STATUS_QUERY, GrblStatus, Kind,

@@ -5,7 +5,7 @@ so a scan stopped by a fault at frame k resumes at frame k when run again with t
 no frame already taken is lost and none is taken twice. Faults that leave the controller in a
 known state (a dropped or garbled reply, a missed status report, a lost move line) are retried at
 once; the others (``error:N``, ``ALARM:N``, a disconnect, a silent controller, a failing capture)
-stop the scan with :class:`~.errors.ScanInterrupted`, which says where it will resume.
+stop the scan with :class:`~hbis_torch.errors.ScanInterrupted`, which says where it will resume.
 """
 
 from __future__ import annotations
@@ -19,9 +19,8 @@ from typing import Callable
 
 import torch
 
-from hbis_torch.errors import HbisInputError
+from hbis_torch.errors import HbisInputError, GrblMoveLost, GrblTimeout, ScanInterrupted
 from hbis_torch.io_utils import atomic_write_text
-from hbis_torch.hardware.errors import GrblMoveLost, GrblTimeout, ScanInterrupted
 
 JOURNAL_FORMAT = "hbis-motor-journal/1"
 RETRYABLE = (GrblTimeout, GrblMoveLost)

@@ -24,10 +24,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hbis_torch.errors import HbisInputError
+from hbis_torch.errors import HbisInputError, OutOfScanField
 from hbis_torch.system.array.cameras import CAMERA_NAMES, FOVEA_INDEX, PARKED_PHASES_DEG
 from hbis_torch.system.foveation.detect import motion_blobs
-from hbis_torch.system.foveation.steering import (PHASE_DIFFERENCE_DEG, OutOfScanField, Pointing, parked_phases_near,
+from hbis_torch.system.foveation.steering import (PHASE_DIFFERENCE_DEG, Pointing, parked_phases_near,
                        plan_fovea_scan, slew_deg, steer)
 
 

@@ -22,8 +22,9 @@ import torch
 from torch import Tensor
 
 from hbis_torch.config import System
-from hbis_torch.errors import HbisInputError
-from hbis_torch.optics import check_roi, sensor_position
+from hbis_torch.errors import HbisInputError, OutOfScanField
+from hbis_torch.checks import check_roi
+from hbis_torch.optics import sensor_position
 from hbis_torch.optics.inverse import axis_landing, exact_inverse, max_landing_radius_mm
 from hbis_torch.scan import plan_scan
 from hbis_torch.scan.pointing import point_axis
@@ -34,10 +35,6 @@ PHASE_DIFFERENCE_DEG = (30.0, 150.0)
 DEFAULT_AZIMUTH_DEG = 37.5
 #: Phases assumed when no current phases are given (the scan plans' default initial phases).
 DEFAULT_INITIAL_PHASES_DEG = (5.0, 70.0)
-
-
-class OutOfScanField(HbisInputError):
-    """The object cannot be brought into a ROI of the requested size."""
 
 
 def _wrap(angle_deg: float) -> float:
