@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass, field, replace
 import torch
 
 from hbis_torch.config import Camera, Prisms, System
+from hbis_torch.checks import MAX_H, check_h
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.risley import exit_directions
 
@@ -80,8 +81,7 @@ def diffraction_ratio(camera: Camera) -> float:
 
 def bsr(h: int, fer_h: float, fer_v: float) -> float:
     """Bandwidth saving ratio of eq. (10)."""
-    if h < 1:
-        raise HbisInputError(f"h must be >= 1, got {h}")
+    h = check_h(h)
     return (1.0 - 1.0 / h**2) * (1.0 - 1.0 / (fer_v * fer_h))
 
 
@@ -141,9 +141,7 @@ def design(
     fer_h, fer_v = (vh + theta_h) / theta_h, (vv + theta_v) / theta_v
     big_h = diffraction_ratio(system.camera)
     h_max = max(1, math.floor(big_h))
-    h = h_max if h is None else int(h)
-    if h < 1:
-        raise HbisInputError(f"h must be >= 1, got {h}")
+    h = min(h_max, MAX_H) if h is None else check_h(h)
     axis = exit_directions(torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), 0.0, 0.0, system.prisms)
     max_dev = math.degrees(math.atan2(math.hypot(axis[0], axis[1]), axis[2]))
     return DesignReport(
@@ -171,7 +169,7 @@ def design(
         h_max=h_max,
         h=h,
         foveal_ratio=h,
-        bsr={str(k): bsr(k, fer_h, fer_v) for k in range(1, h_max + 1)},
+        bsr={str(k): bsr(k, fer_h, fer_v) for k in range(1, min(h_max, MAX_H) + 1)},
     )
 
 

@@ -107,7 +107,7 @@ def default_roi(camera) -> tuple[int, int, int, int]:
 
 
 def run(args) -> int:
-    from hbis_torch.optics import check_roi
+    from hbis_torch.checks import check_roi
     from hbis_torch.scan import plan_scan
     from hbis_torch.simulate import SensorModel, simulate_stack
     from hbis_torch.simulate.stacks import scene_for_roi

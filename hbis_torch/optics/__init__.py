@@ -1,7 +1,6 @@
 """Exact vector ray tracing through the Risley pair, and per-pixel landing maps."""
 
 from hbis_torch.optics.pixels import (
-    check_roi,
     landing_map,
     landing_map_interpolated,
     pinhole_landing,
@@ -42,7 +41,6 @@ __all__ = [
     "paraxial_inverse",
     "RisleyTrace",
     "axis_deviation",
-    "check_roi",
     "deviation_azimuth",
     "exit_directions",
     "land_on_plane",

@@ -4,7 +4,7 @@ Three solvers, all vectorised over any number of targets (shape (F, 2), mm on th
 
 * :func:`paper_inverse` - the paper's closed form (eqs. 5-9). Each prism is a fixed-length
   vector on the object plane, DV = k1 e(phi1) + k2 e(phi2) with e(phi) = (cos phi, sin phi).
-  This is the paper's eq. 5 with the sign flipped: in our frame (DESIGN.md section 1) phi1 = phi2
+  This is the paper's eq. 5 with the sign flipped: in our frame (docs/design.md section 1) phi1 = phi2
   = phi deviates the axis *toward* (cos phi, sin phi), the paper's frame deviates it away. The
   norms k1, k2 come from the initial point (eq. 8, :func:`paper_norms`).
 * :func:`exact_inverse` - the non-paraxial model, exact to rounding. It uses the rotational

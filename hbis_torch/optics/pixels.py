@@ -1,7 +1,7 @@
 """Per-pixel chief rays and landing maps on the object plane.
 
 Pixel (u, v), 0-based, names the centre of column u and row v. Its chief ray leaves the pupil
-along ((u - (cols-1)/2) p, (v - (rows-1)/2) p, f'), normalised (DESIGN.md section 1).
+along ((u - (cols-1)/2) p, (v - (rows-1)/2) p, f'), normalised (docs/design.md section 1).
 
 A region of interest (ROI) is ``(u0, v0, width, height)`` in pixels, as in the hbis-stack/1
 file format; ``None`` means the whole sensor.
@@ -16,27 +16,11 @@ import torch
 from torch import Tensor
 
 from hbis_torch.config import Camera, System
+from hbis_torch.checks import check_roi
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.risley import exit_directions, land_on_plane
 
 Roi = tuple[int, int, int, int]
-
-
-def check_roi(camera: Camera, roi: Roi | None) -> Roi:
-    """Return a validated ``(u0, v0, width, height)``; ``None`` gives the whole sensor."""
-    if roi is None:
-        return (0, 0, camera.cols, camera.rows)
-    try:
-        u0, v0, w, h = (int(r) for r in roi)
-    except (TypeError, ValueError):
-        raise HbisInputError(f"roi must be four integers (u0, v0, width, height), got {roi!r}")
-    if w < 1 or h < 1:
-        raise HbisInputError(f"roi {roi!r} is empty: width and height must be at least 1")
-    if u0 < 0 or v0 < 0 or u0 + w > camera.cols or v0 + h > camera.rows:
-        raise HbisInputError(
-            f"roi {roi!r} lies outside the {camera.rows} x {camera.cols} (rows x cols) sensor"
-        )
-    return (u0, v0, w, h)
 
 
 def pixel_coordinates(camera: Camera, roi: Roi | None = None, dtype=torch.float64, device=None):

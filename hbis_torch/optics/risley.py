@@ -1,6 +1,6 @@
 """Exact (non-paraxial) vector ray tracing through a Risley prism pair.
 
-Conventions (DESIGN.md section 1): rays travel along +z; prism 1 has a flat face then a tilted
+Conventions (docs/design.md section 1): rays travel along +z; prism 1 has a flat face then a tilted
 face, prism 2 a tilted face then a flat face, with the normals of the paper's eq. 4::
 
     n11 = (0, 0, 1)

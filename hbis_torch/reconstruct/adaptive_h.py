@@ -280,10 +280,11 @@ def recommend_h(frames, system, positions=None, h_max: int | None = None, tolera
     cutoff = optics_cutoff(system)
     aperture = math.sqrt(fill_factor)
     if positions is not None:
-        from hbis_torch.reconstruct.classical import _as_tensor, lattice_image, lattice_noise
+        from hbis_torch.checks import as_float64_tensor
+        from hbis_torch.reconstruct.classical import lattice_image, lattice_noise
 
-        stack = _as_tensor(frames_t, "frames")
-        positions = _as_tensor(positions, "positions")
+        stack = as_float64_tensor(frames_t, "frames")
+        positions = as_float64_tensor(positions, "positions")
         F, H, W = stack.shape
         if tuple(positions.shape) != (F, H, W, 2):
             raise HbisInputError(f"positions must have shape {(F, H, W, 2)}, got {tuple(positions.shape)}")

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
 
 # The deblurring never trusts the data more than this noise level (intensity units, [0, 1]):
@@ -77,28 +78,6 @@ def _box(f: Tensor, width: float) -> Tensor:
 
 
 # --------------------------------------------------------------------------- checks
-
-
-def _check_h(h) -> int:
-    if isinstance(h, bool) or not isinstance(h, (int, np.integer)) or not 1 <= int(h) <= 16:
-        raise HbisInputError(f"h must be an integer from 1 to 16, got {h!r}")
-    return int(h)
-
-
-def _as_tensor(x, name: str) -> Tensor:
-    if isinstance(x, np.ndarray):
-        x = torch.from_numpy(np.ascontiguousarray(x))
-    if not isinstance(x, Tensor):
-        try:
-            x = torch.as_tensor(x)
-        except (TypeError, ValueError, RuntimeError):
-            raise HbisInputError(f"{name} must be an array of numbers") from None
-    if x.dtype == torch.bool or x.is_complex():
-        raise HbisInputError(f"{name} must be real numbers, got {x.dtype}")
-    x = x.to(torch.float64)
-    if not torch.isfinite(x).all():
-        raise HbisInputError(f"{name} contain non-finite values (NaN or inf)")
-    return x
 
 
 # --------------------------------------------------------------------------- interpolation
@@ -517,9 +496,9 @@ def classical_sr(
     Tensor, shape (h*H, h*W), float32 in [0, 1]
         Computed in float64 and rounded at the end.
     """
-    h = _check_h(h)
-    frames = _as_tensor(frames, "frames")
-    positions = _as_tensor(positions, "positions")
+    h = check_h(h)
+    frames = as_float64_tensor(frames, "frames")
+    positions = as_float64_tensor(positions, "positions")
     if frames.ndim != 3 or min(frames.shape) < 1:
         raise HbisInputError(f"frames must have shape (F, H, W), got {tuple(frames.shape)}")
     F, H, W = frames.shape
@@ -536,7 +515,7 @@ def classical_sr(
     if not (math.isfinite(strength) and strength > 0):
         raise HbisInputError(f"strength must be a positive number, got {strength!r}")
     if weights is not None:
-        weights = _as_tensor(weights, "weights")
+        weights = as_float64_tensor(weights, "weights")
         if weights.shape == (F,):
             weights = weights[:, None, None].expand(F, H, W)
         if tuple(weights.shape) != (F, H, W) or bool((weights < 0).any()):

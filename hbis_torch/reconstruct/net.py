@@ -46,6 +46,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from hbis_torch.checks import check_h
 from hbis_torch.errors import HbisInputError
 
 
@@ -138,8 +139,7 @@ class HbisSRNet(nn.Module):
 
     def __init__(self, h: int, width: int = 48, blocks: int = 5, skip: int = 0) -> None:
         super().__init__()
-        if int(h) != h or h < 2:
-            raise HbisInputError(f"the network needs an integer h >= 2, got {h!r}")
+        check_h(h, minimum=2)
         if int(skip) != skip or skip < 0 or (skip and skip % 2 == 0):
             raise HbisInputError(f"skip must be 0 or an odd kernel size, got {skip!r}")
         self.h, self.width, self.blocks, self.skip = int(h), int(width), int(blocks), int(skip)

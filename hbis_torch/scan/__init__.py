@@ -18,8 +18,6 @@ from hbis_torch.scan.motor_steps import (
 from hbis_torch.scan.plan import (
     METHODS,
     ScanPlan,
-    check_h,
-    check_phase_pair,
     phase_range_deg,
     plan_scan,
     scan_offsets,
@@ -33,8 +31,6 @@ __all__ = [
     "Pointing",
     "ScanPlan",
     "axis_alignment_error",
-    "check_h",
-    "check_phase_pair",
     "landing_jacobian",
     "phase_steps",
     "phase_range_deg",

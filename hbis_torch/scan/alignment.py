@@ -26,6 +26,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.config import System
+from hbis_torch.checks import check_phases
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at, sensor_position
 from hbis_torch.optics.inverse import axis_landing
@@ -35,11 +36,9 @@ CONVENTIONS = ("sensor", "object")
 
 
 def _check_phases(phases_deg, frames: int) -> Tensor:
-    p = torch.as_tensor(phases_deg, dtype=torch.float64)
+    p = check_phases(phases_deg)
     if p.shape != (frames, 2):
         raise HbisInputError(f"phases must have shape ({frames}, 2), got {tuple(p.shape)}")
-    if not torch.isfinite(p).all():
-        raise HbisInputError("phases contain non-finite values (NaN or inf)")
     return p
 
 

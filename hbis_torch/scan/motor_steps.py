@@ -18,7 +18,8 @@ from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.inverse import axis_landing
 from hbis_torch.scan.alignment import axis_alignment_error
-from hbis_torch.scan.plan import ScanPlan, check_phase_pair, plan_scan
+from hbis_torch.checks import check_phase_pair, check_phases
+from hbis_torch.scan.plan import ScanPlan, plan_scan
 
 
 def _check_steps(steps_per_deg) -> tuple[float, float]:
@@ -34,18 +35,9 @@ def _check_steps(steps_per_deg) -> tuple[float, float]:
     return values[0], values[1]
 
 
-def _check_phases(phases_deg) -> Tensor:
-    p = torch.as_tensor(phases_deg, dtype=torch.float64)
-    if p.ndim != 2 or p.shape[-1] != 2:
-        raise HbisInputError(f"phases must have shape (F, 2) in degrees, got {tuple(p.shape)}")
-    if not torch.isfinite(p).all():
-        raise HbisInputError("phases contain non-finite values (NaN or inf)")
-    return p
-
-
 def phase_steps(phases_deg: Tensor, steps_per_deg, origin_deg=(0.0, 0.0)) -> Tensor:
     """Whole motor steps from ``origin_deg`` nearest each phase; (F, 2) int64."""
-    p = _check_phases(phases_deg)
+    p = check_phases(phases_deg)
     spd = torch.tensor(_check_steps(steps_per_deg), dtype=torch.float64)
     origin = torch.tensor(check_phase_pair(origin_deg), dtype=torch.float64)
     return torch.round((p - origin) * spd).to(torch.int64)
@@ -97,7 +89,7 @@ def landing_jacobian(system: System, phases_deg: Tensor, step_deg: float = 1e-5)
 
     Column k is the landing's response to prism k.
     """
-    p = _check_phases(phases_deg)
+    p = check_phases(phases_deg)
     columns = []
     for k in range(2):
         dp = torch.zeros(2, dtype=torch.float64)

@@ -26,6 +26,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.config import System
+from hbis_torch.checks import check_h, check_phase_pair
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.inverse import axis_landing, exact_inverse, paper_inverse, paper_norms
 
@@ -72,24 +73,6 @@ class ScanPlan:
     def phase_range_deg(self) -> Tensor:
         """Range (max - min) of each prism's phase over the scan, shape (2,), degrees."""
         return phase_range_deg(self.phases_deg)
-
-
-def check_h(h) -> int:
-    """A validated resolution improvement factor (an integer >= 1)."""
-    if isinstance(h, bool) or not isinstance(h, (int, float)) or h != int(h) or h < 1:
-        raise HbisInputError(f"h must be an integer >= 1, got {h!r}")
-    return int(h)
-
-
-def check_phase_pair(phases_deg) -> tuple[float, float]:
-    """Two finite angles in degrees, as a tuple of floats."""
-    try:
-        values = [float(v) for v in phases_deg]
-    except (TypeError, ValueError):
-        raise HbisInputError(f"phases must be two numbers in degrees, got {phases_deg!r}")
-    if len(values) != 2 or not all(math.isfinite(v) for v in values):
-        raise HbisInputError(f"phases must be two finite numbers in degrees, got {phases_deg!r}")
-    return values[0], values[1]
 
 
 def step_mm(system: System, h: int) -> float:

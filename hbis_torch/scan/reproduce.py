@@ -110,7 +110,7 @@ def _pixel_variants(system: System, initial, stride: int) -> dict:
 
 def convention_study(system: System = System(), stride: int = 8) -> str:
     """Markdown table of the pixel AE under each candidate convention (and two layouts)."""
-    cases = [("as DESIGN.md", system, EXAMPLES)]
+    cases = [("as docs/design.md", system, EXAMPLES)]
     transposed = replace(system, camera=replace(system.camera, rows=system.camera.cols,
                                                 cols=system.camera.rows))
     cases.append(("sensor transposed (1280 x 960)", transposed, EXAMPLES))
@@ -122,7 +122,7 @@ def convention_study(system: System = System(), stride: int = 8) -> str:
     lines.append(f"| paper | - | {paper} |")
     for layout, s, examples in cases:
         rows = [_pixel_variants(s, e, stride) for e in examples]
-        names = rows[0] if layout == "as DESIGN.md" else ["sensor, exact back-trace (ours)"]
+        names = rows[0] if layout == "as docs/design.md" else ["sensor, exact back-trace (ours)"]
         for name in names:
             cells = " | ".join(f"{r[name][0]:.2f} / {r[name][1]:.3f}" for r in rows)
             lines.append(f"| {layout} | {name} | {cells} |")

@@ -48,8 +48,8 @@ from torch import Tensor
 
 from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
-from hbis_torch.optics import check_roi
-from hbis_torch.simulate.geometry import check_phases, landing_at, landing_on_grid, sample_positions
+from hbis_torch.checks import check_h, check_phases, check_roi
+from hbis_torch.simulate.geometry import landing_at, landing_on_grid, sample_positions
 from hbis_torch.simulate.psf import blur_transfer, dct_frequencies, defocus_waves
 from hbis_torch.simulate.scenes import Scene
 from hbis_torch.simulate.sensor import SensorModel
@@ -219,9 +219,7 @@ def render_scan(
     RenderedScan
     """
     phases = check_phases(phases_deg)
-    if isinstance(h, bool) or int(h) != h or h < 1:
-        raise HbisInputError(f"h must be an integer >= 1, got {h!r}")
-    h = int(h)
+    h = check_h(h)
     n_frames = phases.shape[0]
     if not 0 <= int(reference_index) < n_frames:
         raise HbisInputError(f"reference index {reference_index} is not a frame index (0..{n_frames - 1})")

@@ -24,21 +24,10 @@ from torch import Tensor
 
 from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
-from hbis_torch.optics import check_roi, exit_directions, land_on_plane, rays_at, sensor_position
+from hbis_torch.checks import check_phases, check_roi
+from hbis_torch.optics import exit_directions, land_on_plane, rays_at, sensor_position
 
 Roi = tuple[int, int, int, int]
-
-
-def check_phases(phases_deg) -> Tensor:
-    """(F, 2) float64 phases in degrees, validated."""
-    phases = torch.as_tensor(phases_deg, dtype=torch.float64)
-    if phases.ndim == 1 and phases.shape[0] == 2:
-        phases = phases[None]
-    if phases.ndim != 2 or phases.shape[1] != 2 or phases.shape[0] < 1:
-        raise HbisInputError(f"phases must have shape (F, 2), got {tuple(phases.shape)}")
-    if not bool(torch.isfinite(phases).all()):
-        raise HbisInputError("phases contain NaN or infinite values")
-    return phases
 
 
 def landing_at(system: System, u: Tensor, v: Tensor, phi1_deg, phi2_deg) -> Tensor:

@@ -7,10 +7,10 @@ import torch
 
 from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
-from hbis_torch.optics import check_roi
+from hbis_torch.checks import check_roi
 from hbis_torch.stack_io import Stack, make_meta
 from hbis_torch.simulate.forward import grid_factor, render_scan
-from hbis_torch.simulate.geometry import check_phases
+from hbis_torch.checks import check_phases
 from hbis_torch.simulate.scenes import Scene, SceneSpec, load_scene
 from hbis_torch.simulate.sensor import SensorModel, expose
 

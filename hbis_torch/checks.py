@@ -1,0 +1,89 @@
+"""Checks at the door: the values many parts of hbis-torch take, validated by one rule each.
+
+Each function returns the value in the form the code uses (an ``int``, a tuple, a float64
+tensor) or raises :class:`~hbis_torch.errors.HbisInputError` with a one-line message.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from hbis_torch.config import Camera
+from hbis_torch.errors import HbisInputError
+
+Roi = tuple[int, int, int, int]
+
+#: The largest resolution improvement factor hbis-torch accepts: 256 frames a stack.
+MAX_H = 16
+
+
+def check_h(h, minimum: int = 1) -> int:
+    """A resolution improvement factor: an integer (Python or NumPy) from ``minimum`` to 16.
+
+    ``minimum`` is 2 where h = 1 means nothing (the network has no sub-pixel phases to combine).
+    """
+    if isinstance(h, (bool, np.bool_)) or not isinstance(h, (int, np.integer)) or not minimum <= int(h) <= MAX_H:
+        raise HbisInputError(f"h must be an integer from {minimum} to {MAX_H}, got {h!r}")
+    return int(h)
+
+
+def check_roi(camera: Camera, roi: Roi | None) -> Roi:
+    """Return a validated ``(u0, v0, width, height)`` in pixels; ``None`` gives the whole sensor."""
+    if roi is None:
+        return (0, 0, camera.cols, camera.rows)
+    try:
+        u0, v0, w, h = (int(r) for r in roi)
+    except (TypeError, ValueError):
+        raise HbisInputError(f"roi must be four integers (u0, v0, width, height), got {roi!r}")
+    if w < 1 or h < 1:
+        raise HbisInputError(f"roi {roi!r} is empty: width and height must be at least 1")
+    if u0 < 0 or v0 < 0 or u0 + w > camera.cols or v0 + h > camera.rows:
+        raise HbisInputError(
+            f"roi {roi!r} lies outside the {camera.rows} x {camera.cols} (rows x cols) sensor"
+        )
+    return (u0, v0, w, h)
+
+
+def check_phases(phases_deg) -> Tensor:
+    """Prism phases in degrees, shape (F, 2) (a single pair may be given as (2,)), as float64."""
+    phases = torch.as_tensor(phases_deg, dtype=torch.float64)
+    if phases.ndim == 1 and phases.shape[0] == 2:
+        phases = phases[None]
+    if phases.ndim != 2 or phases.shape[1] != 2 or phases.shape[0] < 1:
+        raise HbisInputError(f"phases must have shape (F, 2), got {tuple(phases.shape)}")
+    if not bool(torch.isfinite(phases).all()):
+        raise HbisInputError("phases contain non-finite values (NaN or infinite)")
+    return phases
+
+
+def check_phase_pair(phases_deg) -> tuple[float, float]:
+    """Two finite angles in degrees, as a tuple of floats."""
+    try:
+        values = [float(v) for v in phases_deg]
+    except (TypeError, ValueError):
+        raise HbisInputError(f"phases must be two numbers in degrees, got {phases_deg!r}")
+    if len(values) != 2 or not all(math.isfinite(v) for v in values):
+        raise HbisInputError(f"phases must be two finite numbers in degrees, got {phases_deg!r}")
+    return values[0], values[1]
+
+
+def as_float64_tensor(x, name: str) -> Tensor:
+    """An array-like of real, finite numbers as a float64 tensor (NumPy arrays are not copied
+    before the cast)."""
+    if isinstance(x, np.ndarray):
+        x = torch.from_numpy(np.ascontiguousarray(x))
+    if not isinstance(x, Tensor):
+        try:
+            x = torch.as_tensor(x)
+        except (TypeError, ValueError, RuntimeError):
+            raise HbisInputError(f"{name} must be an array of numbers") from None
+    if x.dtype == torch.bool or x.is_complex():
+        raise HbisInputError(f"{name} must be real numbers, got {x.dtype}")
+    x = x.to(torch.float64)
+    if not torch.isfinite(x).all():
+        raise HbisInputError(f"{name} contain non-finite values (NaN or inf)")
+    return x
