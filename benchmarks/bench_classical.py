@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 import torch
 from scipy.interpolate import griddata
-from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from hbis_torch.config import System
+from hbis_torch.metrics import psnr, ssim
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
 from hbis_torch.reconstruct.classical import classical_sr, optical_sample_positions, optics_cutoff
@@ -55,8 +55,7 @@ def bicubic(frame: torch.Tensor, h: int) -> np.ndarray:
 def score(truth: np.ndarray, image: np.ndarray, h: int) -> tuple[float, float]:
     c = slice(2 * h, -2 * h)
     t, x = truth[c, c].astype(np.float64), image[c, c].astype(np.float64)
-    return (float(peak_signal_noise_ratio(t, x, data_range=1.0)),
-            float(structural_similarity(t, x, data_range=1.0)))
+    return psnr(x, t), ssim(x, t)
 
 
 def main(argv=None) -> dict:

@@ -49,6 +49,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 from hbis_torch.config import System  # noqa: E402
 from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
+from hbis_torch.metrics import psnr  # noqa: E402
 from hbis_torch.scan import plan_scan  # noqa: E402
 from hbis_torch.simulate import SceneSpec, load_scene, sample_positions, simulate_stack  # noqa: E402
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff  # noqa: E402
@@ -83,11 +84,6 @@ def steady_malloc() -> bool:
         return False
     m_mmap_max, m_trim_threshold = -4, -1  # mallopt parameters (malloc.h)
     return bool(libc.mallopt(m_mmap_max, 0)) and bool(libc.mallopt(m_trim_threshold, 1 << 30))
-
-
-def psnr(image: np.ndarray, truth: np.ndarray) -> float:
-    mse = float(np.mean((np.clip(image, 0, 1).astype(np.float64) - truth.astype(np.float64)) ** 2))
-    return 10 * np.log10(1.0 / max(mse, 1e-12))
 
 
 def timed(fn, repeats: int):

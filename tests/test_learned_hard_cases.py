@@ -10,6 +10,7 @@ import torch
 
 from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
+from hbis_torch.metrics import psnr
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import EdgesScene, FlatScene, SensorModel, sample_positions, simulate_stack
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
@@ -18,10 +19,6 @@ from hbis_torch.reconstruct.learned import LearnedSR, available_providers, defau
 H = 4
 SYSTEM = System()
 ROI = (1100, 60, 32, 32)  # near a corner: the scan is least regular there
-
-
-def psnr(a, b):
-    return 10 * np.log10(1.0 / max(float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)), 1e-20))
 
 
 @pytest.fixture(scope="module", params=available_providers())

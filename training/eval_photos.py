@@ -23,7 +23,8 @@ import torch
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-from benchmarks.bench_learned import make_stack, psnr, roi_for, scene_cases  # noqa: E402
+from benchmarks.bench_learned import make_stack, roi_for, scene_cases  # noqa: E402
+from hbis_torch.metrics import psnr  # noqa: E402
 from hbis_torch.config import System  # noqa: E402
 from hbis_torch.io_utils import atomic_path  # noqa: E402
 from hbis_torch.simulate import sample_positions  # noqa: E402

@@ -33,6 +33,7 @@ import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
 from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
+from hbis_torch.metrics import psnr  # noqa: E402
 from hbis_torch.reconstruct.net import HbisSRNet, count_parameters  # noqa: E402
 from training.sr_data import NATURAL_SHARE, POOL_VERSION, build_pool, load_pool, make_batch, save_pool, whole_example  # noqa: E402
 
@@ -174,7 +175,7 @@ def classical_baseline() -> float:
         for ex in val_pool[rank::world]:
             frames, positions = torch.from_numpy(ex["frames"]), torch.from_numpy(ex["positions"]).double()
             image = classical_sr(frames, positions, h, cutoff=cutoff, fill_factor=1.0)
-            sums += torch.tensor([psnr(image[None, None].float(), torch.from_numpy(ex["truth"])[None, None]), 1.0])
+            sums += torch.tensor([psnr(image.float().clamp(0, 1), ex["truth"]), 1.0])
         if ddp:
             dist.all_reduce(sums)
         if master:
@@ -191,11 +192,6 @@ def train_batch(at_step: int):
     return [torch.from_numpy(a) for a in make_batch(train_pool, h, patch, batch_size, rng, noise_prob, noise_max)]
 
 
-def psnr(image: torch.Tensor, truth: torch.Tensor) -> float:
-    mse = F.mse_loss(image.clamp(0, 1).double(), truth.double()).item()
-    return 10 * math.log10(1.0 / max(mse, 1e-12))
-
-
 @torch.no_grad()
 def validate() -> tuple[float, float]:
     """Mean PSNR (dB) over the whole validation set, network and its bilinear base."""
@@ -205,7 +201,7 @@ def validate() -> tuple[float, float]:
         frames, offsets, truth = (torch.from_numpy(a) for a in (frames, offsets, truth))
         image = model(frames, offsets)
         base = F.interpolate(frames[:, :1], scale_factor=h, mode="bilinear", align_corners=False)
-        sums += torch.tensor([psnr(image, truth), psnr(base, truth), 1.0], dtype=torch.float64)
+        sums += torch.tensor([psnr(image.clamp(0, 1), truth), psnr(base.clamp(0, 1), truth), 1.0], dtype=torch.float64)
     if ddp:
         dist.all_reduce(sums)
     model.train()

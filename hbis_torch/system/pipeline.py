@@ -27,6 +27,7 @@ import torch
 from hbis_torch.config import System
 from hbis_torch.design import design
 from hbis_torch.errors import HbisInputError
+from hbis_torch.metrics import psnr
 from hbis_torch.simulate import SensorModel
 from hbis_torch.system.array.cameras import CAMERA_NAMES, CameraArray
 from hbis_torch.system.composite.composite import Inlay, composite, inlay_outline
@@ -76,10 +77,6 @@ def make_reconstruct_fn(method: str, model: str | None = None):
         return reconstruct(capture.stack, method=method, **kwargs)
 
     return run
-
-
-def _psnr(a: np.ndarray, b: np.ndarray) -> float:
-    return float(10 * np.log10(1.0 / max(float(np.mean((a - b) ** 2)), 1e-12)))
 
 
 def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainConfig(), log=print) -> dict:
@@ -171,7 +168,7 @@ def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainCon
                                               mode="bicubic", align_corners=False)[0, 0].clamp(0, 1).numpy()
     quality = {}
     if capture.truth is not None:
-        quality = {"psnr_sr_db": _psnr(capture.sr, capture.truth), "psnr_bicubic_db": _psnr(bicubic, capture.truth)}
+        quality = {"psnr_sr_db": psnr(capture.sr, capture.truth), "psnr_bicubic_db": psnr(bicubic, capture.truth)}
 
     images = {
         "views": plot_views(views, out / "views.png", f"the nine views at t = {t_sr:.2f} s (binned {b})"),
