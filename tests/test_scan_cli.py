@@ -1,4 +1,4 @@
-"""`hbis scan`: the DESIGN.md section 2 JSON, the text table, and one-line errors (exit 2)."""
+"""`hbis scan`: the docs/design.md section 2 JSON, the text table, and one-line errors (exit 2)."""
 
 import json
 import os

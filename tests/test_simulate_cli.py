@@ -1,4 +1,4 @@
-"""``hbis simulate`` as DESIGN.md section 2 states it."""
+"""``hbis simulate`` as docs/design.md section 2 states it."""
 
 from __future__ import annotations
 

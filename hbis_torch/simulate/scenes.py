@@ -2,7 +2,7 @@
 
 Every scene knows its physical size (``size_mm`` = (width, height)) and where its centre sits on
 the object plane (``center_mm``; None lets the simulator centre it on the view of the region of
-interest). Image x grows with the column and y with the row, as sensor u and v do (DESIGN.md
+interest). Image x grows with the column and y with the row, as sensor u and v do (docs/design.md
 section 1), so an image appears upright in the frames.
 
 Procedural patterns (Siemens star, bar target, edges, gradients, gratings) are evaluated
