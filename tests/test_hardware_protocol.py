@@ -12,7 +12,7 @@ from hbis_torch.hardware.grbl_protocol import (Kind, classify, format_jog, forma
                                                parse_setting, parse_status, parse_welcome, unwrap_near,
                                                wrap_deg)
 from hbis_torch.hardware.motion_profile import distance_at, move_duration_s
-from hbis_torch.hardware.sim_machine import DEFAULT_SETTINGS, SimulatedGrbl
+from hbis_torch.hardware.sim_machine import DEFAULT_SETTINGS, GrblMachineModel
 
 
 @pytest.mark.parametrize("line, kind, payload", [
@@ -130,7 +130,7 @@ def _run(machine, line, now=0.0):
 
 
 def test_machine_quantises_targets_to_whole_steps():
-    m = SimulatedGrbl({100: 10.0, 101: 7.0})
+    m = GrblMachineModel({100: 10.0, 101: 7.0})
     assert _run(m, "G0 X0.26 Y1") == ["ok"]
     m.tick(100.0)
     x, y, _ = m.position_deg()
@@ -140,7 +140,7 @@ def test_machine_quantises_targets_to_whole_steps():
 
 
 def test_machine_times_moves_with_feed_and_acceleration():
-    m = SimulatedGrbl()
+    m = GrblMachineModel()
     assert _run(m, "G21 G90 G53 G0 X90 Y0") == ["ok"]
     spm = DEFAULT_SETTINGS[100]
     total = move_duration_s(round(90 * spm) / spm, DEFAULT_SETTINGS[110] / 60, DEFAULT_SETTINGS[120])
@@ -161,11 +161,11 @@ def test_machine_times_moves_with_feed_and_acceleration():
     ("$100=-1", "error:4"), ("$H", "error:5"), ("G0 X" + "1" * 80, "error:11"), ("$J=G0 X1", "error:16"),
 ])
 def test_machine_rejects_bad_lines_with_grbl_codes(line, reply):
-    assert _run(SimulatedGrbl(), line) == [reply]
+    assert _run(GrblMachineModel(), line) == [reply]
 
 
 def test_machine_alarm_lock_and_unlock():
-    m = SimulatedGrbl({22: 1})  # homing enabled: starts locked
+    m = GrblMachineModel({22: 1})  # homing enabled: starts locked
     assert m.state == "Alarm"
     assert _run(m, "G0 X1") == ["error:9"]
     assert _run(m, "$X") == ["[MSG:Caution: Unlocked]", "ok"]
@@ -173,7 +173,7 @@ def test_machine_alarm_lock_and_unlock():
 
 
 def test_machine_feed_hold_freezes_and_resume_continues():
-    m = SimulatedGrbl()
+    m = GrblMachineModel()
     _run(m, "G0 X90")
     total = move_duration_s(90.0, DEFAULT_SETTINGS[110] / 60, DEFAULT_SETTINGS[120])
     m.receive(b"!", total / 2)
@@ -188,7 +188,7 @@ def test_machine_feed_hold_freezes_and_resume_continues():
 
 
 def test_machine_dwell_answers_when_done_and_reset_mid_move_alarms():
-    m = SimulatedGrbl()
+    m = GrblMachineModel()
     assert _run(m, "G4 P0.5") == []  # G4 answers only once the dwell is over
     m.tick(0.6)
     assert m.take_output() == b"ok\r\n"

@@ -83,7 +83,7 @@ class _Block:
 
 
 @dataclass
-class SimulatedGrbl:
+class GrblMachineModel:
     """The state machine of one simulated GRBL 1.1 controller (prism 1 on X, prism 2 on Y).
 
     Parameters

@@ -1,7 +1,7 @@
 """A simulated GRBL 1.1 controller on a pseudo-terminal (or a TCP port), for tests and for trying
 the motor commands without hardware.
 
-The machine itself is :class:`~.sim_machine.SimulatedGrbl`; this module gives it a serial line and
+The machine itself is :class:`~.sim_machine.GrblMachineModel`; this module gives it a serial line and
 a clock. On the default pseudo-terminal the driver talks through the real pyserial path to the
 slave side (``/dev/pts/N``), exactly as to a USB serial adapter::
 
@@ -26,7 +26,7 @@ import threading
 import time
 import tty
 
-from hbis_torch.hardware.sim_machine import FAULT_KINDS, VERSION, SimulatedGrbl
+from hbis_torch.hardware.sim_machine import FAULT_KINDS, VERSION, GrblMachineModel
 
 
 class _PtyLine:
@@ -111,7 +111,7 @@ class _TcpLine:
 
 
 class GrblSimulator:
-    """A :class:`SimulatedGrbl` served on a serial line by a background thread.
+    """A :class:`GrblMachineModel` served on a serial line by a background thread.
 
     Parameters
     ----------
@@ -130,7 +130,7 @@ class GrblSimulator:
     ----------
     port : str
         What to give pyserial: ``/dev/pts/N`` or ``socket://127.0.0.1:PORT``.
-    machine : SimulatedGrbl
+    machine : GrblMachineModel
         The simulated controller (read its state in tests; arm faults with :meth:`inject`).
     """
 
@@ -138,7 +138,7 @@ class GrblSimulator:
                  max_lifetime_s: float = 600.0, seed: int = 0):
         if not speedup > 0:
             raise ValueError(f"speedup must be positive, got {speedup!r}")
-        self.machine = SimulatedGrbl(settings or {}, seed=seed)
+        self.machine = GrblMachineModel(settings or {}, seed=seed)
         self.speedup = float(speedup)
         self.max_lifetime_s = float(max_lifetime_s)
         self._tcp_port = tcp_port
