@@ -36,16 +36,16 @@ def check_roi(camera: Camera, roi: Roi | None) -> Roi:
     if roi is None:
         return (0, 0, camera.cols, camera.rows)
     try:
-        u0, v0, w, h = (int(r) for r in roi)
+        u0, v0, width, height = (int(r) for r in roi)
     except (TypeError, ValueError):
         raise HbisInputError(f"roi must be four integers (u0, v0, width, height), got {roi!r}")
-    if w < 1 or h < 1:
+    if width < 1 or height < 1:
         raise HbisInputError(f"roi {roi!r} is empty: width and height must be at least 1")
-    if u0 < 0 or v0 < 0 or u0 + w > camera.cols or v0 + h > camera.rows:
+    if u0 < 0 or v0 < 0 or u0 + width > camera.cols or v0 + height > camera.rows:
         raise HbisInputError(
             f"roi {roi!r} lies outside the {camera.rows} x {camera.cols} (rows x cols) sensor"
         )
-    return (u0, v0, w, h)
+    return (u0, v0, width, height)
 
 
 def check_phases(phases_deg) -> Tensor:

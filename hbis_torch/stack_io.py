@@ -228,16 +228,16 @@ def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None
             f"{where}: {n_frames} frame(s) but {n_phases} entries in phases_deg (one per frame)"
         )
     system = _system_from_meta(meta, where)
-    u0, v0, w, h = meta["roi"]
+    u0, v0, width, height = meta["roi"]
     cam = system.camera
-    if w < 1 or h < 1 or u0 < 0 or v0 < 0 or u0 + w > cam.cols or v0 + h > cam.rows:
+    if width < 1 or height < 1 or u0 < 0 or v0 < 0 or u0 + width > cam.cols or v0 + height > cam.rows:
         raise StackFormatError(
             f"{where}: roi {list(meta['roi'])} lies outside the {cam.rows} x {cam.cols} "
             "(rows x cols) sensor"
         )
-    if (h, w) != frames.shape[1:]:
+    if (height, width) != frames.shape[1:]:
         raise StackFormatError(
-            f"{where}: roi is {w} x {h} (width x height) but the frames are "
+            f"{where}: roi is {width} x {height} (width x height) but the frames are "
             f"{frames.shape[2]} x {frames.shape[1]}"
         )
     bd = meta.get("bit_depth")

@@ -25,10 +25,10 @@ Roi = tuple[int, int, int, int]
 
 def pixel_coordinates(camera: Camera, roi: Roi | None = None, dtype=torch.float64, device=None):
     """Sensor-plane coordinates (x, y) in mm of the pixel centres, each of shape (H, W)."""
-    u0, v0, w, h = check_roi(camera, roi)
+    u0, v0, width, height = check_roi(camera, roi)
     p = camera.pitch_mm
-    u = torch.arange(u0, u0 + w, dtype=dtype, device=device) - (camera.cols - 1) / 2
-    v = torch.arange(v0, v0 + h, dtype=dtype, device=device) - (camera.rows - 1) / 2
+    u = torch.arange(u0, u0 + width, dtype=dtype, device=device) - (camera.cols - 1) / 2
+    v = torch.arange(v0, v0 + height, dtype=dtype, device=device) - (camera.rows - 1) / 2
     y, x = torch.meshgrid(v * p, u * p, indexing="ij")
     return x, y
 
@@ -157,20 +157,20 @@ def landing_map_interpolated(
     benchmarks/bench_optics.py prints the error against the exact trace (7e-5 pixel in float64,
     3e-4 in float32, for the Table 1 system and the default grid).
     """
-    u0, v0, w, h = check_roi(system.camera, roi)
+    u0, v0, width, height = check_roi(system.camera, roi)
     p1, p2 = _phases(phi1_deg, phi2_deg, dtype, device)
-    nu = math.ceil((w - 1) / grid_step) + 1
-    nv = math.ceil((h - 1) / grid_step) + 1
-    if min(nu, nv) < 4 or nu * nv * 8 >= w * h:  # too small for a spline to pay off
+    nu = math.ceil((width - 1) / grid_step) + 1
+    nv = math.ceil((height - 1) / grid_step) + 1
+    if min(nu, nv) < 4 or nu * nv * 8 >= width * height:  # too small for a spline to pay off
         return landing_map(system, p1, p2, roi, dtype, device)
     cam = system.camera
-    us = torch.linspace(u0, u0 + w - 1, nu, dtype=dtype, device=device) - (cam.cols - 1) / 2
-    vs = torch.linspace(v0, v0 + h - 1, nv, dtype=dtype, device=device) - (cam.rows - 1) / 2
+    us = torch.linspace(u0, u0 + width - 1, nu, dtype=dtype, device=device) - (cam.cols - 1) / 2
+    vs = torch.linspace(v0, v0 + height - 1, nv, dtype=dtype, device=device) - (cam.rows - 1) / 2
     y, x = torch.meshgrid(vs * cam.pitch_mm, us * cam.pitch_mm, indexing="ij")
     rays = torch.stack((x, y, torch.full_like(x, cam.focal_length_mm)), dim=-1)
     rays = rays / rays.norm(dim=-1, keepdim=True)
     directions = exit_directions(rays, p1[..., None, None], p2[..., None, None], system.prisms)
     coarse = land_on_plane(directions, system.object_distance_mm).movedim(-1, -3)  # (*P, 2, nv, nu)
-    basis_v = _spline_basis(nv, h, dtype, device)
-    basis_u = _spline_basis(nu, w, dtype, device)
+    basis_v = _spline_basis(nv, height, dtype, device)
+    basis_u = _spline_basis(nu, width, dtype, device)
     return (basis_v @ coarse @ basis_u.T).movedim(-3, -1)

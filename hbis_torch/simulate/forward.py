@@ -86,11 +86,11 @@ def place_scene(scene: Scene, system: System, reference_phases, roi) -> Scene:
     """The scene itself if it has a centre, else centred on the view of the roi's centre pixel."""
     if scene.center_mm is not None:
         return scene
-    u0, v0, w, h = roi
+    u0, v0, width, height = roi
     centre = landing_at(
         system,
-        torch.tensor(u0 + (w - 1) / 2, dtype=torch.float64),
-        torch.tensor(v0 + (h - 1) / 2, dtype=torch.float64),
+        torch.tensor(u0 + (width - 1) / 2, dtype=torch.float64),
+        torch.tensor(v0 + (height - 1) / 2, dtype=torch.float64),
         float(reference_phases[0]),
         float(reference_phases[1]),
     )

@@ -150,10 +150,10 @@ def sample_positions(
     phases = check_phases(phases_deg)
     if not 0 <= int(reference_index) < phases.shape[0]:
         raise HbisInputError(f"reference index {reference_index} is not a frame index (0..{phases.shape[0] - 1})")
-    u0, v0, w, h = check_roi(system.camera, roi)
+    u0, v0, width, height = check_roi(system.camera, roi)
     ref = phases[int(reference_index)]
-    u = np.arange(u0, u0 + w, dtype=np.float64)
-    v = np.arange(v0, v0 + h, dtype=np.float64)
+    u = np.arange(u0, u0 + width, dtype=np.float64)
+    v = np.arange(v0, v0 + height, dtype=np.float64)
     if exact:
         uu, vv = torch.from_numpy(u)[None, :], torch.from_numpy(v)[:, None]
         grid_u, grid_v = uu, vv

@@ -118,10 +118,10 @@ def inlay_outline(canvas: Canvas, inlay: Inlay, samples: int = 16) -> Tensor:
     """The inlay's border in canvas pixels, (4 samples, 2), traced exactly (for drawing)."""
     from hbis_torch.optics import exit_directions, rays_at
 
-    u0, v0, w, h = inlay.roi
+    u0, v0, width, height = inlay.roi
     t = torch.linspace(0, 1, samples, dtype=torch.float64)
-    left, right = u0 - 0.5, u0 + w - 0.5
-    top, bottom = v0 - 0.5, v0 + h - 0.5
+    left, right = u0 - 0.5, u0 + width - 0.5
+    top, bottom = v0 - 0.5, v0 + height - 0.5
     us = torch.cat((left + (right - left) * t, torch.full_like(t, right), right - (right - left) * t,
                     torch.full_like(t, left)))
     vs = torch.cat((torch.full_like(t, top), top + (bottom - top) * t, torch.full_like(t, bottom),
