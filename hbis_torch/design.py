@@ -87,7 +87,11 @@ def bsr(h: int, fer_h: float, fer_v: float) -> float:
 
 @dataclass
 class DesignReport:
-    """Every design number of the paper for one system (angles in degrees)."""
+    """Every design number of the paper for one system (angles in degrees).
+
+    ``diffraction_ratio`` is the paper's H (the largest useful resolution improvement before
+    diffraction takes over); ``h`` is the factor chosen (default ``h_max`` = floor(H)).
+    """
 
     theta_h_deg: float
     theta_v_deg: float
@@ -109,14 +113,18 @@ class DesignReport:
     fer_h: float
     fer_v: float
     varphi_c_deg: float
-    H: float
+    diffraction_ratio: float
     h_max: int
     h: int
     foveal_ratio: int
     bsr: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The numbers by the paper's names: the diffraction ratio is ``"H"`` (docs/design.md
+        section 2)."""
+        out = asdict(self)
+        out["H"] = out.pop("diffraction_ratio")
+        return out
 
 
 def design(
@@ -165,7 +173,7 @@ def design(
         fer_h=fer_h,
         fer_v=fer_v,
         varphi_c_deg=varphi_c_deg(vh, vv),
-        H=big_h,
+        diffraction_ratio=big_h,
         h_max=h_max,
         h=h,
         foveal_ratio=h,

@@ -71,7 +71,7 @@ def test_exact_inflections_and_fer_two_after_them():
 
 def test_diffraction_ratio_allows_h_up_to_7():
     r = design()
-    assert 7 <= r.H < 8 and r.h_max == 7
+    assert 7 <= r.diffraction_ratio < 8 and r.h_max == 7
 
 
 def test_bsr_over_80_percent_at_h7_and_grows_3_7_points_from_h4():
