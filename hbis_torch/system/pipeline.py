@@ -79,24 +79,10 @@ def make_reconstruct_fn(method: str, model: str | None = None):
     return run
 
 
-def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainConfig(), log=print) -> dict:
-    """Run the chain, write its pictures into ``out_dir``; returns the summary (see module)."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    timings: dict[str, float] = {}
-    clock = time.perf_counter()
-
-    def lap(name: str) -> None:
-        nonlocal clock
-        now = time.perf_counter()
-        timings[name] = round(now - clock, 2)
-        clock = now
-
-    cfg = config
-    nominal = CameraArray(system, cfg.varphi_h_deg, cfg.varphi_v_deg)
-    array = nominal.with_assembly_errors(cfg.assembly_sigma_deg, cfg.seed)
-    scene = default_scene(nominal, h=cfg.h, path=cfg.path)
-    renderer = ArrayRenderer(array, scene, periphery_sensor(SensorModel(), system.object_pixel_mm))
+def _stitching(array: CameraArray, renderer: ArrayRenderer, cfg: ChainConfig, log, lap) -> tuple:
+    """The stitching homographies at the panorama's binning (refined from the first views unless
+    switched off), the design ones, and what the refinement did (with its worst corner errors
+    against the true assembly, in sensor pixels)."""
     b = cfg.panorama_binning
     design_h = design_homographies(array, b)
     log(f"[system] rendering the nine views ({array.view_shape(b)[1]} x {array.view_shape(b)[0]}, binned {b})")
@@ -121,6 +107,69 @@ def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainCon
     refine_info["design_error_px"] = corner_error(design_h)
     refine_info["refined_error_px"] = corner_error(homographies)
     lap("refine stitching")
+    return homographies, design_h, refine_info
+
+
+def _composites(pano, inlay: Inlay, b: int, h: int) -> tuple:
+    """The whole foveated composite, a zoomed window around the inlay, and the inlay's outline."""
+    full = composite(pano.image, pano.canvas, inlay, b, zoom=1.0)
+    outline = inlay_outline(pano.canvas, inlay)
+    zoom = h * b / float(pano.canvas.A[0, 0])
+    lo, hi = outline.amin(0) * zoom, outline.amax(0) * zoom
+    pad = 0.45 * (hi - lo)
+    x0, y0 = (lo - pad).floor().int().tolist()
+    x1, y1 = (hi + pad).ceil().int().tolist()
+    zoomed = composite(pano.image, pano.canvas, inlay, b, zoom=zoom, window=(x0, y0, x1 - x0, y1 - y0))
+    return full, zoomed, outline
+
+
+def _pictures(out: Path, cfg: ChainConfig, views, pano, pano_design, fer: dict, composites: tuple,
+              capture: FoveaCapture, sub_image: np.ndarray, t_sr: float, timeline) -> dict:
+    """Write every picture of the run into ``out``; returns their paths by name."""
+    b = cfg.panorama_binning
+    full, zoomed, outline = composites
+    return {
+        "views": plot_views(views, out / "views.png", f"the nine views at t = {t_sr:.2f} s (binned {b})"),
+        "panorama": save_png(pano.image, out / "panorama.png"),
+        "panorama_figure": plot_panorama(
+            pano.image, pano.outlines, out / "fig8a_panorama.png",
+            f"stitched panorama (refined homographies): FER_h = {fer['rectangle'].fer_h:.2f}, "
+            f"FER_v = {fer['rectangle'].fer_v:.2f}",
+            rectangle=fer["rectangle"].extent_px, inlay_outline=outline.numpy()),
+        "panorama_design": plot_panorama(
+            pano_design.image, pano_design.outlines, out / "panorama_design_angles.png",
+            "the same views stitched with the design angles only (assembly errors show as seams)"),
+        "composite": save_png(full, out / "foveated_composite.png"),
+        "composite_zoom": save_png(zoomed, out / "foveated_composite_zoom.png"),
+        "sr_fovea": save_png(capture.sr, out / "sr_fovea.png"),
+        "sub_image": save_png(sub_image, out / "sub_image.png"),
+        "sr_pairs": plot_sr_pairs(capture.sr, sub_image, cfg.h, out / "fig9_sr_vs_sub_image.png",
+                                  f"super-resolved fovea (h = {cfg.h}, {cfg.method}) beside a sub-image",
+                                  truth=capture.truth),
+        "timeline": plot_timeline(timeline[0], out / "timeline.png", timeline[1]),
+    }
+
+
+def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainConfig(), log=print) -> dict:
+    """Run the chain, write its pictures into ``out_dir``; returns the summary (see module)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = round(now - clock, 2)
+        clock = now
+
+    cfg = config
+    nominal = CameraArray(system, cfg.varphi_h_deg, cfg.varphi_v_deg)
+    array = nominal.with_assembly_errors(cfg.assembly_sigma_deg, cfg.seed)
+    scene = default_scene(nominal, h=cfg.h, path=cfg.path)
+    renderer = ArrayRenderer(array, scene, periphery_sensor(SensorModel(), system.object_pixel_mm))
+    b = cfg.panorama_binning
+    homographies, design_h, refine_info = _stitching(array, renderer, cfg, log, lap)
     log(f"[system] stitching error against the true assembly: design {refine_info['design_error_px']:.1f} px, "
         f"refined {refine_info['refined_error_px']:.2f} px (sensor pixels, worst view corner)")
 
@@ -147,15 +196,7 @@ def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainCon
 
     stack = capture.stack
     ref_phases = tuple(float(p) for p in stack.phases_deg[stack.reference_index])
-    inlay = Inlay(capture.sr, tuple(stack.roi), cfg.h, ref_phases, system)
-    full = composite(pano.image, pano.canvas, inlay, b, zoom=1.0)
-    outline = inlay_outline(pano.canvas, inlay)
-    zoom = cfg.h * b / float(pano.canvas.A[0, 0])
-    lo, hi = outline.amin(0) * zoom, outline.amax(0) * zoom
-    pad = 0.45 * (hi - lo)
-    x0, y0 = (lo - pad).floor().int().tolist()
-    x1, y1 = (hi + pad).ceil().int().tolist()
-    zoomed = composite(pano.image, pano.canvas, inlay, b, zoom=zoom, window=(x0, y0, x1 - x0, y1 - y0))
+    composites = _composites(pano, Inlay(capture.sr, tuple(stack.roi), cfg.h, ref_phases, system), b, cfg.h)
     ratio = foveal_ratio(system, stack.roi, cfg.h, ref_phases)
     area = covered_native_pixels(pano.coverage, pano.canvas, b)
     volumes = bandwidth(system, cfg.h, area, stack.roi, fer["rectangle"].fer_h, fer["rectangle"].fer_v,
@@ -169,27 +210,8 @@ def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainCon
     quality = {}
     if capture.truth is not None:
         quality = {"psnr_sr_db": psnr(capture.sr, capture.truth), "psnr_bicubic_db": psnr(bicubic, capture.truth)}
-
-    images = {
-        "views": plot_views(views, out / "views.png", f"the nine views at t = {t_sr:.2f} s (binned {b})"),
-        "panorama": save_png(pano.image, out / "panorama.png"),
-        "panorama_figure": plot_panorama(
-            pano.image, pano.outlines, out / "fig8a_panorama.png",
-            f"stitched panorama (refined homographies): FER_h = {fer['rectangle'].fer_h:.2f}, "
-            f"FER_v = {fer['rectangle'].fer_v:.2f}",
-            rectangle=fer["rectangle"].extent_px, inlay_outline=outline.numpy()),
-        "panorama_design": plot_panorama(
-            pano_design.image, pano_design.outlines, out / "panorama_design_angles.png",
-            "the same views stitched with the design angles only (assembly errors show as seams)"),
-        "composite": save_png(full, out / "foveated_composite.png"),
-        "composite_zoom": save_png(zoomed, out / "foveated_composite_zoom.png"),
-        "sr_fovea": save_png(capture.sr, out / "sr_fovea.png"),
-        "sub_image": save_png(sub_image, out / "sub_image.png"),
-        "sr_pairs": plot_sr_pairs(capture.sr, sub_image, cfg.h, out / "fig9_sr_vs_sub_image.png",
-                                  f"super-resolved fovea (h = {cfg.h}, {cfg.method}) beside a sub-image",
-                                  truth=capture.truth),
-        "timeline": plot_timeline(result.events, out / "timeline.png", _truth_x(scene, result.end_s)),
-    }
+    images = _pictures(out, cfg, views, pano, pano_design, fer, composites, capture, sub_image, t_sr,
+                       (result.events, _truth_x(scene, result.end_s)))
     lap("pictures")
     events = [e.to_dict() for e in result.events]
     return {
