@@ -9,7 +9,7 @@ import torch
 from hbis_torch.system.array.cameras import CAMERA_NAMES, FOVEA, CameraArray
 from hbis_torch.system.array.render import ArrayRenderer
 from hbis_torch.system.array.scene import MovingObject, PlanarScene, TextureLayer, Trajectory, photo_object
-from hbis_torch.system.array.sensor import SceneAtInstant, periphery_sensor, simulate_fovea_scan
+from hbis_torch.system.array.sensor import periphery_sensor, simulate_fovea_scan
 from hbis_torch.config import System
 from hbis_torch.design import varphi_c_deg
 from hbis_torch.errors import HbisInputError
@@ -106,7 +106,7 @@ def test_trajectory_and_moving_object():
 
 def test_scene_adapter_matches_the_scene():
     scene = _checker_scene()
-    at = SceneAtInstant(size_mm=(1.0, 1.0), center_mm=(1.5, -2.0), source=scene, t_s=0.0)
+    at = scene.at(0.0, (1.5, -2.0))
     pts = torch.rand(2000, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(0)) * 10 - 5
     direct = scene.render(pts, 0.01)
     local = at.sample(pts - torch.tensor([1.5, -2.0], dtype=torch.float64), 0.01, relative=True)

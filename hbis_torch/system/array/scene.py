@@ -9,6 +9,10 @@ A texture layer covers a rectangle of the plane with square texels; sampling it 
 spaced ``footprint_mm`` apart first resamples the texture (antialiased) to texels no finer than
 half the footprint, so views do not alias: this is the ideal, band-limited scene a sensor
 model then integrates, blurs and digitises.
+
+There is one family of scenes: a :class:`PlanarScene` is a scene that changes with time, and
+:meth:`PlanarScene.at` freezes it into a :class:`hbis_torch.simulate.Scene`, which the fovea's
+forward model renders like any built-in scene.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.simulate import Scene
 
 #: skimage.data photographs used for the default wall (all ship with scikit-image, no download).
 WALL_PHOTOS = (
@@ -225,6 +230,12 @@ class PlanarScene:
             image[region] = image[region] * (1.0 - alpha) + value
         return image.clamp(0.0, 1.0)
 
+    def at(self, t_s: float, center_mm=(0.0, 0.0)) -> "SceneAtInstant":
+        """The scene frozen at time ``t_s``, as the :class:`hbis_torch.simulate.Scene` the fovea's
+        forward model renders; ``center_mm`` anchors its float32 local coordinates (put it near
+        the region being simulated)."""
+        return SceneAtInstant(size_mm=(1.0, 1.0), center_mm=tuple(center_mm), source=self, t_s=float(t_s))
+
     def object_position(self, t_s: float, index: int = 0) -> np.ndarray:
         """Centre (x, y) mm of object ``index`` at time ``t_s``."""
         return self.objects[index].trajectory.position(t_s)
@@ -287,3 +298,21 @@ def photo_object(name: str, texel_mm: float, trajectory: Trajectory, border: int
     if border > 0:
         image = np.pad(image, border, constant_values=0.05)
     return MovingObject(TextureLayer(torch.from_numpy(image), (0.0, 0.0), texel_mm), trajectory, name)
+
+
+@dataclass(frozen=True)
+class SceneAtInstant(Scene):
+    """The array's :class:`PlanarScene` at one time, as a ``hbis_torch.simulate.Scene``.
+
+    ``center_mm`` only anchors the simulator's float32 local coordinates (put it near the
+    ROI); ``size_mm`` is nominal, the scene covers the whole plane.
+    """
+
+    source: PlanarScene | None = field(default=None, compare=False)
+    t_s: float = 0.0
+    name: str = "hbis-array-scene"
+
+    def value(self, x: Tensor, y: Tensor, spacing_mm: float | None = None) -> Tensor:
+        cx, cy = self.center_mm or (0.0, 0.0)
+        points = torch.stack(torch.broadcast_tensors(x.double() + cx, y.double() + cy), dim=-1)
+        return self.source.render(points, spacing_mm or 1e-6, self.t_s)

@@ -6,20 +6,20 @@
   noise (digital binning). The lens PSF is left out of these views: its Airy radius (0.9 um at
   F/1.4) is a quarter of one pixel, below what a periphery view resolves.
 - The fovea's scan frames are ``hbis_torch.simulate.simulate_stack`` of the array scene frozen
-  at the frame's time (:class:`SceneAtInstant`): its PSF, pixel aperture, noise and
+  at the frame's time (:meth:`PlanarScene.at`): its PSF, pixel aperture, noise and
   quantisation, its ground truth and its hbis-stack/1 metadata.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from hbis_torch.config import System
-from hbis_torch.simulate import Scene, SensorModel, expose, simulate_stack
+from hbis_torch.simulate import SensorModel, expose, simulate_stack
 from hbis_torch.simulate.sensor import normalise
 from hbis_torch.stack_io import Stack, make_meta
 from hbis_torch.system.array.scene import PlanarScene
@@ -35,24 +35,6 @@ def periphery_sensor(sensor: SensorModel, object_pixel_mm: float):
         return normalise(stored, binned)
 
     return apply
-
-
-@dataclass(frozen=True)
-class SceneAtInstant(Scene):
-    """The array's :class:`PlanarScene` at one time, as a ``hbis_torch.simulate.Scene``.
-
-    ``center_mm`` only anchors the simulator's float32 local coordinates (put it near the
-    ROI); ``size_mm`` is nominal, the scene covers the whole plane.
-    """
-
-    source: PlanarScene | None = field(default=None, compare=False)
-    t_s: float = 0.0
-    name: str = "hbis-array-scene"
-
-    def value(self, x: Tensor, y: Tensor, spacing_mm: float | None = None) -> Tensor:
-        cx, cy = self.center_mm or (0.0, 0.0)
-        points = torch.stack(torch.broadcast_tensors(x.double() + cx, y.double() + cy), dim=-1)
-        return self.source.render(points, spacing_mm or 1e-6, self.t_s)
 
 
 def _groups(positions: list) -> list[list[int]]:
@@ -93,7 +75,7 @@ def simulate_fovea_scan(scene: PlanarScene, system: System, phases_deg: Tensor, 
                          roi=(u0 + w // 2, v0 + hh // 2, 1, 1))[0, 0].tolist()
     frames, truth, meta = [], None, None
     for g, group in enumerate(_groups(positions)):
-        at = SceneAtInstant(size_mm=(1.0, 1.0), center_mm=tuple(anchor), source=scene, t_s=float(times_s[group[0]]))
+        at = scene.at(float(times_s[group[0]]), tuple(anchor))
         ref = group.index(reference_index) if reference_index in group else 0
         stack, group_truth = simulate_stack(at, system, _Plan(phases_deg[group], ref, h), roi, sensor,
                                             seed=seed * 1000 + g)
