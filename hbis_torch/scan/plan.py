@@ -19,7 +19,6 @@ The alignment error of a plan is in :mod:`hbis_torch.scan.alignment`.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
