@@ -8,8 +8,6 @@ from skimage import data
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.registration import (
-    _mean_and_spread,
-    _spline_fetch,
     apply_homography,
     bspline_sample,
     gaussian_kernel,
@@ -17,6 +15,8 @@ from hbis_torch.registration import (
     prefilter,
     register_stack,
 )
+from hbis_torch.registration.bspline import _spline_fetch
+from hbis_torch.registration.noise import _mean_and_spread
 
 H_FACTOR = 4  # frames are box averages of h x h photo pixels
 
