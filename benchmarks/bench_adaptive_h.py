@@ -33,7 +33,7 @@ from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
 from hbis_torch.simulate.stacks import scene_for_roi
 from hbis_torch.reconstruct.adaptive_h import recommend_h
-from hbis_torch.reconstruct.classical import optical_sample_positions, reconstruct
+from hbis_torch.reconstruct import optical_sample_positions, reconstruct
 
 SENSORS = {
     "40dB": SensorModel(full_well_e=20000.0, read_noise_e=2.0, bit_depth=12),

@@ -1,4 +1,7 @@
-"""``hbis reconstruct --method learned``: the shipped model by default, --model for another."""
+"""``hbis reconstruct --method learned``: the shipped model by default, --model for another;
+the learned method's side of the sample-position policy."""
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -8,8 +11,10 @@ from hbis_torch.cli import main
 from hbis_torch.config import System
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, load_scene, simulate_stack
-from hbis_torch.reconstruct.learned import available_providers, default_model_path, models_dir, read_model_metadata
-from hbis_torch.stack_io import write_stack
+from hbis_torch.reconstruct.learned import (available_providers, default_model_path, learned_sr, models_dir,
+                                            read_model_metadata)
+from hbis_torch.reconstruct.positions import optical_positions, stack_sample_positions
+from hbis_torch.stack_io import read_stack, write_stack
 
 
 def simulated_stack_file(tmp_path, h, size=24):
@@ -72,3 +77,33 @@ def test_no_shipped_model_for_this_h_says_so(tmp_path, capsys):
     stack_path, _ = simulated_stack_file(tmp_path, 3, size=16)
     code = main(["reconstruct", str(stack_path), "--method", "learned", "--out", str(tmp_path / "x.tif")])
     assert code == 2 and "no learned model for h = 3" in capsys.readouterr().err
+
+
+def test_learned_keeps_the_optical_positions_of_untrusted_frames(tmp_path, monkeypatch):
+    """The network needs every frame: a frame the registration cannot trust stays, at its optical
+    positions, with a message; learned_sr's own default is the optics alone."""
+    import hbis_torch.registration as registration
+
+    stack_path, _ = simulated_stack_file(tmp_path, 2, size=32)
+    stack = read_stack(stack_path)
+    real = registration.register_stack
+
+    def register(*args, **kw):
+        reg = real(*args, **kw)
+        ok = reg.ok.clone()
+        ok[1] = False
+        return dataclasses.replace(reg, ok=ok)
+
+    monkeypatch.setattr(registration, "register_stack", register)
+    positions, trusted = stack_sample_positions(stack, "data")
+    assert trusted.tolist() == [True, False, True, True]
+    assert np.array_equal(positions[1].numpy(), optical_positions(stack)[1].numpy())
+    for mode in ("data", "auto"):
+        messages = []
+        image = learned_sr(stack, registration=mode, messages=messages, threads=1, provider="cpu")
+        assert messages[-1] == "kept the optical positions of 1 frame(s) the registration could not trust"
+        assert np.array_equal(image, learned_sr(stack, positions=positions, threads=1, provider="cpu"))
+    messages = []
+    optics = learned_sr(stack, messages=messages, threads=1, provider="cpu")
+    assert messages == []
+    assert np.array_equal(optics, learned_sr(stack, positions=optical_positions(stack), threads=1, provider="cpu"))

@@ -1,7 +1,11 @@
 """Reconstruction of simulated stacks: the ROI's geometry, registration on top of the optics,
-frames out of order, and the ``hbis reconstruct`` command."""
+frames out of order, the one sample-position policy, the method registry, and the
+``hbis reconstruct`` command."""
 
 import copy
+import dataclasses
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -16,7 +20,10 @@ from hbis_torch.optics import landing_map, sensor_position
 from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, SensorModel, load_scene, sample_positions, simulate_stack
-from hbis_torch.reconstruct.classical import classical_sr, optical_sample_positions, reconstruct
+from hbis_torch.reconstruct import classical_sr, optical_sample_positions, reconstruct, registry
+from hbis_torch.reconstruct import positions as position_policy
+from hbis_torch.reconstruct.classical import optics_cutoff, source_version, stack_fill_factor
+from hbis_torch.reconstruct.positions import stack_sample_positions
 from hbis_torch.stack_io import write_stack
 
 SYSTEM = System()
@@ -184,3 +191,66 @@ def test_cli_reconstruct_corrupt_file_exit_2(tmp_path, capsys):
     assert main(["reconstruct", str(bad), "--out", str(tmp_path / "o.tif")]) == 2
     err = capsys.readouterr().err
     assert "bad.tif" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_registry_names_every_method_and_imports_no_onnx():
+    import hbis_torch.reconstruct as layer
+
+    assert layer.METHODS is registry.METHODS and sorted(registry.METHODS) == ["classical", "learned"]
+    code = ("import sys; from hbis_torch.reconstruct.registry import METHODS; "
+            "print(sorted(METHODS), 'onnxruntime' in sys.modules, 'onnx' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "['classical', 'learned'] False False"
+
+
+def test_exact_positions_are_the_per_frame_trace_bit_for_bit_in_any_chunks(corner, monkeypatch):
+    """The optics part of the policy: one call, or a few frames per call (large stacks), gives
+    the same bits as tracing one frame at a time (the classical method's former tracer)."""
+    stack, _ = corner
+    phases, ref = stack.phases_deg, stack.reference_index
+    origin = torch.tensor(CORNER[:2], dtype=torch.float64)
+    per_frame = torch.stack([sensor_position(SYSTEM, landing_map(SYSTEM, p1, p2, CORNER), phases[ref, 0],
+                                             phases[ref, 1]) - origin for p1, p2 in phases])
+    whole = optical_sample_positions(stack)
+    monkeypatch.setattr(position_policy, "EXACT_SAMPLES_PER_CALL", 2 * 64 * 64)  # two frames per call
+    assert torch.equal(whole, per_frame) and torch.equal(optical_sample_positions(stack), whole)
+    optics, trusted = stack_sample_positions(stack, "optics", exact=True)
+    assert torch.equal(optics, whole) and bool(trusted.all())
+
+
+def _distrust_frame(monkeypatch, frame: int) -> None:
+    """The registration's real result, except that it refuses to trust ``frame``."""
+    import hbis_torch.registration as registration
+
+    real = registration.register_stack
+
+    def register(*args, **kw):
+        reg = real(*args, **kw)
+        ok = reg.ok.clone()
+        ok[frame] = False
+        return dataclasses.replace(reg, ok=ok)
+
+    monkeypatch.setattr(registration, "register_stack", register)
+
+
+def test_untrusted_frames_keep_the_optics_and_classical_data_mode_leaves_them_out(centre, monkeypatch):
+    stack, _ = centre
+    _distrust_frame(monkeypatch, 2)
+    optical = optical_sample_positions(stack)
+    corrected, trusted = stack_sample_positions(stack, "data", exact=True)
+    assert trusted.tolist() == [k != 2 for k in range(H * H)]
+    assert torch.equal(corrected[2], optical[2]) and not torch.equal(corrected[4], optical[4])
+    frames, kw = stack.to_float(), {"cutoff": optics_cutoff(SYSTEM), "fill_factor": stack_fill_factor(stack)}
+    messages = []
+    data = reconstruct(stack, registration="data", messages=messages)
+    assert messages[-1] == "left out 1 frame(s) the registration could not trust"
+    assert np.array_equal(data, classical_sr(frames, corrected, H, weights=trusted.double(), **kw).numpy())
+    messages = []
+    auto = reconstruct(stack, registration="auto", messages=messages)
+    assert not any("frame(s)" in m for m in messages)
+    assert np.array_equal(auto, classical_sr(frames, corrected, H, **kw).numpy())
+
+
+def test_classical_source_version_hashes_the_whole_package():
+    version = source_version()
+    assert len(version) == 64 and int(version, 16) >= 0 and source_version() == version

@@ -38,8 +38,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from hbis_torch.io_utils import atomic_path
-    from hbis_torch.reconstruct.classical import METHODS, reconstruct
-    from hbis_torch.reconstruct.learned import reconstruct_learned  # noqa: F401  (importing it adds METHODS["learned"])
+    from hbis_torch.reconstruct.registry import METHODS, reconstruct
     from hbis_torch.stack_io import read_stack
 
     if args.method not in METHODS:

@@ -1,0 +1,100 @@
+"""Classical multi-frame super-resolution: scattered samples -> h-times grid -> deblur.
+
+Every sample of every frame is placed at its true position on the reference frame's grid (from
+the optics, from the registration, or both), then:
+
+1. **Interpolation (normalized convolution, O(N)).** Each sample is splatted with a small
+   Gaussian (sigma ``kernel_sigma`` HR px, 3 x 3 footprint) onto an h-times grid; the image is
+   the weighted sum over the sum of weights (Knutsson & Westin 1993). The splat grid is shifted
+   by the samples' common sub-pixel offset (half an HR pixel for even h, where the scan puts
+   the samples between the output pixels' centres), so that interpolation does not average
+   neighbours; the deblurring removes that shift exactly, in the Fourier domain. Holes
+   (missing frames, the border) are filled from the same sums blurred wider.
+2. **Deblurring (Wiener filter with aliasing).** The interpolated image is the scene seen
+   through the optics (diffraction-limited OTF of the f-number), the LR pixel's aperture (a box
+   of h HR pixels, times sqrt(fill factor)), sampled on the HR lattice. What is wanted is what an
+   ideal sensor of pitch p/h sees (the project's ground truth): the same optics and an aperture
+   of one HR pixel. The output is the minimum-mean-square-error linear estimate of that image
+   (:func:`wiener_deblur`), which also accounts for the scene energy that aliases onto the
+   lattice. **Prior:** the scene is Gaussian with a power-law spectrum s^2 / |f|^beta (natural
+   images: beta about 2, i.e. independent Gaussian gradients), s^2 and beta fitted to the data
+   within the sensor's own band; the noise is white, its level measured on the HR lattice
+   (:func:`lattice_noise`). The FFT's periodic borders are handled by Moisan's periodic + smooth
+   decomposition.
+
+Coordinates: LR pixel (u, v) is the centre of column u, row v of the reference frame's ROI;
+HR pixel (U, V) is centred at LR ((U + 0.5)/h - 0.5, (V + 0.5)/h - 0.5) (docs/design.md, section 1).
+Computation is in float64; the result is rounded to float32.
+
+Modules
+-------
+:mod:`.transfer`
+    The image model's transfer functions: optics (:func:`optics_cutoff`,
+    :func:`diffraction_otf`), pixel aperture (:func:`box`), splat (:func:`splat_transfer`).
+:mod:`.splat`
+    Step 1: :func:`splat`, :func:`snap_to_lattice`, hole filling (:func:`fill_holes`).
+:mod:`.wiener`
+    Step 2: :func:`wiener_deblur`, the prior's fit (:func:`fit_spectrum`), :func:`shift_image`,
+    :func:`periodic_smooth`.
+:mod:`.sr`
+    Both steps on frames with known positions: :func:`classical_sr`, :func:`lattice_image`,
+    :func:`lattice_noise`.
+:mod:`.method`
+    A whole stack: :func:`reconstruct_classical` (the ``"classical"`` entry of
+    :data:`hbis_torch.reconstruct.METHODS`; positions from
+    :func:`hbis_torch.reconstruct.positions.stack_sample_positions`), :func:`stack_fill_factor`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from hbis_torch.reconstruct.classical.method import reconstruct_classical, stack_fill_factor
+from hbis_torch.reconstruct.classical.splat import common_offset, fill_holes, snap_to_lattice, splat
+from hbis_torch.reconstruct.classical.sr import classical_sr, lattice_image, lattice_noise
+from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, optics_cutoff, splat_transfer
+from hbis_torch.reconstruct.classical.wiener import (
+    NOISE_FLOOR,
+    fit_spectrum,
+    periodic_smooth,
+    shift_image,
+    wiener_deblur,
+)
+from hbis_torch.reconstruct.positions import REGISTRATIONS, optical_sample_positions
+
+__all__ = [
+    "NOISE_FLOOR",
+    "REGISTRATIONS",
+    "box",
+    "classical_sr",
+    "common_offset",
+    "diffraction_otf",
+    "fill_holes",
+    "fit_spectrum",
+    "lattice_image",
+    "lattice_noise",
+    "optical_sample_positions",
+    "optics_cutoff",
+    "periodic_smooth",
+    "reconstruct_classical",
+    "shift_image",
+    "snap_to_lattice",
+    "source_version",
+    "splat",
+    "splat_transfer",
+    "stack_fill_factor",
+    "wiener_deblur",
+]
+
+
+def source_version() -> str:
+    """SHA-256 (hex) of the classical method's source: the name and bytes of every ``*.py`` of
+    this package, in sorted order. Caches of classical results (training/train_sr.py,
+    training/eval_photos.py) are keyed by it, so that any change to the method invalidates them.
+    """
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()

@@ -1,0 +1,205 @@
+"""Classical super-resolution of frames whose samples' positions are known:
+:func:`classical_sr` (interpolation on the h-times lattice, then Wiener deblurring) and its
+lattice steps (:func:`lattice_image`, :func:`lattice_noise`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from hbis_torch.checks import as_float64_tensor, check_h
+from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.classical.splat import common_offset, fill_holes, snap_to_lattice, splat
+from hbis_torch.reconstruct.classical.wiener import wiener_deblur
+
+
+def classical_sr(
+    frames,
+    positions,
+    h: int,
+    deblur: bool = True,
+    *,
+    weights=None,
+    kernel_sigma: float = 0.45,
+    noise: float | None = None,
+    fill_factor: float = 1.0,
+    cutoff: float | None = None,
+    strength: float = 2.0,
+) -> Tensor:
+    """Super-resolve frames whose samples' positions are known.
+
+    Parameters
+    ----------
+    frames : Tensor or array, shape (F, H, W)
+        Intensities in [0, 1].
+    positions : Tensor or array, shape (F, H, W, 2)
+        Position (u, v) of every sample in the reference frame's LR pixel coordinates
+        (ROI-local), for example from
+        :func:`~hbis_torch.reconstruct.positions.stack_sample_positions`.
+    h : int
+        Resolution improvement factor: the output is (h*H, h*W).
+    deblur : bool
+        Apply the Wiener deblurring (False: the normalized-convolution interpolation alone,
+        resampled onto the output grid).
+    weights : Tensor, shape (F,) or (F, H, W), optional
+        Per-frame or per-sample weights in [0, 1] (0 leaves a frame or sample out).
+    kernel_sigma : float
+        Splat Gaussian in HR px.
+    noise : float, optional
+        Noise standard deviation of the frames (default: estimated from them).
+    fill_factor : float
+        Light-sensitive fraction of a pixel's area, in (0, 1] (a centred square of side
+        sqrt(fill_factor) times the pitch, as in the simulator's SensorModel).
+    cutoff : float, optional
+        Optical cutoff in cycles per LR pixel (:func:`optics_cutoff`); None ignores the optics.
+    strength : float
+        Scales the noise power in the Wiener filter. The default 2 was chosen on simulated
+        stacks (8 scenes x h = 3, 4, 5, 64 px, seed 1): it beat 1, 1.5 and 3 in mean PSNR (by
+        0.4 dB over 1), the estimated noise being the median level while shot noise grows with
+        the signal, and the power-law prior overstating some scenes' fine detail.
+
+    Returns
+    -------
+    Tensor, shape (h*H, h*W), float32 in [0, 1]
+        Computed in float64 and rounded at the end.
+    """
+    h = check_h(h)
+    frames, positions, weights = _check_inputs(frames, positions, weights, fill_factor, kernel_sigma,
+                                               cutoff, strength, noise)
+    image, den, offset = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur)
+    if deblur:
+        # Samples that meet at a node (1 for an h x h scan): their noise averages down.
+        samples_per_node = float(den[den > 0].median()) / max(_peak_weight(kernel_sigma), 1e-12)
+        if noise is None:
+            typical = float(den[den > 0].median())
+            node_noise = lattice_noise(image, kernel_sigma, den > 0.5 * typical)
+        else:
+            node_noise = noise / math.sqrt(max(samples_per_node, 1.0))
+        image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
+                              cutoff, strength)
+    return image.clamp(0, 1).to(torch.float32)
+
+
+def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: float,
+                  cutoff: float | None, strength: float, noise: float | None):
+    """:func:`classical_sr`'s arguments checked (HbisInputError otherwise) and converted.
+
+    Returns
+    -------
+    frames : Tensor, shape (F, H, W), float64
+    positions : Tensor, shape (F, H, W, 2), float64
+    weights : Tensor, shape (F, H, W), float64, or None
+        Per-frame weights expanded to every sample.
+    """
+    frames = as_float64_tensor(frames, "frames")
+    positions = as_float64_tensor(positions, "positions")
+    if frames.ndim != 3 or min(frames.shape) < 1:
+        raise HbisInputError(f"frames must have shape (F, H, W), got {tuple(frames.shape)}")
+    F, H, W = frames.shape
+    if tuple(positions.shape) != (F, H, W, 2):
+        raise HbisInputError(
+            f"positions must have shape {(F, H, W, 2)} to match the frames, got {tuple(positions.shape)}"
+        )
+    if not 0 < fill_factor <= 1:
+        raise HbisInputError(f"fill_factor must lie in (0, 1], got {fill_factor!r}")
+    if not 0.2 <= kernel_sigma <= 0.6:
+        raise HbisInputError(f"kernel_sigma must lie in [0.2, 0.6] HR px, got {kernel_sigma!r}")
+    if cutoff is not None and not (math.isfinite(cutoff) and cutoff > 0):
+        raise HbisInputError(f"cutoff must be a positive number (cycles per pixel), got {cutoff!r}")
+    if not (math.isfinite(strength) and strength > 0):
+        raise HbisInputError(f"strength must be a positive number, got {strength!r}")
+    if weights is not None:
+        weights = as_float64_tensor(weights, "weights")
+        if weights.shape == (F,):
+            weights = weights[:, None, None].expand(F, H, W)
+        if tuple(weights.shape) != (F, H, W) or bool((weights < 0).any()):
+            raise HbisInputError(f"weights must be non-negative, shape ({F},) or {(F, H, W)}")
+        if not bool((weights > 0).any()):
+            raise HbisInputError("every sample has weight 0: nothing to reconstruct")
+    if noise is not None and not (math.isfinite(noise) and noise >= 0):
+        raise HbisInputError(f"noise must be a number >= 0, got {noise!r}")
+    return frames, positions, weights
+
+
+def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float,
+                  weights: Tensor | None = None, on_lattice: bool = True):
+    """Interpolate scattered samples onto an h-times grid (normalized convolution).
+
+    Parameters
+    ----------
+    frames : Tensor, shape (F, H, W), float64
+    positions : Tensor, shape (F, H, W, 2), float64
+        ROI-local reference LR coordinates of the samples.
+    h : int
+    kernel_sigma : float
+    weights : Tensor, shape (F, H, W), optional
+    on_lattice : bool
+        Put the grid's nodes where the scan lattice puts the samples (the output grid shifted
+        by the samples' common sub-pixel ``offset``) and move every sample onto its node
+        (:func:`snap_to_lattice`), as the deblurring needs; False interpolates onto the output
+        grid itself.
+
+    Returns
+    -------
+    image, den : Tensor, shape (h*H, h*W)
+        The interpolated image and the splat weights' sum at each node.
+    offset : (float, float)
+        Where the nodes sit relative to the output pixels, HR px.
+    """
+    F, H, W = frames.shape
+    X = (positions[..., 0] + 0.5) * h - 0.5
+    Y = (positions[..., 1] + 0.5) * h - 0.5
+    keep = torch.ones(F, H, W, dtype=torch.bool) if weights is None else weights > 0
+    offset = (common_offset(X[keep]), common_offset(Y[keep])) if on_lattice else (0.0, 0.0)
+    w = None if weights is None else weights.reshape(-1)
+    values, x, y = frames.reshape(-1), (X - offset[0]).reshape(-1), (Y - offset[1]).reshape(-1)
+    shape = (h * H, h * W)
+    if on_lattice:
+        values, x, y = snap_to_lattice(values, x, y, shape, kernel_sigma, w)
+    num, den = splat(values, x, y, shape, kernel_sigma, w)
+    return fill_holes(num, den), den, offset
+
+
+def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = None) -> float:
+    """Noise level of the samples from the interpolated image on their lattice.
+
+    On the h-times lattice neighbouring nodes hold samples of different frames a fraction of a
+    pixel apart, so the scene is far smoother there than in any single (aliased) frame, and
+    Immerkaer's operator [[1,-2,1],[-2,4,-2],[1,-2,1]] (median form) sees little but noise. The
+    splat's 3-tap smoothing changes the operator's noise gain from 6 to the value computed here.
+
+    Parameters
+    ----------
+    image : Tensor, shape (rows, cols)
+        Normalized-convolution image with one sample per node.
+    kernel_sigma : float
+        The splat Gaussian (HR px).
+    valid : Tensor of bool, shape (rows, cols), optional
+        Nodes to use (those that received samples).
+    """
+    a = math.exp(-1 / (2 * kernel_sigma ** 2))
+    taps = torch.tensor([1.0, -2.0, 1.0], dtype=image.dtype)
+    smoothed = torch.nn.functional.conv1d(taps.view(1, 1, 3), torch.tensor([[[a, 1.0, a]]], dtype=image.dtype), padding=2)
+    gain_1d = float(smoothed.norm()) / (1 + 2 * a)
+    # The operator is [1, -2, 1] along rows times the same along columns: two second differences.
+    d = image[:, :-2] - 2 * image[:, 1:-1] + image[:, 2:]
+    out = d[:-2] - 2 * d[1:-1] + d[2:]
+    if valid is not None:
+        inner = valid[1:-1, 1:-1]
+        for dy in (-1, 0, 1):  # all nine nodes of the operator must have samples
+            for dx in (-1, 0, 1):
+                inner = inner & valid[1 + dy:valid.shape[0] - 1 + dy, 1 + dx:valid.shape[1] - 1 + dx]
+        out = out[inner]
+    if out.numel() < 16:  # too few complete neighbourhoods: use every node
+        out = d[:-2] - 2 * d[1:-1] + d[2:]
+    return 1.4826 * float(out.abs().median()) / gain_1d ** 2
+
+
+def _peak_weight(sigma: float) -> float:
+    """Splat weight a node receives from a sample sitting on it plus its lattice neighbours."""
+    d = torch.tensor([-1.0, 0.0, 1.0])
+    g = torch.exp(-(d[:, None] ** 2 + d[None, :] ** 2) / (2 * sigma * sigma))
+    return float(g.sum())

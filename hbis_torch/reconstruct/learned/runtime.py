@@ -1,0 +1,223 @@
+"""The learned method's runtime: exported models in onnxruntime.
+
+Where the models are (:func:`models_dir`, :func:`default_model_path`; ``HBIS_MODELS_DIR``
+overrides ``<repo>/models``), which execution provider runs them (:func:`execution_providers`),
+the session (:class:`LearnedSR`) and the models' metadata (:func:`read_model_metadata`).
+onnxruntime and onnx are imported only inside the functions that need them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.learned.inputs import TILE_HALO, run_tiled, super_resolve
+
+MODEL_FORMAT = "hbis-sr-onnx/1"
+NORMALISATION = (
+    "frames: float32 in [0, 1] (stack.to_float), registered order; offsets: float32, output "
+    "pixels, sample position minus nominal phase, (x, y) per frame; image: float32, clip to [0, 1]; "
+    "dark stacks (99.9th percentile < 0.5) are scaled by up to 64x before and unscaled after"
+)
+
+
+def models_dir() -> Path:
+    """Folder of the shipped models: ``$HBIS_MODELS_DIR`` or ``<repo>/models``."""
+    env = os.environ.get("HBIS_MODELS_DIR")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[3] / "models"
+
+
+def default_model_path(h: int) -> Path:
+    """The shipped model for factor ``h``; HbisInputError if there is none."""
+    path = models_dir() / f"hbis_sr_h{int(h)}.onnx"
+    if not path.is_file():
+        shipped = sorted(p.name for p in models_dir().glob("hbis_sr_h*.onnx"))
+        raise HbisInputError(
+            f"no learned model for h = {h} at {path} (shipped: {', '.join(shipped) or 'none'}); "
+            "pass --model to use another"
+        )
+    return path
+
+
+def session_options(threads: int | None = None):
+    """onnxruntime options for the CPU: all graph optimisations, one intra-op pool.
+
+    ``threads`` defaults to the CPUs this process may use; inter-op parallelism is off because
+    the graph is a single chain of convolutions.
+    """
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    options.intra_op_num_threads = default_threads(threads)
+    options.inter_op_num_threads = 1
+    return options
+
+
+def default_threads(threads: int | None = None) -> int:
+    """``threads``, or the CPUs this process may use."""
+    return int(threads or len(os.sched_getaffinity(0)))
+
+
+PROVIDERS = ("auto", "openvino", "cpu")
+OPENVINO = "OpenVINOExecutionProvider"
+
+
+def execution_providers(provider: str = "auto", threads: int | None = None) -> list:
+    """The onnxruntime execution providers for ``provider``, in order of preference.
+
+    ``"openvino"``: the OpenVINO execution provider on the CPU (package ``onnxruntime-openvino``,
+    which the project installs in place of ``onnxruntime`` on x86-64 Linux and Windows). It
+    compiles the whole graph with the ReLUs and residual additions fused into the convolutions
+    and ran the shipped models 1.4-1.6x faster than eager torch here, where onnxruntime's own CPU
+    kernels were 1.1-1.3x faster (docs/learned.md). Precision is pinned to FP32, so that a CPU
+    with bf16 or fp16 units does not lower it. ``"cpu"``: onnxruntime's own kernels. ``"auto"``:
+    OpenVINO where this onnxruntime has it, else the CPU kernels.
+    """
+    import onnxruntime as ort
+
+    if provider not in PROVIDERS:
+        raise HbisInputError(f"unknown execution provider {provider!r} (choose from {', '.join(PROVIDERS)})")
+    has_openvino = "openvino" in available_providers()
+    if provider == "openvino" and not has_openvino:
+        raise HbisInputError(
+            f"this onnxruntime ({ort.__version__}) has no OpenVINO execution provider; install "
+            "onnxruntime-openvino in place of onnxruntime (x86-64 Linux or Windows), or use the 'cpu' provider"
+        )
+    if provider == "cpu" or not has_openvino:
+        return ["CPUExecutionProvider"]
+    openvino = {"device_type": "CPU", "precision": "FP32", "num_of_threads": str(default_threads(threads))}
+    return [(OPENVINO, openvino), "CPUExecutionProvider"]
+
+
+def available_providers() -> list[str]:
+    """The :data:`PROVIDERS` this onnxruntime has, by name: ``"cpu"``, and ``"openvino"`` where
+    installed."""
+    import onnxruntime as ort
+
+    return ["cpu"] + (["openvino"] if OPENVINO in ort.get_available_providers() else [])
+
+
+def onnxruntime_distributions() -> list[str]:
+    """The installed distributions that provide the ``onnxruntime`` module."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found = []
+    for name in ("onnxruntime", "onnxruntime-openvino"):
+        try:
+            version(name)
+            found.append(name)
+        except PackageNotFoundError:
+            pass
+    return found
+
+
+def _open_session(path: Path, provider: str, threads: int | None):
+    """(session, short provider name); with ``"auto"``, falls back to the CPU kernels if
+    OpenVINO cannot take the model."""
+    import onnxruntime as ort
+
+    providers = execution_providers(provider, threads)
+    try:
+        session = ort.InferenceSession(str(path), session_options(threads), providers=providers)
+    except Exception as exc:  # onnxruntime raises its own types for corrupt files
+        if provider == "auto" and len(providers) > 1:
+            return _open_session(path, "cpu", threads)
+        raise HbisInputError(f"cannot load ONNX model {path}: {str(exc).splitlines()[0]}") from None
+    return session, "openvino" if session.get_providers()[0] == OPENVINO else "cpu"
+
+
+class LearnedSR:
+    """An exported SR model in an onnxruntime session.
+
+    Parameters
+    ----------
+    model : path, optional
+        The ``.onnx`` file; by default the shipped model for ``h``.
+    h : int, optional
+        Needed only when ``model`` is not given.
+    threads : int, optional
+        Intra-op threads (default: all CPUs available to the process).
+    tile : int
+        Tile size in LR pixels (the halo of :data:`TILE_HALO` pixels comes on top).
+    provider : {"auto", "openvino", "cpu"}
+        Which onnxruntime execution provider runs the model (:func:`execution_providers`).
+
+    Attributes
+    ----------
+    h, frame_count : int
+    provider : str
+        ``"openvino"`` or ``"cpu"``: the execution provider that took the model.
+    metadata : dict
+        The model's ``metadata_props`` (h, frames, normalisation, training commit, ...).
+    """
+
+    def __init__(self, model=None, h: int | None = None, threads: int | None = None, tile: int = 256,
+                 provider: str = "auto"):
+        if model is None:
+            if h is None:
+                raise HbisInputError("give a model file or the factor h of a shipped model")
+            model = default_model_path(h)
+        path = Path(model)
+        if not path.is_file():
+            raise HbisInputError(f"model file not found: {path}")
+        if len(onnxruntime_distributions()) > 1:
+            warnings.warn("both onnxruntime and onnxruntime-openvino are installed; they write the same "
+                          "onnxruntime module over each other. Keep one: pip uninstall -y onnxruntime "
+                          "onnxruntime-openvino, then pip install onnxruntime-openvino (x86-64 Linux or "
+                          "Windows) or onnxruntime", RuntimeWarning, stacklevel=2)
+        self.session, self.provider = _open_session(path, provider, threads)
+        self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
+        if self.metadata.get("format") != MODEL_FORMAT:
+            raise HbisInputError(f"{path} is not an hbis SR model (metadata format != {MODEL_FORMAT})")
+        self.h = int(self.metadata["h"])
+        self.frame_count = int(self.metadata["frames"])
+        if h is not None and int(h) != self.h:
+            raise HbisInputError(f"model {path.name} is for h = {self.h}, the stack has h = {h}")
+        self.path = path
+        self.tile = int(tile)
+        # Receptive field radius: head + 2 per residual block + tail (+ 1), or the linear base's.
+        config = json.loads(self.metadata.get("model_config", "{}"))
+        radius = max(2 * int(config.get("blocks", 5)) + 3, int(config.get("skip", 0)) // 2) + 1
+        self.halo = max(TILE_HALO, radius)
+
+    def infer(self, frames_reg: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """One network pass: (1, h^2, H, W), (1, 2h^2, H, W) float32 -> (1, 1, hH, hW)."""
+        return self.session.run(["image"], {"frames": frames_reg, "offsets": offsets})[0]
+
+    def run_network(self, frames_reg: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Raw network output for registered inputs, tiled; (h^2, H, W), (2h^2, H, W) -> (hH, hW)."""
+        return run_tiled(self.infer, frames_reg, offsets, self.h, self.tile, self.halo)
+
+    def __call__(self, frames, positions) -> np.ndarray:
+        """Super-resolve frames (F, H, W) in [0, 1] with positions (F, H, W, 2) -> (hH, hW) in [0, 1]."""
+        frames = np.asarray(frames)
+        if frames.ndim == 3 and frames.shape[0] != self.frame_count:
+            raise HbisInputError(
+                f"the stack has {frames.shape[0]} frames but model {self.path.name} needs "
+                f"{self.frame_count} (h = {self.h})"
+            )
+        if frames.ndim == 3 and min(frames.shape[1:]) < 4:
+            raise HbisInputError(f"frames of {frames.shape[1]} x {frames.shape[2]} are too small (min 4 x 4)")
+        return super_resolve(self.run_network, frames, positions, self.h, self.path.name)
+
+
+def read_model_metadata(path) -> dict:
+    """The ``metadata_props`` of an ONNX file as a dict (no session is created)."""
+    import onnx
+
+    model = onnx.load(str(path), load_external_data=False)
+    return {p.key: p.value for p in model.metadata_props}
+
+
+def metadata_json(path) -> str:
+    """The model's metadata as indented JSON (for ``python -m`` style inspection)."""
+    return json.dumps(read_model_metadata(path), indent=2)

@@ -1,0 +1,159 @@
+"""Where every sample of a stack lies on the reference frame's grid: one policy for every method.
+
+**Policy: the optics, corrected by registration where the data is trusted.**
+
+1. *The optics.* Sample (u, v) of frame k sees the object point its chief ray lands on at the
+   frame's phases; the reference frame would image that point at
+   ``sensor_position(system, point, phi_ref)``. :func:`hbis_torch.simulate.sample_positions`
+   computes this (docs/design.md, section 1), either tracing every pixel (``exact=True``,
+   the classical method: its output stays bit-identical to the per-pixel trace it always used)
+   or tracing nodes 8 px apart and interpolating with cubic splines (``exact=False``, < 1e-6 px
+   from the exact trace and much faster: the learned method, whose network is float32 anyway).
+   The stack's own ROI is traced, so a corner ROI gets the corner's geometry.
+2. *The registration* (``"data"`` or ``"auto"``, stacks of more than one frame).
+   :func:`~hbis_torch.registration.register_stack` measures each frame's homography H_k,
+   starting from the optics' prediction P_k (a homography fitted to the traced positions); the
+   data's correction C_k = H_k P_k^-1 is applied to the traced per-pixel positions, which keeps
+   the optics' non-homographic part.
+3. *Untrusted frames* (those the registration cannot trust) keep their optical positions, and
+   :func:`stack_sample_positions` says which frames those are (``trusted``). What to do with
+   them is each method's own policy:
+
+   * classical, ``"data"``: weight 0, i.e. left out of the reconstruction (message "left out N
+     frame(s) the registration could not trust"); ``"auto"``: used at their optical positions,
+     without a message.
+   * learned, ``"data"`` and ``"auto"``: used at their optical positions, since the network needs
+     every one of the h^2 frames (message "kept the optical positions of N frame(s) the
+     registration could not trust").
+
+Defaults. :func:`hbis_torch.reconstruct.reconstruct`, ``hbis reconstruct --registration`` and both
+methods' registry entries default to ``"auto"``: a captured stack's phases are only what the
+motors were asked for, and "auto" corrects them where the data allows without dropping frames.
+:func:`hbis_torch.reconstruct.learned.learned_sr`, the learned method's library call, keeps its
+older default ``"optics"``: that is what it did before registration was offered, and its direct
+callers (benchmarks, tests, training evaluation) pass simulated stacks whose phases are the true
+ones, for which the tracer is exact and registration only costs time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from hbis_torch.errors import HbisInputError
+
+# Where the samples' positions come from (see the module docstring).
+REGISTRATIONS = ("optics", "data", "auto")
+
+# The exact tracer keeps some 200 bytes of temporaries per sample: larger stacks (a full frame
+# at h = 4 and above) are traced a few frames per call, so that memory stays near 1 GB.
+EXACT_SAMPLES_PER_CALL = 1 << 22
+
+
+def check_registration(registration: str) -> str:
+    """``registration`` if it is one of :data:`REGISTRATIONS`, else HbisInputError."""
+    if registration not in REGISTRATIONS:
+        raise HbisInputError(f"registration must be one of {REGISTRATIONS}, got {registration!r}")
+    return registration
+
+
+def optical_positions(stack, exact: bool = False) -> Tensor:
+    """Where the optics put every sample of a stack: :func:`hbis_torch.simulate.sample_positions`.
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+    exact : bool
+        Trace every pixel (a few frames per call for large stacks, each call with the reference
+        frame's phases appended, which gives the same bits as one call); False traces nodes
+        8 px apart and interpolates with cubic splines (< 1e-6 px from the exact trace).
+
+    Returns
+    -------
+    Tensor, shape (F, H, W, 2), float64
+        (u, v) in the reference frame's ROI-local LR pixel coordinates.
+    """
+    from hbis_torch.simulate import sample_positions
+
+    system, phases, ref, roi = stack.system, stack.phases_deg, stack.reference_index, stack.roi
+    if not exact:
+        return sample_positions(system, phases, ref, roi)
+    phases = np.asarray(phases, dtype=np.float64)
+    step = max(1, EXACT_SAMPLES_PER_CALL // max(1, int(roi[2]) * int(roi[3])))
+    if step >= len(phases):
+        return sample_positions(system, phases, ref, roi, exact=True)
+    parts = []
+    for start in range(0, len(phases), step):
+        chunk = np.concatenate((phases[start:start + step], phases[ref:ref + 1]))
+        parts.append(sample_positions(system, chunk, len(chunk) - 1, roi, exact=True)[:-1])
+    return torch.cat(parts)
+
+
+def optical_sample_positions(stack) -> Tensor:
+    """Where every sample of every frame lies in the reference frame, from the exact tracer.
+
+    Sample (u, v) of frame k sees the object point ``landing_map(system, phi_k, roi)[v, u]``;
+    the reference frame would image that point at ``sensor_position(system, point, phi_ref)``.
+    (The optics part of the policy with ``exact=True``: :func:`optical_positions`.)
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+
+    Returns
+    -------
+    Tensor, shape (F, H, W, 2), float64
+        (u, v) in the reference frame's ROI-local LR pixel coordinates.
+    """
+    return optical_positions(stack, exact=True)
+
+
+def stack_sample_positions(stack, registration: str = "auto", *, exact: bool = False,
+                           frames: Tensor | None = None,
+                           messages: list | None = None) -> tuple[Tensor, Tensor]:
+    """The sample positions of a stack under the layer's one policy (module docstring).
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+    registration : {"optics", "data", "auto"}
+        ``"optics"``: the tracer alone. ``"data"`` and ``"auto"``: the tracer corrected by
+        registering the frames, for the frames the registration trusts (the two differ only in
+        what the method does with the others).
+    exact : bool
+        Trace every pixel (classical) or nodes and cubic splines (learned); see
+        :func:`optical_positions`.
+    frames : Tensor, shape (F, H, W), optional
+        The stack's frames as ``stack.to_float()`` gives them, if the caller has them already
+        (only the registration reads them).
+    messages : list, optional
+        Receives the registration's warnings, one string each.
+
+    Returns
+    -------
+    positions : Tensor, shape (F, H, W, 2), float64
+        (u, v) of every sample in the reference frame's ROI-local LR pixel coordinates;
+        untrusted frames keep their optical positions.
+    trusted : Tensor, shape (F,), bool
+        Frames whose positions the registration corrected (all True for ``"optics"`` and for
+        one-frame stacks).
+    """
+    check_registration(registration)
+    positions = optical_positions(stack, exact)
+    count = positions.shape[0]
+    if registration == "optics" or count == 1:
+        return positions, torch.ones(count, dtype=torch.bool)
+    from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
+
+    if frames is None:
+        frames = stack.to_float()
+    predicted = homographies_from_positions(positions)
+    reg = register_stack(frames, stack.reference_index, prediction=predicted)
+    if messages is not None:
+        messages.extend(reg.messages)
+    # The data's correction on top of the optics: C_k = H_k P_k^-1, applied to the per-pixel
+    # positions (which carry the optics' non-homographic part).
+    correction = reg.homographies @ torch.linalg.inv(predicted)
+    corrected = apply_homography(correction, positions.reshape(count, -1, 2)).reshape(positions.shape)
+    return torch.where(reg.ok[:, None, None, None], corrected, positions), reg.ok

@@ -1,0 +1,48 @@
+"""Every reconstruction method by name, and :func:`reconstruct`, which dispatches to them.
+
+The registry is the one place that lists the methods; it imports both methods' entry functions
+and nothing registers itself on import. Importing it does not import onnxruntime or onnx (the
+learned method imports them when it runs).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.classical.method import reconstruct_classical
+from hbis_torch.reconstruct.learned.method import reconstruct_learned
+
+# Reconstruction methods by name: function(stack, registration=..., messages=None, **kw) ->
+# (h*H, h*W) float32 array in [0, 1] ("messages": a list that receives warnings, or None).
+# Another method is added with one entry here.
+METHODS = {"classical": reconstruct_classical, "learned": reconstruct_learned}
+
+
+def reconstruct(stack, method: str = "classical", registration: str = "auto", **kw) -> np.ndarray:
+    """Super-resolve a stack onto the h-times grid of its reference frame's ROI.
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+    method : str
+        A key of :data:`METHODS` ("classical", "learned").
+    registration : {"optics", "data", "auto"}
+        Where the samples' positions come from: the tracer alone (exact for simulated stacks
+        whose phases are the true ones); the tracer corrected by registering the frames
+        (frames that cannot be registered are left out); or that correction where the data is
+        trusted and the tracer elsewhere ("auto", the default for every method). The learned
+        method cannot leave frames out: with "data" it keeps the optical positions of the frames
+        the registration could not trust, as with "auto" (:mod:`hbis_torch.reconstruct.positions`).
+    **kw
+        Passed to the method (for classical: ``deblur``, ``messages`` (a list that receives the
+        registration's warnings), ``fill_factor``, and :func:`classical_sr`'s keywords; for
+        learned: ``model``, ``messages``, ``threads``, ``provider``).
+
+    Returns
+    -------
+    np.ndarray, shape (h*H, h*W), float32 in [0, 1]
+    """
+    if method not in METHODS:
+        raise HbisInputError(f"unknown reconstruction method {method!r}; available: {', '.join(METHODS)}")
+    return METHODS[method](stack, registration=registration, **kw)
