@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -45,19 +44,17 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-from hbis_torch.config import System  # noqa: E402
-from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
-from hbis_torch.metrics import psnr  # noqa: E402
-from hbis_torch.scan import plan_scan  # noqa: E402
-from hbis_torch.simulate import SceneSpec, load_scene, sample_positions, simulate_stack  # noqa: E402
-from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff  # noqa: E402
-from hbis_torch.reconstruct.learned import LearnedSR, available_providers, models_dir, run_tiled, super_resolve  # noqa: E402
-from hbis_torch.reconstruct.net import HbisSRNet  # noqa: E402
+from hbis_torch.config import System
+from hbis_torch.io_utils import atomic_path, atomic_write_text
+from hbis_torch.metrics import psnr
+from hbis_torch.scan import plan_scan
+from hbis_torch.simulate import sample_positions, simulate_stack
+from hbis_torch.simulate.cases import make_stack, roi_for, scene_cases
+from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
+from hbis_torch.reconstruct.learned import LearnedSR, available_providers, models_dir, run_tiled, super_resolve
+from hbis_torch.reconstruct.learned.net import HbisSRNet
 
-SYNTHETIC = ("words", "texture")
-PHOTOS = ("camera", "astronaut", "brick")
+REPO = Path(__file__).resolve().parents[1]  # the checkout: default output paths
 METHODS = ("bicubic", "classical", "learned-torch", "learned-onnx-cpu", "learned-onnx")
 ONNX_METHODS = ("learned-onnx-cpu", "learned-onnx")
 THREADS = 2
@@ -116,32 +113,6 @@ def timed_in_turn(fns: dict, repeats: int, warm_up: bool = True):
             times[name].append(seconds)
     return (results, {name: float(np.median(t)) for name, t in times.items()},
             {name: float(np.min(t)) for name, t in times.items()})
-
-
-def scene_cases(size) -> list[tuple[str, str]]:
-    """(kind, scene) pairs measured at one ROI size (None: the full frame), in order; case i
-    sits at ``roi_for(system, size, i)`` and is simulated with seed 1000 + i."""
-    if size is None or size > 128:  # fewer scenes where every run takes long
-        return [("synthetic", "words"), ("photo", "camera"), ("photo", "astronaut")][:2 if size is None else 3]
-    return [("synthetic", s) for s in SYNTHETIC] + [("photo", p) for p in PHOTOS]
-
-
-def roi_for(system: System, size, index: int):
-    """ROI of ``size`` (side or None for the full frame) at the centre, or near a corner."""
-    cam = system.camera
-    if size is None:
-        return (0, 0, cam.cols, cam.rows)
-    spots = [((cam.cols - size) // 2, (cam.rows - size) // 2), (16, 16), (cam.cols - size - 16, cam.rows - size - 16)]
-    u0, v0 = spots[index % len(spots)]
-    return (u0, v0, size, size)
-
-
-def make_stack(system: System, h: int, roi, scene_name: str, seed: int):
-    w, hgt = roi[2], roi[3]
-    pixel = system.object_pixel_mm
-    spec = SceneSpec(size_mm=(w * pixel * 1.25, hgt * pixel * 1.25), pixel_mm=pixel, detail_mm=pixel / 16)
-    scene = load_scene(scene_name, spec, seed=seed)
-    return simulate_stack(scene, system, plan_scan(system, h), roi=roi, seed=seed)
 
 
 def shipped_models(hs):

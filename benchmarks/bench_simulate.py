@@ -4,10 +4,12 @@ Run from the repository root:
 
     python3 benchmarks/bench_simulate.py [--items 200] [--out benchmarks/results/bench_simulate.json]
 
-1. Training crops (64 x 64, h = 4: 16 frames, truth 256 x 256) from SyntheticStacks' default
-   mix of scenes and sensors: one process with one thread (wall and CPU seconds per stack), then
-   a torch DataLoader with two single-threaded workers (stacks per second, wall clock), against
-   the goal of 50 stacks/s on two cores.
+1. Training stacks (64 x 64, h = 4: 16 frames, truth 256 x 256) of the training pipeline
+   (hbis_torch.reconstruct.learned.training_data.simulate_example: its standard mix of scenes
+   and exposures, random places on the sensor), pool example i of seed ``--seed``: one process
+   with one thread (wall and CPU seconds per stack), then a torch DataLoader with two
+   single-threaded workers (stacks per second, wall clock), against the goal of 50 stacks/s on
+   two cores.
 2. The forward model at several oversampling factors on a grating at the sensor's corner:
    time per stack and the largest error against the closed form (hbis_torch.simulate.reference).
 
@@ -27,22 +29,39 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hbis_torch.config import System  # noqa: E402
-from hbis_torch.scan import plan_scan  # noqa: E402
-from hbis_torch.simulate import GratingScene, SensorModel, render_scan  # noqa: E402
-from hbis_torch.simulate.dataset import DatasetConfig, SameHBatchSampler, SyntheticStacks  # noqa: E402
-from hbis_torch.simulate.forward import grid_factor  # noqa: E402
-from hbis_torch.simulate.reference import grating_frame, grating_truth  # noqa: E402
+from hbis_torch.config import System
+from hbis_torch.reconstruct.learned.training_data import example_seed, simulate_example
+from hbis_torch.scan import plan_scan
+from hbis_torch.simulate import GratingScene, SensorModel, render_scan
+from hbis_torch.simulate.forward import grid_factor
+from hbis_torch.simulate.reference import grating_frame, grating_truth
 
 GOAL = 50.0
+H, SIZE = 4, 64  # the training stacks timed: h and the side of their ROI (LR pixels)
+
+
+class PoolExamples(torch.utils.data.Dataset):
+    """Example i of the training pool of seed ``seed`` (h = H, SIZE x SIZE), simulated on
+    demand: a map-style dataset over :func:`simulate_example`, for the DataLoader."""
+
+    def __init__(self, items: int, seed: int):
+        self.items, self.seed = items, seed
+        self.system = System()
+        self.plan = plan_scan(self.system, H)
+
+    def __len__(self) -> int:
+        return self.items
+
+    def __getitem__(self, index: int) -> dict:
+        if not 0 <= index < self.items:
+            raise IndexError(f"index {index} out of range for {self.items} items")
+        return simulate_example(self.system, self.plan, SIZE, example_seed(self.seed, index))
 
 
 def single_process(items: int, seed: int) -> dict:
     torch.set_num_threads(1)
-    ds = SyntheticStacks(DatasetConfig(length=items + 10, seed=seed))
-    for i in range(5):  # warm caches (photos, plans, transfer tables) and imports
+    ds = PoolExamples(items + 10, seed)
+    for i in range(5):  # warm caches (plans, transfer tables) and imports
         ds[items + i]
     wall, cpu = time.perf_counter(), time.process_time()
     for i in range(items):
@@ -57,11 +76,10 @@ def data_loader(items: int, seed: int, workers: int) -> dict:
     through RUSAGE_CHILDREN once they have exited, plus the main process's collation)."""
     import resource
 
-    ds = SyntheticStacks(DatasetConfig(length=items, seed=seed))
-    sampler = SameHBatchSampler(ds, batch_size=8, shuffle=False)
+    ds = PoolExamples(items, seed)
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
     main_cpu = time.process_time()
-    loader = torch.utils.data.DataLoader(ds, batch_sampler=sampler, num_workers=workers,
+    loader = torch.utils.data.DataLoader(ds, batch_size=8, shuffle=False, num_workers=workers,
                                          persistent_workers=False, prefetch_factor=4)
     start, count = time.perf_counter(), 0
     for batch in loader:

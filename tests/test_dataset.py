@@ -1,135 +1,155 @@
-"""The on-the-fly training dataset and the validation set on disk."""
+"""The training-data pipeline's pools: shapes, determinism per seed and index, where on the sensor,
+the scene and noise mix, the grid convention, edge cases and the pool cache on disk.
+
+(The flips/transposes of crops and the natural scenes are tested in test_training_data.py.)
+"""
 
 from __future__ import annotations
-
-import json
 
 import numpy as np
 import pytest
 import torch
-from torch.utils.data import DataLoader
 
+from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
-from hbis_torch.simulate.dataset import DatasetConfig, SameHBatchSampler, SyntheticStacks
-from hbis_torch.stack_io import read_image, read_stack
-
-SMALL = DatasetConfig(length=50, crop=(24, 20), seed=3)
-
-
-def test_items_have_the_documented_shapes_and_ranges():
-    ds = SyntheticStacks(SMALL)
-    item = ds[0]
-    h = int(item["h"])
-    frames = h * h
-    assert item["frames"].shape == (frames, 20, 24) and item["frames"].dtype == torch.float32
-    assert item["positions"].shape == (frames, 20, 24, 2) and item["true_positions"].shape == (frames, 20, 24, 2)
-    assert item["truth"].shape == (h * 20, h * 24)
-    assert 0 <= int(item["reference_index"]) < frames
-    assert float(item["frames"].min()) >= 0 and float(item["frames"].max()) <= 1
-    assert float(item["truth"].min()) >= 0 and float(item["truth"].max()) <= 1
-    ref = int(item["reference_index"])
-    grid = torch.stack(torch.meshgrid(torch.arange(24.0), torch.arange(20.0), indexing="xy"), -1)
-    assert float((item["positions"][ref] - grid).abs().max()) < 1e-5  # the reference defines the grid
+from hbis_torch.reconstruct.learned.training_data import (
+    FULL_WELL_E,
+    NATURAL_SCENES,
+    POOL_KEYS,
+    SCENE_WEIGHTS,
+    TRAIN_SCENES,
+    build_pool,
+    crop_example,
+    draw_example,
+    example_seed,
+    load_pool,
+    make_batch,
+    save_pool,
+    whole_example,
+)
+from hbis_torch.scan import plan_scan
 
 
-def test_items_are_deterministic_and_differ_between_indices():
-    a, b = SyntheticStacks(SMALL), SyntheticStacks(SMALL)
-    for i in (0, 7):
-        x, y = a[i], b[i]
-        assert all(torch.equal(x[k], y[k]) for k in x)
-    assert not torch.equal(a[1]["truth"], a[2]["truth"]) or not torch.equal(a[1]["roi"], a[2]["roi"])
-    other = SyntheticStacks(DatasetConfig(length=50, crop=(24, 20), seed=4))
-    assert not torch.equal(a[0]["frames"], other[0]["frames"])
+@pytest.fixture(scope="module")
+def pool():
+    return build_pool(h=2, count=3, size=20, seed=3)  # example 0 is a words scene
 
 
-def test_rois_cover_corners_and_edges_and_h_comes_from_the_range():
-    cfg = DatasetConfig(length=400, crop=(64, 64), h_choices=(2, 3, 4), seed=0)
-    ds = SyntheticStacks(cfg)
-    draws = [ds.draw(i) for i in range(400)]
-    rois = np.array([d.roi for d in draws])
-    cam = cfg.system.camera
-    at_left, at_right = rois[:, 0] == 0, rois[:, 0] == cam.cols - 64
-    at_top, at_bottom = rois[:, 1] == 0, rois[:, 1] == cam.rows - 64
-    corners = (at_left | at_right) & (at_top | at_bottom)
-    assert corners.sum() >= 10 and (at_left | at_right).sum() >= 50
-    assert np.all(rois[:, 0] >= 0) and np.all(rois[:, 0] + 64 <= cam.cols)
-    assert len({d.h for d in draws}) == 3 and all(ds.h_of(i) == draws[i].h for i in range(400))
-    assert len({d.scene for d in draws}) >= 15  # procedural patterns and photographs
-    full_wells = [d.sensor.full_well_e for d in draws]
-    assert min(full_wells) < 2000 and max(full_wells) > 20000  # noise levels vary
+def test_examples_have_the_documented_shapes_and_ranges(pool):
+    cam = System().camera
+    ref = plan_scan(System(), 2).reference_index
+    for ex in pool:
+        assert set(ex) == set(POOL_KEYS) and ex["scene"] in TRAIN_SCENES
+        assert ex["frames"].shape == (4, 20, 20) and ex["frames"].dtype == np.float32
+        assert ex["positions"].shape == (4, 20, 20, 2) and ex["positions"].dtype == np.float32
+        assert ex["truth"].shape == (40, 40) and ex["truth"].dtype == np.float32
+        assert 0 <= ex["frames"].min() and ex["frames"].max() <= 1
+        assert 0 <= ex["truth"].min() and ex["truth"].max() <= 1 and ex["truth"].std() > 0.01
+        u0, v0, w, h = ex["roi"].tolist()
+        assert (w, h) == (20, 20) and 0 <= u0 <= cam.cols - 20 and 0 <= v0 <= cam.rows - 20
+        # the reference frame defines the ROI-local grid; the others sit off it
+        grid = np.stack(np.meshgrid(np.arange(20.0), np.arange(20.0), indexing="xy"), -1)
+        assert np.abs(ex["positions"][ref] - grid).max() < 1e-5
+        others = [k for k in range(4) if k != ref]
+        assert min(np.abs(ex["positions"][k] - grid).max() for k in others) > 0.2
+    frames, offsets, truth = whole_example(pool[0], 2)
+    assert frames.shape == (1, 4, 20, 20) and offsets.shape == (1, 8, 20, 20) and truth.shape == (1, 1, 40, 40)
+    frames, offsets, truth = make_batch(pool, 2, 8, 5, np.random.default_rng(0), noise_prob=1.0, noise_max=0.05)
+    assert frames.shape == (5, 4, 8, 8) and offsets.shape == (5, 8, 8, 8) and truth.shape == (5, 1, 16, 16)
+    assert all(a.dtype == np.float32 for a in (frames, offsets, truth))
+    assert 0 <= frames.min() and frames.max() <= 1  # extra noise is clipped as a sensor would
 
 
-def test_measured_and_true_positions_differ_by_the_phase_error():
-    cfg = DatasetConfig(length=10, crop=(16, 16), phase_error_deg=(0.002, 0.002), seed=1)
-    item = SyntheticStacks(cfg)[0]
-    diff = (item["positions"] - item["true_positions"]).abs()
-    assert float(diff[int(item["reference_index"])].max()) < 1e-6
-    assert 1e-3 < float(diff.max()) < 0.5  # 0.002 deg of phase is a few hundredths of a pixel
-    quiet = SyntheticStacks(DatasetConfig(length=10, crop=(16, 16), phase_error_deg=(0.0, 0.0)))[0]
-    assert torch.equal(quiet["positions"], quiet["true_positions"])
+def test_examples_depend_only_on_the_pool_seed_and_their_index(pool):
+    # Example i is the same whichever share of the pool is built (the ranks of train_sr.py).
+    (again,) = build_pool(h=2, count=3, size=20, seed=3, indices=[2])
+    for key in POOL_KEYS:
+        assert np.array_equal(again[key], pool[2][key]), key
+    assert not np.array_equal(pool[0]["roi"], pool[1]["roi"])
+    (other,) = build_pool(h=2, count=1, size=20, seed=4)
+    assert not np.array_equal(other["frames"], pool[0]["frames"])
+    assert len({example_seed(3, i) for i in range(100)} | {example_seed(4, i) for i in range(100)}) == 200
+    # The draw says what was simulated.
+    draw = draw_example(System(), 20, example_seed(3, 1))
+    assert draw.roi == tuple(pool[1]["roi"].tolist()) and draw.scene == pool[1]["scene"]
+    # The same generator state gives the same batch; another one another batch.
+    a = make_batch(pool, 2, 8, 4, np.random.default_rng([0, 0, 7]), 0.5, 0.06)
+    b = make_batch(pool, 2, 8, 4, np.random.default_rng([0, 0, 7]), 0.5, 0.06)
+    c = make_batch(pool, 2, 8, 4, np.random.default_rng([0, 0, 8]), 0.5, 0.06)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert not np.array_equal(a[2], c[2])
 
 
-def test_noise_free_item_is_consistent_with_its_truth():
-    """Huge well, no read noise, fill factor 1, fine quantisation: the reference frame is the
-    truth pooled over h x h blocks (the grid convention, docs/data.md)."""
-    cfg = DatasetConfig(length=5, crop=(16, 16), full_well_log=(1e9, 1e9), read_noise=(0.0, 0.0),
-                        fill_factor=(1.0, 1.0), bit_depths=(16,), black_level=(0.0, 0.0),
-                        phase_error_deg=(0.0, 0.0), seed=2)
-    item = SyntheticStacks(cfg)[0]
-    h, ref = int(item["h"]), int(item["reference_index"])
-    pooled = torch.nn.functional.avg_pool2d(item["truth"][None, None], h)[0, 0]
-    assert float((pooled - item["frames"][ref]).abs().max()) < 3e-4
+def test_rois_cover_the_whole_sensor_and_the_mix_follows_its_weights():
+    system = System()
+    cam = system.camera
+    draws = [draw_example(system, 64, example_seed(0, i)) for i in range(3000)]
+    u0 = np.array([d.roi[0] for d in draws])
+    v0 = np.array([d.roi[1] for d in draws])
+    assert u0.min() >= 0 and u0.max() <= cam.cols - 64 and v0.min() >= 0 and v0.max() <= cam.rows - 64
+    assert all(d.roi[2:] == (64, 64) for d in draws)
+    # Every corner of the sensor, where pixels move most unevenly, is visited.
+    near_u = (u0 < 0.1 * (cam.cols - 64), u0 > 0.9 * (cam.cols - 64))
+    near_v = (v0 < 0.1 * (cam.rows - 64), v0 > 0.9 * (cam.rows - 64))
+    for at_u in near_u:
+        for at_v in near_v:
+            assert (at_u & at_v).sum() >= 10
+    # Scenes in the proportions of the mix, exposures from dim to bright.
+    names = [d.scene for d in draws]
+    for name, weight in zip(TRAIN_SCENES, SCENE_WEIGHTS):
+        assert abs(names.count(name) / len(draws) - weight) < 0.03, name
+    natural = np.mean([d.scene in NATURAL_SCENES for d in draws_of_share(0.55)])
+    assert abs(natural - 0.55) < 0.04
+    wells = np.array([d.full_well_e for d in draws])
+    assert FULL_WELL_E[0] <= wells.min() < 2500 and 25000 < wells.max() <= FULL_WELL_E[1]
+    assert len({d.noise_seed for d in draws}) == len(draws) and len({d.scene_seed for d in draws}) == len(draws)
 
 
-def test_same_h_batches_stack_in_a_dataloader():
-    cfg = DatasetConfig(length=12, crop=(16, 16), h_choices=(2, 3), seed=5)
-    ds = SyntheticStacks(cfg)
-    sampler = SameHBatchSampler(ds, batch_size=3, seed=1)
-    loader = DataLoader(ds, batch_sampler=sampler, num_workers=2)
-    seen = []
-    for batch in loader:
-        h = int(batch["h"][0])
-        assert torch.all(batch["h"] == h)
-        assert batch["frames"].shape[1:] == (h * h, 16, 16) and batch["truth"].shape[1:] == (16 * h, 16 * h)
-        seen.extend(batch["roi"][:, 0].tolist())
-    assert len(seen) == 12
-    first = [list(b) for b in sampler]
-    sampler.set_epoch(1)
-    assert first != [list(b) for b in sampler]  # reshuffled per epoch
+def draws_of_share(share: float, count: int = 1000):
+    return [draw_example(System(), 64, example_seed(1, i), natural_share=share) for i in range(count)]
 
 
-def test_bad_configs_are_rejected():
-    with pytest.raises(HbisInputError, match="crop"):
-        DatasetConfig(crop=(2000, 10))
-    with pytest.raises(HbisInputError, match="unknown scene"):
-        DatasetConfig(scenes=("nope",))
-    with pytest.raises(HbisInputError, match="h_choices"):
-        DatasetConfig(h_choices=(0,))
-    with pytest.raises(IndexError):
-        SyntheticStacks(SMALL)[50]
+def test_reference_frame_is_the_truth_pooled_over_h_blocks_up_to_noise(pool):
+    """The grid convention (docs/data.md): reference pixel (x, y) integrates output pixels
+    h x .. h x + h - 1; a truth misplaced by one LR pixel would be far worse."""
+    ex = pool[0]
+    ref = plan_scan(System(), 2).reference_index
+    pooled = torch.nn.functional.avg_pool2d(torch.from_numpy(ex["truth"])[None, None], 2)[0, 0].numpy()
+    frame = ex["frames"][ref]
+    error = np.abs(pooled - frame).mean()
+    shifted = min(np.abs(pooled[:, 1:] - frame[:, :-1]).mean(), np.abs(pooled[1:] - frame[:-1]).mean())
+    assert error < 0.02 and error < 0.3 * shifted
 
 
-def test_validation_set_is_written_resumed_and_readable(tmp_path):
-    from hbis_torch.simulate.validation import write_validation_set
+def test_sizes_that_do_not_fit_are_refused(pool):
+    system = System()
+    cam = system.camera
+    for size in (0, cam.rows + 1):
+        with pytest.raises(HbisInputError, match="does not fit"):
+            draw_example(system, size, 0)
+    full = draw_example(system, cam.rows, 0)  # the largest square that fits
+    assert full.roi[1] == 0 and 0 <= full.roi[0] <= cam.cols - cam.rows
+    rng = np.random.default_rng(0)
+    for patch in (0, 21):
+        with pytest.raises(HbisInputError, match="patch"):
+            crop_example(pool[0], 2, patch, rng)
+    # A crop of the whole example, unaugmented, is the whole example.
+    frames, offsets, truth = crop_example(pool[0], 2, 20, rng, augment=False)
+    whole = whole_example(pool[0], 2)
+    assert np.array_equal(frames, whole[0][0]) and np.array_equal(offsets, whole[1][0])
+    assert np.array_equal(truth, whole[2][0])
+    with pytest.raises(ValueError, match="natural_share"):
+        draw_example(system, 20, 0, natural_share=-0.1)
 
-    cfg = DatasetConfig(length=3, crop=(16, 12), seed=9)
-    index = write_validation_set(tmp_path, cfg, progress=False)
-    assert len(index["items"]) == 3
-    listed = json.loads((tmp_path / "index.json").read_text())
-    assert listed == index and listed["config"]["seed"] == 9
-    entry = listed["items"][1]
-    stack = read_stack(tmp_path / entry["stack"])
-    truth, meta = read_image(tmp_path / entry["truth"])
-    item = SyntheticStacks(cfg)[1]
-    assert torch.allclose(stack.to_float(), item["frames"])
-    assert np.array_equal(truth, item["truth"].numpy())
-    assert meta["h"] == stack.h and tuple(meta["roi"]) == stack.roi
-    assert stack.meta["simulation"]["index"] == 1
-    before = (tmp_path / entry["stack"]).stat().st_mtime_ns
-    write_validation_set(tmp_path, cfg, progress=False)  # resumes: nothing to redo
-    assert (tmp_path / entry["stack"]).stat().st_mtime_ns == before
-    (tmp_path / entry["truth"]).unlink()
-    write_validation_set(tmp_path, cfg, progress=False)
-    assert (tmp_path / entry["truth"]).exists()
-    with pytest.raises(HbisInputError, match="different configuration"):
-        write_validation_set(tmp_path, DatasetConfig(length=3, crop=(16, 12), seed=10), progress=False)
+
+def test_pool_round_trips_through_its_npz_file(pool, tmp_path):
+    path = tmp_path / "pool.npz"
+    save_pool(path, pool)
+    assert [p.name for p in tmp_path.iterdir()] == ["pool.npz"]  # written atomically, no leftovers
+    loaded = load_pool(path)
+    assert len(loaded) == len(pool)
+    for a, b in zip(pool, loaded):
+        for key in POOL_KEYS:
+            assert np.asarray(a[key]).dtype == b[key].dtype and np.array_equal(a[key], b[key]), key
+        assert str(b["scene"]) == a["scene"]
+    assert all(np.array_equal(x, y) for x, y in zip(whole_example(pool[1], 2), whole_example(loaded[1], 2)))

@@ -8,11 +8,10 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from export.check_onnx import CHECK_SIZE, TOLERANCE, check_parity
-from export.export_onnx import EXPORT_SIZE, OPSET, export_model
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.learned import OPENVINO, LearnedSR, available_providers, read_model_metadata
-from hbis_torch.reconstruct.net import HbisSRNet, space_to_depth
+from hbis_torch.reconstruct.learned.export import CHECK_SIZE, EXPORT_SIZE, OPSET, TOLERANCE, check_parity, export_model
+from hbis_torch.reconstruct.learned.net import HbisSRNet, space_to_depth
 
 
 @pytest.fixture(scope="module", params=[0, 5], ids=["bilinear-base", "linear-base"])
@@ -133,7 +132,7 @@ def test_corrupt_model_file_is_a_clear_input_error(tmp_path):
 
 
 def test_depth_to_space_is_one_onnx_node_and_only_the_exact_pattern_is_rewritten(exported, tmp_path):
-    from export.onnx_rewrite import fuse_depth_to_space
+    from hbis_torch.reconstruct.learned.onnx_rewrite import fuse_depth_to_space
 
     model, path = exported
     proto = onnx.load(str(path))
@@ -154,7 +153,7 @@ def test_depth_to_space_is_one_onnx_node_and_only_the_exact_pattern_is_rewritten
 
 
 def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):
-    from export.export_onnx import export
+    from hbis_torch.reconstruct.learned.export import export
 
     torch.manual_seed(1)
     model = HbisSRNet(2, width=8, blocks=1, skip=3).eval()
@@ -170,8 +169,31 @@ def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):
 
 
 def test_two_onnxruntime_distributions_are_warned_about(exported, monkeypatch):
-    from hbis_torch.reconstruct import learned
+    from hbis_torch.reconstruct.learned import runtime as learned
 
     monkeypatch.setattr(learned, "onnxruntime_distributions", lambda: ["onnxruntime", "onnxruntime-openvino"])
     with pytest.warns(RuntimeWarning, match="both onnxruntime and onnxruntime-openvino"):
         LearnedSR(exported[1])
+
+
+def test_the_scripts_export_and_check_from_any_folder(tmp_path):
+    """export/export_onnx.py and export/check_onnx.py run as plain scripts (the package is
+    installed; no path edits), from a folder other than the checkout."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    torch.manual_seed(2)
+    model = HbisSRNet(2, width=8, blocks=1, skip=3).eval()
+    weights = tmp_path / "weights.pt"
+    torch.save({"model": model.state_dict(), "model_config": model.config()}, weights)
+    run = [sys.executable, str(repo / "export" / "export_onnx.py"), str(weights), "net.onnx"]
+    result = subprocess.run(run, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "wrote net.onnx" in result.stdout and "parity torch vs onnxruntime" in result.stdout
+    assert read_model_metadata(tmp_path / "net.onnx")["h"] == "2"
+    check = [sys.executable, str(repo / "export" / "check_onnx.py"), "net.onnx", str(weights), "--size", "9", "11"]
+    result = subprocess.run(check, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "at 9 x 11" in result.stdout and "tolerance 1e-04" in result.stdout

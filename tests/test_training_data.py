@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from hbis_torch.reconstruct.learned import prepare_inputs
-from training.sr_data import (NATURAL_SCENES, NATURAL_SHARE, SCENE_WEIGHTS, TRAIN_SCENES, build_pool, crop_example,
-                              dead_leaves, dihedral, natural_image, scene_weights)
+from hbis_torch.reconstruct.learned.training_data import (NATURAL_SCENES, NATURAL_SHARE, SCENE_WEIGHTS, TRAIN_SCENES,
+                                                        build_pool, crop_example, dead_leaves, dihedral, natural_image,
+                                                        scene_weights)
 
 
 @pytest.fixture(scope="module")

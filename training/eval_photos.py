@@ -3,9 +3,10 @@
     python training/eval_photos.py training/runs/sr_h4/model.pt [--sizes 128 256 full]
 
 Simulates (once, cached in training/runs/cache) exactly the photograph stacks that
-benchmarks/bench_learned.py uses for the checkpoint's h (same scenes, ROIs and seeds) and prints
-the network's PSNR on each, next to the classical method's (computed once per version of
-hbis_torch/sr/classical.py and cached too, written atomically).
+benchmarks/bench_learned.py uses for the checkpoint's h (same scenes, ROIs and seeds:
+hbis_torch.simulate.cases) and prints the network's PSNR on each, next to the classical
+method's (computed once per version of hbis_torch.reconstruct.classical and cached too, written
+atomically).
 The photographs are never trained on; this only saves rerunning the whole benchmark to
 compare training runs.
 """
@@ -13,25 +14,23 @@ compare training runs.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-from benchmarks.bench_learned import make_stack, roi_for, scene_cases  # noqa: E402
-from hbis_torch.metrics import psnr  # noqa: E402
-from hbis_torch.config import System  # noqa: E402
-from hbis_torch.io_utils import atomic_path  # noqa: E402
-from hbis_torch.simulate import sample_positions  # noqa: E402
-from hbis_torch.reconstruct import classical as classical_module  # noqa: E402
-from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff  # noqa: E402
-from hbis_torch.reconstruct.learned import run_tiled, super_resolve  # noqa: E402
-from hbis_torch.reconstruct.net import HbisSRNet  # noqa: E402
+from hbis_torch.metrics import psnr
+from hbis_torch.config import System
+from hbis_torch.io_utils import atomic_path
+from hbis_torch.simulate import sample_positions
+from hbis_torch.simulate.cases import make_stack, roi_for, scene_cases
+from hbis_torch.reconstruct import classical as classical_module
+from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
+from hbis_torch.reconstruct.learned import run_tiled, super_resolve
+from hbis_torch.reconstruct.learned.net import HbisSRNet
+
+REPO = Path(__file__).resolve().parents[1]  # the checkout: default cache folder
 
 
 def main(argv=None) -> int:
@@ -48,7 +47,7 @@ def main(argv=None) -> int:
     model.eval()
     h, system = model.h, System()
     # The cached classical PSNRs belong to one version of the classical method.
-    version = hashlib.sha256(Path(classical_module.__file__).read_bytes()).hexdigest()[:8]
+    version = classical_module.source_version()[:8]
     means = {}
     for size_arg in args.sizes:
         size = None if size_arg == "full" else int(size_arg)

@@ -1,4 +1,4 @@
-"""Train the multi-frame super-resolution network (hbis_torch.reconstruct.net) on simulated scans.
+"""Train the multi-frame super-resolution network (hbis_torch.reconstruct.learned.net) on simulated scans.
 
 Read it top to bottom: config, setup, data, the loop. One process:
 
@@ -17,7 +17,6 @@ run and starting the same command again resumes from ``out_dir/ckpt.pt``. The ou
 from __future__ import annotations
 
 import ast
-import hashlib
 import json
 import math
 import os
@@ -31,11 +30,11 @@ import torch
 import torch.distributed as dist
 import torch.nn.functional as F
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout: repo first
-from hbis_torch.io_utils import atomic_path, atomic_write_text  # noqa: E402
-from hbis_torch.metrics import psnr  # noqa: E402
-from hbis_torch.reconstruct.net import HbisSRNet, count_parameters  # noqa: E402
-from training.sr_data import NATURAL_SHARE, POOL_VERSION, build_pool, load_pool, make_batch, save_pool, whole_example  # noqa: E402
+from hbis_torch.io_utils import atomic_path, atomic_write_text
+from hbis_torch.metrics import psnr
+from hbis_torch.reconstruct.learned.net import HbisSRNet, count_parameters
+from hbis_torch.reconstruct.learned.training_data import (NATURAL_SHARE, POOL_VERSION, build_pool, load_pool,
+                                                        make_batch, save_pool, whole_example)
 
 # ---------------------------------------------------------------------------- config
 h = 4  # resolution improvement factor; the model takes h*h frames
@@ -163,7 +162,7 @@ def classical_baseline() -> float:
     # Cached per version of the classical method (a hash of its source).
     import hbis_torch.reconstruct.classical as classical_module
 
-    version = hashlib.sha256(Path(classical_module.__file__).read_bytes()).hexdigest()[:8]
+    version = classical_module.source_version()[:8]
     path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}_v{POOL_VERSION}.classical{version}.json"
     if not path.exists():
         from hbis_torch.config import System

@@ -1,14 +1,15 @@
-"""Physics-generated synthetic stacks: scenes, the fovea's forward model, sensor noise, datasets.
+"""Physics-generated synthetic stacks: scenes, the fovea's forward model, sensor noise.
 
 Main entry points::
 
     from hbis_torch.simulate import simulate_stack, SensorModel, load_scene, SceneSpec
     stack, truth = simulate_stack(scene, system, plan_scan(system, 4), roi=(512, 352, 256, 256))
 
-docs/data.md describes the model and the output-grid convention.
+docs/data.md describes the model and the output-grid convention. The network's training data
+(pools of simulated stacks cut into crops) is hbis_torch.reconstruct.learned.training_data; the
+benchmark's test stacks are :mod:`hbis_torch.simulate.cases`.
 """
 
-from hbis_torch.simulate.dataset import DatasetConfig, SameHBatchSampler, SyntheticStacks
 from hbis_torch.simulate.forward import RenderedScan, render_scan
 from hbis_torch.simulate.geometry import landing_on_grid, sample_positions
 from hbis_torch.simulate.psf import airy_otf, airy_psf, blur_transfer, lens_otf
@@ -33,9 +34,6 @@ __all__ = [
     "BUILTIN_SCENES",
     "PHOTOS",
     "BarTarget",
-    "DatasetConfig",
-    "SameHBatchSampler",
-    "SyntheticStacks",
     "EdgesScene",
     "FlatScene",
     "GradientScene",

@@ -1,6 +1,6 @@
 """Rewrites of the exported SR graph that onnxruntime runs faster, same function.
 
-The network's depth-to-space (:func:`hbis_torch.reconstruct.net.depth_to_space`) is written as
+The network's depth-to-space (:func:`hbis_torch.reconstruct.learned.net.depth_to_space`) is written as
 reshape/permute so that the dynamo exporter handles it; it arrives in the graph as
 ``Reshape (B, C, h, h, H, W) -> Transpose (0, 1, 4, 2, 5, 3) -> Reshape (B, C, hH, hW)``, and
 onnxruntime runs that 6-d Transpose about 4-5 times slower than its ``DepthToSpace`` kernel
@@ -9,7 +9,7 @@ ONNX ``DepthToSpace`` in mode ``"CRD"`` is exactly this rearrangement (input cha
 ``c h^2 + dy h + dx`` goes to output pixel ``(h y + dy, h x + dx)`` of channel c), so
 :func:`fuse_depth_to_space` replaces the three nodes with it. Everything else is left as the
 exporter wrote it. The export checks parity with torch after the rewrite, at a size other than
-the export size (export/check_onnx.py).
+the export size (:func:`hbis_torch.reconstruct.learned.export.check_parity`, export/check_onnx.py).
 """
 
 from __future__ import annotations
@@ -77,6 +77,18 @@ def fuse_depth_to_space(model: onnx.ModelProto, block: int) -> int:
     constant ``block`` entries in places 2 and 3), a Transpose with permutation
     (0, 1, 4, 2, 5, 3) read only by a Reshape back to 4-d, nothing else reading the
     intermediate tensors. Modifies ``model`` in place; returns the number of replacements.
+
+    Parameters
+    ----------
+    model : onnx.ModelProto
+        The exported network (inputs (B, h^2, H, W) and (B, 2h^2, H, W), output (B, 1, hH, hW)).
+    block : int
+        The depth-to-space block, h of the network.
+
+    Returns
+    -------
+    int
+        Replacements made (0 if the pattern was not found); dead nodes are then dropped.
     """
     graph = model.graph
     producers = {out: node for node in graph.node for out in node.output}

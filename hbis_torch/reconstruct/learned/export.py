@@ -1,0 +1,240 @@
+"""ONNX export of the SR network, and the parity check of torch against onnxruntime.
+
+:func:`export_model` writes a trained :class:`~hbis_torch.reconstruct.learned.HbisSRNet` to ONNX
+(opset :data:`OPSET`, dynamic batch, height and width; self-contained: weights inside, no .data
+file), with the exporter's depth-to-space replaced by one ``DepthToSpace`` node
+(:func:`hbis_torch.reconstruct.learned.onnx_rewrite.fuse_depth_to_space`) and ``metadata_props``
+carrying what a user of the model needs: ``format``, ``h``, ``frames`` (= h^2),
+``normalisation``, ``training_commit`` (git HEAD when the checkpoint was trained),
+``export_commit``, ``opset``, ``parameters``, ``model_config``, ``val_psnr_db``,
+``training_steps``, ``training_config`` (JSON) and ``graph_rewrites``.
+
+:func:`check_parity` compares the raw network outputs of torch and onnxruntime on random inputs
+at a size other than the export size (:data:`CHECK_SIZE`); :data:`TOLERANCE` is the largest
+absolute difference accepted. The scripts export/export_onnx.py and export/check_onnx.py are
+the command lines over these functions.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hbis_torch.io_utils import atomic_path
+from hbis_torch.reconstruct.learned import (
+    MODEL_FORMAT,
+    NORMALISATION,
+    HbisSRNet,
+    LearnedSR,
+    available_providers,
+    count_parameters,
+)
+from hbis_torch.reconstruct.learned.onnx_rewrite import fuse_depth_to_space
+
+OPSET = 18
+EXPORT_SIZE = (32, 40)  # (H, W) of the example inputs traced at export; any size runs after
+TOLERANCE = 1e-4  # largest accepted |torch - onnxruntime| of the network outputs (images in [0, 1])
+CHECK_SIZE = (45, 67)  # deliberately not EXPORT_SIZE, and odd
+
+
+def git_head() -> str:
+    """``git rev-parse HEAD`` of the repository holding this file, or "unknown"."""
+    try:
+        return subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
+            capture_output=True, text=True, check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def load_checkpoint(path) -> tuple[HbisSRNet, dict]:
+    """The model (eval mode, float32) and the raw checkpoint dict.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``model.pt`` / ``ckpt.pt`` written by training/train_sr.py, or a weights file written
+        by ``export/export_onnx.py --weights``: a dict with ``model`` (state dict) and
+        ``model_config`` (HbisSRNet's keyword arguments).
+
+    Returns
+    -------
+    model : HbisSRNet
+    checkpoint : dict
+    """
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    model = HbisSRNet(**ckpt["model_config"])
+    model.load_state_dict(ckpt["model"])
+    return model.eval(), ckpt
+
+
+def example_inputs(h: int, rows: int, cols: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """Random frames (1, h^2, rows, cols) in [0, 1] and offsets (1, 2h^2, rows, cols) in +-0.5.
+
+    Parameters
+    ----------
+    h : int
+        Resolution improvement factor of the network.
+    rows, cols : int
+        LR size of the inputs, pixels.
+    seed : int
+        Seed of the torch generator: the same seed gives the same inputs.
+
+    Returns
+    -------
+    frames : Tensor, shape (1, h^2, rows, cols), float32
+    offsets : Tensor, shape (1, 2 h^2, rows, cols), float32
+        In output pixels.
+    """
+    g = torch.Generator().manual_seed(seed)
+    frames = torch.rand(1, h * h, rows, cols, generator=g)
+    offsets = torch.rand(1, 2 * h * h, rows, cols, generator=g) - 0.5
+    return frames, offsets
+
+
+def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: int = OPSET,
+                 rewrite: bool = True) -> dict:
+    """Export ``model`` to ``out_path`` (written atomically); returns the metadata written.
+
+    ``info`` is the training checkpoint (or any dict) with ``git_commit``, ``val_psnr``,
+    ``step`` and ``config``; missing entries are recorded as unknown. ``rewrite``: replace the
+    exporter's reshape/transpose depth-to-space with ONNX DepthToSpace
+    (:func:`hbis_torch.reconstruct.learned.onnx_rewrite.fuse_depth_to_space`; same outputs,
+    faster in onnxruntime).
+
+    Parameters
+    ----------
+    model : HbisSRNet
+        Inputs ``frames`` (B, h^2, H, W) and ``offsets`` (B, 2h^2, H, W), output ``image``
+        (B, 1, hH, hW); B, H and W stay dynamic in the file.
+    out_path : str or Path
+        The .onnx file to write.
+    info : dict, optional
+    opset : int
+    rewrite : bool
+
+    Returns
+    -------
+    dict of str to str
+        The ``metadata_props`` written (see the module docstring).
+    """
+    import onnx
+
+    info = info or {}
+    model = model.eval()
+    frames, offsets = example_inputs(model.h, *EXPORT_SIZE)
+    batch, rows, cols = (torch.export.Dim(n, min=1, max=8192) for n in ("batch", "height", "width"))
+    dims = {0: batch, 2: rows, 3: cols}
+    program = torch.onnx.export(
+        model, (frames, offsets), input_names=["frames", "offsets"], output_names=["image"],
+        dynamic_shapes={"frames": dims, "offsets": dims}, opset_version=opset, dynamo=True,
+        external_data=False, verbose=False,
+    )
+    proto = program.model_proto
+    fused = fuse_depth_to_space(proto, model.h) if rewrite else 0
+    metadata = {
+        "format": MODEL_FORMAT,
+        "h": str(model.h),
+        "frames": str(model.frame_count),
+        "normalisation": NORMALISATION,
+        "training_commit": str(info.get("git_commit", "unknown")),
+        "export_commit": git_head(),
+        "opset": str(opset),
+        "parameters": str(count_parameters(model)),
+        "model_config": json.dumps(model.config()),
+        "val_psnr_db": f"{float(info.get('val_psnr', float('nan'))):.3f}",
+        "training_steps": str(info.get("step", "unknown")),
+        "training_config": json.dumps(info.get("config", {})),
+        "graph_rewrites": f"DepthToSpace x{fused}",
+    }
+    del proto.metadata_props[:]
+    for key, value in metadata.items():
+        proto.metadata_props.add(key=key, value=value)
+    proto.doc_string = f"hbis-torch multi-frame SR network, h = {model.h}; see models/README.md"
+    onnx.checker.check_model(proto)
+    with atomic_path(out_path) as tmp:
+        onnx.save(proto, str(tmp))
+        tmp.chmod(0o644)
+    return metadata
+
+
+def training_info(ckpt: dict) -> dict:
+    """What :func:`export_model` records about training, from a training checkpoint or from a
+    weights file written by ``--weights`` (models/hbis_sr_h*.pt), whose ``metadata`` is that of
+    the first export: a re-export keeps the training commit, validation PSNR, steps and config.
+
+    Returns
+    -------
+    dict
+        ``git_commit``, ``val_psnr`` (dB), ``step`` and ``config`` where known (a training
+        checkpoint is returned as it is).
+    """
+    if "metadata" not in ckpt:
+        return ckpt
+    meta = ckpt["metadata"]
+    return {"git_commit": meta.get("training_commit", "unknown"),
+            "val_psnr": float(meta.get("val_psnr_db", "nan")),
+            "step": meta.get("training_steps", "unknown"),
+            "config": json.loads(meta.get("training_config", "{}"))}
+
+
+def export(checkpoint, out_path, opset: int = OPSET) -> dict:
+    """Export a checkpoint written by training/train_sr.py, or a weights file written by
+    ``--weights``; returns the metadata written (:func:`export_model`)."""
+    model, ckpt = load_checkpoint(checkpoint)
+    return export_model(model, out_path, training_info(ckpt), opset)
+
+
+def check_parity(onnx_path, checkpoint, size=CHECK_SIZE, seed: int = 1, provider: str = "auto") -> float:
+    """Max |torch - onnxruntime| of the raw network outputs on random inputs of ``size``.
+
+    ``checkpoint`` is a model.pt path or the HbisSRNet itself; ``provider`` the onnxruntime
+    execution provider (:func:`hbis_torch.reconstruct.learned.execution_providers`).
+
+    Parameters
+    ----------
+    onnx_path : str or Path
+        The exported model.
+    checkpoint : str, Path or HbisSRNet
+    size : (int, int)
+        (H, W) of the random inputs (:func:`example_inputs`), LR pixels; not :data:`EXPORT_SIZE`.
+    seed : int
+        Seed of the inputs.
+    provider : str
+        ``"auto"``, ``"cpu"`` or ``"openvino"``.
+
+    Returns
+    -------
+    float
+        The largest absolute difference of the two (1, 1, hH, hW) outputs (images in [0, 1]).
+
+    Raises
+    ------
+    ValueError
+        ``size`` is the export size (the check would not test the dynamic axes).
+    AssertionError
+        The two outputs differ in shape.
+    """
+    if tuple(size) == tuple(EXPORT_SIZE):
+        raise ValueError("check at a size other than the export size")
+    model = checkpoint if isinstance(checkpoint, torch.nn.Module) else load_checkpoint(checkpoint)[0]
+    model = model.eval()
+    frames, offsets = example_inputs(model.h, *size, seed=seed)
+    with torch.no_grad():
+        expected = model(frames, offsets).numpy()
+    runner = LearnedSR(onnx_path, provider=provider)
+    got = runner.session.run(["image"], {"frames": frames.numpy(), "offsets": offsets.numpy()})[0]
+    if got.shape != expected.shape:
+        raise AssertionError(f"onnxruntime output {got.shape} != torch output {expected.shape}")
+    return float(np.abs(got - expected).max())
+
+
+def check_parity_all(onnx_path, checkpoint, size=CHECK_SIZE) -> dict[str, float]:
+    """:func:`check_parity` for every execution provider this onnxruntime has, by name."""
+    return {provider: check_parity(onnx_path, checkpoint, size, provider=provider)
+            for provider in available_providers()}
