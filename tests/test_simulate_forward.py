@@ -134,7 +134,7 @@ def test_frames_move_as_the_tracer_says():
     """Register each frame of a textured scene against the reference and compare the measured
     translation with the mean sample position the tracer predicts (roi-local, contract)."""
     from hbis_torch.simulate import ImageScene
-    from hbis_torch.simulate.scenes import texture_image
+    from hbis_torch.simulate.rasters import texture_image
 
     h = 4
     plan = plan_scan(SYSTEM, h)

@@ -9,7 +9,14 @@ import pytest
 import torch
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.simulate import BUILTIN_SCENES, PHOTOS, ImageScene, SceneSpec, load_scene
+from hbis_torch.simulate import (
+    BUILTIN_SCENES,
+    PHOTOS,
+    ImageScene,
+    SceneSpec,
+    load_scene,
+)
+from hbis_torch.simulate.rasters import to_gray
 from hbis_torch.simulate.scenes import (
     BarTarget,
     EdgesScene,
@@ -17,7 +24,6 @@ from hbis_torch.simulate.scenes import (
     SiemensStar,
     box_interval,
     square_edge_coverage,
-    to_gray,
 )
 
 SPEC = SceneSpec(size_mm=(1.2, 0.9), pixel_mm=0.015625, detail_mm=0.015625 / 8)

@@ -10,12 +10,17 @@ docs/data.md describes the model and the output-grid convention. The network's t
 benchmark's test stacks are :mod:`hbis_torch.simulate.cases`.
 """
 
+from hbis_torch.simulate.catalog import (
+    BUILTIN_SCENES,
+    PROCEDURAL,
+    SceneSpec,
+    load_scene,
+)
 from hbis_torch.simulate.forward import RenderedScan, render_scan
 from hbis_torch.simulate.geometry import landing_on_grid, sample_positions
 from hbis_torch.simulate.psf import airy_otf, airy_psf, blur_transfer, lens_otf
+from hbis_torch.simulate.rasters import PHOTOS
 from hbis_torch.simulate.scenes import (
-    BUILTIN_SCENES,
-    PHOTOS,
     BarTarget,
     EdgesScene,
     FlatScene,
@@ -23,9 +28,7 @@ from hbis_torch.simulate.scenes import (
     GratingScene,
     ImageScene,
     Scene,
-    SceneSpec,
     SiemensStar,
-    load_scene,
 )
 from hbis_torch.simulate.sensor import SensorModel, expose
 from hbis_torch.simulate.stacks import scene_for_roi, simulate_stack
@@ -33,6 +36,7 @@ from hbis_torch.simulate.stacks import scene_for_roi, simulate_stack
 __all__ = [
     "BUILTIN_SCENES",
     "PHOTOS",
+    "PROCEDURAL",
     "BarTarget",
     "EdgesScene",
     "FlatScene",

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from hbis_torch.config import System
 from hbis_torch.scan import plan_scan
-from hbis_torch.simulate.scenes import SceneSpec, load_scene
+from hbis_torch.simulate.catalog import SceneSpec, load_scene
 from hbis_torch.simulate.stacks import simulate_stack
 
 SYNTHETIC_CASES = ("words", "texture")

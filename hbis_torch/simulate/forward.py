@@ -46,9 +46,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from hbis_torch.checks import check_h, check_phases, check_roi
 from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
-from hbis_torch.checks import check_h, check_phases, check_roi
 from hbis_torch.simulate.geometry import landing_at, landing_on_grid, sample_positions
 from hbis_torch.simulate.psf import blur_transfer, dct_frequencies, defocus_waves
 from hbis_torch.simulate.scenes import Scene

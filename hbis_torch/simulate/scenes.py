@@ -13,7 +13,9 @@ noise textures) and photographs are :class:`ImageScene` rasters, interpolated bi
 cell of that size (supersampling for analytic scenes with edges, a mip level for rasters), so that
 sharp patterns do not alias on the simulator's grid.
 
-Built-in scenes by name: :data:`BUILTIN_SCENES`; :func:`load_scene` also takes an image path.
+The rasters (photographs, image files, words, textures) are made in
+:mod:`hbis_torch.simulate.rasters`; the built-in scenes by name (:data:`BUILTIN_SCENES`,
+:func:`load_scene`, which also takes an image path) are :mod:`hbis_torch.simulate.catalog`.
 """
 
 from __future__ import annotations
@@ -21,8 +23,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -33,14 +33,9 @@ from hbis_torch.errors import HbisInputError
 
 Size = tuple[float, float]
 
-PHOTOS = (
-    "camera", "astronaut", "brick", "grass", "gravel", "coffee", "chelsea", "moon", "page",
-    "text", "coins", "rocket", "immunohistochemistry", "hubble_deep_field", "clock", "cell",
-)
-"""Photographs from skimage.data that ship with scikit-image (no download needed)."""
 
-
-def _check_size(size_mm) -> Size:
+def check_size(size_mm) -> Size:
+    """``size_mm`` as (width, height) in mm, two positive finite numbers, else HbisInputError."""
     try:
         w, h = (float(s) for s in size_mm)
     except (TypeError, ValueError):
@@ -338,7 +333,7 @@ class ImageScene(Scene):
         if not bool(torch.isfinite(img).all()):
             raise HbisInputError("the scene image contains NaN or infinite values")
         object.__setattr__(self, "image", img.to(torch.float32).clamp(0.0, 1.0))
-        _check_size(self.size_mm)
+        check_size(self.size_mm)
 
     @property
     def pixel_mm(self) -> float:
@@ -365,278 +360,3 @@ class ImageScene(Scene):
         out = F.grid_sample(self._level(spacing_mm), grid, mode="bilinear",
                             padding_mode="reflection", align_corners=False)
         return out.reshape(shape)
-
-
-# --------------------------------------------------------------------------------------------
-# Rasters: photographs, files, words, textures
-
-
-def to_gray(array) -> np.ndarray:
-    """Any image array (gray, RGB, RGBA; bool, integer or float) as float32 gray in [0, 1]."""
-    a = np.asarray(array)
-    if a.dtype == bool:
-        a = a.astype(np.float32)
-    elif np.issubdtype(a.dtype, np.integer):
-        a = a.astype(np.float32) / float(np.iinfo(a.dtype).max)
-    else:
-        a = a.astype(np.float32)
-        top = float(np.nanmax(a)) if a.size else 1.0
-        if top > 1.0:
-            a = a / top
-    if a.ndim == 3 and a.shape[-1] in (3, 4):
-        a = a[..., :3] @ np.array([0.2125, 0.7154, 0.0721], dtype=np.float32)
-    if a.ndim != 2:
-        raise HbisInputError(f"expected a grayscale or RGB image, got shape {np.asarray(array).shape}")
-    if not np.isfinite(a).all():
-        raise HbisInputError("the image contains NaN or infinite values")
-    return np.clip(a, 0.0, 1.0)
-
-
-@lru_cache(maxsize=None)
-def photo(name: str) -> np.ndarray:
-    """A photograph from skimage.data as float32 gray in [0, 1] (cached)."""
-    import skimage.data
-
-    if name not in PHOTOS:
-        raise HbisInputError(f"unknown photograph {name!r}; choose from {', '.join(PHOTOS)}")
-    return to_gray(getattr(skimage.data, name)())
-
-
-def read_image_file(path) -> np.ndarray:
-    """An image file (PNG, JPEG, TIFF, ...) as float32 gray in [0, 1]."""
-    path = Path(path)
-    try:
-        if path.suffix.lower() in (".tif", ".tiff"):
-            import tifffile
-
-            array = tifffile.imread(path)
-            if array.ndim == 3 and array.shape[-1] not in (3, 4):
-                array = array[0]  # first page of a stack
-        else:
-            from PIL import Image
-
-            with Image.open(path) as image:
-                if image.mode.startswith("I;16"):
-                    array = np.asarray(image).astype(np.uint16)  # 16-bit: scaled by 65535
-                else:
-                    array = np.asarray(image)
-    except FileNotFoundError:
-        raise HbisInputError(f"{path}: no such image file") from None
-    except Exception as exc:  # noqa: BLE001 - the readers raise many types for bad files
-        raise HbisInputError(f"{path}: cannot read the image ({type(exc).__name__}: {exc})") from None
-    return to_gray(array)
-
-
-def cover_size(image_shape, footprint_mm: Size) -> Size:
-    """Size (mm) at which an image of ``image_shape`` (rows, cols) just covers ``footprint_mm``,
-    keeping its aspect ratio."""
-    rows, cols = image_shape
-    fw, fh = _check_size(footprint_mm)
-    pixel = max(fw / cols, fh / rows)
-    return (cols * pixel, rows * pixel)
-
-
-WORDS = (
-    "fovea", "prism", "risley", "pixel", "camera", "optics", "scan", "sensor", "lens", "field",
-    "view", "image", "light", "wedge", "phase", "super", "resolution", "eye", "compound", "array",
-    "HBIS", "zoom", "focus", "signal", "noise", "Quartz", "jumps", "OVER", "lazy", "dog",
-    "Xylophone", "wizard", "BOX", "vexing", "jig", "47", "2024", "0.95", "f/1.4", "3.75um",
-)
-
-
-@lru_cache(maxsize=64)
-def _font(size_px: int):
-    from matplotlib import font_manager
-    from PIL import ImageFont
-
-    return ImageFont.truetype(font_manager.findfont("DejaVu Sans"), size_px)
-
-
-def words_image(shape, letter_heights_px, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Random words at several sizes, as a float32 raster (rows, cols) in [0, 1].
-
-    ``letter_heights_px`` is the (min, max) capital-letter height in raster pixels; sizes are
-    drawn log-uniformly. The background is a random light or dark grey, text of random contrast.
-    """
-    from PIL import Image, ImageDraw
-
-    rows, cols = (int(s) for s in shape)
-    dark_text = rng.random() < 0.7
-    background = rng.uniform(0.6, 0.95) if dark_text else rng.uniform(0.05, 0.4)
-    canvas = Image.new("F", (cols, rows), float(background))
-    draw = ImageDraw.Draw(canvas)
-    lo, hi = (max(float(v), 1.0) for v in letter_heights_px)
-    for _ in range(count):
-        cap = math.exp(rng.uniform(math.log(lo), math.log(max(hi, lo))))
-        font = _font(max(2, int(round(cap / 0.73))))
-        word = WORDS[rng.integers(len(WORDS))]
-        if rng.random() < 0.3:
-            word = "".join(chr(c) for c in rng.integers(65, 91, size=rng.integers(2, 7)))
-        ink = rng.uniform(0.0, background - 0.2) if dark_text else rng.uniform(background + 0.2, 1.0)
-        left, top, right, bottom = font.getbbox(word)
-        x = rng.uniform(-0.1 * (right - left), max(cols - 0.9 * (right - left), 1.0))
-        y = rng.uniform(-top, max(rows - bottom, 1.0))
-        draw.text((x, y), word, fill=float(ink), font=font)
-    return np.clip(np.asarray(canvas, dtype=np.float32), 0.0, 1.0)
-
-
-def texture_image(shape, correlation_px: float, rng: np.random.Generator, beta: float = 1.0) -> np.ndarray:
-    """Random texture: Gaussian noise with a power-law spectrum (exponent ``beta``) above a
-    correlation length, stretched to [0, 1], as a float32 raster."""
-    rows, cols = (int(s) for s in shape)
-    noise = rng.standard_normal((rows, cols))
-    fy = np.fft.fftfreq(rows)[:, None]
-    fx = np.fft.rfftfreq(cols)[None, :]
-    f = np.hypot(fx, fy)
-    f0 = 1.0 / max(correlation_px * 8.0, 2.0)
-    amplitude = (f0**2 + f**2) ** (-beta / 2) * np.exp(-((f * correlation_px) ** 2))
-    field_ = np.fft.irfft2(np.fft.rfft2(noise) * amplitude, s=(rows, cols))
-    lo, hi = np.percentile(field_, [1, 99])
-    contrast = rng.uniform(0.4, 1.0)
-    out = 0.5 + contrast * ((field_ - lo) / max(hi - lo, 1e-12) - 0.5)
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
-
-
-# --------------------------------------------------------------------------------------------
-# Built-in scenes by name
-
-
-@dataclass(frozen=True)
-class SceneSpec:
-    """What a scene factory needs to know to fit a pattern to the simulated view.
-
-    Attributes
-    ----------
-    size_mm : (float, float)
-        Object-plane size the scene should cover, mm.
-    pixel_mm : float
-        One sensor pixel on the object plane, mm (sets the feature sizes of patterns).
-    detail_mm : float
-        Finest spacing the simulator samples, mm (sets raster resolutions).
-    """
-
-    size_mm: Size
-    pixel_mm: float
-    detail_mm: float
-
-    def raster_shape(self, limit: int = 4096) -> tuple[int, int]:
-        w, h = self.size_mm
-        step = max(self.detail_mm, max(w, h) / limit)
-        return max(8, int(math.ceil(h / step))), max(8, int(math.ceil(w / step)))
-
-
-def _star(spec: SceneSpec, rng):
-    return SiemensStar(size_mm=spec.size_mm, spokes=int(rng.choice([24, 36, 48, 72])))
-
-
-def _bars(spec: SceneSpec, rng):
-    # nine bar widths, geometric, from the largest that fits a cell (two groups of 5 x 5 widths
-    # with gaps) down to a sixth of a sensor pixel
-    cell = min(spec.size_mm[0] / 3, spec.size_mm[1] / 3)
-    coarse = cell / 14
-    fine = spec.pixel_mm / 6
-    widths = tuple(coarse * (fine / coarse) ** (k / 8) for k in range(9))
-    return BarTarget(size_mm=spec.size_mm, bar_widths_mm=widths, columns=3)
-
-
-def _edges(spec: SceneSpec, rng):
-    n = int(rng.integers(2, 6))
-    w, h = spec.size_mm
-    return EdgesScene(
-        size_mm=spec.size_mm,
-        normals_deg=tuple(float(a) for a in rng.uniform(0, 360, n)),
-        offsets_mm=tuple(float(o) for o in rng.uniform(-0.3, 0.3, n) * min(w, h)),
-        levels=tuple(float(v) for v in rng.uniform(0.05, 0.95, 2**n)),
-    )
-
-
-def _slanted_edge(spec: SceneSpec, rng):
-    return EdgesScene(size_mm=spec.size_mm, normals_deg=(5.0,), offsets_mm=(0.0,), levels=(0.2, 0.8),
-                      name="slanted-edge")
-
-
-def _gradient(spec: SceneSpec, rng):
-    return GradientScene(size_mm=spec.size_mm, ramp_deg=float(rng.uniform(0, 360)),
-                         waves=(float(rng.uniform(1, 4)), float(rng.uniform(1, 4))))
-
-
-def _flat(spec: SceneSpec, rng):
-    return FlatScene(size_mm=spec.size_mm, level=0.5)
-
-
-def _words(spec: SceneSpec, rng):
-    shape = spec.raster_shape()
-    per_px = spec.pixel_mm / (spec.size_mm[0] / shape[1])  # raster pixels per sensor pixel
-    count = int(np.clip(spec.size_mm[0] * spec.size_mm[1] / (12 * spec.pixel_mm) ** 2, 4, 400))
-    image = words_image(shape, (1.5 * per_px, 12 * per_px), count, rng)
-    return ImageScene(size_mm=spec.size_mm, image=torch.from_numpy(image), name="words")
-
-
-def _texture(spec: SceneSpec, rng):
-    shape = spec.raster_shape()
-    per_px = spec.pixel_mm / (spec.size_mm[0] / shape[1])
-    image = texture_image(shape, correlation_px=float(rng.uniform(0.15, 1.0)) * per_px, rng=rng,
-                          beta=float(rng.uniform(0.5, 1.5)))
-    return ImageScene(size_mm=spec.size_mm, image=torch.from_numpy(image), name="texture")
-
-
-def _photo_factory(name):
-    def make(spec: SceneSpec, rng):
-        image = photo(name)
-        return ImageScene(size_mm=cover_size(image.shape, spec.size_mm), image=torch.from_numpy(image),
-                          name=name)
-
-    return make
-
-
-BUILTIN_SCENES = {
-    "siemens-star": _star,
-    "bars": _bars,
-    "edges": _edges,
-    "slanted-edge": _slanted_edge,
-    "gradient": _gradient,
-    "words": _words,
-    "texture": _texture,
-    "flat": _flat,
-    **{name: _photo_factory(name) for name in PHOTOS},
-}
-"""Factories ``(SceneSpec, numpy Generator) -> Scene`` of the scenes ``hbis simulate`` knows."""
-
-PROCEDURAL = ("siemens-star", "bars", "edges", "slanted-edge", "gradient", "words", "texture")
-
-
-def load_scene(name_or_path: str, spec: SceneSpec, seed: int = 0, size_mm=None) -> Scene:
-    """A built-in scene by name, or an image file, fitted to ``spec``.
-
-    Parameters
-    ----------
-    name_or_path : str
-        A key of :data:`BUILTIN_SCENES` or the path of an image file (PNG, JPEG, TIFF, ...).
-    spec : SceneSpec
-        The view to cover and its sampling.
-    seed : int
-        Seed of the random choices of procedural scenes.
-    size_mm : (float, float) or float or None
-        Physical size of the scene (a single number: width, height from the aspect ratio for
-        images, square otherwise). None: cover ``spec.size_mm``.
-    """
-    rng = np.random.default_rng(seed)
-    path = Path(name_or_path)
-    if name_or_path in BUILTIN_SCENES:
-        if size_mm is not None:
-            if np.isscalar(size_mm):
-                size_mm = (float(size_mm), float(size_mm))
-            spec = dataclasses.replace(spec, size_mm=_check_size(size_mm))
-        return BUILTIN_SCENES[name_or_path](spec, rng)
-    if path.suffix or path.exists():
-        image = read_image_file(path)
-        if size_mm is None:
-            size = cover_size(image.shape, spec.size_mm)
-        elif np.isscalar(size_mm):
-            size = (float(size_mm), float(size_mm) * image.shape[0] / image.shape[1])
-        else:
-            size = _check_size(size_mm)
-        return ImageScene(size_mm=size, image=torch.from_numpy(image), name=path.name)
-    raise HbisInputError(
-        f"unknown scene {name_or_path!r}: give an image path or one of {', '.join(BUILTIN_SCENES)}"
-    )

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from hbis_torch.checks import check_phases, check_roi
 from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
-from hbis_torch.checks import check_roi
-from hbis_torch.stack_io import Stack, make_meta
+from hbis_torch.simulate.catalog import SceneSpec, load_scene
 from hbis_torch.simulate.forward import grid_factor, render_scan
-from hbis_torch.checks import check_phases
-from hbis_torch.simulate.scenes import Scene, SceneSpec, load_scene
+from hbis_torch.simulate.scenes import Scene
 from hbis_torch.simulate.sensor import SensorModel, expose
+from hbis_torch.stack_io import Stack, make_meta
 
 
 def scene_for_roi(name_or_path: str, system: System, roi, h: int, seed: int = 0, size_mm=None,

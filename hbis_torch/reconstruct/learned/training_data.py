@@ -46,7 +46,8 @@ from hbis_torch.simulate import (
     sample_positions,
     simulate_stack,
 )
-from hbis_torch.simulate.scenes import ImageScene, texture_image
+from hbis_torch.simulate.rasters import texture_image
+from hbis_torch.simulate.scenes import ImageScene
 
 NATURAL_SCENES = ("dead-leaves", "natural-field")
 TRAIN_SCENES = ("words", "texture", "edges", "bars", "siemens-star", "gradient", "slanted-edge") + NATURAL_SCENES
