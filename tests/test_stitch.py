@@ -4,17 +4,29 @@ import numpy as np
 import pytest
 import torch
 
+from hbis_torch.design import design
+from hbis_torch.errors import HbisInputError
+from hbis_torch.registration import apply_homography
+from hbis_torch.simulate import SensorModel
 from hbis_torch.system.array.cameras import CAMERA_NAMES, CameraArray
-from hbis_torch.system.stitch.coverage import assembly_fer_study, largest_rectangle, measure_fer
-from hbis_torch.system.stitch.refine import fit_rotation, refine_homographies
 from hbis_torch.system.array.render import ArrayRenderer
 from hbis_torch.system.array.scenario import default_scene
 from hbis_torch.system.array.sensor import periphery_sensor
-from hbis_torch.system.stitch.stitch import (apply_homography, design_homographies, make_canvas, rebin_homographies,
-                                     stitch, stitch_array, view_corners)
-from hbis_torch.design import design
-from hbis_torch.errors import HbisInputError
-from hbis_torch.simulate import SensorModel
+from hbis_torch.system.stitch.coverage import (
+    assembly_fer_study,
+    largest_rectangle,
+    measure_fer,
+)
+from hbis_torch.system.stitch.refine import fit_rotation, refine_homographies
+from hbis_torch.system.stitch.stitch import (
+    design_homographies,
+    make_canvas,
+    rebin_homographies,
+    stitch,
+    stitch_array,
+    view_corners,
+    view_outlines,
+)
 
 ARRAY = CameraArray()
 
@@ -53,10 +65,10 @@ def test_refinement_recovers_a_misassembled_layout(scene):
     views = renderer.views(0.0, b)
     predicted = design_homographies(array, b)
     truth = design_homographies(array, b, array.rotations)
-    corners = view_corners(array.view_shape(b))[None]
+    corners = view_corners(array.view_shape(b))
 
     def worst(h):
-        return float((apply_homography(h[:, None], corners) - apply_homography(truth[:, None], corners))
+        return float((apply_homography(h, corners) - apply_homography(truth, corners))
                      .norm(dim=-1).max())
 
     result = refine_homographies(views, predicted, gate_px=np.radians(3.0) * float(array.intrinsics(b)[0, 0]),
@@ -142,3 +154,16 @@ def test_stitch_rejects_bad_input():
         stitch(torch.full((9, 60, 80), float("nan")), h, canvas)
     with pytest.raises(HbisInputError):
         make_canvas(ARRAY, h, 16, scale=0.0)
+
+
+def test_a_homography_that_sends_a_view_to_infinity_is_refused():
+    h = design_homographies(ARRAY, 16)
+    shape = ARRAY.view_shape(16)
+    assert torch.equal(view_outlines(h, shape), apply_homography(h, view_corners(shape)))
+    horizon = h.clone()
+    corner = view_corners(shape)[2]  # the bottom-right corner goes to w = 0
+    horizon[4, 2] = torch.tensor([-1.0 / float(corner[0]), 0.0, 1.0])
+    with pytest.raises(HbisInputError, match="infinity"):
+        view_outlines(horizon, shape)
+    with pytest.raises(HbisInputError, match="infinity"):
+        make_canvas(ARRAY, horizon, 16)

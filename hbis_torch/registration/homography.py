@@ -31,16 +31,20 @@ def apply_homography(homographies: Tensor, points: Tensor) -> Tensor:
     Each point ``(u, v)`` becomes ``(x / w, y / w)`` with ``[x, y, w] = H_k [u, v, 1]``; in this
     package ``H_k`` takes frame-k pixel coordinates to reference pixel coordinates.
 
+    The registration, the reconstruction's sample positions and the array's stitching all map
+    points through this one function.
+
     Parameters
     ----------
-    homographies : Tensor, shape (F, 3, 3)
+    homographies : Tensor, shape (F, 3, 3) or (3, 3)
     points : Tensor, shape (F, N, 2) or (N, 2)
         (u, v) pixel coordinates: frame k's own N points, or N points shared by every frame
-        (mapped through each of the F homographies). Cast to the homographies' dtype.
+        (mapped through each of the F homographies). Cast to the homographies' dtype. (Leading
+        dimensions broadcast as in ``torch.matmul``.)
 
     Returns
     -------
-    Tensor, shape (F, N, 2), in the homographies' dtype.
+    Tensor, shape (F, N, 2) (or (N, 2) for one homography), in the homographies' dtype.
         (u, v) after the mapping; points sent to infinity (w = 0) come out non-finite.
     """
     points = points.to(homographies.dtype)

@@ -30,19 +30,33 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
 from hbis_torch.simulate import SensorModel
 from hbis_torch.system.array.cameras import CAMERA_NAMES, CameraArray
-from hbis_torch.system.composite.composite import Inlay, composite, inlay_outline
-from hbis_torch.system.stitch.coverage import assembly_fer_study, measure_fer
 from hbis_torch.system.array.device import SimulatedHBIS
-from hbis_torch.system.foveation.loop import FoveaCapture, LoopConfig, TwoStageLoop
-from hbis_torch.system.report.plots import plot_panorama, plot_sr_pairs, plot_timeline, plot_views, save_png
-from hbis_torch.system.stitch.refine import refine_homographies
 from hbis_torch.system.array.render import ArrayRenderer
 from hbis_torch.system.array.scenario import default_scene
 from hbis_torch.system.array.scene import Trajectory
 from hbis_torch.system.array.sensor import periphery_sensor
-from hbis_torch.system.stitch.stitch import (apply_homography, design_homographies, rebin_homographies, stitch_array,
-                     view_corners)
-from hbis_torch.system.composite.volumes import bandwidth, covered_native_pixels, foveal_ratio
+from hbis_torch.system.composite.composite import Inlay, composite, inlay_outline
+from hbis_torch.system.composite.volumes import (
+    bandwidth,
+    covered_native_pixels,
+    foveal_ratio,
+)
+from hbis_torch.system.foveation.loop import FoveaCapture, LoopConfig, TwoStageLoop
+from hbis_torch.system.report.plots import (
+    plot_panorama,
+    plot_sr_pairs,
+    plot_timeline,
+    plot_views,
+    save_png,
+)
+from hbis_torch.system.stitch.coverage import assembly_fer_study, measure_fer
+from hbis_torch.system.stitch.refine import refine_homographies
+from hbis_torch.system.stitch.stitch import (
+    design_homographies,
+    rebin_homographies,
+    stitch_array,
+    view_outlines,
+)
 
 #: The prototype's measured FER (paper section 4.2), for comparison.
 PAPER_MEASURED_FER = {"h": 2.2, "v": 2.0}
@@ -100,9 +114,8 @@ def _stitching(array: CameraArray, renderer: ArrayRenderer, cfg: ChainConfig, lo
     true_h = design_homographies(array, b, array.rotations)
 
     def corner_error(hs):  # worst view-corner misplacement against the true assembly, native px
-        c = view_corners(array.view_shape(b))
-        return float((apply_homography(hs[:, None], c[None]) - apply_homography(true_h[:, None], c[None]))
-                     .norm(dim=-1).max()) * b
+        shape = array.view_shape(b)
+        return float((view_outlines(hs, shape) - view_outlines(true_h, shape)).norm(dim=-1).max()) * b
 
     refine_info["design_error_px"] = corner_error(design_h)
     refine_info["refined_error_px"] = corner_error(homographies)

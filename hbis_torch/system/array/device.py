@@ -21,11 +21,12 @@ from torch import Tensor
 from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at
-from hbis_torch.system.array.cameras import FOVEA_INDEX, CameraArray
+from hbis_torch.registration.homography import apply_homography
 from hbis_torch.simulate import SensorModel
+from hbis_torch.system.array.cameras import FOVEA_INDEX, CameraArray
 from hbis_torch.system.array.render import ArrayRenderer
 from hbis_torch.system.array.sensor import simulate_fovea_scan
-from hbis_torch.system.stitch.stitch import apply_homography, design_homographies
+from hbis_torch.system.stitch.stitch import design_homographies
 
 
 class SimulatedHBIS:

@@ -21,8 +21,8 @@ from kornia.geometry.ransac import RANSAC
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.registration.homography import apply_homography
 from hbis_torch.system.array.cameras import CAMERA_NAMES, FOVEA_INDEX
-from hbis_torch.system.stitch.stitch import apply_homography
 
 
 @dataclass

@@ -20,6 +20,7 @@ from kornia.geometry.transform import warp_perspective
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.registration.homography import apply_homography
 from hbis_torch.system.array.cameras import CAMERA_NAMES, CameraArray
 
 
@@ -34,20 +35,25 @@ def design_homographies(array: CameraArray, binning: int = 1, rotations: Tensor 
     return k @ rot @ torch.linalg.inv(k)
 
 
-def apply_homography(h: Tensor, points: Tensor) -> Tensor:
-    """Map points (..., 2) by homographies (..., 3, 3) (broadcast), float64 in and out."""
-    ones = torch.ones_like(points[..., :1])
-    out = (h @ torch.cat((points, ones), dim=-1)[..., None])[..., 0]
-    if bool((out[..., 2].abs() < 1e-12).any()):
-        raise HbisInputError("a point maps to infinity under the homography")
-    return out[..., :2] / out[..., 2:3]
-
-
 def view_corners(view_shape: tuple[int, int]) -> Tensor:
     """The four outer pixel-edge corners (4, 2) of a (rows, cols) view, clockwise from top-left."""
     rows, cols = view_shape
     return torch.tensor([[-0.5, -0.5], [cols - 0.5, -0.5], [cols - 0.5, rows - 0.5], [-0.5, rows - 0.5]],
                         dtype=torch.float64)
+
+
+# A warped corner farther than this (px) is a homography that sends the view (nearly) to
+# infinity: no canvas can hold it.
+MAX_OUTLINE_PX = 1e7
+
+
+def view_outlines(homographies: Tensor, view_shape: tuple[int, int]) -> Tensor:
+    """Where homographies (F, 3, 3) send a view's corners: (F, 4, 2) float64, or HbisInputError
+    if a corner goes (nearly) to infinity."""
+    outlines = apply_homography(homographies.to(torch.float64), view_corners(view_shape))
+    if not bool(torch.isfinite(outlines).all()) or float(outlines.abs().max()) > MAX_OUTLINE_PX:
+        raise HbisInputError("a view's corner maps to infinity under its homography")
+    return outlines
 
 
 @dataclass(frozen=True)
@@ -89,7 +95,7 @@ def make_canvas(array: CameraArray, homographies: Tensor, binning: int = 1, scal
     if not (math.isfinite(scale) and scale > 0):
         raise HbisInputError(f"scale must be positive, got {scale!r}")
     k = array.intrinsics(binning)
-    corners = apply_homography(homographies[:, None], view_corners(array.view_shape(binning))[None])
+    corners = view_outlines(homographies, array.view_shape(binning))
     lo = corners.reshape(-1, 2).amin(0) * scale
     hi = corners.reshape(-1, 2).amax(0) * scale
     x0, y0 = math.floor(float(lo[0])), math.floor(float(lo[1]))
@@ -145,7 +151,7 @@ def stitch(views: Tensor, homographies: Tensor, canvas: Canvas, feather: bool = 
     coverage = torch.zeros(rows, cols, dtype=torch.uint8)
     weights = feather_weights(view_shape) if feather else torch.ones(view_shape)
     to_canvas = canvas.A @ homographies.to(torch.float64)
-    outlines = apply_homography(to_canvas[:, None], view_corners(view_shape)[None])
+    outlines = view_outlines(to_canvas, view_shape)
     for k in range(views.shape[0]):
         lo, hi = outlines[k].amin(0), outlines[k].amax(0)
         x0, y0 = max(0, math.floor(float(lo[0]))), max(0, math.floor(float(lo[1])))
