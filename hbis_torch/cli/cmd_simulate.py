@@ -102,20 +102,19 @@ def register(sub) -> None:
 
 def default_roi(camera) -> tuple[int, int, int, int]:
     """A DEFAULT_CROP square (or the whole sensor if smaller) at the sensor's centre."""
-    w, h = min(DEFAULT_CROP, camera.cols), min(DEFAULT_CROP, camera.rows)
-    return ((camera.cols - w) // 2, (camera.rows - h) // 2, w, h)
+    width, height = min(DEFAULT_CROP, camera.cols), min(DEFAULT_CROP, camera.rows)
+    return ((camera.cols - width) // 2, (camera.rows - height) // 2, width, height)
 
 
 def run(args) -> int:
-    from hbis_torch.checks import check_roi
+    from hbis_torch.checks import check_h, check_roi
     from hbis_torch.scan import plan_scan
     from hbis_torch.simulate import SensorModel, simulate_stack
     from hbis_torch.simulate.stacks import scene_for_roi
     from hbis_torch.stack_io import write_image, write_stack
 
     system = system_from_args(args)
-    if args.h < 1:
-        raise HbisInputError(f"--h must be at least 1, got {args.h}")
+    check_h(args.h)
     if args.oversample < 1 or not math.isfinite(args.margin_px) or args.margin_px < 0:
         raise HbisInputError("--oversample must be >= 1 and --margin-px >= 0")
     if args.roi is None:
