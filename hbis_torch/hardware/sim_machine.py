@@ -398,7 +398,7 @@ class GrblMachineModel:
     def _gcode(self, line: str, now: float, *, jog: bool) -> str | None:
         try:
             words = self._parse_words(line)
-        except _GcodeError as exc:
+        except _GcodeError:
             if jog:
                 raise _GcodeError(16) from None
             raise
