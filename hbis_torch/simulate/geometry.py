@@ -10,7 +10,7 @@ sensor at the reference phases (the output-grid convention of docs/data.md):
 
 Both maps are smooth over the sensor (the prisms add a slowly varying distortion to a pinhole),
 so the fast paths trace exactly on a coarse grid of nodes and interpolate with separable
-not-a-knot cubic splines; tests/test_simulate_geometry.py bounds the error (< 1e-6 pixel).
+not-a-knot cubic splines; tests/test_simulate_parts.py bounds the error (< 1e-6 pixel).
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hbis_torch.checks import check_phases, check_roi
 from hbis_torch.config import System
 from hbis_torch.errors import HbisInputError
-from hbis_torch.checks import check_phases, check_roi
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at, sensor_position
 
 Roi = tuple[int, int, int, int]
