@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from skimage.metrics import peak_signal_noise_ratio
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.design import design
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
@@ -62,7 +62,7 @@ def main(argv=None) -> dict:
     if args.quick:
         args.scenes, args.sensors, args.size = "gradient,camera,bars", "40dB", 48
     torch.set_num_threads(1)
-    system = System()
+    system = FoveaSystem()
     h_max = design(system).h_max
     roi = (640 - args.size // 2, 480 - args.size // 2, args.size, args.size)
     rows = []

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from scipy.interpolate import griddata
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.metrics import psnr, ssim
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
@@ -70,7 +70,7 @@ def main(argv=None) -> dict:
     if args.quick:
         args.scenes, args.size, args.repeats = "camera,bars", 64, 1
     torch.set_num_threads(1)
-    system = System()
+    system = FoveaSystem()
     plan = plan_scan(system, args.h)
     roi = (640 - args.size // 2, 480 - args.size // 2, args.size, args.size)
     cutoff = optics_cutoff(system)

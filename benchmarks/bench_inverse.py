@@ -14,7 +14,7 @@ import time
 
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.optics.inverse import exact_inverse, paper_inverse, paper_norms
 from hbis_torch.scan import axis_alignment_error, plan_scan
 
@@ -28,7 +28,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
-    system = System()
+    system = FoveaSystem()
     initial = tuple(float(v) for v in args.phases_deg.split(","))
     plan = plan_scan(system, args.h, initial)  # targets DV^0 + SL * offsets (shared by both)
     targets = plan.targets_mm

@@ -44,7 +44,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.io_utils import atomic_path, atomic_write_text
 from hbis_torch.metrics import psnr
 from hbis_torch.scan import plan_scan
@@ -290,7 +290,7 @@ def hard_cases() -> str:
     """The hard cases of tests/test_learned_hard_cases.py, learned fp32 vs classical fp64, as a table."""
     from hbis_torch.simulate import EdgesScene, FlatScene, SensorModel
 
-    h, system, roi = 4, System(), (1100, 60, 32, 32)
+    h, system, roi = 4, FoveaSystem(), (1100, 60, 32, 32)
     plan = plan_scan(system, h)
     positions = sample_positions(system, plan.phases_deg, plan.reference_index, roi).numpy()
     pixel = system.object_pixel_mm
@@ -334,7 +334,7 @@ def network_speed(hs, sizes, repeats: int) -> str:
     The input content does not change the work, so the inputs are random (seeded). They run in
     turn (see :func:`timed_in_turn`), after one warm-up each.
     """
-    cam = System().camera
+    cam = FoveaSystem().camera
     lines = []
     for h, runners, model in shipped_models(hs):
         shipped = runners["learned-onnx"]
@@ -419,7 +419,7 @@ def session_variants(h: int, sizes, repeats: int) -> str:
     columns += ["OpenVINO EP", "OpenVINO EP, 512^2 tiles"] if openvino is not None else []
     lines = ["| ROI (LR px) | " + " | ".join(f"{name} [s]" for name in columns) + " | speed-up, CPU EP | speed-up, OpenVINO EP |",
              "| --- |" + " ---: |" * (len(columns) + 2)]
-    cam = System().camera
+    cam = FoveaSystem().camera
     for size_arg in sizes:
         rows, cols = (cam.rows, cam.cols) if size_arg == "full" else (int(size_arg), int(size_arg))
         rng = np.random.default_rng(0)
@@ -461,7 +461,7 @@ def end_to_end(hs, sizes, repeats: int, full_repeats: int = 1) -> str:
     gain, tiles, clipping), on the stacks of the main table; one row per stack. They run in turn
     (torch, onnx, torch, onnx, ...), medians of ``repeats`` after a warm-up (the full frame:
     ``full_repeats`` runs each, no warm-up), so that other jobs on the cores slow all alike."""
-    system = System()
+    system = FoveaSystem()
     lines = []
     for h, runners, model in shipped_models(hs):
         if not lines:
@@ -530,7 +530,7 @@ def main(argv=None) -> int:
     if args.network_only:
         print(save_side_table(args.out, "bench_learned_network.md", network_speed(args.hs, args.sizes, args.repeats)))
         return 0
-    system = System()
+    system = FoveaSystem()
     results, positions_s = [], {}
     for h in args.hs:
         if not (models_dir() / f"hbis_sr_h{h}.onnx").exists():

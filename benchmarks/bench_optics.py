@@ -17,7 +17,7 @@ import time
 import numpy as np
 import torch
 
-from hbis_torch import System
+from hbis_torch import FoveaSystem
 from hbis_torch.optics import landing_map, landing_map_interpolated, pixel_rays, trace_risley
 
 
@@ -50,7 +50,7 @@ def numpy_trace(rays, phi1_deg, phi2_deg, a_deg, n):
 
 def main():
     torch.manual_seed(0)
-    system = System()
+    system = FoveaSystem()
     a, n = system.prisms.wedge_angle_deg, system.prisms.refractive_index
     rays = pixel_rays(system.camera)  # (960, 1280, 3) float64
     rays_np = rays.reshape(-1, 3).numpy().copy()

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from skimage.registration import phase_cross_correlation
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
@@ -112,7 +112,7 @@ def main(argv=None) -> dict:
     if args.quick:
         args.scenes, args.sizes, args.repeats = "camera,texture", [96], 1
     torch.set_num_threads(1)
-    system = System()
+    system = FoveaSystem()
     plan = plan_scan(system, args.h)
     rows = []
     summary = {}

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.reconstruct.learned.training_data import example_seed, simulate_example
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import GratingScene, SensorModel, render_scan
@@ -46,7 +46,7 @@ class PoolExamples(torch.utils.data.Dataset):
 
     def __init__(self, items: int, seed: int):
         self.items, self.seed = items, seed
-        self.system = System()
+        self.system = FoveaSystem()
         self.plan = plan_scan(self.system, H)
 
     def __len__(self) -> int:
@@ -96,7 +96,7 @@ def data_loader(items: int, seed: int, workers: int) -> dict:
 
 
 def accuracy_versus_speed(repeats: int = 3) -> list[dict]:
-    system = System()
+    system = FoveaSystem()
     h = 4
     plan = plan_scan(system, h)
     roi = (1216, 896, 64, 64)  # bottom-right corner

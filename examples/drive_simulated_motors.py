@@ -25,7 +25,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from hbis_torch import System
+from hbis_torch import FoveaSystem
 from hbis_torch.hardware import GrblController, GrblSimulator
 from hbis_torch.hardware.scan_executor import run_scan
 from hbis_torch.scan import plan_scan, step_alignment_error
@@ -52,7 +52,7 @@ def main() -> None:
         print(f"goto {target}: read back ({phases[0]:.4f}, {phases[1]:.4f}) deg")
 
         # 2. A sub-pixel scan planned from phases the motors can stop at.
-        system = System()
+        system = FoveaSystem()
         initial = grbl.nearest_reachable(*target)
         plan = plan_scan(system, args.h, initial)
         predicted = step_alignment_error(system, plan, grbl.steps_per_deg)

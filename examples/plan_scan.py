@@ -24,7 +24,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from hbis_torch import System
+from hbis_torch import FoveaSystem
 from hbis_torch.scan import plan_scan, scan_report
 
 
@@ -36,7 +36,7 @@ def main() -> None:
     out = args.out or Path(tempfile.mkdtemp(prefix="hbis-scan-"))
     out.mkdir(parents=True, exist_ok=True)
 
-    system = System()  # Table 1
+    system = FoveaSystem()  # Table 1
     initial = (5.0, 70.0)  # the paper's first example, degrees
     reports = {}
     for method in ("paper", "exact"):

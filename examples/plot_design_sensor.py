@@ -26,7 +26,7 @@ matplotlib.use("Agg")  # no display needed
 import matplotlib.pyplot as plt
 import numpy as np
 
-from hbis_torch import System
+from hbis_torch import FoveaSystem
 from hbis_torch.design import design, limit_sweep
 
 
@@ -37,8 +37,8 @@ def main() -> None:
     out = args.out or Path(tempfile.mkdtemp(prefix="hbis-design-"))
     out.mkdir(parents=True, exist_ok=True)
 
-    # The design numbers of the Table 1 prototype (System() holds its parameters).
-    system = System()
+    # The design numbers of the Table 1 prototype (FoveaSystem() holds its parameters).
+    system = FoveaSystem()
     report = design(system)
     print(f"single camera FOV  {report.single_fov_h_deg:.2f} x {report.single_fov_v_deg:.2f} deg")
     print(f"varphi limits      h {report.varphi_h_max_deg:.2f} deg, v {report.varphi_v_max_deg:.2f} deg")

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-from hbis_torch import System
+from hbis_torch import FoveaSystem
 from hbis_torch.metrics import psnr
 from hbis_torch.reconstruct import METHODS, reconstruct
 from hbis_torch.scan import plan_scan
@@ -50,7 +50,7 @@ def main() -> None:
     out = args.out or Path(tempfile.mkdtemp(prefix="hbis-sr-"))
     out.mkdir(parents=True, exist_ok=True)
 
-    system, h = System(), 4
+    system, h = FoveaSystem(), 4
     cam = system.camera
     roi = ((cam.cols - 64) // 2, (cam.rows - 48) // 2, 64, 48)  # (u0, v0, width, height), pixels
     plan = plan_scan(system, h, (5.0, 70.0))

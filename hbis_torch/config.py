@@ -93,7 +93,7 @@ class Prisms:
 
 
 @dataclass(frozen=True)
-class System:
+class FoveaSystem:
     """The fovea of an HBIS: a camera behind a Risley pair, looking at an object plane."""
 
     camera: Camera = field(default_factory=Camera)

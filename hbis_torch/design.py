@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import torch
 
-from hbis_torch.config import Camera, Prisms, System
+from hbis_torch.config import Camera, Prisms, FoveaSystem
 from hbis_torch.checks import MAX_H, check_h
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.risley import exit_directions
@@ -33,7 +33,7 @@ def half_fov_deg(camera: Camera) -> tuple[float, float]:
     return camera.half_fov_h_deg, camera.half_fov_v_deg
 
 
-def phi_min_deg(system: System, direction: str) -> float:
+def phi_min_deg(system: FoveaSystem, direction: str) -> float:
     """Phi_hmin (direction 'h') or Phi_vmin ('v'), by exact tracing of a whole sensor edge.
 
     The prisms are aligned at 180 deg (deviating toward -x) or 270 deg (toward -y); the near edge
@@ -128,7 +128,7 @@ class DesignReport:
 
 
 def design(
-    system: System = System(),
+    system: FoveaSystem = FoveaSystem(),
     varphi_h_deg: float | None = None,
     varphi_v_deg: float | None = None,
     h: int | None = None,
@@ -181,12 +181,12 @@ def design(
     )
 
 
-def with_prisms(system: System, **changes) -> System:
+def with_prisms(system: FoveaSystem, **changes) -> FoveaSystem:
     """A copy of ``system`` with prism parameters changed (used by the sweeps)."""
     return replace(system, prisms=replace(system.prisms, **changes))
 
 
-def limit_sweep(system: System, parameter: str, values) -> dict[str, list[float]]:
+def limit_sweep(system: FoveaSystem, parameter: str, values) -> dict[str, list[float]]:
     """varphi maxima, whole FOV and FER (at the maxima) against 'wedge_angle_deg' or
     'refractive_index'; each list matches ``values``."""
     if parameter not in ("wedge_angle_deg", "refractive_index"):

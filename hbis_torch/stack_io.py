@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hbis_torch.config import Camera, Prisms, System
+from hbis_torch.config import Camera, Prisms, FoveaSystem
 from hbis_torch.errors import HbisInputError, StackFormatError
 from hbis_torch.io_utils import atomic_path
 
@@ -69,7 +69,7 @@ def _jsonable(value):
     return value
 
 
-def system_meta(system: System) -> dict:
+def system_meta(system: FoveaSystem) -> dict:
     """The ``camera``, ``prisms`` and ``object_distance_mm`` entries describing ``system``."""
     cam, pr = system.camera, system.prisms
     return {
@@ -90,7 +90,7 @@ def system_meta(system: System) -> dict:
 
 
 def make_meta(
-    system: System,
+    system: FoveaSystem,
     h: int,
     roi,
     phases_deg,
@@ -102,7 +102,7 @@ def make_meta(
 
     Parameters
     ----------
-    system : System
+    system : FoveaSystem
         Camera, prisms and object distance.
     h : int
         Resolution improvement factor of the scan.
@@ -128,7 +128,7 @@ def make_meta(
     return meta
 
 
-def _system_from_meta(meta: dict, where: str) -> System:
+def _system_from_meta(meta: dict, where: str) -> FoveaSystem:
     cam, pr = meta["camera"], meta["prisms"]
     try:
         camera = Camera(
@@ -140,7 +140,7 @@ def _system_from_meta(meta: dict, where: str) -> System:
             wavelength_nm=float(cam.get("wavelength_nm", 550.0)),
         )
         prisms = Prisms(float(pr["wedge_angle_deg"]), float(pr["refractive_index"]))
-        return System(camera, prisms, float(meta["object_distance_mm"]))
+        return FoveaSystem(camera, prisms, float(meta["object_distance_mm"]))
     except HbisInputError as exc:
         raise StackFormatError(f"{where}: {exc}") from None
 
@@ -318,7 +318,7 @@ class Stack:
         return float(self.meta.get("black_level", 0))
 
     @property
-    def system(self) -> System:
+    def system(self) -> FoveaSystem:
         return _system_from_meta(self.meta, "stack")
 
     def to_float(self) -> torch.Tensor:

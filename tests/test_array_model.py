@@ -10,7 +10,7 @@ from hbis_torch.system.array.cameras import CAMERA_NAMES, FOVEA, CameraArray
 from hbis_torch.system.array.render import ArrayRenderer
 from hbis_torch.system.array.scene import MovingObject, PlanarScene, TextureLayer, Trajectory, photo_object
 from hbis_torch.system.array.sensor import periphery_sensor, simulate_fovea_scan
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.design import varphi_c_deg
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import pinhole_landing
@@ -78,7 +78,7 @@ def test_binned_intrinsics_map_binned_pixels_to_their_rays():
     assert torch.allclose(pix[..., 0], u, atol=1e-9) and torch.allclose(pix[..., 1], v, atol=1e-9)
 
 
-def _checker_scene(system=System()):
+def _checker_scene(system=FoveaSystem()):
     y, x = np.mgrid[0:400, 0:600]
     image = (((x // 20) + (y // 20)) % 2).astype(np.float32) * 0.6 + 0.2
     return PlanarScene(TextureLayer(torch.from_numpy(image), (-45.0, -30.0), 0.15), [], system.object_distance_mm)

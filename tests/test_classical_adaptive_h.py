@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
@@ -14,7 +14,7 @@ from hbis_torch.simulate.stacks import scene_for_roi
 from hbis_torch.reconstruct.adaptive_h import cubic_transfer, predict_psnr, recommend_h
 from hbis_torch.reconstruct.classical import optical_sample_positions, optics_cutoff
 
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 ROI = (616, 456, 48, 48)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.learned.training_data import (
     FULL_WELL_E,
@@ -36,8 +36,8 @@ def pool():
 
 
 def test_examples_have_the_documented_shapes_and_ranges(pool):
-    cam = System().camera
-    ref = plan_scan(System(), 2).reference_index
+    cam = FoveaSystem().camera
+    ref = plan_scan(FoveaSystem(), 2).reference_index
     for ex in pool:
         assert set(ex) == set(POOL_KEYS) and ex["scene"] in TRAIN_SCENES
         assert ex["frames"].shape == (4, 20, 20) and ex["frames"].dtype == np.float32
@@ -70,7 +70,7 @@ def test_examples_depend_only_on_the_pool_seed_and_their_index(pool):
     assert not np.array_equal(other["frames"], pool[0]["frames"])
     assert len({example_seed(3, i) for i in range(100)} | {example_seed(4, i) for i in range(100)}) == 200
     # The draw says what was simulated.
-    draw = draw_example(System(), 20, example_seed(3, 1))
+    draw = draw_example(FoveaSystem(), 20, example_seed(3, 1))
     assert draw.roi == tuple(pool[1]["roi"].tolist()) and draw.scene == pool[1]["scene"]
     # The same generator state gives the same batch; another one another batch.
     a = make_batch(pool, 2, 8, 4, np.random.default_rng([0, 0, 7]), 0.5, 0.06)
@@ -81,7 +81,7 @@ def test_examples_depend_only_on_the_pool_seed_and_their_index(pool):
 
 
 def test_rois_cover_the_whole_sensor_and_the_mix_follows_its_weights():
-    system = System()
+    system = FoveaSystem()
     cam = system.camera
     draws = [draw_example(system, 64, example_seed(0, i)) for i in range(3000)]
     u0 = np.array([d.roi[0] for d in draws])
@@ -106,14 +106,14 @@ def test_rois_cover_the_whole_sensor_and_the_mix_follows_its_weights():
 
 
 def draws_of_share(share: float, count: int = 1000):
-    return [draw_example(System(), 64, example_seed(1, i), natural_share=share) for i in range(count)]
+    return [draw_example(FoveaSystem(), 64, example_seed(1, i), natural_share=share) for i in range(count)]
 
 
 def test_reference_frame_is_the_truth_pooled_over_h_blocks_up_to_noise(pool):
     """The grid convention (docs/data.md): reference pixel (x, y) integrates output pixels
     h x .. h x + h - 1; a truth misplaced by one LR pixel would be far worse."""
     ex = pool[0]
-    ref = plan_scan(System(), 2).reference_index
+    ref = plan_scan(FoveaSystem(), 2).reference_index
     pooled = torch.nn.functional.avg_pool2d(torch.from_numpy(ex["truth"])[None, None], 2)[0, 0].numpy()
     frame = ex["frames"][ref]
     error = np.abs(pooled - frame).mean()
@@ -122,7 +122,7 @@ def test_reference_frame_is_the_truth_pooled_over_h_blocks_up_to_noise(pool):
 
 
 def test_sizes_that_do_not_fit_are_refused(pool):
-    system = System()
+    system = FoveaSystem()
     cam = system.camera
     for size in (0, cam.rows + 1):
         with pytest.raises(HbisInputError, match="does not fit"):

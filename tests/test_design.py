@@ -5,7 +5,7 @@ import math
 import pytest
 from scipy.optimize import brentq
 
-from hbis_torch import System
+from hbis_torch import FoveaSystem
 from hbis_torch.design import design, limit_sweep, phi_min_deg, with_prisms
 
 ANGLE, RATIO = 0.2, 0.05
@@ -32,13 +32,13 @@ def test_prototype_numbers():
 
 
 def test_small_wedge_gives_the_largest_extension():
-    r = design(with_prisms(System(), wedge_angle_deg=1.0))
+    r = design(with_prisms(FoveaSystem(), wedge_angle_deg=1.0))
     assert r.fer_h == pytest.approx(2.9, abs=RATIO)
     assert r.fer_v == pytest.approx(2.88, abs=RATIO)
 
 
 def _first_fer_two(parameter, values, direction):
-    sweep = limit_sweep(System(), parameter, values)
+    sweep = limit_sweep(FoveaSystem(), parameter, values)
     return next(v for v, fer in zip(values, sweep[f"fer_{direction}"]) if fer <= 2.0 + 1e-9)
 
 
@@ -55,7 +55,7 @@ def test_inflection_points_on_the_papers_sweep_grid():
 
 def test_exact_inflections_and_fer_two_after_them():
     """Located by a root-find on Phi_min = 0, the crossings are 10.93 / 8.18 deg and n = 2.38 / 2.03."""
-    system = System()
+    system = FoveaSystem()
 
     def crossing(parameter, lo, hi, direction):
         return brentq(lambda x: phi_min_deg(with_prisms(system, **{parameter: x}), direction), lo, hi,

@@ -8,7 +8,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hbis_torch.config import Prisms, System
+from hbis_torch.config import Prisms, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.inverse import (
     axis_landing,
@@ -20,7 +20,7 @@ from hbis_torch.optics.inverse import (
     paraxial_inverse,
 )
 
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 R_MAX = max_landing_radius_mm(SYSTEM)
 
 
@@ -174,7 +174,7 @@ def test_exact_inverse_lands_anywhere_in_the_disc(radius, azimuth, current):
 
 @pytest.mark.parametrize("alpha,n", [(1.0, 1.3), (10.0, 1.5), (4.0, 2.0), (15.0, 1.8)])
 def test_exact_inverse_for_other_prisms(alpha, n):
-    system = System(prisms=Prisms(wedge_angle_deg=alpha, refractive_index=n))
+    system = FoveaSystem(prisms=Prisms(wedge_angle_deg=alpha, refractive_index=n))
     r_max = max_landing_radius_mm(system)
     targets = torch.stack(
         [_polar(r_max * f, az)[0] for f, az in [(0.0, 0), (0.3, 10), (0.9, 200), (1.0, 300)]]

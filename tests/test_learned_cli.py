@@ -8,7 +8,7 @@ import pytest
 import tifffile
 
 from hbis_torch.cli import main
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, load_scene, simulate_stack
 from hbis_torch.reconstruct.learned import (available_providers, default_model_path, learned_sr, models_dir,
@@ -18,7 +18,7 @@ from hbis_torch.stack_io import read_stack, write_stack
 
 
 def simulated_stack_file(tmp_path, h, size=24):
-    system = System()
+    system = FoveaSystem()
     pixel = system.object_pixel_mm
     spec = SceneSpec(size_mm=(size * pixel * 1.25,) * 2, pixel_mm=pixel, detail_mm=pixel / 16)
     stack, truth = simulate_stack(load_scene("words", spec, seed=7), system, plan_scan(system, h),

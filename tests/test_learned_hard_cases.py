@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
 from hbis_torch.scan import plan_scan
@@ -17,7 +17,7 @@ from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR, available_providers, default_model_path
 
 H = 4
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 ROI = (1100, 60, 32, 32)  # near a corner: the scan is least regular there
 
 

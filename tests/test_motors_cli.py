@@ -128,7 +128,7 @@ def test_scan_dry_run_needs_no_controller(monkeypatch, capsys):
 
 def test_scan_with_the_real_planner_reaches_the_predicted_phases(sim, tmp_path, capsys):
     scan = pytest.importorskip("hbis_torch.scan")  # skipped only where the planner is missing
-    from hbis_torch.config import System
+    from hbis_torch.config import FoveaSystem
 
     out = tmp_path / "phases.json"
     assert motors(sim.port, "scan", "--h", "3", "--settle-s", "0", "--journal", str(tmp_path / "j.json"),
@@ -137,8 +137,8 @@ def test_scan_with_the_real_planner_reaches_the_predicted_phases(sim, tmp_path, 
     assert "initial phases moved to the motor step grid: (5, 70) -> (5.0062, 70.0022) deg" in text
     assert text.index("predicted alignment error") < text.index("frame 1/9") and "scan done: 9 frames" in text
     data = json.loads(out.read_text())
-    plan = scan.plan_scan(System(), 3, initial_phases_deg=tuple(data["initial_phases_deg"]))
-    predicted = scan.step_alignment_error(System(), plan, data["steps_per_deg"])
+    plan = scan.plan_scan(FoveaSystem(), 3, initial_phases_deg=tuple(data["initial_phases_deg"]))
+    predicted = scan.step_alignment_error(FoveaSystem(), plan, data["steps_per_deg"])
     assert data["predicted_ae"]["ae_axis_max"] == pytest.approx(predicted["ae_axis_max"], rel=1e-12)
     # The motors stop on the very steps the prediction rounded to. Two printouts blur it: MPos has
     # 3 decimals (0.0005 deg), and so has $101 (35.556 for the stored 35.5556, 1.2e-5 relative:
@@ -146,7 +146,7 @@ def test_scan_with_the_real_planner_reaches_the_predicted_phases(sim, tmp_path, 
     read_back = torch.tensor(data["phases_deg"], dtype=torch.float64)
     blur = 5e-4 + 71.0 * 5e-4 / 35.556
     assert (read_back - predicted["quantised_phases_deg"]).abs().max() <= blur
-    achieved = scan.axis_alignment_error(System(), plan, read_back)
+    achieved = scan.axis_alignment_error(FoveaSystem(), plan, read_back)
     assert float(achieved.max()) == pytest.approx(predicted["ae_axis_max"], abs=0.01)
 
 

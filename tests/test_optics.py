@@ -7,7 +7,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hbis_torch import Camera, HbisInputError, Prisms, System
+from hbis_torch import Camera, HbisInputError, Prisms, FoveaSystem
 from hbis_torch.optics import (
     axis_deviation,
     deviation_azimuth,
@@ -120,7 +120,7 @@ def test_broadcasting_over_phases_and_rays():
 
 def test_float32_landing_map_within_1e_3_pixel_of_float64():
     """float32 is enough for simulation (error ~3e-4 object-plane pixel); analysis uses float64."""
-    system = System()
+    system = FoveaSystem()
     roi = (0, 0, 1280, 960)
     m64 = landing_map(system, 5.0, 70.0, roi)
     m32 = landing_map(system, 5.0, 70.0, roi, dtype=torch.float32)
@@ -130,7 +130,7 @@ def test_float32_landing_map_within_1e_3_pixel_of_float64():
 
 
 def test_interpolated_landing_maps_match_the_exact_trace():
-    system = System()
+    system = FoveaSystem()
     p1 = torch.tensor([5.0, 5.3, 5.6], dtype=torch.float64)
     p2 = torch.tensor([70.0, 69.8, 70.4], dtype=torch.float64)
     exact = landing_map(system, p1, p2)
@@ -143,7 +143,7 @@ def test_interpolated_landing_maps_match_the_exact_trace():
 
 
 def test_sensor_position_inverts_the_landing_map():
-    system = System()
+    system = FoveaSystem()
     roi = (1100, 800, 40, 30)
     points = landing_map(system, 33.0, 250.0, roi)
     uv = sensor_position(system, points, 33.0, 250.0)
@@ -171,14 +171,14 @@ def test_fast_kernel_matches_eager():
         lambda: Camera(rows=0),
         lambda: Camera(cols=0),
         lambda: Camera(pixel_pitch_um=float("nan")),
-        lambda: System(object_distance_mm=0.0),
+        lambda: FoveaSystem(object_distance_mm=0.0),
         lambda: trace_risley(torch.empty(0, 3, dtype=torch.float64), 0.0, 0.0),
         lambda: trace_risley(torch.ones(4, 2, dtype=torch.float64), 0.0, 0.0),
         lambda: trace_risley(torch.tensor([0.0, float("nan"), 1.0]), 0.0, 0.0),
         lambda: trace_risley(torch.tensor([0.0, 0.0, 1.0]), float("nan"), 0.0),
         lambda: trace_risley(torch.tensor([0.0, 0.0, -1.0]), 0.0, 0.0),
-        lambda: landing_map(System(), 0.0, 0.0, roi=(0, 0, 0, 10)),
-        lambda: landing_map(System(), 0.0, 0.0, roi=(1200, 0, 100, 10)),
+        lambda: landing_map(FoveaSystem(), 0.0, 0.0, roi=(0, 0, 0, 10)),
+        lambda: landing_map(FoveaSystem(), 0.0, 0.0, roi=(1200, 0, 100, 10)),
         lambda: land_on_plane(torch.tensor([[0.0, 0.0, 1.0]]), -5.0),
     ],
 )

@@ -14,7 +14,7 @@ import torch
 from skimage.metrics import peak_signal_noise_ratio as psnr
 
 from hbis_torch.cli import main
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import landing_map, sensor_position
 from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
@@ -26,7 +26,7 @@ from hbis_torch.reconstruct.classical import optics_cutoff, source_version, stac
 from hbis_torch.reconstruct.positions import stack_sample_positions
 from hbis_torch.stack_io import write_stack
 
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 H = 3
 SENSOR_40DB = SensorModel(full_well_e=20000.0, read_noise_e=2.0)  # shot noise: SNR ~ 40 dB at mid grey
 CENTRE = (608, 448, 64, 64)

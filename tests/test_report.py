@@ -14,7 +14,7 @@ from PIL import Image
 from hbis_torch.system.pipeline import ChainConfig, run_chain
 from hbis_torch.system.array.scenario import default_path
 from hbis_torch.cli import main
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.design import design
 from hbis_torch.figures.design_figures import make_figures
 from hbis_torch.system.report.report import image_links, write_report
@@ -31,11 +31,11 @@ def demo_dir(tmp_path_factory):
     try:
         path = default_path(stop_mm=(3.0, 2.0), speed_mm_s=12.0, start_x_mm=-15.0, end_x_mm=18.0, stop_s=1.0)
         config = ChainConfig(h=2, roi_size=96, panorama_binning=4, duration_s=4.6, path=path)
-        summary = run_chain(out, System(), config, log=lambda *_: None)
+        summary = run_chain(out, FoveaSystem(), config, log=lambda *_: None)
     finally:
         torch.set_num_threads(threads)
-    figures = [str(p.relative_to(out)) for p in make_figures(out / "figures", System(), progress=False)]
-    page = write_report(out, summary, design(System()).to_dict(), figures)
+    figures = [str(p.relative_to(out)) for p in make_figures(out / "figures", FoveaSystem(), progress=False)]
+    page = write_report(out, summary, design(FoveaSystem()).to_dict(), figures)
     return out, page, summary
 
 

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from hbis_torch.config import Prisms, System
+from hbis_torch.config import Prisms, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import (
     axis_alignment_error,
@@ -14,7 +14,7 @@ from hbis_torch.scan import (
     scan_report,
 )
 
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 EXAMPLES = [(5.0, 70.0), (45.0, 130.0), (80.0, 20.0)]
 # Paper section 3.2 (h = 7): phase range, axis AE max, pixel AE max, pixel AE mean.
 PAPER = {
@@ -28,7 +28,7 @@ PAPER = {
 def test_paper_method_reproduces_section_3_2_with_bk7_index(initial):
     """With n = 1.5168 (N-BK7) the paper's phase ranges and axis AEs come out to its digits;
     with the stated n = 1.5 the axis AE is 7 % lower (docs/scanning.md)."""
-    system = System(prisms=Prisms(wedge_angle_deg=4.0, refractive_index=1.5168))
+    system = FoveaSystem(prisms=Prisms(wedge_angle_deg=4.0, refractive_index=1.5168))
     plan = plan_scan(system, 7, initial, method="paper")
     paper_range, paper_axis, _, _ = PAPER[initial]
     assert round(float(phase_range_deg(plan.phases_deg).max()), 2) == paper_range

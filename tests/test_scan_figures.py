@@ -2,7 +2,7 @@
 
 import pytest
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.figures import scan_figures
 
 
@@ -13,7 +13,7 @@ def test_figure_3_draws(tmp_path):
 
 
 def test_fig5_points_are_below_the_paper_bound_or_gaps():
-    system = System()
+    system = FoveaSystem()
     assert scan_figures.max_axis_ae(system, 7, (5.0, 5.5)) is None  # aligned: leaves the disc
     value = scan_figures.max_axis_ae(system, 7, (45.0, 130.0))
     assert 0.001 < value < 0.01  # "the maximum AE is below 0.01" (section 3.2)
@@ -22,7 +22,7 @@ def test_fig5_points_are_below_the_paper_bound_or_gaps():
 
 @pytest.mark.slow
 def test_make_figures_writes_every_png(tmp_path):
-    paths = scan_figures.make_figures(tmp_path, System(), progress=False)
+    paths = scan_figures.make_figures(tmp_path, FoveaSystem(), progress=False)
     assert [p.name for p in paths] == ["fig3_scan_patterns.png", "fig5_max_ae.png",
                                        "scan_pixel_ae.png"]
     assert all(p.stat().st_size > 20_000 for p in paths)

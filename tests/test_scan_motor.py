@@ -5,7 +5,7 @@ import itertools
 import pytest
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import (
     axis_alignment_error,
@@ -17,7 +17,7 @@ from hbis_torch.scan import (
     step_alignment_error,
 )
 
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 
 
 def test_quantise_rounds_to_whole_steps_per_axis():

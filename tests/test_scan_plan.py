@@ -3,11 +3,11 @@
 import pytest
 import torch
 
-from hbis_torch.config import Prisms, System
+from hbis_torch.config import Prisms, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import axis_alignment_error, plan_scan, scan_offsets, step_mm
 
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 
 
 @pytest.mark.parametrize("h", [1, 2, 3, 4, 5, 7, 8])
@@ -56,7 +56,7 @@ def test_exact_plan_over_the_paper_ranges_of_figure_5():
         plan = plan_scan(SYSTEM, 7, (5.0, float(phi2) + 0.5))
         worst = max(worst, float(axis_alignment_error(SYSTEM, plan).max()))
     for alpha, n in [(1.0, 1.5), (10.0, 1.5), (4.0, 1.3), (4.0, 2.0)]:
-        system = System(prisms=Prisms(wedge_angle_deg=alpha, refractive_index=n))
+        system = FoveaSystem(prisms=Prisms(wedge_angle_deg=alpha, refractive_index=n))
         plan = plan_scan(system, 7, (45.0, 130.0))
         worst = max(worst, float(axis_alignment_error(system, plan).max()))
     assert worst < 1e-6

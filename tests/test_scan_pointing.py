@@ -3,11 +3,11 @@
 import pytest
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import point_axis, point_sequence
 
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 
 
 def test_paraxial_pointing_is_coarse_and_the_refinement_exact():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hbis_torch.cli import main
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.scan import plan_scan
 from hbis_torch.stack_io import read_image, read_stack
 
@@ -22,7 +22,7 @@ def test_simulate_writes_a_stack_and_its_truth(tmp_path, capsys):
     assert stack.frames.shape == (9, 16, 24) and stack.frames.dtype == np.uint16 and stack.bit_depth == 12
     assert image.shape == (48, 72) and image.dtype == np.float32
     assert meta["h"] == 3 and meta["roi"] == [600, 400, 24, 16] and meta["reference_index"] == stack.reference_index
-    plan = plan_scan(System(), 3)
+    plan = plan_scan(FoveaSystem(), 3)
     np.testing.assert_allclose(stack.phases_deg, plan.phases_deg.numpy())
     assert stack.reference_index == plan.reference_index
     assert "wrote" in capsys.readouterr().out

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import (
@@ -22,7 +22,7 @@ from hbis_torch.simulate import (
 from hbis_torch.simulate.forward import grid_factor
 from hbis_torch.simulate.reference import grating_frame, grating_truth
 
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 PIXEL_MM = SYSTEM.object_pixel_mm
 NOISELESS = SensorModel(noise=False, bit_depth=None)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from hbis_torch.config import Camera, System
+from hbis_torch.config import Camera, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import landing_map, sensor_position
 from hbis_torch.scan import plan_scan
@@ -17,7 +17,7 @@ from hbis_torch.simulate.geometry import landing_at, landing_on_grid
 from hbis_torch.simulate.psf import blur_transfer, defocus_waves
 from hbis_torch.simulate.sensor import normalise
 
-SYSTEM = System()
+SYSTEM = FoveaSystem()
 
 
 # ----------------------------------------------------------------------------------- PSF
@@ -166,7 +166,7 @@ def test_landing_on_grid_matches_exact_trace():
 
 
 def test_small_camera_geometry():
-    system = System(camera=Camera(rows=40, cols=60))
+    system = FoveaSystem(camera=Camera(rows=40, cols=60))
     pos = sample_positions(system, [[5.0, 70.0], [5.2, 70.1]], 0, None)
     assert pos.shape == (2, 40, 60, 2)
     with pytest.raises(HbisInputError, match="reference index"):

@@ -10,7 +10,7 @@ import pytest
 import tifffile
 import torch
 
-from hbis_torch.config import Camera, System
+from hbis_torch.config import Camera, FoveaSystem
 from hbis_torch.errors import HbisInputError, StackFormatError
 from hbis_torch.stack_io import (
     Stack,
@@ -30,7 +30,7 @@ def _stack(dtype=np.uint16, frames=4, roi=(100, 50, 6, 5), bit_depth=12, **extra
     else:
         data = rng.integers(0, 2 ** (bit_depth or np.dtype(dtype).itemsize * 8), shape).astype(dtype)
     phases = np.column_stack((5 + 0.01 * np.arange(frames), 70 - 0.013 * np.arange(frames)))
-    meta = make_meta(System(), 2, roi, phases, bit_depth=bit_depth,
+    meta = make_meta(FoveaSystem(), 2, roi, phases, bit_depth=bit_depth,
                      reference_index=min(1, frames - 1), **extra)
     return Stack(data, meta)
 
@@ -54,7 +54,7 @@ def test_round_trip_keeps_frames_meta_and_extra_keys(tmp_path, dtype, bit_depth)
     np.testing.assert_array_equal(back.phases_deg, stack.phases_deg)  # exact float64 round trip
     assert back.phases_deg.dtype == np.float64 and back.phases_deg.shape == (4, 2)
     assert back.roi == (100, 50, 6, 5) and back.h == 2 and back.reference_index == 1
-    assert back.system == System()
+    assert back.system == FoveaSystem()
     assert back.bit_depth == (bit_depth if bit_depth else None)
     assert not list(tmp_path.glob(".*tmp")), "the atomic writer left a temporary file"
 
@@ -226,7 +226,7 @@ def test_overwrite_is_atomic_and_keeps_old_file_on_error(tmp_path):
 
 
 def test_stack_from_another_camera(tmp_path):
-    system = System(camera=Camera(rows=20, cols=30, pixel_pitch_um=2.0))
+    system = FoveaSystem(camera=Camera(rows=20, cols=30, pixel_pitch_um=2.0))
     meta = make_meta(system, 3, (0, 0, 30, 20), [[1.0, 2.0]], bit_depth=8)
     write_stack(tmp_path / "s.tif", Stack(np.zeros((1, 20, 30), np.uint8), meta))
     assert read_stack(tmp_path / "s.tif").system == system

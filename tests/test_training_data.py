@@ -62,10 +62,10 @@ def test_dead_leaves_covers_the_raster_with_flat_discs():
 
 @pytest.mark.parametrize("name", ["dead-leaves", "natural-field"])
 def test_natural_images_fill_the_view_in_range(name):
-    from hbis_torch.config import System
+    from hbis_torch.config import FoveaSystem
     from hbis_torch.simulate import SceneSpec
 
-    pixel = System().object_pixel_mm
+    pixel = FoveaSystem().object_pixel_mm
     spec = SceneSpec(size_mm=(40 * pixel, 30 * pixel), pixel_mm=pixel, detail_mm=pixel / 16)
     for seed in range(3):
         scene = natural_image(name, spec, np.random.default_rng(seed))

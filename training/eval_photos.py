@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from hbis_torch.metrics import psnr
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.io_utils import atomic_path
 from hbis_torch.simulate import sample_positions
 from hbis_torch.simulate.cases import make_stack, roi_for, scene_cases
@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     model = HbisSRNet(**ckpt["model_config"])
     model.load_state_dict(ckpt["model"])
     model.eval()
-    h, system = model.h, System()
+    h, system = model.h, FoveaSystem()
     # The cached classical PSNRs belong to one version of the classical method.
     version = classical_module.source_version()[:8]
     means = {}

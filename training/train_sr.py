@@ -165,11 +165,11 @@ def classical_baseline() -> float:
     version = classical_module.source_version()[:8]
     path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}_v{POOL_VERSION}.classical{version}.json"
     if not path.exists():
-        from hbis_torch.config import System
+        from hbis_torch.config import FoveaSystem
         from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
 
         # As reconstruct(stack, "classical", registration="optics") runs it on these stacks.
-        cutoff = optics_cutoff(System())
+        cutoff = optics_cutoff(FoveaSystem())
         sums = torch.zeros(2, dtype=torch.float64)
         for ex in val_pool[rank::world]:
             frames, positions = torch.from_numpy(ex["frames"]), torch.from_numpy(ex["positions"]).double()

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.design import design
 from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_write_text
@@ -84,7 +84,7 @@ def _run(args):
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    system = System()
+    system = FoveaSystem()
     report = design(system).to_dict()
     prototype = design(system, varphi_h_deg=15.0, varphi_v_deg=10.0, h=4).to_dict()
     sets = list(FIGURE_SETS) if args.figure_sets is None else args.figure_sets

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 
-from hbis_torch.config import Camera, Prisms, System
+from hbis_torch.config import Camera, Prisms, FoveaSystem
 
 
 def add_system_args(parser: argparse.ArgumentParser) -> None:
     """Add one flag per Table 1 parameter (defaults: the paper's prototype)."""
-    cam, pr, sysd = Camera(), Prisms(), System()
+    cam, pr, sysd = Camera(), Prisms(), FoveaSystem()
     g = parser.add_argument_group("system (defaults: the paper's Table 1)")
     g.add_argument("--pixel-pitch-um", type=float, default=cam.pixel_pitch_um, help="pixel pitch p [um]")
     g.add_argument("--rows", type=int, default=cam.rows, help="sensor rows M")
@@ -23,8 +23,8 @@ def add_system_args(parser: argparse.ArgumentParser) -> None:
                    help="object distance v [mm]")
 
 
-def system_from_args(args: argparse.Namespace) -> System:
-    """The System the flags describe (raises HbisInputError on bad values)."""
+def system_from_args(args: argparse.Namespace) -> FoveaSystem:
+    """The FoveaSystem the flags describe (raises HbisInputError on bad values)."""
     camera = Camera(
         pixel_pitch_um=args.pixel_pitch_um,
         rows=args.rows,
@@ -34,4 +34,4 @@ def system_from_args(args: argparse.Namespace) -> System:
         wavelength_nm=args.wavelength_nm,
     )
     prisms = Prisms(wedge_angle_deg=args.alpha_deg, refractive_index=args.n)
-    return System(camera=camera, prisms=prisms, object_distance_mm=args.object_distance_mm)
+    return FoveaSystem(camera=camera, prisms=prisms, object_distance_mm=args.object_distance_mm)

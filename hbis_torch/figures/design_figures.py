@@ -14,7 +14,7 @@ import torch  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from hbis_torch.system.array.geometry import array_rotations  # noqa: E402
-from hbis_torch.config import System  # noqa: E402
+from hbis_torch.config import FoveaSystem  # noqa: E402
 from hbis_torch.design import bsr, half_fov_deg, limit_sweep, with_prisms  # noqa: E402
 from hbis_torch.optics.risley import exit_directions  # noqa: E402
 
@@ -22,7 +22,7 @@ ALPHAS = np.arange(1.0, 15.01, 0.25)
 INDICES = np.arange(1.3, 3.001, 0.025)
 
 
-def _sweeps(system: System, progress: bool) -> dict:
+def _sweeps(system: FoveaSystem, progress: bool) -> dict:
     bar = tqdm(total=2, desc="design sweeps", disable=not progress)
     out = {}
     for key, param, values in (
@@ -37,7 +37,7 @@ def _sweeps(system: System, progress: bool) -> dict:
     return out
 
 
-def figure_4(system: System, sweeps: dict, path: Path) -> Path:
+def figure_4(system: FoveaSystem, sweeps: dict, path: Path) -> Path:
     """Whole FOV and FER (shaded between varphi = theta and the upper limit) vs alpha and n."""
     theta = dict(zip("hv", half_fov_deg(system.camera)))
     fig, axes = plt.subplots(2, 2, figsize=(11, 8))
@@ -88,7 +88,7 @@ def figure_6(sweeps: dict, path: Path, h_values=range(2, 8)) -> Path:
     return path
 
 
-def _border_rays(system: System, per_side: int = 40) -> torch.Tensor:
+def _border_rays(system: FoveaSystem, per_side: int = 40) -> torch.Tensor:
     cam = system.camera
     hw = (cam.cols - 1) / 2 * cam.pitch_mm
     hh = (cam.rows - 1) / 2 * cam.pitch_mm
@@ -106,7 +106,7 @@ def _to_angles(d: torch.Tensor) -> np.ndarray:
     return torch.stack((h, v), -1).numpy()
 
 
-def figure_10(system: System, path: Path, cases=((18.4, 12.9, 4.0), (11.3, 8.5, 11.0))) -> Path:
+def figure_10(system: FoveaSystem, path: Path, cases=((18.4, 12.9, 4.0), (11.3, 8.5, 11.0))) -> Path:
     """FOV of the eight periphery cameras and the scan field of the fovea, per design case."""
     fig, axes = plt.subplots(1, len(cases), figsize=(6.2 * len(cases), 5))
     rays = _border_rays(system)
@@ -141,7 +141,7 @@ def figure_10(system: System, path: Path, cases=((18.4, 12.9, 4.0), (11.3, 8.5, 
     return path
 
 
-def make_figures(out_dir, system: System = System(), progress: bool = True) -> list[Path]:
+def make_figures(out_dir, system: FoveaSystem = FoveaSystem(), progress: bool = True) -> list[Path]:
     """Write fig4.png, fig6.png and fig10.png into ``out_dir``; returns their paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from hbis_torch.config import System  # noqa: E402
+from hbis_torch.config import FoveaSystem  # noqa: E402
 from hbis_torch.errors import HbisInputError  # noqa: E402
 from hbis_torch.io_utils import atomic_path  # noqa: E402
 from hbis_torch.scan import axis_alignment_error, pixel_alignment_error, plan_scan, scan_offsets  # noqa: E402
@@ -25,7 +25,7 @@ ALPHAS = np.arange(1.0, 15.01, 0.5)
 INDICES = np.arange(1.3, 2.501, 0.05)
 
 
-def max_axis_ae(system: System, h: int, initial, method: str = "paper") -> float | None:
+def max_axis_ae(system: FoveaSystem, h: int, initial, method: str = "paper") -> float | None:
     """Largest axis AE of a plan (fractions of SL), or None where the plan is impossible (the
     scan would leave the reachable disc, or eq. 8 breaks down)."""
     try:
@@ -69,7 +69,7 @@ def figure_3(path: Path) -> Path:
     return _save(fig, path)
 
 
-def figure_5(system: System, path: Path, h: int = 7, progress: bool = True) -> Path:
+def figure_5(system: FoveaSystem, path: Path, h: int = 7, progress: bool = True) -> Path:
     """Maximum axis AE of the paper's inverse vs (a) phi2 for three phi1, (b) the wedge angle,
     (c) the refractive index; the exact inverse's largest value is quoted on each panel."""
     phi2 = np.arange(0.0, 360.0, 1.0)
@@ -122,7 +122,7 @@ def figure_5(system: System, path: Path, h: int = 7, progress: bool = True) -> P
     return _save(fig, path)
 
 
-def figure_pixel_map(system: System, path: Path, h: int = 7, stride: int = 8) -> Path:
+def figure_pixel_map(system: FoveaSystem, path: Path, h: int = 7, stride: int = 8) -> Path:
     """Each pixel's largest AE over the scan (sensor convention), for the three examples."""
     fig, axes = plt.subplots(1, len(EXAMPLES), figsize=(16, 4.2))
     for ax, initial in zip(axes, EXAMPLES):
@@ -142,7 +142,7 @@ def figure_pixel_map(system: System, path: Path, h: int = 7, stride: int = 8) ->
     return _save(fig, path)
 
 
-def make_figures(out_dir, system: System = System(), progress: bool = True) -> list[Path]:
+def make_figures(out_dir, system: FoveaSystem = FoveaSystem(), progress: bool = True) -> list[Path]:
     """Write fig3_scan_patterns.png, fig5_max_ae.png and scan_pixel_ae.png into ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -41,7 +41,7 @@ import math
 import torch
 from torch import Tensor
 
-from hbis_torch.config import Prisms, System
+from hbis_torch.config import Prisms, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.risley import exit_directions, land_on_plane
 
@@ -53,7 +53,7 @@ CENTRE_TOLERANCE = 1e-12
 _AXIS = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
 
 
-def axis_landing(system: System, phi1_deg, phi2_deg) -> Tensor:
+def axis_landing(system: FoveaSystem, phi1_deg, phi2_deg) -> Tensor:
     """Exact landing point of the optical axis on the object plane; shape (*P, 2), mm."""
     p1 = torch.as_tensor(phi1_deg, dtype=torch.float64)
     p2 = torch.as_tensor(phi2_deg, dtype=torch.float64)
@@ -67,7 +67,7 @@ def max_deviation_deg(prisms: Prisms) -> float:
     return math.degrees(math.atan2(math.hypot(float(d[0, 0]), float(d[0, 1])), float(d[0, 2])))
 
 
-def max_landing_radius_mm(system: System) -> float:
+def max_landing_radius_mm(system: FoveaSystem) -> float:
     """Largest distance of the axis landing from the centre of the object plane, mm."""
     return system.object_distance_mm * math.tan(math.radians(max_deviation_deg(system.prisms)))
 
@@ -156,7 +156,7 @@ def _phases_from_relative(
 # --------------------------------------------------------------------------------------------
 
 
-def paper_norms(system: System, initial_phases_deg) -> tuple[float, float]:
+def paper_norms(system: FoveaSystem, initial_phases_deg) -> tuple[float, float]:
     """k1 and k2 (mm) of eq. 8 from the exact landing DV^0 of the axis at the initial phases.
 
     Case 1 (phi1 != phi2): solve DV^0 = k1 e(phi1) + k2 e(phi2) (our sign of eq. 5).
@@ -264,7 +264,7 @@ def _interp(x: Tensor, xp: Tensor, fp: Tensor) -> Tensor:
     return (f0 + (x - x0) / (x1 - x0) * (f1 - f0)).clamp(float(fp[0]), float(fp[-1]))
 
 
-def _relative_trace(system: System, half_cos: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def _relative_trace(system: FoveaSystem, half_cos: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Landing radius (mm), twist (deg) and delta (deg) at phi1 = -delta/2, phi2 = +delta/2,
     for w = cos(delta / 2) in [0, 1]."""
     delta = 2 * torch.rad2deg(torch.arccos(half_cos.clamp(0.0, 1.0)))
@@ -275,13 +275,13 @@ def _relative_trace(system: System, half_cos: Tensor) -> tuple[Tensor, Tensor, T
 
 
 def exact_inverse(
-    system: System, targets_mm, current_deg, tol_mm: float | None = None, max_iter: int = 40
+    system: FoveaSystem, targets_mm, current_deg, tol_mm: float | None = None, max_iter: int = 40
 ) -> Tensor:
     """Phases that land the optical axis exactly on each target (non-paraxial model).
 
     Parameters
     ----------
-    system : System
+    system : FoveaSystem
         Prisms and object distance.
     targets_mm : Tensor, shape (F, 2)
         Wanted landing points of the axis on the object plane, mm.

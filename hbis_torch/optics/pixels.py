@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hbis_torch.config import Camera, System
+from hbis_torch.config import Camera, FoveaSystem
 from hbis_torch.checks import check_roi
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.risley import exit_directions, land_on_plane
@@ -56,7 +56,7 @@ def rays_at(camera: Camera, u: Tensor, v: Tensor) -> Tensor:
     return rays / rays.norm(dim=-1, keepdim=True)
 
 
-def sensor_position(system: System, points_mm: Tensor, phi1_deg, phi2_deg) -> Tensor:
+def sensor_position(system: FoveaSystem, points_mm: Tensor, phi1_deg, phi2_deg) -> Tensor:
     """Where on the sensor an object-plane point is imaged: the exact inverse of the landing map.
 
     Parameters
@@ -99,7 +99,7 @@ def _phases(phi1_deg, phi2_deg, dtype, device) -> tuple[Tensor, Tensor]:
 
 
 def landing_map(
-    system: System, phi1_deg, phi2_deg, roi: Roi | None = None, dtype=torch.float64, device=None
+    system: FoveaSystem, phi1_deg, phi2_deg, roi: Roi | None = None, dtype=torch.float64, device=None
 ) -> Tensor:
     """Exact landing points of every pixel's chief ray on the object plane, in mm.
 
@@ -122,7 +122,7 @@ def landing_map(
     return land_on_plane(directions, system.object_distance_mm)
 
 
-def pinhole_landing(system: System, roi: Roi | None = None, dtype=torch.float64, device=None):
+def pinhole_landing(system: FoveaSystem, roi: Roi | None = None, dtype=torch.float64, device=None):
     """Landing points without prisms, (H, W, 2) in mm: v / f' * (x, y)."""
     x, y = pixel_coordinates(system.camera, roi, dtype, device)
     scale = system.object_distance_mm / system.camera.focal_length_mm
@@ -140,7 +140,7 @@ def _spline_basis(nodes: int, size: int, dtype, device) -> Tensor:
 
 
 def landing_map_interpolated(
-    system: System,
+    system: FoveaSystem,
     phi1_deg,
     phi2_deg,
     roi: Roi | None = None,

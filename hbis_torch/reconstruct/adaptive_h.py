@@ -232,7 +232,7 @@ def recommend_h(frames, system, positions=None, h_max: int | None = None, tolera
     frames : Tensor or array, shape (H, W) or (F, H, W)
         Intensities in [0, 1]: one frame, or the frames of a quick pre-scan (for example the
         2 x 2 scan of ``plan_scan(system, 2)``) with their ``positions``.
-    system : hbis_torch.config.System
+    system : hbis_torch.config.FoveaSystem
         Its optics set the cutoff; ``h_max`` defaults to the design's (floor of H, section 2.2).
     positions : Tensor or array, shape (F, H, W, 2), optional
         Where each pre-scan sample lies in the reference frame (``optical_sample_positions``).

@@ -25,7 +25,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.checks import check_phases
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at, sensor_position
@@ -42,7 +42,7 @@ def _check_phases(phases_deg, frames: int) -> Tensor:
     return p
 
 
-def axis_alignment_error(system: System, plan: ScanPlan, phases_deg: Tensor | None = None) -> Tensor:
+def axis_alignment_error(system: FoveaSystem, plan: ScanPlan, phases_deg: Tensor | None = None) -> Tensor:
     """AE of the optical axis per frame, |landing - target| / SL; shape (F,), float64.
 
     ``phases_deg`` (F, 2) replaces the plan's phases (e.g. quantised, or read back from motors).
@@ -52,7 +52,7 @@ def axis_alignment_error(system: System, plan: ScanPlan, phases_deg: Tensor | No
     return (landing - plan.targets_mm).norm(dim=-1) / plan.step_mm
 
 
-def pixel_grid(system: System, stride: int = 1) -> tuple[Tensor, Tensor]:
+def pixel_grid(system: FoveaSystem, stride: int = 1) -> tuple[Tensor, Tensor]:
     """Column and row indices (u of shape (W',), v of shape (H',)) of the evaluated pixels."""
     if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
         raise HbisInputError(f"pixel stride must be an integer >= 1, got {stride!r}")
@@ -82,7 +82,7 @@ def _frame_pixel_error(system, plan, phases, frame, u, v, rays, reference_landin
 
 
 def pixel_alignment_error(
-    system: System,
+    system: FoveaSystem,
     plan: ScanPlan,
     stride: int = 1,
     convention: str = "sensor",
@@ -143,7 +143,7 @@ def pixel_alignment_error(
 
 
 def scan_report(
-    system: System, plan: ScanPlan, stride: int = 4, convention: str = "sensor"
+    system: FoveaSystem, plan: ScanPlan, stride: int = 4, convention: str = "sensor"
 ) -> dict:
     """The numbers of section 3.2 for one plan, as plain Python values (the CLI's JSON).
 

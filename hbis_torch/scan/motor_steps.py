@@ -14,7 +14,7 @@ import math
 import torch
 from torch import Tensor
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.inverse import axis_landing
 from hbis_torch.scan.alignment import axis_alignment_error
@@ -60,7 +60,7 @@ def quantise_phases(phases_deg: Tensor, steps_per_deg, origin_deg=(0.0, 0.0)) ->
     return origin + phase_steps(phases_deg, steps_per_deg, origin_deg).to(torch.float64) / spd
 
 
-def step_alignment_error(system: System, plan: ScanPlan, steps_per_deg) -> dict:
+def step_alignment_error(system: FoveaSystem, plan: ScanPlan, steps_per_deg) -> dict:
     """Axis AE of a plan run on stepping motors (steps counted from the initial phases).
 
     Returns
@@ -84,7 +84,7 @@ def step_alignment_error(system: System, plan: ScanPlan, steps_per_deg) -> dict:
     }
 
 
-def landing_jacobian(system: System, phases_deg: Tensor, step_deg: float = 1e-5) -> Tensor:
+def landing_jacobian(system: FoveaSystem, phases_deg: Tensor, step_deg: float = 1e-5) -> Tensor:
     """d(axis landing)/d(phi1, phi2) by central differences; (F, 2, 2) in mm per degree.
 
     Column k is the landing's response to prism k.
@@ -103,7 +103,7 @@ def landing_jacobian(system: System, phases_deg: Tensor, step_deg: float = 1e-5)
 
 
 def required_steps_per_deg(
-    system: System, h: int, initial_phases_deg, ae_bound: float, method: str = "exact"
+    system: FoveaSystem, h: int, initial_phases_deg, ae_bound: float, method: str = "exact"
 ) -> float:
     """Steps per degree (the same on both axes) that keep the axis AE at or under ``ae_bound``
     for every frame, whatever the rounding.

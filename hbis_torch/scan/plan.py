@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.checks import check_h, check_phase_pair
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics.inverse import axis_landing, exact_inverse, paper_inverse, paper_norms
@@ -74,7 +74,7 @@ class ScanPlan:
         return phase_range_deg(self.phases_deg)
 
 
-def step_mm(system: System, h: int) -> float:
+def step_mm(system: FoveaSystem, h: int) -> float:
     """SL = (p / h) v / f', the scan step on the object plane, mm."""
     return system.object_pixel_mm / check_h(h)
 
@@ -94,13 +94,13 @@ def phase_range_deg(phases_deg: Tensor) -> Tensor:
 
 
 def plan_scan(
-    system: System, h: int, initial_phases_deg=(5.0, 70.0), method: str = "exact"
+    system: FoveaSystem, h: int, initial_phases_deg=(5.0, 70.0), method: str = "exact"
 ) -> ScanPlan:
     """The h x h sub-pixel scan around the initial phases, and the phases of every frame.
 
     Parameters
     ----------
-    system : System
+    system : FoveaSystem
         Camera, prisms and object distance.
     h : int
         Resolution improvement factor (>= 1), odd or even.

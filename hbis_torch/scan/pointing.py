@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import axis_deviation
 from hbis_torch.optics.inverse import exact_inverse, paraxial_inverse
@@ -64,7 +64,7 @@ def _check_directions(deviation_deg, azimuth_deg) -> tuple[Tensor, Tensor]:
     return dev, az
 
 
-def _solve(system: System, dev: Tensor, az: Tensor, current: Tensor, exact: bool) -> Tensor:
+def _solve(system: FoveaSystem, dev: Tensor, az: Tensor, current: Tensor, exact: bool) -> Tensor:
     phases = paraxial_inverse(system.prisms, dev, az, current)
     if exact:
         # Refine on the coarse answer's branch and turn: it is the current point of the search.
@@ -76,13 +76,13 @@ def _solve(system: System, dev: Tensor, az: Tensor, current: Tensor, exact: bool
 
 
 def point_axis(
-    system: System, deviation_deg, azimuth_deg, current_deg=(0.0, 0.0), exact: bool = False
+    system: FoveaSystem, deviation_deg, azimuth_deg, current_deg=(0.0, 0.0), exact: bool = False
 ) -> Pointing:
     """Phases that point the axis at each wanted direction, each solved from ``current_deg``.
 
     Parameters
     ----------
-    system : System
+    system : FoveaSystem
         Prisms (and object distance, used for the exact refinement).
     deviation_deg, azimuth_deg : float or Tensor, shape (F,)
         Wanted deviation and azimuth of the axis, degrees.
@@ -102,7 +102,7 @@ def point_axis(
 
 
 def point_sequence(
-    system: System, deviation_deg, azimuth_deg, start_deg=(0.0, 0.0), exact: bool = False
+    system: FoveaSystem, deviation_deg, azimuth_deg, start_deg=(0.0, 0.0), exact: bool = False
 ) -> Pointing:
     """Visit targets in order, each reached by the shortest rotation from the previous one.
 
@@ -118,7 +118,7 @@ def point_sequence(
     return _pointing(system, torch.stack(rows), dev, az)
 
 
-def _pointing(system: System, phases: Tensor, dev: Tensor, az: Tensor) -> Pointing:
+def _pointing(system: FoveaSystem, phases: Tensor, dev: Tensor, az: Tensor) -> Pointing:
     reached_dev, reached_az = axis_deviation(phases[:, 0], phases[:, 1], system.prisms)
     wanted, reached = _unit(dev, az), _unit(reached_dev, reached_az)
     miss = torch.rad2deg(torch.atan2(torch.linalg.cross(wanted, reached).norm(dim=-1),

@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.io_utils import atomic_write_text
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at
 from hbis_torch.optics.inverse import axis_landing
@@ -39,7 +39,7 @@ CONFIGS = (  # label, method, refractive index, pixel convention
 QUANTITIES = ("phase range [deg]", "axis AE max", "pixel AE max", "pixel AE mean")
 
 
-def section_3_2(system: System, initial, method: str, convention: str, stride: int) -> tuple:
+def section_3_2(system: FoveaSystem, initial, method: str, convention: str, stride: int) -> tuple:
     """(largest phase range of the two prisms, axis AE max, pixel AE max, pixel AE mean)."""
     plan = plan_scan(system, 7, initial, method)
     pixel = pixel_alignment_error(system, plan, stride=stride, convention=convention)
@@ -51,7 +51,7 @@ def section_3_2(system: System, initial, method: str, convention: str, stride: i
     )
 
 
-def table(system: System = System(), stride: int = 1, progress: bool = True) -> str:
+def table(system: FoveaSystem = FoveaSystem(), stride: int = 1, progress: bool = True) -> str:
     """The markdown table: one row per (example, quantity), one column per configuration."""
     results = {}
     for label, method, n, convention in CONFIGS:
@@ -78,7 +78,7 @@ def table(system: System = System(), stride: int = 1, progress: bool = True) -> 
     return "\n".join(lines) + "\n"
 
 
-def _pixel_variants(system: System, initial, stride: int) -> dict:
+def _pixel_variants(system: FoveaSystem, initial, stride: int) -> dict:
     """Pixel AE (max, mean) of the paper's plan under each candidate convention."""
     plan = plan_scan(system, 7, initial, "paper")
     phases, ref = plan.phases_deg, plan.reference_index
@@ -108,7 +108,7 @@ def _pixel_variants(system: System, initial, stride: int) -> dict:
     return out
 
 
-def convention_study(system: System = System(), stride: int = 8) -> str:
+def convention_study(system: FoveaSystem = FoveaSystem(), stride: int = 8) -> str:
     """Markdown table of the pixel AE under each candidate convention (and two layouts)."""
     cases = [("as docs/design.md", system, EXAMPLES)]
     transposed = replace(system, camera=replace(system.camera, rows=system.camera.cols,

@@ -10,7 +10,7 @@ from scikit-image (:data:`PHOTO_CASES`: never seen in training).
 
 from __future__ import annotations
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate.catalog import SceneSpec, load_scene
 from hbis_torch.simulate.stacks import simulate_stack
@@ -39,12 +39,12 @@ def scene_cases(size) -> list[tuple[str, str]]:
     return [("synthetic", s) for s in SYNTHETIC_CASES] + [("photo", p) for p in PHOTO_CASES]
 
 
-def roi_for(system: System, size, index: int):
+def roi_for(system: FoveaSystem, size, index: int):
     """ROI of ``size`` (side or None for the full frame) at the centre, or near a corner.
 
     Parameters
     ----------
-    system : System
+    system : FoveaSystem
         Its camera sets the sensor's size.
     size : int or None
         Side of the square ROI, sensor pixels; None for the full frame.
@@ -65,12 +65,12 @@ def roi_for(system: System, size, index: int):
     return (u0, v0, size, size)
 
 
-def make_stack(system: System, h: int, roi, scene_name: str, seed: int):
+def make_stack(system: FoveaSystem, h: int, roi, scene_name: str, seed: int):
     """Simulate the stack of one case: the scene fitted to the ROI's view with a 25 % margin.
 
     Parameters
     ----------
-    system : System
+    system : FoveaSystem
     h : int
         Resolution improvement factor of the scan (``plan_scan(system, h)``).
     roi : (int, int, int, int)

@@ -47,7 +47,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from hbis_torch.checks import check_h, check_phases, check_roi
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.simulate.geometry import landing_at, landing_on_grid, sample_positions
 from hbis_torch.simulate.psf import blur_transfer, dct_frequencies, defocus_waves
@@ -82,7 +82,7 @@ def grid_factor(h: int, oversample: int = 8) -> int:
     return max(2, math.ceil(oversample / h))
 
 
-def place_scene(scene: Scene, system: System, reference_phases, roi) -> Scene:
+def place_scene(scene: Scene, system: FoveaSystem, reference_phases, roi) -> Scene:
     """The scene itself if it has a centre, else centred on the view of the roi's centre pixel."""
     if scene.center_mm is not None:
         return scene
@@ -167,7 +167,7 @@ def _axis(lo: float, hi: float, first_centre: float, step: float):
 
 def render_scan(
     scene: Scene,
-    system: System,
+    system: FoveaSystem,
     phases_deg,
     reference_index: int,
     h: int,
@@ -187,7 +187,7 @@ def render_scan(
     ----------
     scene : Scene
         The object-plane scene (centred on the roi's view when its ``center_mm`` is None).
-    system : System
+    system : FoveaSystem
     phases_deg : array-like, shape (F, 2)
         Phases at which the frames are taken (degrees), in scan order.
     reference_index : int

@@ -23,14 +23,14 @@ import torch
 from torch import Tensor
 
 from hbis_torch.checks import check_phases, check_roi
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at, sensor_position
 
 Roi = tuple[int, int, int, int]
 
 
-def landing_at(system: System, u: Tensor, v: Tensor, phi1_deg, phi2_deg) -> Tensor:
+def landing_at(system: FoveaSystem, u: Tensor, v: Tensor, phi1_deg, phi2_deg) -> Tensor:
     """Exact landing points (mm) of the chief rays at fractional pixel positions.
 
     ``u``, ``v`` broadcast to (*R); phases broadcast to (*P) with trailing singleton dims for R.
@@ -70,7 +70,7 @@ def _nodes(lo: float, hi: float, step: float) -> np.ndarray:
 
 
 def landing_on_grid(
-    system: System,
+    system: FoveaSystem,
     u: np.ndarray,
     v: np.ndarray,
     phi1_deg: float,
@@ -108,7 +108,7 @@ def landing_on_grid(
     return out.movedim(0, -1)
 
 
-def _pinhole(system: System, u: Tensor, v: Tensor) -> Tensor:
+def _pinhole(system: FoveaSystem, u: Tensor, v: Tensor) -> Tensor:
     cam = system.camera
     scale = cam.pitch_mm * system.object_distance_mm / cam.focal_length_mm
     u, v = torch.broadcast_tensors(u, v)
@@ -116,7 +116,7 @@ def _pinhole(system: System, u: Tensor, v: Tensor) -> Tensor:
 
 
 def sample_positions(
-    system: System,
+    system: FoveaSystem,
     phases_deg,
     reference_index: int,
     roi: Roi | None = None,
@@ -128,7 +128,7 @@ def sample_positions(
 
     Parameters
     ----------
-    system : System
+    system : FoveaSystem
     phases_deg : array-like, shape (F, 2)
         Phases of the frames, degrees.
     reference_index : int

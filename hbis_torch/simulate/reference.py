@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.simulate.geometry import landing_at
 from hbis_torch.simulate.psf import defocus_waves, lens_otf, pixel_transfer
 from hbis_torch.simulate.scenes import GratingScene
@@ -31,7 +31,7 @@ from hbis_torch.simulate.sensor import SensorModel
 
 def grating_pixels(
     grating: GratingScene,
-    system: System,
+    system: FoveaSystem,
     phases_deg,
     centres_uv: Tensor,
     aperture_px: float,

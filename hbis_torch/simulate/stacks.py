@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from hbis_torch.checks import check_phases, check_roi
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.simulate.catalog import SceneSpec, load_scene
 from hbis_torch.simulate.forward import grid_factor, render_scan
@@ -15,7 +15,7 @@ from hbis_torch.simulate.sensor import SensorModel, expose
 from hbis_torch.stack_io import Stack, make_meta
 
 
-def scene_for_roi(name_or_path: str, system: System, roi, h: int, seed: int = 0, size_mm=None,
+def scene_for_roi(name_or_path: str, system: FoveaSystem, roi, h: int, seed: int = 0, size_mm=None,
                   margin_px: float = 4.0, oversample: int = 8) -> Scene:
     """A built-in scene or image file fitted to the view of ``roi``: it covers the roi's
     footprint on the object plane plus the forward model's margin (unless ``size_mm`` is given),
@@ -28,7 +28,7 @@ def scene_for_roi(name_or_path: str, system: System, roi, h: int, seed: int = 0,
     return load_scene(name_or_path, spec, seed=seed, size_mm=size_mm)
 
 
-def resolve_plan(system: System, plan):
+def resolve_plan(system: FoveaSystem, plan):
     """(phases (F, 2) float64 tensor, reference_index, h) from a ScanPlan-like object or an int h.
 
     ``plan`` may be anything with ``phases_deg``, ``reference_index`` and ``h`` attributes (a
@@ -49,7 +49,7 @@ def resolve_plan(system: System, plan):
 
 def simulate_stack(
     scene: Scene,
-    system: System,
+    system: FoveaSystem,
     plan,
     roi=None,
     sensor: SensorModel = SensorModel(),
@@ -65,7 +65,7 @@ def simulate_stack(
     scene : Scene or str
         Object-plane scene, centred on the roi's view when its ``center_mm`` is None; or a
         built-in scene name or image path, fitted to the roi's view by :func:`scene_for_roi`.
-    system : System
+    system : FoveaSystem
     plan : ScanPlan or int
         The scan (``phases_deg`` (F, 2), ``reference_index``, ``h``), or h to plan one with
         ``plan_scan(system, h)`` from the default initial phases.

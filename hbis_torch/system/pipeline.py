@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.design import design
 from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
@@ -163,7 +163,7 @@ def _pictures(out: Path, cfg: ChainConfig, views, pano, pano_design, fer: dict, 
     }
 
 
-def run_chain(out_dir, system: System = System(), config: ChainConfig = ChainConfig(), log=print) -> dict:
+def run_chain(out_dir, system: FoveaSystem = FoveaSystem(), config: ChainConfig = ChainConfig(), log=print) -> dict:
     """Run the chain, write its pictures into ``out_dir``; returns the summary (see module)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_path
 from hbis_torch.reconstruct.learned import prepare_inputs
@@ -202,7 +202,7 @@ def example_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
 
 
-def draw_example(system: System, size: int, seed: int, natural_share: float = NATURAL_SHARE) -> ExampleDraw:
+def draw_example(system: FoveaSystem, size: int, seed: int, natural_share: float = NATURAL_SHARE) -> ExampleDraw:
     """The random choices of the example of seed ``seed`` (cheap: nothing is built).
 
     The ROI lies anywhere on the sensor, uniformly (corners included), the scene is drawn from
@@ -211,7 +211,7 @@ def draw_example(system: System, size: int, seed: int, natural_share: float = NA
 
     Parameters
     ----------
-    system : System
+    system : FoveaSystem
         Its camera bounds the ROI.
     size : int
         Side of the square ROI, sensor pixels.
@@ -240,13 +240,13 @@ def draw_example(system: System, size: int, seed: int, natural_share: float = NA
     return ExampleDraw(roi, name, scene_seed, full_well, int(rng.integers(2**31)))
 
 
-def simulate_example(system: System, plan, size: int, seed: int, natural_share: float = NATURAL_SHARE) -> dict:
+def simulate_example(system: FoveaSystem, plan, size: int, seed: int, natural_share: float = NATURAL_SHARE) -> dict:
     """One simulated stack of a random scene of the mix (:func:`scene_weights`) at a random
     place on the sensor.
 
     Parameters
     ----------
-    system : System
+    system : FoveaSystem
     plan : ScanPlan
         The scan (``plan_scan(system, h)``); h = ``plan.h``.
     size : int
@@ -306,7 +306,7 @@ def build_pool(h: int, count: int, size: int, seed: int, indices=None, natural_s
     list of dict
         :func:`simulate_example` dicts, in the order of ``indices``.
     """
-    system = System()
+    system = FoveaSystem()
     plan = plan_scan(system, h)
     indices = range(count) if indices is None else indices
     return [simulate_example(system, plan, size, example_seed(seed, i), natural_share) for i in indices]

@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.system.array.geometry import array_rotations
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at
 
@@ -54,7 +54,7 @@ class CameraArray:
 
     Attributes
     ----------
-    system : System
+    system : FoveaSystem
         The Table 1 camera (shared by all nine), the prisms and the object distance.
     varphi_h_deg, varphi_v_deg : float
         Design inclinations of the side cameras' axes (the prototype: 15 and 10 deg).
@@ -63,7 +63,7 @@ class CameraArray:
         ``CAMERA_NAMES`` order. Equal to the design unless assembly errors were added.
     """
 
-    system: System = field(default_factory=System)
+    system: FoveaSystem = field(default_factory=FoveaSystem)
     varphi_h_deg: float = 15.0
     varphi_v_deg: float = 10.0
     rotations: Tensor | None = None

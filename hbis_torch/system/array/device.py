@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at
 from hbis_torch.registration.homography import apply_homography
@@ -57,7 +57,7 @@ class SimulatedHBIS:
         self._frame_count = 0
 
     @property
-    def system(self) -> System:
+    def system(self) -> FoveaSystem:
         return self.array.system
 
     def detection_frames(self, t_s: float, fovea_phases_deg) -> Tensor:

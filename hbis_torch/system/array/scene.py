@@ -1,6 +1,6 @@
 """A wide planar scene for the array: a wall of real photographs plus moving objects.
 
-The scene is the plane z = v (``System.object_distance_mm``) in the fovea's frame, the same plane
+The scene is the plane z = v (``FoveaSystem.object_distance_mm``) in the fovea's frame, the same plane
 the fovea's landing maps use, so every camera's view of it is a homography of the others (the
 nine cameras are modelled as sharing one centre of projection). Positions on the plane are
 (x, y) in mm; images are float32 grey levels in [0, 1], geometry float64.

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.simulate import SensorModel, expose, simulate_stack
 from hbis_torch.simulate.sensor import normalise
 from hbis_torch.stack_io import Stack, make_meta
@@ -55,7 +55,7 @@ class _Plan:
     h: int
 
 
-def simulate_fovea_scan(scene: PlanarScene, system: System, phases_deg: Tensor, reference_index: int,
+def simulate_fovea_scan(scene: PlanarScene, system: FoveaSystem, phases_deg: Tensor, reference_index: int,
                         h: int, roi, times_s, sensor: SensorModel = SensorModel(),
                         seed: int = 0) -> tuple[Stack, np.ndarray | None]:
     """The fovea's stack for a scan whose frames are taken at ``times_s``.

@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import sensor_position
 from hbis_torch.system.stitch.stitch import Canvas
@@ -38,14 +38,14 @@ class Inlay:
     roi : (u0, v0, W, H) on the full sensor
     h : int
     reference_phases_deg : (phi1, phi2)
-    system : System
+    system : FoveaSystem
     """
 
     sr: np.ndarray
     roi: tuple[int, int, int, int]
     h: int
     reference_phases_deg: tuple[float, float]
-    system: System
+    system: FoveaSystem
 
     def __post_init__(self) -> None:
         u0, v0, w, hh = self.roi

@@ -20,13 +20,13 @@ import math
 
 import torch
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.design import bsr as bsr_eq10
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at
 from hbis_torch.system.stitch.stitch import Canvas
 
 
-def _pixel_area_mm2(system: System, u: float, v: float, step: float, phases) -> float:
+def _pixel_area_mm2(system: FoveaSystem, u: float, v: float, step: float, phases) -> float:
     """Scene-plane area (mm^2) of a sensor cell of side ``step`` pixels centred at (u, v)."""
     du = torch.tensor([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]], dtype=torch.float64) * step
     rays = rays_at(system.camera, u + du[:, 0], v + du[:, 1])
@@ -35,7 +35,7 @@ def _pixel_area_mm2(system: System, u: float, v: float, step: float, phases) -> 
     return 0.5 * abs(float((x * y.roll(-1) - x.roll(-1) * y).sum()))  # shoelace
 
 
-def foveal_ratio(system: System, roi, h: int, reference_phases_deg, parked_phases_deg=(0.0, 180.0)) -> float:
+def foveal_ratio(system: FoveaSystem, roi, h: int, reference_phases_deg, parked_phases_deg=(0.0, 180.0)) -> float:
     """Measured foveal ratio at the centre of ``roi`` (see the module's notes)."""
     u0, v0, w, hh = roi
     u, v = u0 + (w - 1) / 2, v0 + (hh - 1) / 2
@@ -56,7 +56,7 @@ def covered_native_pixels(coverage: torch.Tensor, canvas: Canvas, binning: int) 
     return float((torch.as_tensor(coverage) > 0).sum()) * native_per_canvas**2
 
 
-def bandwidth(system: System, h: int, whole_fov_native_px: float, roi, fer_h: float, fer_v: float,
+def bandwidth(system: FoveaSystem, h: int, whole_fov_native_px: float, roi, fer_h: float, fer_v: float,
               design_fer: tuple[float, float] | None = None, cameras: int = 9) -> dict:
     """BSR by eq. 10's accounting and by the demo's real traffic (see the module's notes).
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from hbis_torch.config import System
+from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError, OutOfScanField
 from hbis_torch.checks import check_roi
 from hbis_torch.optics import sensor_position
@@ -42,7 +42,7 @@ def _wrap(angle_deg: float) -> float:
     return -((-angle_deg + 180.0) % 360.0 - 180.0)
 
 
-def solve_axis_phases(system: System, target_mm, near_deg=None):
+def solve_axis_phases(system: FoveaSystem, target_mm, near_deg=None):
     """Phases that land the axis on ``target_mm`` (2,), nearest ``near_deg``.
 
     Returns (exact phases, coarse phases, residual mm) with the phases as float pairs.
@@ -61,7 +61,7 @@ def solve_axis_phases(system: System, target_mm, near_deg=None):
     return ((float(exact[0, 0]), float(exact[0, 1])), (float(coarse[0, 0]), float(coarse[0, 1])), residual)
 
 
-def deviation_window_mm(system: System, phase_difference_deg=PHASE_DIFFERENCE_DEG) -> tuple[float, float]:
+def deviation_window_mm(system: FoveaSystem, phase_difference_deg=PHASE_DIFFERENCE_DEG) -> tuple[float, float]:
     """Smallest and largest axis offsets (mm on the plane) the phase-difference window allows."""
     lo, hi = sorted(phase_difference_deg)
     if not 0.0 <= lo < hi <= 180.0:
@@ -94,7 +94,7 @@ class Pointing:
     residual_mm: float
 
 
-def steer(system: System, object_mm, roi_size: int | tuple[int, int] = 128, near_deg=None,
+def steer(system: FoveaSystem, object_mm, roi_size: int | tuple[int, int] = 128, near_deg=None,
           phase_difference_deg=PHASE_DIFFERENCE_DEG) -> Pointing:
     """Point the fovea at ``object_mm`` (2,) and place a ROI of ``roi_size`` (w, h) around it.
 
@@ -124,7 +124,7 @@ def steer(system: System, object_mm, roi_size: int | tuple[int, int] = 128, near
                     (float(obj[0]), float(obj[1])), (u, v), (u0, v0, w, h), residual)
 
 
-def in_scan_field(system: System, object_mm, roi_size=128, phase_difference_deg=PHASE_DIFFERENCE_DEG) -> bool:
+def in_scan_field(system: FoveaSystem, object_mm, roi_size=128, phase_difference_deg=PHASE_DIFFERENCE_DEG) -> bool:
     """Whether :func:`steer` can bring ``object_mm`` into a ROI of ``roi_size``."""
     try:
         steer(system, object_mm, roi_size, phase_difference_deg=phase_difference_deg)
@@ -165,7 +165,7 @@ class ScanPoints:
     source: str
 
 
-def plan_fovea_scan(system: System, h: int, pointing: Pointing) -> ScanPoints:
+def plan_fovea_scan(system: FoveaSystem, h: int, pointing: Pointing) -> ScanPoints:
     """The h x h sub-pixel scan at the pointing's phases (``scan.plan_scan``, exact method)."""
     plan = plan_scan(system, h, initial_phases_deg=pointing.phases_deg, method="exact")
     return ScanPoints(torch.as_tensor(plan.phases_deg, dtype=torch.float64), int(plan.reference_index),
