@@ -194,3 +194,9 @@ def test_foveal_ratio_and_bandwidth():
     # With the whole FOV exactly FER_h FER_v frames, eq. 10's accounting is eq. 10.
     assert volumes["bsr_from_coverage"] == pytest.approx(bsr(4, fer_h, fer_v), abs=1e-12)
     assert volumes["bsr_demo_traffic"] > volumes["bsr_from_coverage"]  # a ROI scan sends less
+
+
+@pytest.mark.parametrize("h", [0, 2.0, 17, True])
+def test_loop_config_takes_h_by_the_one_rule(h):
+    with pytest.raises(HbisInputError, match="h must be an integer from 1 to 16"):
+        LoopConfig(h=h)

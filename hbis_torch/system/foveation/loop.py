@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hbis_torch.checks import check_h
 from hbis_torch.errors import HbisInputError, OutOfScanField
 from hbis_torch.system.array.cameras import CAMERA_NAMES, FOVEA_INDEX, PARKED_PHASES_DEG
 from hbis_torch.system.foveation.detect import motion_blobs
@@ -65,8 +66,7 @@ class LoopConfig:
     phase_difference_deg: tuple[float, float] = PHASE_DIFFERENCE_DEG
 
     def __post_init__(self) -> None:
-        if int(self.h) != self.h or self.h < 1:
-            raise HbisInputError(f"h must be a positive integer, got {self.h!r}")
+        check_h(self.h)
         for name in ("frame_period_s", "prism_speed_deg_s", "duration_s", "threshold", "gate_mm",
                      "rescan_mm", "aim_mm"):
             value = float(getattr(self, name))
