@@ -87,8 +87,6 @@ def make_stack(system: FoveaSystem, h: int, roi, scene_name: str, seed: int):
     truth : ndarray, shape (h height, h width), float
         Ground truth in [0, 1].
     """
-    w, hgt = roi[2], roi[3]
-    pixel = system.object_pixel_mm
-    spec = SceneSpec(size_mm=(w * pixel * 1.25, hgt * pixel * 1.25), pixel_mm=pixel, detail_mm=pixel / 16)
+    spec = SceneSpec.around_roi(roi[2], roi[3], system.object_pixel_mm)
     scene = load_scene(scene_name, spec, seed=seed)
     return simulate_stack(scene, system, plan_scan(system, h), roi=roi, seed=seed)

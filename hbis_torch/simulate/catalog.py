@@ -54,6 +54,14 @@ class SceneSpec:
     pixel_mm: float
     detail_mm: float
 
+    @classmethod
+    def around_roi(cls, width: int, height: int, pixel_mm: float) -> "SceneSpec":
+        """The view of a ``width`` x ``height`` px ROI with a 25 % margin (so the scene covers
+        every frame of a scan), detail down to 1/16 of a pixel (``pixel_mm``: one sensor pixel
+        on the object plane, mm)."""
+        return cls(size_mm=(width * pixel_mm * 1.25, height * pixel_mm * 1.25), pixel_mm=pixel_mm,
+                   detail_mm=pixel_mm / 16)
+
     def raster_shape(self, limit: int = 4096) -> tuple[int, int]:
         w, h = self.size_mm
         step = max(self.detail_mm, max(w, h) / limit)

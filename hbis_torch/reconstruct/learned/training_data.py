@@ -264,9 +264,7 @@ def simulate_example(system: FoveaSystem, plan, size: int, seed: int, natural_sh
         (name).
     """
     draw = draw_example(system, size, seed, natural_share)
-    pixel = system.object_pixel_mm
-    side = size * pixel * 1.25  # a margin so the scene covers every frame of the scan
-    spec = SceneSpec(size_mm=(side, side), pixel_mm=pixel, detail_mm=pixel / 16)
+    spec = SceneSpec.around_roi(size, size, system.object_pixel_mm)
     if draw.scene in NATURAL_SCENES:
         scene = natural_image(draw.scene, spec, np.random.default_rng(draw.scene_seed))
     else:
