@@ -60,7 +60,7 @@ def homographies_from_positions(positions, step: int = 4) -> Tensor:
     ----------
     positions : Tensor, shape (F, H, W, 2)
         Where pixel (u, v) of frame k lands, in reference pixel coordinates (for example
-        :func:`hbis_torch.reconstruct.classical.optical_sample_positions`).
+        :func:`hbis_torch.reconstruct.positions.optical_sample_positions`).
     step : int
         Use every ``step``-th pixel in each direction (the maps are smooth).
 
