@@ -1,5 +1,7 @@
 """Shared fixtures."""
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -12,3 +14,23 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def distrust_frame(monkeypatch):
+    """``distrust_frame(k)``: from then on the registration returns its real result, except that
+    it refuses to trust frame k."""
+    import hbis_torch.registration as registration
+
+    real = registration.register_stack
+
+    def distrust(frame: int) -> None:
+        def register(*args, **kw):
+            reg = real(*args, **kw)
+            ok = reg.ok.clone()
+            ok[frame] = False
+            return dataclasses.replace(reg, ok=ok)
+
+        monkeypatch.setattr(registration, "register_stack", register)
+
+    return distrust

@@ -3,9 +3,9 @@ frames out of order, the one sample-position policy, the method registry, and th
 ``hbis reconstruct`` command."""
 
 import copy
-import dataclasses
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,13 +17,32 @@ from hbis_torch.cli import main
 from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import landing_map, sensor_position
-from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
-from hbis_torch.scan import plan_scan
-from hbis_torch.simulate import SceneSpec, SensorModel, load_scene, sample_positions, simulate_stack
-from hbis_torch.reconstruct import classical_sr, optical_sample_positions, reconstruct, registry
+from hbis_torch.reconstruct import (
+    classical_sr,
+    optical_sample_positions,
+    reconstruct,
+    registry,
+)
 from hbis_torch.reconstruct import positions as position_policy
-from hbis_torch.reconstruct.classical import optics_cutoff, source_version, stack_fill_factor
+from hbis_torch.reconstruct.classical import (
+    optics_cutoff,
+    source_version,
+    stack_fill_factor,
+)
 from hbis_torch.reconstruct.positions import stack_sample_positions
+from hbis_torch.registration import (
+    apply_homography,
+    homographies_from_positions,
+    register_stack,
+)
+from hbis_torch.scan import plan_scan
+from hbis_torch.simulate import (
+    SceneSpec,
+    SensorModel,
+    load_scene,
+    sample_positions,
+    simulate_stack,
+)
 from hbis_torch.stack_io import write_stack
 
 SYSTEM = FoveaSystem()
@@ -218,24 +237,9 @@ def test_exact_positions_are_the_per_frame_trace_bit_for_bit_in_any_chunks(corne
     assert torch.equal(optics, whole) and bool(trusted.all())
 
 
-def _distrust_frame(monkeypatch, frame: int) -> None:
-    """The registration's real result, except that it refuses to trust ``frame``."""
-    import hbis_torch.registration as registration
-
-    real = registration.register_stack
-
-    def register(*args, **kw):
-        reg = real(*args, **kw)
-        ok = reg.ok.clone()
-        ok[frame] = False
-        return dataclasses.replace(reg, ok=ok)
-
-    monkeypatch.setattr(registration, "register_stack", register)
-
-
-def test_untrusted_frames_keep_the_optics_and_classical_data_mode_leaves_them_out(centre, monkeypatch):
+def test_untrusted_frames_keep_the_optics_and_classical_data_mode_leaves_them_out(centre, distrust_frame):
     stack, _ = centre
-    _distrust_frame(monkeypatch, 2)
+    distrust_frame(2)
     optical = optical_sample_positions(stack)
     corrected, trusted = stack_sample_positions(stack, "data", exact=True)
     assert trusted.tolist() == [k != 2 for k in range(H * H)]
@@ -252,5 +256,15 @@ def test_untrusted_frames_keep_the_optics_and_classical_data_mode_leaves_them_ou
 
 
 def test_classical_source_version_hashes_the_whole_package():
+    import hashlib
+
+    import hbis_torch.reconstruct.classical as classical
+
     version = source_version()
     assert len(version) == 64 and int(version, 16) >= 0 and source_version() == version
+    files = sorted(Path(classical.__file__).parent.glob("*.py"))
+    assert {f.name for f in files} >= {"__init__.py", "method.py", "splat.py", "sr.py", "transfer.py", "wiener.py"}
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(path.name.encode() + path.read_bytes())
+    assert version == digest.hexdigest()
