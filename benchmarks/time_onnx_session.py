@@ -4,8 +4,8 @@ Needs only numpy and onnxruntime, so that onnxruntime builds that cannot share a
 (``onnxruntime`` and ``onnxruntime-openvino`` install the same module) can be compared by running
 this script from each environment in turn:
 
-    /path/to/ort131-venv/bin/python benchmarks/time_onnx_session.py models/hbis_sr_h4.onnx --provider cpu
-    python benchmarks/time_onnx_session.py models/hbis_sr_h4.onnx --provider openvino
+    /path/to/ort131-venv/bin/python benchmarks/time_onnx_session.py hbis_torch/models/hbis_sr_h4.onnx --provider cpu
+    python benchmarks/time_onnx_session.py hbis_torch/models/hbis_sr_h4.onnx --provider openvino
 
 The session settings are those of :func:`hbis_torch.reconstruct.learned.session_options` and
 :func:`~hbis_torch.reconstruct.learned.execution_providers` (written out here, since the package is not

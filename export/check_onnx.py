@@ -1,6 +1,6 @@
 """Check an exported SR model: torch and onnxruntime agree at a size other than the export size.
 
-    python export/check_onnx.py models/hbis_sr_h4.onnx runs/sr_h4/model.pt [--size 45 67]
+    python export/check_onnx.py hbis_torch/models/hbis_sr_h4.onnx runs/sr_h4/model.pt [--size 45 67]
 
 Prints the largest absolute difference of the two outputs for each execution provider this
 onnxruntime has (its own CPU kernels, and OpenVINO where installed); exits 1 if one exceeds 1e-4.

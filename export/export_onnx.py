@@ -1,7 +1,7 @@
 """Export a trained SR checkpoint to ONNX (opset 18, dynamic batch, height and width).
 
-    python export/export_onnx.py runs/sr_h4/model.pt models/hbis_sr_h4.onnx
-    python export/export_onnx.py models/hbis_sr_h4.pt models/hbis_sr_h4.onnx   # re-export shipped weights
+    python export/export_onnx.py runs/sr_h4/model.pt hbis_torch/models/hbis_sr_h4.onnx
+    python export/export_onnx.py hbis_torch/models/hbis_sr_h4.pt hbis_torch/models/hbis_sr_h4.onnx   # re-export shipped weights
 
 The file is self-contained (weights inside, no .data file) and its ``metadata_props`` carry
 what a user of the model needs: ``format``, ``h``, ``frames`` (= h^2), ``normalisation``,
@@ -27,7 +27,7 @@ from hbis_torch.reconstruct.learned.export import OPSET, TOLERANCE, check_parity
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", help="model.pt written by training/train_sr.py, or a weights file "
-                        "written by --weights (models/hbis_sr_h*.pt)")
+                        "written by --weights (hbis_torch/models/hbis_sr_h*.pt)")
     parser.add_argument("out", help="the .onnx file to write")
     parser.add_argument("--opset", type=int, default=OPSET)
     parser.add_argument("--weights", help="also write the float32 weights (no optimizer state) to this .pt, "

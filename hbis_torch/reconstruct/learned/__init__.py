@@ -11,9 +11,8 @@ in memory, and :func:`learned_sr` does the whole thing for a :class:`~hbis_torch
 
 Where the default model is found
 --------------------------------
-``models/hbis_sr_h{h}.onnx`` at the repository root, located relative to the runtime module
-(``<repo>/hbis_torch/reconstruct/learned/runtime.py`` -> ``<repo>/models``), which is where it is with a source
-checkout or ``pip install -e .``. The environment variable ``HBIS_MODELS_DIR`` overrides the
+``hbis_torch/models/hbis_sr_h{h}.onnx``, package data found through importlib.resources, so a
+wheel, an sdist and a checkout find it the same way. The environment variable ``HBIS_MODELS_DIR`` overrides the
 folder; ``model=`` (``hbis reconstruct --model``) names any other file.
 
 Modules

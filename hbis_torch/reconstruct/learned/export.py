@@ -155,7 +155,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     del proto.metadata_props[:]
     for key, value in metadata.items():
         proto.metadata_props.add(key=key, value=value)
-    proto.doc_string = f"hbis-torch multi-frame SR network, h = {model.h}; see models/README.md"
+    proto.doc_string = f"hbis-torch multi-frame SR network, h = {model.h}; see hbis_torch/models/README.md"
     onnx.checker.check_model(proto)
     with atomic_path(out_path) as tmp:
         onnx.save(proto, str(tmp))
@@ -165,7 +165,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
 
 def training_info(ckpt: dict) -> dict:
     """What :func:`export_model` records about training, from a training checkpoint or from a
-    weights file written by ``--weights`` (models/hbis_sr_h*.pt), whose ``metadata`` is that of
+    weights file written by ``--weights`` (hbis_torch/models/hbis_sr_h*.pt), whose ``metadata`` is that of
     the first export: a re-export keeps the training commit, validation PSNR, steps and config.
 
     Returns

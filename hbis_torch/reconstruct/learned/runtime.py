@@ -1,7 +1,7 @@
 """The learned method's runtime: exported models in onnxruntime.
 
 Where the models are (:func:`models_dir`, :func:`default_model_path`; ``HBIS_MODELS_DIR``
-overrides ``<repo>/models``), which execution provider runs them (:func:`execution_providers`),
+overrides the package's own ``hbis_torch/models``), which execution provider runs them (:func:`execution_providers`),
 the session (:class:`LearnedSR`) and the models' metadata (:func:`read_model_metadata`).
 onnxruntime and onnx are imported only inside the functions that need them.
 """
@@ -27,11 +27,16 @@ NORMALISATION = (
 
 
 def models_dir() -> Path:
-    """Folder of the shipped models: ``$HBIS_MODELS_DIR`` or ``<repo>/models``."""
+    """Folder of the shipped models: ``$HBIS_MODELS_DIR``, or the package data ``hbis_torch/models``.
+
+    The models are package data, so a wheel, an sdist and a checkout find them the same way.
+    """
     env = os.environ.get("HBIS_MODELS_DIR")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[3] / "models"
+    from importlib.resources import files
+
+    return Path(str(files("hbis_torch") / "models"))
 
 
 def default_model_path(h: int) -> Path:
