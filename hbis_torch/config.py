@@ -18,6 +18,58 @@ def _check_positive(name: str, value: float) -> None:
 
 
 @dataclass(frozen=True)
+class LensCalibration:
+    """OpenCV's pinhole-plus-distortion model of a real lens (``cv2.calibrateCamera``'s output).
+
+    A pixel (u, v) (0-based centres, as OpenCV counts them) sees along the ray (x, y, 1) whose
+    distorted normalised coordinates are ((u - cx) / fx, (v - cy) / fy); the distortion model is
+    OpenCV's: radial k1, k2, k3 (and the rational k4, k5, k6), tangential p1, p2.
+
+    Attributes
+    ----------
+    fx, fy : float
+        Focal length in pixels along u and v (K[0, 0], K[1, 1]).
+    cx, cy : float
+        Principal point in pixels (K[0, 2], K[1, 2]).
+    distortion : tuple of float
+        (k1, k2, p1, p2[, k3[, k4, k5, k6]]): 4, 5 or 8 coefficients, OpenCV's order.
+    image_size : (cols, rows) or None
+        Size of the images the calibration was made with (refused for another sensor size).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: tuple = ()
+    image_size: tuple | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy"):
+            _check_positive(name, float(getattr(self, name)))
+        for name in ("cx", "cy"):
+            if not math.isfinite(float(getattr(self, name))):
+                raise HbisInputError(f"{name} must be finite, got {getattr(self, name)!r}")
+        d = tuple(float(x) for x in self.distortion)
+        if len(d) not in (0, 4, 5, 8) or not all(math.isfinite(x) for x in d):
+            raise HbisInputError(f"distortion must be 4, 5 or 8 finite coefficients (k1, k2, p1, p2[, k3[, k4, "
+                                 f"k5, k6]]), got {self.distortion!r}")
+        object.__setattr__(self, "distortion", d + (0.0,) * (8 - len(d)) if d else ())
+        if self.image_size is not None:
+            size = tuple(int(x) for x in self.image_size)
+            if len(size) != 2 or min(size) < 1:
+                raise HbisInputError(f"image_size must be (cols, rows), got {self.image_size!r}")
+            object.__setattr__(self, "image_size", size)
+
+    def to_dict(self) -> dict:
+        out = {"K": [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]],
+               "distortion": list(self.distortion)}
+        if self.image_size is not None:
+            out["image_size"] = list(self.image_size)
+        return out
+
+
+@dataclass(frozen=True)
 class Camera:
     """A pinhole camera with a pixel array (Table 1).
 
@@ -33,6 +85,9 @@ class Camera:
         Working F-number F = f'/D.
     wavelength_nm : float
         Wavelength used for diffraction, in nanometres.
+    lens : LensCalibration or None
+        A real lens's calibration (principal point, focal length in pixels, distortion); None is
+        the ideal camera of docs/design.md section 1 (centred, undistorted, f' / p pixels).
     """
 
     pixel_pitch_um: float = 3.75
@@ -41,8 +96,11 @@ class Camera:
     focal_length_mm: float = 12.0
     f_number: float = 1.4
     wavelength_nm: float = 550.0
+    lens: LensCalibration | None = None
 
     def __post_init__(self) -> None:
+        if self.lens is not None and not isinstance(self.lens, LensCalibration):
+            raise HbisInputError(f"lens must be a LensCalibration or None, got {type(self.lens).__name__}")
         for name in ("pixel_pitch_um", "focal_length_mm", "f_number", "wavelength_nm"):
             _check_positive(name, float(getattr(self, name)))
         for name in ("rows", "cols"):

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hbis_torch.config import Camera, Prisms, FoveaSystem
+from hbis_torch.config import Camera, FoveaSystem, LensCalibration, Prisms
 from hbis_torch.errors import HbisInputError, StackFormatError
 from hbis_torch.io_utils import atomic_path
 
@@ -72,7 +72,7 @@ def _jsonable(value):
 def system_meta(system: FoveaSystem) -> dict:
     """The ``camera``, ``prisms`` and ``object_distance_mm`` entries describing ``system``."""
     cam, pr = system.camera, system.prisms
-    return {
+    meta = {
         "camera": {
             "pixel_pitch_um": float(cam.pixel_pitch_um),
             "rows": int(cam.rows),
@@ -87,6 +87,23 @@ def system_meta(system: FoveaSystem) -> dict:
         },
         "object_distance_mm": float(system.object_distance_mm),
     }
+    if cam.lens is not None:
+        meta["camera"]["lens"] = cam.lens.to_dict()
+    return meta
+
+
+def _lens_from_meta(lens) -> LensCalibration | None:
+    """``camera.lens`` ({"K": 3 x 3, "distortion": [...], "image_size": [cols, rows]}) or None."""
+    if lens is None:
+        return None
+    if not isinstance(lens, dict) or "K" not in lens:
+        raise HbisInputError("camera.lens must be an object with K (3 x 3) and distortion")
+    K = np.asarray(lens["K"], dtype=np.float64)
+    if K.shape != (3, 3):
+        raise HbisInputError(f"camera.lens.K must be 3 x 3, got shape {K.shape}")
+    size = lens.get("image_size")
+    return LensCalibration(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                           tuple(lens.get("distortion", ())), tuple(size) if size is not None else None)
 
 
 def make_meta(
@@ -138,10 +155,11 @@ def _system_from_meta(meta: dict, where: str) -> FoveaSystem:
             focal_length_mm=float(cam["focal_length_mm"]),
             f_number=float(cam["f_number"]),
             wavelength_nm=float(cam.get("wavelength_nm", 550.0)),
+            lens=_lens_from_meta(cam.get("lens")),
         )
         prisms = Prisms(float(pr["wedge_angle_deg"]), float(pr["refractive_index"]))
         return FoveaSystem(camera, prisms, float(meta["object_distance_mm"]))
-    except HbisInputError as exc:
+    except (HbisInputError, TypeError, ValueError) as exc:
         raise StackFormatError(f"{where}: {exc}") from None
 
 

@@ -14,6 +14,7 @@ from hbis_torch.hardware.grbl_protocol import nearest_step_phase
 from hbis_torch.hardware.scan_executor import run_scan
 from hbis_torch.hardware.simulator import add_simulator_args, serve_until_done, simulator_from_args
 from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.stack_io import system_meta
 from hbis_torch.cli.common import add_system_args, system_from_args
 
 
@@ -220,10 +221,11 @@ def run_scan_cmd(args) -> int:
     print(f"scan done: {frames} frames{resumed}, {result.retries} retried after recoverable faults; "
           f"journal {args.journal}")
     if args.out:
-        data = {"h": args.h, "method": args.method, "steps_per_deg": steps,
+        data = {"format": "hbis-motor-phases/1", "h": args.h, "method": args.method, "steps_per_deg": steps,
                 "initial_phases_deg": list(initial), "reference_index": int(plan.reference_index),
                 "targets_deg": result.targets_deg.tolist(), "phases_deg": result.phases_deg.tolist(),
-                "predicted_ae": {k: v for k, v in ae.items() if isinstance(v, (int, float))}}
+                "predicted_ae": {k: v for k, v in ae.items() if isinstance(v, (int, float))},
+                "system": system_meta(system_from_args(args))}
         atomic_write_text(args.out, json.dumps(data, indent=1))
         print(f"wrote {args.out}")
     return 0

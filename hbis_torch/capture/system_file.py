@@ -1,0 +1,110 @@
+"""The system file: camera, prisms, object distance and lens calibration in one JSON or TOML file.
+
+TOML example (JSON holds the same keys)::
+
+    object_distance_mm = 50.0
+
+    [camera]
+    pixel_pitch_um = 3.75
+    rows = 960
+    cols = 1280
+    focal_length_mm = 12.0
+    f_number = 1.4
+    wavelength_nm = 550.0
+
+    [prisms]
+    wedge_angle_deg = 4.0
+    refractive_index = 1.5
+
+    [calibration]              # optional: OpenCV's pinhole model of the real lens
+    K = [[3205.1, 0.0, 641.3], [0.0, 3204.7, 478.9], [0.0, 0.0, 1.0]]
+    distortion = [-0.12, 0.05, 0.0003, -0.0002, 0.0]
+    # or: opencv = "calib.yml"  (what cv2.FileStorage wrote; relative to this file)
+
+Missing keys take the paper's Table 1 values. Unknown keys are refused (a typo must not pass
+silently).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from hbis_torch.config import Camera, FoveaSystem, Prisms
+from hbis_torch.errors import HbisInputError
+
+_CAMERA = ("pixel_pitch_um", "rows", "cols", "focal_length_mm", "f_number", "wavelength_nm")
+_PRISMS = ("wedge_angle_deg", "refractive_index")
+
+
+def _load_mapping(path: Path) -> dict:
+    try:
+        text = path.read_bytes()
+    except FileNotFoundError:
+        raise HbisInputError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise HbisInputError(f"{path}: cannot be read ({exc.strerror})") from None
+    try:
+        if path.suffix.lower() == ".toml":
+            import tomllib
+
+            data = tomllib.loads(text.decode("utf-8"))
+        else:
+            data = json.loads(text)
+    except (ValueError, UnicodeDecodeError) as exc:
+        kind = "TOML" if path.suffix.lower() == ".toml" else "JSON"
+        raise HbisInputError(f"{path}: not valid {kind} ({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise HbisInputError(f"{path}: a system file holds one object (camera, prisms, object_distance_mm)")
+    return data
+
+
+def _block(data: dict, key: str, allowed, path) -> dict:
+    block = data.get(key, {})
+    if not isinstance(block, dict):
+        raise HbisInputError(f"{path}: [{key}] must be a table/object")
+    unknown = sorted(set(block) - set(allowed))
+    if unknown:
+        raise HbisInputError(f"{path}: unknown key(s) {', '.join(key + '.' + k for k in unknown)} "
+                             f"(known: {', '.join(allowed)})")
+    return block
+
+
+def load_system(path) -> FoveaSystem:
+    """The FoveaSystem a JSON (``.json``) or TOML (``.toml``) system file describes."""
+    path = Path(path)
+    data = _load_mapping(path)
+    unknown = sorted(set(data) - {"camera", "prisms", "object_distance_mm", "calibration"})
+    if unknown:
+        raise HbisInputError(f"{path}: unknown key(s) {', '.join(unknown)} "
+                             "(known: camera, prisms, object_distance_mm, calibration)")
+    cam = _block(data, "camera", _CAMERA, path)
+    pr = _block(data, "prisms", _PRISMS, path)
+    try:
+        camera = Camera(**cam)
+        prisms = Prisms(**pr)
+        system = FoveaSystem(camera, prisms, float(data.get("object_distance_mm", FoveaSystem().object_distance_mm)))
+    except (HbisInputError, TypeError, ValueError) as exc:
+        raise HbisInputError(f"{path}: {exc}") from None
+    if "calibration" in data:
+        from hbis_torch.capture.lens import calibration_from_mapping
+
+        calibration = calibration_from_mapping(data["calibration"], path)
+        system = with_lens(system, calibration, str(path))
+    return system
+
+
+def with_lens(system: FoveaSystem, calibration, where: str) -> FoveaSystem:
+    """``system`` with its camera's lens calibration replaced (checked against the sensor size)."""
+    from dataclasses import replace
+
+    if calibration is not None and calibration.image_size is not None:
+        cols, rows = calibration.image_size
+        cam = system.camera
+        if (rows, cols) != (cam.rows, cam.cols):
+            raise HbisInputError(f"{where}: the calibration is for a {cols} x {rows} sensor but the camera has "
+                                 f"{cam.cols} x {cam.rows} pixels: a calibration of another camera or binning")
+    try:
+        return replace(system, camera=replace(system.camera, lens=calibration))
+    except HbisInputError as exc:
+        raise HbisInputError(f"{where}: {exc}") from None

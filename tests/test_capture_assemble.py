@@ -1,0 +1,172 @@
+"""``hbis assemble`` and hbis_torch.capture: frames from files, patterns, multi-page TIFFs and
+videos plus the phases file of ``hbis motors scan --out`` -> an hbis-stack/1 stack; every bad
+input is one line, exit code 2, and nothing written."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from hbis_torch.capture import read_frames
+from hbis_torch.cli import main
+from hbis_torch.config import FoveaSystem
+from hbis_torch.scan import plan_scan
+from hbis_torch.stack_io import read_stack
+
+ROI = (600, 450, 24, 20)
+
+
+def write_phases(path, h=2, system=None, initial=(5.0, 70.0), **change):
+    """A phases file as ``hbis motors scan --out`` writes it (read-back = targets rounded to steps)."""
+    from hbis_torch.stack_io import system_meta
+
+    system = system or FoveaSystem()
+    plan = plan_scan(system, h, initial)
+    targets = plan.phases_deg.numpy()
+    data = {"format": "hbis-motor-phases/1", "h": h, "method": "exact", "steps_per_deg": [100.0, 100.0],
+            "initial_phases_deg": list(initial), "reference_index": int(plan.reference_index),
+            "targets_deg": targets.tolist(), "phases_deg": (np.round(targets * 100) / 100).tolist(),
+            "predicted_ae": {}, "system": system_meta(system)}
+    data.update(change)
+    Path(path).write_text(json.dumps(data))
+    return data
+
+
+def frames(count=4, shape=(20, 24), dtype=np.uint16, top=4095, seed=0):
+    return np.random.default_rng(seed).integers(0, top + 1, (count, *shape)).astype(dtype)
+
+
+def assemble(tmp_path, *args):
+    return main(["assemble", "--phases", str(tmp_path / "phases.json"), "--out", str(tmp_path / "stack.tif"), *args])
+
+
+def one_line_error(capsys, code, fragment, tmp_path):
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("hbis assemble: error:") and fragment in err, err
+    assert not (tmp_path / "stack.tif").exists()
+
+
+def test_assemble_files_keeps_read_back_phases_and_reference(tmp_path, capsys):
+    data = write_phases(tmp_path / "phases.json")
+    f = frames()
+    paths = []
+    for k, frame in enumerate(f):
+        paths.append(str(tmp_path / f"cap_{k:03d}.tif"))
+        tifffile.imwrite(paths[-1], frame)
+    assert assemble(tmp_path, "--roi", ",".join(map(str, ROI)), "--bit-depth", "12", *paths) == 0
+    stack = read_stack(tmp_path / "stack.tif")
+    np.testing.assert_array_equal(stack.frames, f)
+    np.testing.assert_allclose(stack.phases_deg, data["phases_deg"])
+    assert stack.reference_index == data["reference_index"] and stack.h == 2 and stack.roi == ROI
+    assert stack.bit_depth == 12 and stack.meta["capture"]["phases_file"] == "phases.json"
+    # the same frames by pattern, and as one multi-page TIFF, give the same stack
+    assert assemble(tmp_path, "--roi", ",".join(map(str, ROI)), "--bit-depth", "12",
+                    str(tmp_path / "cap_{index:03d}.tif")) == 0
+    np.testing.assert_array_equal(read_stack(tmp_path / "stack.tif").frames, f)
+    tifffile.imwrite(tmp_path / "all.tif", f, photometric="minisblack")
+    assert assemble(tmp_path, "--roi", ",".join(map(str, ROI)), str(tmp_path / "all.tif")) == 0
+    np.testing.assert_array_equal(read_stack(tmp_path / "stack.tif").frames, f)
+
+
+def test_full_sensor_frames_are_cut_to_the_roi(tmp_path):
+    write_phases(tmp_path / "phases.json", system=FoveaSystem())
+    full = frames(shape=(96, 128), dtype=np.uint8, top=255)
+    tifffile.imwrite(tmp_path / "all.tif", full, photometric="minisblack")
+    assert assemble(tmp_path, "--rows", "96", "--cols", "128", "--roi", "10,20,30,40", str(tmp_path / "all.tif")) == 2
+    # the phases file was planned for the Table 1 sensor: refused above; plan it for this one
+    from hbis_torch.config import Camera
+
+    small = FoveaSystem(Camera(rows=96, cols=128))
+    write_phases(tmp_path / "phases.json", system=small)
+    assert assemble(tmp_path, "--rows", "96", "--cols", "128", "--roi", "10,20,30,40", str(tmp_path / "all.tif")) == 0
+    np.testing.assert_array_equal(read_stack(tmp_path / "stack.tif").frames, full[:, 20:60, 10:40])
+
+
+def test_png_and_video_frames(tmp_path):
+    cv2 = pytest.importorskip("cv2")
+    write_phases(tmp_path / "phases.json")
+    f = frames(dtype=np.uint8, top=255)
+    for k, frame in enumerate(f):
+        cv2.imwrite(str(tmp_path / f"p{k}.png"), frame)
+    stack, _ = read_frames([str(tmp_path / "p{index}.png")], count=4)
+    np.testing.assert_array_equal(stack, f)
+    # a lossless grayscale video (FFV1 in AVI) comes back as the same gray frames
+    writer = cv2.VideoWriter(str(tmp_path / "scan.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 5, (24, 20), False)
+    if not writer.isOpened():
+        pytest.skip("this OpenCV build has no FFV1 encoder")
+    for frame in f:
+        writer.write(frame)
+    writer.release()
+    video, _ = read_frames([str(tmp_path / "scan.avi")])
+    np.testing.assert_array_equal(video, f)
+    assert assemble(tmp_path, "--roi", ",".join(map(str, ROI)), str(tmp_path / "scan.avi")) == 0
+
+
+@pytest.mark.parametrize("case, fragment", [
+    ("missing", "no such file"),
+    ("size", "frame of shape"),
+    ("dtype", "frame of dtype"),
+    ("count", "frames and phases file are from different scans"),
+    ("bits", "more than 8 bits hold"),
+    ("bits-container", "does not fit uint8"),
+    ("roi-outside", "lies outside"),
+    ("roi-size", "neither the ROI's"),
+    ("nan", "NaN or infinite"),
+    ("other-scan", "another scan or system"),
+    ("other-system", "planned for another system"),
+    ("dark-size", "a calibration of another camera or ROI"),
+    ("not-json", "not JSON"),
+])
+def test_bad_input_is_one_line_and_nothing_written(tmp_path, capsys, case, fragment):
+    write_phases(tmp_path / "phases.json")
+    f = frames(dtype=np.uint16, top=255)
+    paths = []
+    for k, frame in enumerate(f):
+        paths.append(str(tmp_path / f"c{k}.tif"))
+        tifffile.imwrite(paths[-1], frame)
+    args = ["--roi", ",".join(map(str, ROI))]
+    if case == "missing":
+        Path(paths[2]).unlink()
+    elif case == "size":
+        tifffile.imwrite(paths[1], f[1][:-1])
+    elif case == "dtype":
+        tifffile.imwrite(paths[3], f[3].astype(np.uint8))
+    elif case == "count":
+        paths = paths[:3]
+    elif case == "bits":
+        tifffile.imwrite(paths[0], f[0] + 300)
+        args += ["--bit-depth", "8"]
+    elif case == "bits-container":
+        for p, frame in zip(paths, f):
+            tifffile.imwrite(p, frame.astype(np.uint8))
+        args += ["--bit-depth", "12"]
+    elif case == "roi-outside":
+        args = ["--roi", "1270,450,24,20"]
+    elif case == "roi-size":
+        args = ["--roi", "600,450,25,20"]
+    elif case == "nan":
+        text = (tmp_path / "phases.json").read_text().replace("70.", "NaN, 0.0, 70.", 0)
+        data = json.loads((tmp_path / "phases.json").read_text())
+        data["phases_deg"][1][0] = float("nan")
+        (tmp_path / "phases.json").write_text(json.dumps(data))
+        assert text
+    elif case == "other-scan":
+        write_phases(tmp_path / "phases.json", initial=(5.0, 70.0), initial_phases_deg=[6.0, 70.0])
+    elif case == "other-system":
+        args += ["--focal-length-mm", "16"]
+    elif case == "dark-size":
+        tifffile.imwrite(tmp_path / "dark.tif", np.zeros((21, 24), np.uint16))
+        args += ["--dark", str(tmp_path / "dark.tif")]
+    elif case == "not-json":
+        (tmp_path / "phases.json").write_text("{h: 2")
+    one_line_error(capsys, assemble(tmp_path, *args, *paths), fragment, tmp_path)
+
+
+def test_an_existing_stack_survives_a_failed_assemble(tmp_path, capsys):
+    write_phases(tmp_path / "phases.json")
+    (tmp_path / "stack.tif").write_bytes(b"keep me")
+    assert assemble(tmp_path, "--roi", ",".join(map(str, ROI)), str(tmp_path / "none_{index}.tif")) == 2
+    assert (tmp_path / "stack.tif").read_bytes() == b"keep me"
