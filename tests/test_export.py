@@ -45,16 +45,22 @@ def test_auto_takes_openvino_where_onnxruntime_has_it(exported):
 def test_unknown_or_missing_provider_is_a_clear_input_error(exported, monkeypatch):
     import onnxruntime as ort
 
+    from hbis_torch.reconstruct.learned import runtime
+
     with pytest.raises(HbisInputError, match="unknown execution provider 'gpu'"):
         LearnedSR(exported[1], provider="gpu")
     monkeypatch.setattr(ort, "get_available_providers", lambda: ["CPUExecutionProvider"])
-    with pytest.raises(HbisInputError, match="no OpenVINO execution provider.*onnxruntime-openvino"):
+    monkeypatch.setattr(runtime, "openvino_installed", lambda: False)
+    assert available_providers() == ["cpu"]
+    with pytest.raises(HbisInputError, match=r"OpenVINO is not installed: pip install 'hbis-torch\[openvino\]'"):
         LearnedSR(exported[1], provider="openvino")
     assert LearnedSR(exported[1]).provider == "cpu"
 
 
 def test_auto_falls_back_to_the_cpu_kernels_when_openvino_refuses_the_model(exported, monkeypatch):
     import onnxruntime as ort
+
+    from hbis_torch.reconstruct.learned import runtime
 
     real = ort.InferenceSession
 
@@ -63,11 +69,34 @@ def test_auto_falls_back_to_the_cpu_kernels_when_openvino_refuses_the_model(expo
             raise RuntimeError("OpenVINO cannot compile this model")
         return real(path, options, providers=providers)
 
+    class RefusingOpenVINO:
+        def __init__(self, path, threads):
+            raise RuntimeError("OpenVINO cannot compile this model")
+
     monkeypatch.setattr(ort, "get_available_providers", lambda: [OPENVINO, "CPUExecutionProvider"])
     monkeypatch.setattr(ort, "InferenceSession", refusing_openvino)
-    assert LearnedSR(exported[1]).provider == "cpu"
-    with pytest.raises(HbisInputError, match="cannot load ONNX model"):
-        LearnedSR(exported[1], provider="openvino")
+    for package in (False, True):  # onnxruntime's OpenVINO provider; the openvino package
+        monkeypatch.setattr(runtime, "openvino_installed", lambda package=package: package)
+        monkeypatch.setattr(runtime, "_OpenVINOSession", RefusingOpenVINO)
+        assert LearnedSR(exported[1]).provider == "cpu"
+        with pytest.raises(HbisInputError, match="cannot load ONNX model"):
+            LearnedSR(exported[1], provider="openvino")
+
+
+@pytest.mark.skipif(not __import__("hbis_torch.reconstruct.learned.runtime", fromlist=["x"]).openvino_installed(),
+                    reason="the openvino package (extra 'openvino') is not installed")
+def test_the_openvino_package_runs_the_model_beside_onnxruntime(exported):
+    """With the openvino extra, 'auto' runs the model in the openvino package, whose output and
+    metadata match onnxruntime's CPU kernels."""
+    from hbis_torch.reconstruct.learned.runtime import _OpenVINOSession
+
+    runner, cpu = LearnedSR(exported[1]), LearnedSR(exported[1], provider="cpu")
+    assert runner.provider == "openvino" and isinstance(runner.session, _OpenVINOSession)
+    assert runner.metadata == cpu.metadata and runner.h == 3
+    rng = np.random.default_rng(0)
+    frames = rng.random((1, 9, 11, 17), dtype=np.float32)
+    offsets = rng.random((1, 18, 11, 17), dtype=np.float32) - 0.5
+    assert np.abs(runner.infer(frames, offsets) - cpu.infer(frames, offsets)).max() < 1e-4
 
 
 def test_height_and_width_are_dynamic_and_the_file_is_self_contained(exported):

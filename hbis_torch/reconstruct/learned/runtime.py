@@ -1,9 +1,9 @@
-"""The learned method's runtime: exported models in onnxruntime.
+"""The learned method's runtime: exported models in onnxruntime, or in OpenVINO where installed.
 
 Where the models are (:func:`models_dir`, :func:`default_model_path`; ``HBIS_MODELS_DIR``
 overrides the package's own ``hbis_torch/models``), which execution provider runs them (:func:`execution_providers`),
 the session (:class:`LearnedSR`) and the models' metadata (:func:`read_model_metadata`).
-onnxruntime and onnx are imported only inside the functions that need them.
+onnxruntime, openvino and onnx are imported only inside the functions that need them.
 """
 
 from __future__ import annotations
@@ -76,26 +76,37 @@ PROVIDERS = ("auto", "openvino", "cpu")
 OPENVINO = "OpenVINOExecutionProvider"
 
 
+def openvino_installed() -> bool:
+    """Whether the ``openvino`` package (the optional extra ``hbis-torch[openvino]``) is installed."""
+    from importlib.util import find_spec
+
+    return find_spec("openvino") is not None
+
+
 def execution_providers(provider: str = "auto", threads: int | None = None) -> list:
     """The onnxruntime execution providers for ``provider``, in order of preference.
 
-    ``"openvino"``: the OpenVINO execution provider on the CPU (package ``onnxruntime-openvino``,
-    which the project installs in place of ``onnxruntime`` on x86-64 Linux and Windows). It
-    compiles the whole graph with the ReLUs and residual additions fused into the convolutions
-    and ran the shipped models 1.4-1.6x faster than eager torch here, where onnxruntime's own CPU
-    kernels were 1.1-1.3x faster (docs/learned.md). Precision is pinned to FP32, so that a CPU
-    with bf16 or fp16 units does not lower it. ``"cpu"``: onnxruntime's own kernels. ``"auto"``:
-    OpenVINO where this onnxruntime has it, else the CPU kernels.
+    The project depends on plain ``onnxruntime``, so that it installs beside any other package
+    that needs it. ``"openvino"`` runs the model in OpenVINO on the CPU: through the ``openvino``
+    package's own ONNX reader where that package is installed (``pip install hbis-torch[openvino]``;
+    it does not touch the ``onnxruntime`` module, :class:`_OpenVINOSession`), else through
+    onnxruntime's OpenVINO execution provider where the installed onnxruntime is Intel's
+    ``onnxruntime-openvino`` build (what this function returns then). OpenVINO compiles the whole
+    graph with the ReLUs and residual additions fused into the convolutions and ran the shipped
+    models 1.4-1.6x faster than eager torch here, where onnxruntime's own CPU kernels were
+    1.1-1.3x faster (docs/learned.md). Precision is pinned to FP32, so that a CPU with bf16 or
+    fp16 units does not lower it. ``"cpu"``: onnxruntime's own kernels. ``"auto"``: OpenVINO
+    where installed, else the CPU kernels.
     """
     import onnxruntime as ort
 
     if provider not in PROVIDERS:
         raise HbisInputError(f"unknown execution provider {provider!r} (choose from {', '.join(PROVIDERS)})")
-    has_openvino = "openvino" in available_providers()
+    has_openvino = OPENVINO in ort.get_available_providers()
     if provider == "openvino" and not has_openvino:
         raise HbisInputError(
-            f"this onnxruntime ({ort.__version__}) has no OpenVINO execution provider; install "
-            "onnxruntime-openvino in place of onnxruntime (x86-64 Linux or Windows), or use the 'cpu' provider"
+            "OpenVINO is not installed: pip install 'hbis-torch[openvino]' (or the openvino package), "
+            "or use the 'cpu' provider"
         )
     if provider == "cpu" or not has_openvino:
         return ["CPUExecutionProvider"]
@@ -104,11 +115,12 @@ def execution_providers(provider: str = "auto", threads: int | None = None) -> l
 
 
 def available_providers() -> list[str]:
-    """The :data:`PROVIDERS` this onnxruntime has, by name: ``"cpu"``, and ``"openvino"`` where
-    installed."""
+    """The :data:`PROVIDERS` installed here, by name: ``"cpu"``, and ``"openvino"`` where the
+    ``openvino`` package or onnxruntime's OpenVINO execution provider is installed."""
     import onnxruntime as ort
 
-    return ["cpu"] + (["openvino"] if OPENVINO in ort.get_available_providers() else [])
+    has_openvino = openvino_installed() or OPENVINO in ort.get_available_providers()
+    return ["cpu"] + (["openvino"] if has_openvino else [])
 
 
 def onnxruntime_distributions() -> list[str]:
@@ -125,11 +137,40 @@ def onnxruntime_distributions() -> list[str]:
     return found
 
 
+class _OpenVINOSession:
+    """An ONNX model compiled by the ``openvino`` package for the CPU, with the part of
+    onnxruntime's ``InferenceSession`` interface that :class:`LearnedSR` uses (``run``).
+
+    The ONNX file is read by OpenVINO's own reader; height and width stay dynamic, so a new input
+    size does not recompile. FP32 inference precision, ``threads`` inference threads, the latency
+    hint (one request at a time).
+    """
+
+    def __init__(self, path: Path, threads: int | None):
+        import openvino as ov
+
+        config = {"INFERENCE_PRECISION_HINT": "f32", "INFERENCE_NUM_THREADS": default_threads(threads),
+                  "PERFORMANCE_HINT": "LATENCY"}
+        self.compiled = ov.Core().compile_model(str(path), "CPU", config)
+        self.request = self.compiled.create_infer_request()
+
+    def run(self, names, feeds: dict) -> list:
+        results = self.request.infer(feeds)
+        return [np.asarray(results[self.compiled.output(name)]) for name in names]
+
+
 def _open_session(path: Path, provider: str, threads: int | None):
     """(session, short provider name); with ``"auto"``, falls back to the CPU kernels if
     OpenVINO cannot take the model."""
     import onnxruntime as ort
 
+    if provider in ("auto", "openvino") and openvino_installed():
+        try:
+            return _OpenVINOSession(path, threads), "openvino"
+        except Exception as exc:  # OpenVINO raises its own types for models it cannot compile
+            if provider == "openvino":
+                raise HbisInputError(f"OpenVINO cannot load ONNX model {path}: {str(exc).splitlines()[0]}") from None
+            return _open_session(path, "cpu", threads)
     providers = execution_providers(provider, threads)
     try:
         session = ort.InferenceSession(str(path), session_options(threads), providers=providers)
@@ -154,13 +195,13 @@ class LearnedSR:
     tile : int
         Tile size in LR pixels (the halo of :data:`TILE_HALO` pixels comes on top).
     provider : {"auto", "openvino", "cpu"}
-        Which onnxruntime execution provider runs the model (:func:`execution_providers`).
+        What runs the model: OpenVINO or onnxruntime's CPU kernels (:func:`execution_providers`).
 
     Attributes
     ----------
     h, frame_count : int
     provider : str
-        ``"openvino"`` or ``"cpu"``: the execution provider that took the model.
+        ``"openvino"`` or ``"cpu"``: what took the model.
     metadata : dict
         The model's ``metadata_props`` (h, frames, normalisation, training commit, ...).
     """
@@ -177,10 +218,13 @@ class LearnedSR:
         if len(onnxruntime_distributions()) > 1:
             warnings.warn("both onnxruntime and onnxruntime-openvino are installed; they write the same "
                           "onnxruntime module over each other. Keep one: pip uninstall -y onnxruntime "
-                          "onnxruntime-openvino, then pip install onnxruntime-openvino (x86-64 Linux or "
-                          "Windows) or onnxruntime", RuntimeWarning, stacklevel=2)
+                          "onnxruntime-openvino, then pip install onnxruntime (and, for OpenVINO, "
+                          "pip install 'hbis-torch[openvino]')", RuntimeWarning, stacklevel=2)
         self.session, self.provider = _open_session(path, provider, threads)
-        self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
+        if isinstance(self.session, _OpenVINOSession):
+            self.metadata = read_model_metadata(path)
+        else:
+            self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
         if self.metadata.get("format") != MODEL_FORMAT:
             raise HbisInputError(f"{path} is not an hbis SR model (metadata format != {MODEL_FORMAT})")
         self.h = int(self.metadata["h"])
