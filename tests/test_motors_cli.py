@@ -102,13 +102,13 @@ def test_scan_prints_ae_first_captures_each_frame_once_and_resumes(sim, tmp_path
     assert motors(sim.port, *args) == 2
     first = capsys.readouterr()
     assert "predicted alignment error with these steps (fractions of SL): ae_axis_max = 0.2500" in first.out
-    assert first.out.index("predicted alignment error") < first.out.index("frame 1/9")
+    assert first.out.index("predicted alignment error") < first.out.index("frame 0 (1 of 9)")
     assert "ALARM:1" in first.err and "resume at frame 4" in first.err
     assert planner.seen_steps == (35.556, 35.556)
     assert motors(sim.port, "unlock") == 0
     assert motors(sim.port, *args) == 0
     second = capsys.readouterr().out
-    assert "frame 5/9" in second and "frame 4/9" not in second.split("unlocked")[-1]
+    assert "frame 4 (5 of 9)" in second and "frame 3 (4 of 9)" not in second.split("unlocked")[-1]
     assert "scan done: 9 frames (resumed at frame 4)" in second
     lines = log.read_text().splitlines()
     assert [int(line.split()[0]) for line in lines] == list(range(9))
@@ -135,7 +135,7 @@ def test_scan_with_the_real_planner_reaches_the_predicted_phases(sim, tmp_path, 
                   "--out", str(out)) == 0
     text = capsys.readouterr().out
     assert "initial phases moved to the motor step grid: (5, 70) -> (5.0062, 70.0022) deg" in text
-    assert text.index("predicted alignment error") < text.index("frame 1/9") and "scan done: 9 frames" in text
+    assert text.index("predicted alignment error") < text.index("frame 0 (1 of 9)") and "scan done: 9 frames" in text
     data = json.loads(out.read_text())
     plan = scan.plan_scan(FoveaSystem(), 3, initial_phases_deg=tuple(data["initial_phases_deg"]))
     predicted = scan.step_alignment_error(FoveaSystem(), plan, data["steps_per_deg"])

@@ -1,46 +1,169 @@
 """The ``hbis`` command line. Each subcommand lives in its own module ``cmd_<name>.py`` beside
 this file, with a ``register(subparsers)`` function; modules are found automatically.
 
-Exit codes: 0 success, 2 bad arguments or bad input (one line on stderr), 1 anything else.
+Conventions (docs/design.md, "CLI contract"): exit codes 0 success, 2 bad arguments or bad
+input (one line on stderr), 1 anything else; ``--version``; ``-v``/``-q`` set the level of the
+``hbis_torch`` loggers (the library logs, this module configures) and ``-q`` hides the progress
+bars; a closed pipe ends the command quietly. A ``cmd_`` module imports only light modules at
+the top and its heavy ones (torch, matplotlib) inside the function that runs it, so that
+``hbis --help`` and each ``--help`` start fast (``benchmarks/bench_cli_start.py``).
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
+import logging
+import os
 import pkgutil
 import sys
 
+from hbis_torch import __version__
 from hbis_torch.errors import HbisInputError
 
 COMMANDS = sorted(m.name[4:] for m in pkgutil.iter_modules(__path__) if m.name.startswith("cmd_"))
 
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows every option's default (the Table 1 values among them); help texts that already
+    name their default are left as written."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "default" in text.lower() or action.default in (None, False, argparse.SUPPRESS):
+            return text
+        return super()._get_help_string(action)
+
+
+class RawDescriptionFormatter(HelpFormatter, argparse.RawDescriptionHelpFormatter):
+    """:class:`HelpFormatter` that keeps the description's line breaks."""
+
 
 class OneLineParser(argparse.ArgumentParser):
-    """argparse that reports a usage error as one line (and exit code 2)."""
+    """argparse that reports a usage error as one line (and exit code 2), with a hint where an
+    option belongs to another level of the command (``hbis motors scan --port X``)."""
+
+    def __init__(self, *args, **kwargs):
+        formatter = kwargs.get("formatter_class")
+        if formatter is argparse.RawDescriptionHelpFormatter:
+            kwargs["formatter_class"] = RawDescriptionFormatter
+        elif formatter in (None, argparse.HelpFormatter):
+            kwargs["formatter_class"] = HelpFormatter
+        super().__init__(*args, **kwargs)
 
     def error(self, message):  # noqa: D401 - argparse API
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+        self.exit(2, f"{self.prog}: error: {message}{_misplaced_hint(self, message)} (see --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _chain(root: argparse.ArgumentParser, argv: list[str]) -> list[argparse.ArgumentParser]:
+    """The parsers ``argv`` walks through: ``hbis``, ``hbis motors``, ``hbis motors scan``."""
+    chain = [root]
+    for word in argv:
+        children = {name: p for a in chain[-1]._actions if isinstance(a, argparse._SubParsersAction)
+                    for name, p in a.choices.items()}
+        if word in children:
+            chain.append(children[word])
+    return chain
+
+
+def _misplaced_hint(parser: argparse.ArgumentParser, message: str) -> str:
+    """'; --port is an option of 'hbis motors': put it before 'scan'' for an unrecognised option
+    that a parser higher up the command takes."""
+    argv = getattr(parser, "argv", None)
+    if argv is None or not message.startswith("unrecognized arguments:"):
+        return ""
+    chain = _chain(parser, argv)
+    hints = []
+    for option in dict.fromkeys(w.split("=")[0] for w in message.split(":", 1)[1].split() if w.startswith("-")):
+        for level, owner in enumerate(chain[:-1]):
+            if option in owner._option_string_actions:
+                below = chain[level + 1].prog.removeprefix(owner.prog).strip()
+                hints.append(f"{option} is an option of '{owner.prog}': put it before '{below}'")
+                break
+    return ("; " + "; ".join(hints)) if hints else ""
+
+
+def _finish(parser: argparse.ArgumentParser) -> None:
+    """Give every sub-parser, down to the actions, the global ``-v``/``-q`` (default SUPPRESS,
+    so that one given before the subcommand is not reset by the sub-parser's default)."""
+    for child in (p for a in parser._actions if isinstance(a, argparse._SubParsersAction) for p in a.choices.values()):
+        _add_verbosity(child, argparse.SUPPRESS)
+        _finish(child)
+
+
+def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:
+    group = parser.add_argument_group("output")
+    group.add_argument("-v", "--verbose", action="count", default=0 if default is None else default,
+                       help="more messages on stderr (-vv: debug, with the GRBL serial traffic)")
+    group.add_argument("-q", "--quiet", action="store_true", default=False if default is None else default,
+                       help="only errors on stderr, and no progress bars")
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The ``hbis`` parser. A ``cmd_`` module with a ``SUMMARY`` line builds its whole parser
+    (which may import heavy modules, for the lists in its help) only when ``argv`` runs it;
+    otherwise it is listed with that line (``argv`` None: every parser is built)."""
+    import importlib
+
     parser = OneLineParser(
         prog="hbis",
         description="Risley-prism foveated imaging (the hybrid bionic image sensor): design, "
         "scanning, simulation and super-resolution. Numbers default to the paper's Table 1.",
     )
+    parser.add_argument("--version", action="version", version=f"hbis {__version__}")
+    _add_verbosity(parser, None)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
                                 parser_class=OneLineParser)
+    chosen = next((word for word in argv if word in COMMANDS), None) if argv is not None else None
     for name in COMMANDS:
-        importlib.import_module(f"{__package__}.cmd_{name}").register(sub)
+        module = importlib.import_module(f"{__package__}.cmd_{name}")
+        if argv is not None and name != chosen and hasattr(module, "SUMMARY"):
+            sub.add_parser(name, help=module.SUMMARY)
+        else:
+            module.register(sub)
+    _finish(parser)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def configure_logging(verbose: int = 0, quiet: bool = False) -> None:
+    """Messages of the ``hbis_torch`` loggers (the GRBL driver's among them) on stderr:
+    warnings by default, info with ``-v``, debug with ``-vv``, errors only with ``-q``; ``-q``
+    also hides the progress bars."""
+    from hbis_torch.progress import set_progress
+
+    level = logging.ERROR if quiet else {0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG)
+    logger = logging.getLogger("hbis_torch")
+    logger.setLevel(level)
+    if not any(getattr(h, "_hbis_cli", False) for h in logger.handlers):
+        handler = logging.StreamHandler()
+        handler.setFormatter(logging.Formatter("hbis: %(message)s" if level >= logging.INFO
+                                               else "hbis: %(name)s: %(message)s"))
+        handler._hbis_cli = True
+        logger.addHandler(handler)
+    set_progress(False if quiet else None)
+
+
+def _quiet_broken_pipe() -> int:
+    """The reader went away (``hbis design --json | head -1``): say nothing, exit as a program
+    killed by SIGPIPE would (141), and keep Python from complaining at shutdown."""
     try:
-        return int(args.func(args) or 0)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+    return 141
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
+    parser.argv = argv
+    args = parser.parse_args(parser.argv)
+    configure_logging(args.verbose, args.quiet)
+    try:
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here for short outputs
+        return code
+    except BrokenPipeError:
+        return _quiet_broken_pipe()
     except HbisInputError as exc:
         print(f"hbis {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -6,13 +6,10 @@ import json
 import time
 from pathlib import Path
 
-import torch
-
 from hbis_torch.config import FoveaSystem
-from hbis_torch.design import design
 from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_write_text
-from hbis_torch.cli.cmd_figures import FIGURE_SETS
+from hbis_torch.cli.cmd_figures import FIGURE_SET_NAMES, figure_set
 
 
 def _methods() -> list[str]:
@@ -45,7 +42,7 @@ def register(sub) -> None:
     p.add_argument("--threads", type=int, default=1,
                    help="torch threads (default: 1; the chain is many small tensor operations, for which "
                    "thread hand-offs cost more than they save)")
-    p.add_argument("--figure-sets", nargs="*", choices=sorted(FIGURE_SETS), default=None,
+    p.add_argument("--figure-sets", nargs="*", choices=FIGURE_SET_NAMES, default=None,
                    help="figure sets to draw (default: all, as hbis figures does)")
     p.add_argument("--design-only", action="store_true", help="only the design report and figures")
     p.set_defaults(func=run)
@@ -79,6 +76,7 @@ def _print_system(s: dict) -> None:
 
 def _run(args):
     """Design report and figures, then (unless --design-only) the chain and the HTML page."""
+    from hbis_torch.design import design
     from hbis_torch.system.pipeline import ChainConfig, run_chain
     from hbis_torch.system.report.report import write_report
 
@@ -87,8 +85,8 @@ def _run(args):
     system = FoveaSystem()
     report = design(system).to_dict()
     prototype = design(system, varphi_h_deg=15.0, varphi_v_deg=10.0, h=4).to_dict()
-    sets = list(FIGURE_SETS) if args.figure_sets is None else args.figure_sets
-    figures = [str(p) for name in sets for p in FIGURE_SETS[name](out / "figures", system)]
+    sets = FIGURE_SET_NAMES if args.figure_sets is None else args.figure_sets
+    figures = [str(p) for name in sets for p in figure_set(name)(out / "figures", system)]
     summary = {"design_at_limits": report, "prototype_15_10_h4": prototype, "figures": figures}
     _print_design(report, prototype)
     if args.design_only:
@@ -110,6 +108,8 @@ def run(args) -> int:
         raise HbisInputError(f"{args.model}: no such model file")
     if args.threads < 1:
         raise HbisInputError(f"--threads must be at least 1, got {args.threads}")
+    import torch
+
     start = time.perf_counter()
     threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)

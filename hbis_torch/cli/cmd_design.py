@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 
-from hbis_torch.design import design
 from hbis_torch.cli.common import add_system_args, system_from_args
 
 
@@ -24,6 +23,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from hbis_torch.design import design
+
     report = design(system_from_args(args), args.varphi_h_deg, args.varphi_v_deg, args.h)
     data = report.to_dict()
     if args.json:

@@ -11,7 +11,6 @@ from pathlib import Path
 from hbis_torch.errors import HbisInputError
 from hbis_torch.hardware.grbl import GrblController, GrblTimeouts
 from hbis_torch.hardware.grbl_protocol import nearest_step_phase
-from hbis_torch.hardware.scan_executor import run_scan
 from hbis_torch.hardware.simulator import add_simulator_args, serve_until_done, simulator_from_args
 from hbis_torch.io_utils import atomic_write_text
 from hbis_torch.stack_io import system_meta
@@ -209,9 +208,11 @@ def run_scan_cmd(args) -> int:
                    else (lambda index, phases: None))
 
         def progress(record, total):
-            print(f"frame {record.index + 1}/{total}: planned ({record.target_deg[0]:.4f}, "
+            print(f"frame {record.index} ({record.index + 1} of {total}): planned ({record.target_deg[0]:.4f}, "
                   f"{record.target_deg[1]:.4f}) read back ({record.phases_deg[0]:.4f}, "
                   f"{record.phases_deg[1]:.4f}) deg", flush=True)
+
+        from hbis_torch.hardware.scan_executor import run_scan
 
         result = run_scan(grbl, plan.phases_deg, capture, journal=Path(args.journal),
                           settle_s=args.settle_s, feed_deg_per_min=args.feed, on_frame=progress)

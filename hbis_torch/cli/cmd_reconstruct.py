@@ -24,8 +24,8 @@ def register(sub) -> None:
                    help="reconstruction method (default: classical)")
     p.add_argument("--model", type=Path, help="ONNX model file (only for --method learned)")
     p.add_argument("--provider", choices=("auto", "openvino", "cpu"),
-                   help="learned: onnxruntime execution provider; 'auto' (the default) takes "
-                   "OpenVINO where onnxruntime has it (faster), else onnxruntime's own CPU kernels")
+                   help="learned: what runs the model; 'auto' (the default) takes OpenVINO where "
+                   "installed (pip install 'hbis-torch[openvino]'; faster), else onnxruntime's CPU kernels")
     p.add_argument("--out", type=Path, required=True, help="output TIFF")
     p.add_argument("--registration", choices=("auto", "optics", "data"), default="auto",
                    help="sample positions from the tracer ('optics'), the tracer corrected by "

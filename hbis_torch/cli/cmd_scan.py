@@ -5,9 +5,12 @@ from __future__ import annotations
 import json
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.scan import CONVENTIONS, METHODS, plan_scan, scan_report, step_alignment_error
-from hbis_torch.scan.motor_steps import required_steps_per_deg
 from hbis_torch.cli.common import add_system_args, system_from_args
+
+# hbis_torch.scan's METHODS and CONVENTIONS, written out so that --help does not import torch
+# (tests/test_cli_conventions.py checks that they agree).
+METHODS = ("paper", "exact")
+CONVENTIONS = ("sensor", "object")
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:
@@ -49,6 +52,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from hbis_torch.scan import plan_scan, scan_report, step_alignment_error
+    from hbis_torch.scan.motor_steps import required_steps_per_deg
+
     system = system_from_args(args)
     initial = _pair(args.phases_deg, "--phases-deg")
     plan = plan_scan(system, args.h, initial, args.method)

@@ -11,6 +11,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.cli.common import add_system_args, system_from_args
 
 DEFAULT_CROP = 256
+SUMMARY = "synthesise a stack (and its ground truth) through the Risley model"
 
 
 def _numbers(text: str, count: tuple[int, ...], kind=float, name: str = "value"):
@@ -45,7 +46,7 @@ def register(sub) -> None:
     defaults = SensorModel()
     p = sub.add_parser(
         "simulate",
-        help="synthesise a stack (and its ground truth) through the Risley model",
+        help=SUMMARY,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=(
             "Simulate the frames a sub-pixel scan of h x h prism positions records, through the\n"

@@ -58,13 +58,13 @@ def figure_3(path: Path) -> Path:
         colours[ref] = "tab:green"
         ax.scatter(xy[:, 0], xy[:, 1], s=420, c=colours, zorder=2)
         for i, (x, y) in enumerate(xy):
-            ax.text(x, y, str(i + 1), ha="center", va="center", color="white", fontsize=9)
+            ax.text(x, y, str(i), ha="center", va="center", color="white", fontsize=9)
         ax.set_aspect("equal")
         ax.set_xlabel("x offset [SL]")
         ax.set_ylabel("y offset [SL]")
-        ax.set_title(f"({tag}) h = {h}: frame {ref + 1} at the initial phases")
+        ax.set_title(f"({tag}) h = {h}: frame {ref} at the initial phases")
         ax.grid(alpha=0.3)
-    fig.suptitle("Fig. 3: sub-pixel scan patterns (raster, x fastest; numbers are 1-based)")
+    fig.suptitle("Fig. 3: sub-pixel scan patterns (raster, x fastest; frames numbered from 0, as in hbis scan and the stack)")
     fig.tight_layout()
     return _save(fig, path)
 

@@ -1,0 +1,119 @@
+"""The command-line conventions every subcommand keeps (docs/design.md, section 2)."""
+
+import logging
+import os
+import subprocess
+import sys
+
+import pytest
+
+import hbis_torch
+from hbis_torch.cli import COMMANDS, build_parser, configure_logging, main
+from hbis_torch.progress import progress, progress_enabled, set_progress
+
+
+@pytest.fixture
+def clean_logging():
+    """Leave the hbis_torch logger and the progress switch as they were."""
+    logger = logging.getLogger("hbis_torch")
+    level, handlers = logger.level, list(logger.handlers)
+    yield logger
+    logger.setLevel(level)
+    logger.handlers[:] = handlers
+    set_progress(None)
+
+
+def _run(*args, **kw):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (os.path.dirname(os.path.dirname(hbis_torch.__file__)),
+                                                                      os.environ.get("PYTHONPATH")) if p)}
+    return subprocess.run([sys.executable, *args], env=env, **kw)
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.strip() == f"hbis {hbis_torch.__version__}"
+
+
+def test_a_closed_pipe_ends_quietly():
+    read, write = os.pipe()
+    os.close(read)  # the reader is gone before the first byte
+    try:
+        done = _run("-m", "hbis_torch", "scan", "--h", "2", "--phases-deg", "5,70", "--json",
+                    stdout=write, stderr=subprocess.PIPE, text=True, timeout=300)
+    finally:
+        os.close(write)
+    assert done.stderr == "" and done.returncode == 141
+
+
+@pytest.mark.parametrize("argv, level", [([], logging.WARNING), (["-v"], logging.INFO), (["-vv"], logging.DEBUG),
+                                         (["-q"], logging.ERROR)])
+def test_verbosity_before_or_after_the_subcommand(argv, level, clean_logging, capsys):
+    for args in (argv + ["design", "--json"], ["design", "--json"] + argv):
+        assert main(args) == 0
+        assert clean_logging.level == level
+        if "-q" in argv:
+            assert not progress_enabled()
+    capsys.readouterr()
+
+
+def test_the_library_logs_and_the_cli_shows_it_by_level(clean_logging, capsys):
+    configure_logging(verbose=1)
+    logging.getLogger("hbis_torch.hardware.grbl").info("controller message: hello")
+    logging.getLogger("hbis_torch.hardware.grbl").debug("<- 'ok'")
+    err = capsys.readouterr().err
+    assert "controller message: hello" in err and "<- 'ok'" not in err
+    configure_logging(quiet=True)
+    logging.getLogger("hbis_torch.hardware.grbl").warning("ignored a line")
+    assert capsys.readouterr().err == ""
+    assert len([h for h in clean_logging.handlers if getattr(h, "_hbis_cli", False)]) == 1
+
+
+def test_progress_only_on_a_terminal_and_never_when_quiet(clean_logging, monkeypatch):
+    monkeypatch.setattr(sys, "stderr", open(os.devnull, "w"))  # not a terminal
+    assert not progress_enabled()
+    assert progress(range(3), desc="x").disable
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert progress_enabled()
+    monkeypatch.setenv("HBIS_PROGRESS", "0")
+    assert not progress_enabled()
+    monkeypatch.delenv("HBIS_PROGRESS")
+    set_progress(False)  # what -q does
+    assert not progress_enabled()
+
+
+def test_an_option_at_the_wrong_level_is_named(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["motors", "scan", "--port", "X", "--h", "2", "--dry-run"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1
+    assert "--port is an option of 'hbis motors': put it before 'scan'" in err
+
+
+def test_help_shows_the_table1_defaults(capsys):
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    for default in ("pixel pitch p [um] (default: 3.75)", "sensor rows M (default: 960)",
+                    "F-number F (default: 1.4)", "prism wedge angle a [deg] (default: 4.0)"):
+        assert default in out
+
+
+def test_help_does_not_import_torch_or_matplotlib():
+    code = ("import sys\nfrom hbis_torch.cli import main\n"
+            "for argv in (['--help'], ['reconstruct', '--help'], ['figures', '--help'], ['motors', 'scan', '--help']):\n"
+            "    try:\n        main(argv)\n    except SystemExit:\n        pass\n"
+            "print([m for m in ('torch', 'matplotlib', 'scipy', 'onnxruntime') if m in sys.modules], file=sys.stderr)")
+    done = _run("-c", code, capture_output=True, text=True, timeout=120)
+    assert done.stderr.strip() == "[]"
+
+
+def test_every_subcommand_builds_and_the_written_out_choices_agree():
+    from hbis_torch.cli import cmd_scan
+    from hbis_torch.scan import CONVENTIONS, METHODS
+
+    assert set(cmd_scan.METHODS) == set(METHODS) and set(cmd_scan.CONVENTIONS) == set(CONVENTIONS)
+    parser = build_parser()
+    for name in COMMANDS:
+        assert name in parser.format_help()
