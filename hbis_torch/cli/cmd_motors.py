@@ -13,7 +13,6 @@ from hbis_torch.hardware.grbl import GrblController, GrblTimeouts
 from hbis_torch.hardware.grbl_protocol import nearest_step_phase
 from hbis_torch.hardware.simulator import add_simulator_args, serve_until_done, simulator_from_args
 from hbis_torch.io_utils import atomic_write_text
-from hbis_torch.stack_io import system_meta
 from hbis_torch.cli.common import add_system_args, system_from_args
 
 
@@ -222,6 +221,8 @@ def run_scan_cmd(args) -> int:
     print(f"scan done: {frames} frames{resumed}, {result.retries} retried after recoverable faults; "
           f"journal {args.journal}")
     if args.out:
+        from hbis_torch.stack_io import system_meta
+
         data = {"format": "hbis-motor-phases/1", "h": args.h, "method": args.method, "steps_per_deg": steps,
                 "initial_phases_deg": list(initial), "reference_index": int(plan.reference_index),
                 "targets_deg": result.targets_deg.tolist(), "phases_deg": result.phases_deg.tolist(),
