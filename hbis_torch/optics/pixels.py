@@ -1,7 +1,9 @@
 """Per-pixel chief rays and landing maps on the object plane.
 
 Pixel (u, v), 0-based, names the centre of column u and row v. Its chief ray leaves the pupil
-along ((u - (cols-1)/2) p, (v - (rows-1)/2) p, f'), normalised (docs/design.md section 1).
+along ((u - (cols-1)/2) p, (v - (rows-1)/2) p, f'), normalised (docs/design.md section 1). A
+camera with a lens calibration (``Camera.lens``: OpenCV's K and distortion) takes its chief rays
+from :mod:`hbis_torch.optics.lens` instead, everywhere below.
 
 A region of interest (ROI) is ``(u0, v0, width, height)`` in pixels, as in the hbis-stack/1
 file format; ``None`` means the whole sensor.
@@ -24,8 +26,18 @@ Roi = tuple[int, int, int, int]
 
 
 def pixel_coordinates(camera: Camera, roi: Roi | None = None, dtype=torch.float64, device=None):
-    """Sensor-plane coordinates (x, y) in mm of the pixel centres, each of shape (H, W)."""
+    """Sensor-plane coordinates (x, y) in mm of the pixel centres, each of shape (H, W).
+
+    With a lens calibration these are the coordinates an ideal camera of focal length f' would
+    need for the same chief rays (the calibrated, undistorted directions times f').
+    """
     u0, v0, width, height = check_roi(camera, roi)
+    if camera.lens is not None:
+        u = torch.arange(u0, u0 + width, dtype=torch.float64, device=device)
+        v = torch.arange(v0, v0 + height, dtype=torch.float64, device=device)
+        rays = rays_at(camera, u[None, :], v[:, None])
+        f = camera.focal_length_mm
+        return (rays[..., 0] / rays[..., 2] * f).to(dtype), (rays[..., 1] / rays[..., 2] * f).to(dtype)
     p = camera.pitch_mm
     u = torch.arange(u0, u0 + width, dtype=dtype, device=device) - (camera.cols - 1) / 2
     v = torch.arange(v0, v0 + height, dtype=dtype, device=device) - (camera.rows - 1) / 2
@@ -49,6 +61,10 @@ def rays_at(camera: Camera, u: Tensor, v: Tensor) -> Tensor:
     u, v = torch.broadcast_tensors(torch.as_tensor(u), torch.as_tensor(v))
     if not u.is_floating_point():
         u, v = u.double(), v.double()
+    if camera.lens is not None:  # a real lens: principal point, focal length in pixels, distortion
+        from hbis_torch.optics.lens import pixel_rays_through_lens
+
+        return pixel_rays_through_lens(camera.lens, u.double(), v.double()).to(u.dtype)
     p = camera.pitch_mm
     x = (u - (camera.cols - 1) / 2) * p
     y = (v - (camera.rows - 1) / 2) * p
@@ -83,6 +99,10 @@ def sensor_position(system: FoveaSystem, points_mm: Tensor, phi1_deg, phi2_deg) 
     out = out / out.norm(dim=-1, keepdim=True)
     incident = trace_back(out, phi1_deg, phi2_deg, system.prisms).require_valid()
     cam = system.camera
+    if cam.lens is not None:
+        from hbis_torch.optics.lens import pixels_of_directions
+
+        return pixels_of_directions(cam.lens, incident)
     scale = cam.focal_length_mm / cam.pitch_mm
     u = incident[..., 0] / incident[..., 2] * scale + (cam.cols - 1) / 2
     w = incident[..., 1] / incident[..., 2] * scale + (cam.rows - 1) / 2
@@ -169,6 +189,10 @@ def landing_map_interpolated(
     y, x = torch.meshgrid(vs * cam.pitch_mm, us * cam.pitch_mm, indexing="ij")
     rays = torch.stack((x, y, torch.full_like(x, cam.focal_length_mm)), dim=-1)
     rays = rays / rays.norm(dim=-1, keepdim=True)
+    if cam.lens is not None:
+        uu = torch.linspace(u0, u0 + width - 1, nu, dtype=torch.float64, device=device)
+        vv = torch.linspace(v0, v0 + height - 1, nv, dtype=torch.float64, device=device)
+        rays = rays_at(cam, uu[None, :], vv[:, None]).to(dtype)
     directions = exit_directions(rays, p1[..., None, None], p2[..., None, None], system.prisms)
     coarse = land_on_plane(directions, system.object_distance_mm).movedim(-1, -3)  # (*P, 2, nv, nu)
     basis_v = _spline_basis(nv, height, dtype, device)
