@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import shlex
 import subprocess
 from pathlib import Path
 
+from hbis_torch.capture.cameras import camera_from_spec
 from hbis_torch.errors import HbisInputError
 from hbis_torch.hardware.grbl import GrblController, GrblTimeouts
 from hbis_torch.hardware.grbl_protocol import nearest_step_phase
@@ -78,6 +80,22 @@ def register(sub) -> None:
                    "index and the read-back phases (deg)")
     a.add_argument("--capture-timeout-s", type=float, default=60.0, help="deadline for --capture-cmd (default 60 s)")
     a.add_argument("--out", help="write the planned and read-back phases to this JSON file")
+    c = a.add_argument_group("capture in-process and assemble the stack (docs/capture.md)")
+    c.add_argument("--camera", metavar="SPEC",
+                   help="grab each frame from a camera instead of --capture-cmd: opencv:SOURCE (OpenCV "
+                   "VideoCapture: device index or path, GStreamer pipeline, URL, video file; the 'camera' "
+                   "extra) or sim:SCENE (the digital twin's camera: a built-in scene or image file rendered "
+                   "through the forward model at the read-back phases)")
+    c.add_argument("--frames", metavar="PATTERN",
+                   help="frame files with {index} (e.g. 'frames/f{index:03d}.tif'): where --camera writes "
+                   "each frame, or where --capture-cmd does (needed by --stack)")
+    c.add_argument("--stack", metavar="STACK.tif",
+                   help="when the scan is done, assemble the --frames files into this hbis-stack/1 file")
+    c.add_argument("--roi", metavar="U0,V0,W,H",
+                   help="where the frames sit on the sensor (sim: the pixels rendered; default: a 256 x 256 "
+                   "square at the centre for sim, the whole sensor otherwise)")
+    c.add_argument("--bit-depth", type=int, help="significant bits of the frames (default: the camera's, or the dtype's)")
+    c.add_argument("--seed", type=int, default=0, help="sim camera: seed of the scene and the noise (default 0)")
     a.add_argument("--dry-run", action="store_true", help="print the plan and predicted AE, move nothing")
     a.add_argument("--steps-per-deg", metavar="S1,S2",
                    help="steps per degree for --dry-run without a controller (default: read $100/$101)")
@@ -196,15 +214,22 @@ def run_scan_cmd(args) -> int:
         return 0
     if args.steps_per_deg:
         raise HbisInputError("--steps-per-deg is only for --dry-run; a real scan reads $100/$101 from the controller")
-    with _controller(args).open() as grbl:
+    roi = _capture_checks(args)
+    with _controller(args).open() as grbl, contextlib.ExitStack() as stack:
         # Plan from phases the motors can reach, so the controller's rounding to whole steps is
         # the one the AE prediction models (steps counted from the initial phases).
         initial = _snapped(requested, grbl.nearest_reachable(*requested))
         plan, ae = _plan_and_predict(args, grbl.steps_per_deg, initial)
         if args.dry_run:
             return 0
-        capture = (_capture_command(args.capture_cmd, args.capture_timeout_s) if args.capture_cmd
-                   else (lambda index, phases: None))
+        if args.camera:
+            camera = camera_from_spec(args.camera, system_from_args(args), roi, args.h, initial, seed=args.seed)
+            stack.enter_context(camera)
+            capture = _camera_capture(camera, args.frames)
+        elif args.capture_cmd:
+            capture = _capture_command(args.capture_cmd, args.capture_timeout_s)
+        else:
+            capture = lambda index, phases: None  # noqa: E731 - moves and read-backs only
 
         def progress(record, total):
             print(f"frame {record.index} ({record.index + 1} of {total}): planned ({record.target_deg[0]:.4f}, "
@@ -230,7 +255,73 @@ def run_scan_cmd(args) -> int:
                 "system": system_meta(system_from_args(args))}
         atomic_write_text(args.out, json.dumps(data, indent=1))
         print(f"wrote {args.out}")
+    if args.stack:
+        _assemble(args, plan, initial, result, roi, camera if args.camera else None)
     return 0
+
+
+def _capture_checks(args):
+    """Check the capture options before anything moves; return the ROI (or None)."""
+    from hbis_torch.capture.frames import pattern_paths
+
+    if args.camera and args.capture_cmd:
+        raise HbisInputError("give --camera or --capture-cmd, not both")
+    if (args.camera or args.stack) and not args.frames:
+        raise HbisInputError("--camera and --stack need --frames PATTERN: the frame files, with {index}")
+    if args.frames:
+        pattern_paths(args.frames, 1)
+        if "{index" not in args.frames:
+            raise HbisInputError(f"--frames must hold {{index}} (one file per frame), got {args.frames!r}")
+    if args.stack and not (args.camera or args.capture_cmd):
+        raise HbisInputError("--stack needs frames: give --camera or a --capture-cmd that writes --frames")
+    roi = None
+    if args.roi:
+        try:
+            roi = tuple(int(t) for t in args.roi.split(","))
+        except ValueError:
+            roi = ()
+        if len(roi) != 4:
+            raise HbisInputError(f"--roi must be four integers U0,V0,WIDTH,HEIGHT, got {args.roi!r}")
+    system = system_from_args(args)
+    if args.camera and args.camera.startswith("sim:") and roi is None:
+        from hbis_torch.cli.cmd_simulate import default_roi
+
+        roi = default_roi(system.camera)
+    if roi is not None:
+        from hbis_torch.checks import check_roi
+
+        roi = check_roi(system.camera, roi)
+    return roi
+
+
+def _camera_capture(camera, pattern: str):
+    """capture(index, phases): grab a frame from ``camera`` and write it (atomically) as TIFF."""
+    import tifffile
+
+    from hbis_torch.io_utils import atomic_path
+
+    def capture(index: int, phases: tuple[float, float]) -> None:
+        frame = camera.grab(index, phases)
+        path = Path(pattern.format(index=index))
+        with atomic_path(path) as tmp:
+            tifffile.imwrite(tmp, frame, photometric="rgb" if frame.ndim == 3 else "minisblack")
+    return capture
+
+
+def _assemble(args, plan, initial, result, roi, camera) -> None:
+    """Assemble the scan's frame files into --stack (the checks of 'hbis assemble')."""
+    from hbis_torch.capture import ScanPhases, assemble_stack, read_frames
+    from hbis_torch.stack_io import write_stack
+
+    system = system_from_args(args)
+    scan = ScanPhases(args.h, result.phases_deg.numpy(), result.targets_deg.numpy(), int(plan.reference_index),
+                      tuple(initial), args.method, system_meta(system), args.out or "scan")
+    frames, _ = read_frames([args.frames], count=scan.frames)
+    bit_depth = args.bit_depth if args.bit_depth is not None else getattr(camera, "bit_depth", None)
+    black = getattr(camera, "black_level", None)
+    stack = assemble_stack(frames, scan, system, roi=roi, bit_depth=bit_depth, black_level=black)
+    write_stack(args.stack, stack)
+    print(f"wrote {args.stack}: {len(frames)} frames, h = {args.h}, roi {list(stack.roi)}")
 
 
 def run_simulate(args) -> int:
