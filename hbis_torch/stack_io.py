@@ -1,7 +1,7 @@
 """The ``hbis-stack/1`` file: one multi-page TIFF of frames plus a JSON description.
 
-A stack holds the frames of one sub-pixel scan in scan order, shape (F, rows, cols), grayscale,
-uint8, uint16 or float32 (float in [0, 1]). Page 0's ImageDescription holds one JSON object
+A stack holds the frames of one sub-pixel scan in scan order, shape (F, rows, cols) (grayscale, or
+raw Bayer with a ``cfa`` key) or (F, rows, cols, 3) (RGB), uint8, uint16 or float32 (float in [0, 1]). Page 0's ImageDescription holds one JSON object
 (docs/design.md section 3)::
 
     {"format": "hbis-stack/1", "h": 4,
@@ -16,7 +16,8 @@ uint8, uint16 or float32 (float in [0, 1]). Page 0's ImageDescription holds one 
 Optional keys this module understands (all others are kept as they are): ``bit_depth`` (default:
 8 for uint8, 16 for uint16), ``reference_index`` (the frame taken at the scan's initial phases,
 default 0), ``black_level`` (digital number of a black pixel, default 0; integer frames only),
-``camera.wavelength_nm`` (default 550).
+``camera.wavelength_nm`` (default 550), ``camera.lens`` (a lens calibration: ``K``, ``distortion``,
+``image_size``), ``cfa`` (the Bayer pattern of raw colour frames: RGGB, BGGR, GRBG or GBRG).
 
 Every problem with a file or a stack raises :class:`StackFormatError` (an HbisInputError) whose
 one-line message starts with the file name and says what was wrong. Writes are atomic.
@@ -39,6 +40,8 @@ from hbis_torch.io_utils import atomic_path
 
 FORMAT = "hbis-stack/1"
 FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
+CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+"""Bayer patterns of raw colour frames: the colours of the top-left 2 x 2 pixels, row by row."""
 _CAMERA_KEYS = ("pixel_pitch_um", "rows", "cols", "focal_length_mm", "f_number")
 _PRISM_KEYS = ("wedge_angle_deg", "refractive_index")
 _TOP_KEYS = ("format", "h", "camera", "prisms", "object_distance_mm", "roi", "phases_deg")
@@ -232,10 +235,15 @@ def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None
     _check_meta(meta, where)
     if not isinstance(frames, np.ndarray):
         raise StackFormatError(f"{where}: frames must be a numpy array, got {type(frames).__name__}")
-    if frames.ndim != 3:
+    if not (frames.ndim == 3 or (frames.ndim == 4 and frames.shape[-1] == 3)):
         raise StackFormatError(
-            f"{where}: frames must have shape (F, rows, cols) (grayscale), got {frames.shape}"
+            f"{where}: frames must have shape (F, rows, cols) (grayscale) or (F, rows, cols, 3) (RGB), "
+            f"got {frames.shape}"
         )
+    cfa = meta.get("cfa")
+    if cfa is not None and (cfa not in CFA_PATTERNS or frames.ndim != 3):
+        raise StackFormatError(f"{where}: cfa must be one of {', '.join(CFA_PATTERNS)} on raw (F, rows, cols) "
+                               f"frames, got {cfa!r} with frames {frames.shape}")
     if frames.dtype not in FRAME_DTYPES:
         raise StackFormatError(
             f"{where}: frame dtype {frames.dtype} is not one of uint8, uint16, float32"
@@ -253,7 +261,7 @@ def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None
             f"{where}: roi {list(meta['roi'])} lies outside the {cam.rows} x {cam.cols} "
             "(rows x cols) sensor"
         )
-    if (height, width) != frames.shape[1:]:
+    if (height, width) != frames.shape[1:3]:
         raise StackFormatError(
             f"{where}: roi is {width} x {height} (width x height) but the frames are "
             f"{frames.shape[2]} x {frames.shape[1]}"
@@ -288,8 +296,8 @@ class Stack:
 
     Attributes
     ----------
-    frames : np.ndarray, shape (F, H, W)
-        uint8, uint16 or float32 (in [0, 1]), in scan order.
+    frames : np.ndarray, shape (F, H, W) or (F, H, W, 3)
+        uint8, uint16 or float32 (in [0, 1]), in scan order; RGB in the last axis.
     meta : dict
         The hbis-stack/1 JSON object, extra keys included.
     """
@@ -339,8 +347,13 @@ class Stack:
     def system(self) -> FoveaSystem:
         return _system_from_meta(self.meta, "stack")
 
+    @property
+    def colour(self) -> bool:
+        """True for RGB frames (F, H, W, 3) and for raw Bayer frames (a ``cfa`` key)."""
+        return self.frames.ndim == 4 or self.meta.get("cfa") is not None
+
     def to_float(self) -> torch.Tensor:
-        """Frames as a (F, H, W) float32 tensor in [0, 1].
+        """Frames as a (F, H, W) (or (F, H, W, 3)) float32 tensor in [0, 1].
 
         Integer frames map black_level to 0 and 2**bit_depth - 1 to 1 (values below black clip
         to 0); float32 frames are returned as stored.
@@ -374,9 +387,9 @@ def _read_tiff(path: Path):
     shapes = {a.shape for a in arrays}
     if len(shapes) != 1:
         raise StackFormatError(f"{path}: the pages have different shapes {sorted(shapes)}")
-    if arrays[0].ndim != 2:
+    if not (arrays[0].ndim == 2 or (arrays[0].ndim == 3 and arrays[0].shape[-1] == 3)):
         raise StackFormatError(
-            f"{path}: pages must be grayscale (rows, cols), got shape {arrays[0].shape}"
+            f"{path}: pages must be grayscale (rows, cols) or RGB (rows, cols, 3), got shape {arrays[0].shape}"
         )
     return np.stack(arrays), description
 
@@ -414,7 +427,7 @@ def _tiff_write(tmp: Path, array: np.ndarray, description: str) -> None:
         array,
         description=description,
         metadata=None,
-        photometric="minisblack",
+        photometric="rgb" if array.ndim == 4 or (array.ndim == 3 and array.shape[-1] == 3) else "minisblack",
         bigtiff=array.nbytes > 2**31,
     )
 
@@ -440,8 +453,8 @@ def write_image(path, image, meta: dict | None = None) -> None:
     """
     path = Path(path)
     image = np.asarray(image.detach().cpu() if isinstance(image, torch.Tensor) else image)
-    if image.ndim != 2:
-        raise HbisInputError(f"{path}: an image must have shape (H, W), got {image.shape}")
+    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[-1] == 3)):
+        raise HbisInputError(f"{path}: an image must have shape (H, W) or (H, W, 3), got {image.shape}")
     image = image.astype(np.float32)
     if not np.isfinite(image).all():
         raise HbisInputError(f"{path}: the image contains NaN or infinite values")

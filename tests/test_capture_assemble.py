@@ -170,3 +170,49 @@ def test_an_existing_stack_survives_a_failed_assemble(tmp_path, capsys):
     (tmp_path / "stack.tif").write_bytes(b"keep me")
     assert assemble(tmp_path, "--roi", ",".join(map(str, ROI)), str(tmp_path / "none_{index}.tif")) == 2
     assert (tmp_path / "stack.tif").read_bytes() == b"keep me"
+
+
+def test_dark_flat_and_bad_pixels_undo_a_sensor_s_pixel_response(tmp_path):
+    """Frames = dark + gain * signal with per-pixel dark and gain and two dead pixels: the
+    calibrated stack is the signal again (to rounding), with 'hbis assemble' and 'hbis reconstruct'."""
+    from hbis_torch.capture import calibrate_stack, load_calibration
+    from hbis_torch.stack_io import write_stack
+
+    write_phases(tmp_path / "phases.json")
+    rng = np.random.default_rng(2)
+    signal = rng.uniform(0.1, 0.8, (4, 20, 24))
+    dark = rng.uniform(60, 90, (20, 24))
+    gain = rng.uniform(0.8, 1.2, (20, 24))
+    gain /= gain.mean()
+    raw = np.round(dark + gain * signal * 3000).astype(np.uint16)
+    flat = np.round(dark + gain * 3000).astype(np.uint16)
+    bad = np.zeros((20, 24), np.uint8)
+    bad[5, 7] = bad[12, 3] = 1
+    raw[:, 5, 7] = 4095  # a hot pixel
+    tifffile.imwrite(tmp_path / "raw.tif", raw, photometric="minisblack")
+    tifffile.imwrite(tmp_path / "dark.tif", np.stack([dark, dark]).round().astype(np.uint16), photometric="minisblack")
+    tifffile.imwrite(tmp_path / "flat.tif", flat)
+    tifffile.imwrite(tmp_path / "bad.tif", bad)
+    cal = ["--dark", str(tmp_path / "dark.tif"), "--flat", str(tmp_path / "flat.tif"),
+           "--bad-pixels", str(tmp_path / "bad.tif")]
+    assert assemble(tmp_path, "--roi", ",".join(map(str, ROI)), "--bit-depth", "12", *cal, str(tmp_path / "raw.tif")) == 0
+    stack = read_stack(tmp_path / "stack.tif")
+    assert stack.frames.dtype == np.float32 and stack.meta["calibration"]["bad_pixel_count"] == 2
+    expected = signal * 3000 / 4095
+    good = np.ones((20, 24), bool)
+    good[5, 7] = good[12, 3] = False
+    assert np.abs(stack.frames[:, good] - expected[:, good]).max() < 2e-3
+    assert abs(stack.frames[0, 5, 7] - expected[0, 5, 7]) < 0.15  # filled from its neighbours, not hot
+    # the same correction at reconstruction time, from the raw stack
+    raw_stack = stack.__class__(raw, {**{k: v for k, v in stack.meta.items() if k != "calibration"},
+                                      "bit_depth": 12})
+    corrected = calibrate_stack(raw_stack, load_calibration(tmp_path / "dark.tif", tmp_path / "flat.tif", tmp_path / "bad.tif"))
+    np.testing.assert_allclose(corrected.frames, stack.frames, atol=1e-6)
+    write_stack(tmp_path / "raw_stack.tif", raw_stack)
+    assert main(["reconstruct", str(tmp_path / "raw_stack.tif"), "--registration", "optics", *cal,
+                 "--out", str(tmp_path / "sr.tif")]) == 0
+    # a flat field of another size is refused by reconstruct too
+    tifffile.imwrite(tmp_path / "small.tif", flat[:10])
+    assert main(["reconstruct", str(tmp_path / "raw_stack.tif"), "--flat", str(tmp_path / "small.tif"),
+                 "--out", str(tmp_path / "sr2.tif")]) == 2
+    assert not (tmp_path / "sr2.tif").exists()

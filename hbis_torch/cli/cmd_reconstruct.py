@@ -15,7 +15,7 @@ METHOD_CHOICES = ("classical", "learned")
 def register(sub) -> None:
     p = sub.add_parser(
         "reconstruct",
-        help="super-resolve an hbis-stack/1 file (h times its size, float32 in [0, 1])",
+        help="super-resolve an hbis-stack/1 file (h times its size, float32 in [0, 1]; RGB for colour stacks)",
         description="Reconstruct the super-resolved image of a stack: h times the frames' size in "
         "each direction, covering the reference frame's ROI, written as a float32 TIFF in [0, 1].",
     )
@@ -33,6 +33,13 @@ def register(sub) -> None:
                    "trusted (default 'auto')")
     p.add_argument("--no-deblur", action="store_true",
                    help="classical: interpolation only, without the Wiener deblurring")
+    p.add_argument("--colour", choices=("luma", "channels"),
+                   help="colour stacks: super-resolve the luminance and interpolate the chroma ('luma', the "
+                   "default) or each of R, G, B ('channels', three times the time); raw Bayer stacks are "
+                   "demosaicked jointly by the classical method, first by the learned one")
+    from hbis_torch.cli.cmd_assemble import add_calibration_args
+
+    add_calibration_args(p)
     p.set_defaults(func=run)
 
 
@@ -53,7 +60,14 @@ def run(args) -> int:
         kw["deblur"] = not args.no_deblur
     else:
         kw.update({name: getattr(args, name) for name in ("model", "provider") if getattr(args, name) is not None})
+    from hbis_torch.capture.calibration import calibrate_stack, load_calibration
+
+    calibration = load_calibration(args.dark, args.flat, args.bad_pixels)
     stack = read_stack(args.stack)
+    if calibration:
+        stack = calibrate_stack(stack, calibration)
+    if args.colour is not None:
+        kw["colour"] = args.colour
     messages: list[str] = []
     image = reconstruct(stack, method=args.method, registration=args.registration,
                         messages=messages, **kw)
@@ -65,6 +79,7 @@ def run(args) -> int:
     import tifffile
 
     with atomic_path(args.out) as tmp:
-        tifffile.imwrite(tmp, image, description=description, photometric="minisblack")
-    print(f"wrote {args.out} ({image.shape[0]} x {image.shape[1]} px, float32)")
+        tifffile.imwrite(tmp, image, description=description,
+                         photometric="rgb" if image.ndim == 3 else "minisblack")
+    print(f"wrote {args.out} ({image.shape[0]} x {image.shape[1]} px, float32{', RGB' if image.ndim == 3 else ''})")
     return 0

@@ -37,12 +37,19 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     **kw
         Passed to the method (for classical: ``deblur``, ``messages`` (a list that receives the
         registration's warnings), ``fill_factor``, and :func:`classical_sr`'s keywords; for
-        learned: ``model``, ``messages``, ``threads``, ``provider``).
+        learned: ``model``, ``messages``, ``threads``, ``provider``). A colour stack (RGB frames
+        or raw Bayer with a ``cfa`` key) goes through :func:`hbis_torch.reconstruct.colour.
+        reconstruct_colour`, which also takes ``colour`` ("luma" or "channels").
 
     Returns
     -------
-    np.ndarray, shape (h*H, h*W), float32 in [0, 1]
+    np.ndarray, shape (h*H, h*W) (or (h*H, h*W, 3) for a colour stack), float32 in [0, 1]
     """
     if method not in METHODS:
         raise HbisInputError(f"unknown reconstruction method {method!r}; available: {', '.join(METHODS)}")
+    if getattr(stack, "colour", False):  # RGB or raw Bayer frames: every method, through one wrapper
+        from hbis_torch.reconstruct.colour import reconstruct_colour
+
+        return reconstruct_colour(stack, method, registration=registration, **kw)
+    kw.pop("colour", None)
     return METHODS[method](stack, registration=registration, **kw)

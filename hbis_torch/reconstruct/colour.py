@@ -1,0 +1,161 @@
+"""Colour stacks through any reconstruction method: RGB frames and raw Bayer frames.
+
+RGB frames (F, H, W, 3) go through a method in one of two ways:
+
+* ``"luma"``: the method super-resolves the luminance Y (BT.601: 0.299 R + 0.587 G + 0.114 B)
+  only; the chroma (Cb, Cr) of the reference frame is interpolated (cubic spline) onto the output
+  grid. One reconstruction; colour detail stays at the sensor's resolution, as in JPEG and video,
+  where the eye does not see it.
+* ``"channels"``: the method runs on R, G and B separately (three reconstructions, three times
+  the time), each at full resolution.
+
+docs/capture.md gives the measurement that chose the default (:data:`DEFAULT_MODE`).
+
+Raw Bayer frames (F, H, W) with a ``cfa`` key: the classical method demosaicks jointly: every
+colour sample enters the splatting at its own position (the sample positions of its pixel), with
+per-channel masks as sample weights, as in Wronski et al., SIGGRAPH 2019; each colour plane is
+reconstructed from its own samples only. The learned method demosaicks each frame first (OpenCV's
+edge-aware demosaicking) and then takes the RGB path.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from hbis_torch.errors import HbisInputError
+
+COLOUR_MODES = ("luma", "channels")
+DEFAULT_MODE = "luma"
+LUMA = np.array([0.299, 0.587, 0.114])
+
+
+def rgb_to_ycbcr(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) RGB in [0, 1] -> (..., 3) Y, Cb, Cr (BT.601 full range, chroma centred on 0)."""
+    y = rgb @ LUMA
+    return np.stack((y, (rgb[..., 2] - y) / 1.772, (rgb[..., 0] - y) / 1.402), axis=-1)
+
+
+def ycbcr_to_rgb(ycc: np.ndarray) -> np.ndarray:
+    y, cb, cr = ycc[..., 0], ycc[..., 1], ycc[..., 2]
+    r = y + 1.402 * cr
+    b = y + 1.772 * cb
+    g = (y - LUMA[0] * r - LUMA[2] * b) / LUMA[1]
+    return np.stack((r, g, b), axis=-1)
+
+
+def upsample(image: np.ndarray, h: int) -> np.ndarray:
+    """(H, W, C) -> (h H, h W, C), cubic spline, on the output grid of docs/design.md section 1 (HR
+    pixel (U, V) at LR position ((U + 0.5) / h - 0.5, (V + 0.5) / h - 0.5): scipy's ``grid_mode``)."""
+    from scipy.ndimage import zoom
+
+    return zoom(np.asarray(image, dtype=np.float64), (h, h, 1), order=3, mode="nearest", grid_mode=True)
+
+
+def gray_stack(stack, frames):
+    """A float32 grayscale stack of ``frames`` (F, H, W) in [0, 1] with ``stack``'s geometry."""
+    from hbis_torch.stack_io import Stack
+
+    meta = {k: v for k, v in stack.meta.items() if k not in ("bit_depth", "black_level", "cfa")}
+    frames = np.clip(np.asarray(frames, dtype=np.float32), 0.0, 1.0)
+    return Stack(np.ascontiguousarray(frames), meta)
+
+
+def bayer_masks(cfa: str, height: int, width: int) -> np.ndarray:
+    """(3, H, W) bool: which pixels carry R, G and B under the pattern ``cfa`` (e.g. "RGGB")."""
+    masks = np.zeros((3, height, width), dtype=bool)
+    for k, colour in enumerate(cfa):
+        masks["RGB".index(colour), k // 2::2, k % 2::2] = True
+    return masks
+
+
+def mosaic(rgb: np.ndarray, cfa: str) -> np.ndarray:
+    """The raw Bayer frames (..., H, W) a sensor with pattern ``cfa`` records of RGB (..., H, W, 3)."""
+    masks = bayer_masks(cfa, *rgb.shape[-3:-1])
+    return np.einsum("...hwc,chw->...hw", rgb, masks.astype(rgb.dtype))
+
+
+_OPENCV_CODES = {"RGGB": "COLOR_BayerRGGB2RGB_EA", "BGGR": "COLOR_BayerBGGR2RGB_EA",
+                 "GRBG": "COLOR_BayerGRBG2RGB_EA", "GBRG": "COLOR_BayerGBRG2RGB_EA"}
+
+
+def demosaic(raw: np.ndarray, cfa: str) -> np.ndarray:
+    """Raw Bayer frames (F, H, W) float in [0, 1] -> RGB (F, H, W, 3) float32, OpenCV edge-aware."""
+    from hbis_torch.capture.frames import import_cv2
+
+    cv2 = import_cv2("demosaicking Bayer frames")
+    code = getattr(cv2, _OPENCV_CODES[cfa])
+    scaled = np.round(np.clip(raw, 0.0, 1.0) * 65535).astype(np.uint16)
+    out = np.stack([cv2.cvtColor(np.ascontiguousarray(f), code) for f in scaled])
+    return out.astype(np.float32) / 65535
+
+
+def _joint_demosaic_classical(stack, registration: str, messages=None, deblur: bool = True,
+                              fill_factor: float | None = None, **kw) -> np.ndarray:
+    """Classical SR of raw Bayer frames, each colour from its own samples at their own positions."""
+    from hbis_torch.reconstruct.classical.method import stack_fill_factor
+    from hbis_torch.reconstruct.classical.sr import classical_sr
+    from hbis_torch.reconstruct.classical.transfer import optics_cutoff
+    from hbis_torch.reconstruct.positions import (
+        check_registration,
+        stack_sample_positions,
+    )
+
+    check_registration(registration)
+    raw = stack.to_float()
+    cfa = stack.meta["cfa"]
+    luma = torch.from_numpy((demosaic(raw.numpy(), cfa) @ LUMA.astype(np.float32)).astype(np.float32))
+    proxy = gray_stack(stack, luma.numpy())  # registration sees a demosaicked luminance, not a mosaic
+    positions, trusted = stack_sample_positions(proxy, registration, exact=True, frames=luma, messages=messages)
+    frame_weight = torch.ones(raw.shape[0], dtype=torch.float64)
+    if registration == "data" and raw.shape[0] > 1:
+        frame_weight = trusted.to(torch.float64)
+    if fill_factor is None:
+        fill_factor = stack_fill_factor(stack)
+    masks = torch.from_numpy(bayer_masks(cfa, *raw.shape[1:])).to(torch.float64)
+    planes = [classical_sr(raw, positions, stack.h, deblur, weights=frame_weight[:, None, None] * m[None],
+                           cutoff=optics_cutoff(stack.system), fill_factor=fill_factor, **kw).numpy()
+              for m in masks]
+    return np.stack(planes, axis=-1)
+
+
+def reconstruct_colour(stack, method: str, registration: str = "auto", colour: str | None = None,
+                       **kw) -> np.ndarray:
+    """Super-resolve a colour stack (RGB frames, or raw Bayer frames with a ``cfa`` key).
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+    method : str
+        A key of :data:`hbis_torch.reconstruct.registry.METHODS`.
+    registration : {"optics", "data", "auto"}
+    colour : {"luma", "channels"} or None
+        How RGB goes through the method (module docstring); None: :data:`DEFAULT_MODE`. Raw
+        Bayer frames with the classical method are always demosaicked jointly, per channel.
+    **kw
+        Passed to the method.
+
+    Returns
+    -------
+    np.ndarray, shape (h*H, h*W, 3), float32 in [0, 1]
+    """
+    from hbis_torch.reconstruct.registry import METHODS
+
+    mode = DEFAULT_MODE if colour is None else colour
+    if mode not in COLOUR_MODES:
+        raise HbisInputError(f"colour mode must be one of {', '.join(COLOUR_MODES)}, got {colour!r}")
+    run = METHODS[method]
+    if stack.meta.get("cfa") is not None:
+        if method == "classical":
+            return np.clip(_joint_demosaic_classical(stack, registration, **kw), 0, 1).astype(np.float32)
+        rgb = demosaic(stack.to_float().numpy(), stack.meta["cfa"])
+    else:
+        rgb = stack.to_float().numpy()
+    if mode == "channels":
+        planes = [run(gray_stack(stack, rgb[..., c]), registration=registration, **kw) for c in range(3)]
+        return np.clip(np.stack(planes, axis=-1), 0, 1).astype(np.float32)
+    ycc = rgb_to_ycbcr(rgb.astype(np.float64))
+    y = run(gray_stack(stack, ycc[..., 0]), registration=registration, **kw)
+    chroma = upsample(ycc[stack.reference_index, ..., 1:], stack.h)
+    out = ycbcr_to_rgb(np.concatenate((np.asarray(y, dtype=np.float64)[..., None], chroma), axis=-1))
+    return np.clip(out, 0, 1).astype(np.float32)
