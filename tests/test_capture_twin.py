@@ -17,7 +17,7 @@ from hbis_torch.metrics import psnr
 from hbis_torch.stack_io import read_image, read_stack
 
 FAST = ["--timeout-s", "0.5", "--welcome-timeout-s", "1"]
-ROI = "600,448,48,40"
+ROI = "608,456,32,32"
 
 
 def test_twin_scan_capture_assemble_reconstruct_matches_hbis_simulate(tmp_path, capsys):
@@ -52,11 +52,11 @@ def test_twin_scan_capture_assemble_reconstruct_matches_hbis_simulate(tmp_path, 
 
 def test_simulated_camera_renders_at_the_phases_it_is_given():
     system = FoveaSystem()
-    cam = SimulatedCamera("siemens-star", system, (600, 448, 32, 32), 2, (5.0, 70.0))
+    cam = SimulatedCamera("siemens-star", system, (608, 456, 16, 16), 2, (5.0, 70.0))
     a, b = cam.grab(0, (5.0, 70.0)), cam.grab(0, (5.0, 70.0))
     np.testing.assert_array_equal(a, b)  # frame k's noise depends on k alone
     moved = cam.grab(1, (5.3, 70.4))
-    assert a.shape == (32, 32) and a.dtype == np.uint16 and np.abs(moved.astype(float) - a).mean() > 20
+    assert a.shape == (16, 16) and a.dtype == np.uint16 and np.abs(moved.astype(float) - a).mean() > 20
 
 
 def test_opencv_camera_reads_a_video_file(tmp_path):

@@ -78,6 +78,7 @@ def test_rgb_reconstruction_learned(colour_case):
 
 
 def test_bayer_joint_demosaicking_and_learned_demosaic_first(colour_case, tmp_path):
+    pytest.importorskip("cv2")  # the demosaicking of the registration proxy and of the learned path
     stack, truth = colour_case
     raw = Stack(mosaic(stack.frames, "RGGB").astype(stack.frames.dtype), {**stack.meta, "cfa": "RGGB"})
     write_stack(tmp_path / "raw.tif", raw)

@@ -185,11 +185,11 @@ def test_files_that_are_not_stacks(tmp_path):
     _raw_write(tmp_path / "list.tif", stack.frames, "[1, 2]")
     with pytest.raises(StackFormatError, match="not a JSON object"):
         read_stack(tmp_path / "list.tif")
-    rgb = tmp_path / "rgb.tif"
-    tifffile.imwrite(rgb, np.zeros((5, 6, 3), np.uint8), description=json.dumps(stack.meta),
+    rgba = tmp_path / "rgba.tif"  # RGB frames are a colour stack; RGBA is no stack
+    tifffile.imwrite(rgba, np.zeros((5, 6, 4), np.uint8), description=json.dumps(stack.meta),
                      metadata=None, photometric="rgb")
     with pytest.raises(StackFormatError, match="grayscale"):
-        read_stack(rgb)
+        read_stack(rgba)
     truncated = tmp_path / "cut.tif"
     write_stack(truncated, _stack(np.uint16, frames=4, roi=(0, 0, 64, 64)))
     truncated.write_bytes(truncated.read_bytes()[: 2 * 64 * 64 * 2])
