@@ -83,10 +83,20 @@ def test_bayer_joint_demosaicking_and_learned_demosaic_first(colour_case, tmp_pa
     raw = Stack(mosaic(stack.frames, "RGGB").astype(stack.frames.dtype), {**stack.meta, "cfa": "RGGB"})
     write_stack(tmp_path / "raw.tif", raw)
     assert read_stack(tmp_path / "raw.tif").meta["cfa"] == "RGGB"
+    from hbis_torch.reconstruct.colour import demosaic
+
+    # the baseline: the reference frame demosaicked and interpolated onto the output grid
+    single = demosaic(raw.to_float().numpy()[raw.reference_index][None], "RGGB")[0]
+    inner = (slice(4, -4), slice(4, -4))  # away from a border of 2h HR pixels
+    baseline = psnr(np.clip(upsample(single, 2), 0, 1)[inner], truth[inner])
     joint = reconstruct(raw, "classical", registration="optics")
-    assert joint.shape == (64, 64, 3) and psnr(joint, truth) > 22
+    assert joint.shape == (64, 64, 3)
     learned = reconstruct(raw, "learned", registration="optics")
-    assert learned.shape == (64, 64, 3) and psnr(learned, truth) > 22
+    assert learned.shape == (64, 64, 3)
+    assert psnr(joint[inner], truth[inner]) > baseline + 1.0  # measured: +1.9 dB
+    # demosaicking first leaves the network each frame's demosaicking errors: at h = 2 it only
+    # matches the single frame here (measured -0.15 dB; docs/capture.md has h = 4)
+    assert psnr(learned[inner], truth[inner]) > baseline - 1.0
     # the CLI writes an RGB TIFF
     assert main(["reconstruct", str(tmp_path / "raw.tif"), "--registration", "optics",
                  "--out", str(tmp_path / "sr.tif")]) == 0

@@ -34,8 +34,8 @@ def register(sub) -> None:
     p.add_argument("--no-deblur", action="store_true",
                    help="classical: interpolation only, without the Wiener deblurring")
     p.add_argument("--colour", choices=("luma", "channels"),
-                   help="colour stacks: super-resolve the luminance and interpolate the chroma ('luma', the "
-                   "default) or each of R, G, B ('channels', three times the time); raw Bayer stacks are "
+                   help="colour stacks: super-resolve each of R, G, B ('channels', the default) or only the "
+                   "luminance, interpolating the chroma ('luma', a third of the work); raw Bayer stacks are "
                    "demosaicked jointly by the classical method, first by the learned one")
     from hbis_torch.cli.cmd_assemble import add_calibration_args
 

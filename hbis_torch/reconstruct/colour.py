@@ -9,12 +9,15 @@ RGB frames (F, H, W, 3) go through a method in one of two ways:
 * ``"channels"``: the method runs on R, G and B separately (three reconstructions, three times
   the time), each at full resolution.
 
-docs/capture.md gives the measurement that chose the default (:data:`DEFAULT_MODE`).
+The default (:data:`DEFAULT_MODE`) is ``"channels"``: on three photographs (astronaut, coffee,
+chelsea; h = 4, 64 x 64 px) it scored 0.3 dB (classical) and 1.6 dB (learned) more PSNR than
+``"luma"``, for about twice the time (benchmarks/bench_colour.py, docs/capture.md).
 
 Raw Bayer frames (F, H, W) with a ``cfa`` key: the classical method demosaicks jointly: every
 colour sample enters the splatting at its own position (the sample positions of its pixel), with
 per-channel masks as sample weights, as in Wronski et al., SIGGRAPH 2019; each colour plane is
-reconstructed from its own samples only. The learned method demosaicks each frame first (OpenCV's
+reconstructed from its own samples only (interpolated, not deblurred: see
+:func:`_joint_demosaic_classical`). The learned method demosaicks each frame first (OpenCV's
 edge-aware demosaicking) and then takes the RGB path.
 """
 
@@ -26,7 +29,7 @@ import torch
 from hbis_torch.errors import HbisInputError
 
 COLOUR_MODES = ("luma", "channels")
-DEFAULT_MODE = "luma"
+DEFAULT_MODE = "channels"
 LUMA = np.array([0.299, 0.587, 0.114])
 
 
@@ -92,7 +95,16 @@ def demosaic(raw: np.ndarray, cfa: str) -> np.ndarray:
 
 def _joint_demosaic_classical(stack, registration: str, messages=None, deblur: bool = True,
                               fill_factor: float | None = None, **kw) -> np.ndarray:
-    """Classical SR of raw Bayer frames, each colour from its own samples at their own positions."""
+    """Classical SR of raw Bayer frames, each colour from its own samples at their own positions.
+
+    Each plane is the normalized-convolution interpolation of its samples alone; the Wiener step
+    is left out: it assumes a sample at every node of the h-times lattice, while a colour's
+    samples fill only half (G) or a quarter (R, B) of it, in blocks, and deblurring those planes
+    cost 6 to 11 dB (benchmarks/bench_colour.py, docs/capture.md).
+    """
+    if deblur and messages is not None:
+        messages.append("raw Bayer frames: joint demosaicking interpolates each colour without the Wiener "
+                        "deblurring (a colour's samples do not fill the lattice it assumes)")
     from hbis_torch.reconstruct.classical.method import stack_fill_factor
     from hbis_torch.reconstruct.classical.sr import classical_sr
     from hbis_torch.reconstruct.classical.transfer import optics_cutoff
@@ -113,7 +125,7 @@ def _joint_demosaic_classical(stack, registration: str, messages=None, deblur: b
     if fill_factor is None:
         fill_factor = stack_fill_factor(stack)
     masks = torch.from_numpy(bayer_masks(cfa, *raw.shape[1:])).to(torch.float64)
-    planes = [classical_sr(raw, positions, stack.h, deblur, weights=frame_weight[:, None, None] * m[None],
+    planes = [classical_sr(raw, positions, stack.h, False, weights=frame_weight[:, None, None] * m[None],
                            cutoff=optics_cutoff(stack.system), fill_factor=fill_factor, **kw).numpy()
               for m in masks]
     return np.stack(planes, axis=-1)
