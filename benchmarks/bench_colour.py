@@ -12,11 +12,10 @@ process per reconstruction are given beside (one thread).
 
 from __future__ import annotations
 
-import benchutil  # first: pins numpy/scipy to one thread before they load
-
 import argparse
 import time
 
+import benchutil  # first: pins numpy/scipy to one thread before they load
 import numpy as np
 import skimage.data
 import torch

@@ -26,7 +26,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from hbis_torch.capture.bayer import bayer_masks, demosaic, mosaic
 from hbis_torch.errors import HbisInputError
+
+__all__ = ["COLOUR_MODES", "DEFAULT_MODE", "bayer_masks", "demosaic", "mosaic", "reconstruct_colour"]
 
 COLOUR_MODES = ("luma", "channels")
 DEFAULT_MODE = "channels"
@@ -62,35 +65,6 @@ def gray_stack(stack, frames):
     meta = {k: v for k, v in stack.meta.items() if k not in ("bit_depth", "black_level", "cfa")}
     frames = np.clip(np.asarray(frames, dtype=np.float32), 0.0, 1.0)
     return Stack(np.ascontiguousarray(frames), meta)
-
-
-def bayer_masks(cfa: str, height: int, width: int) -> np.ndarray:
-    """(3, H, W) bool: which pixels carry R, G and B under the pattern ``cfa`` (e.g. "RGGB")."""
-    masks = np.zeros((3, height, width), dtype=bool)
-    for k, colour in enumerate(cfa):
-        masks["RGB".index(colour), k // 2::2, k % 2::2] = True
-    return masks
-
-
-def mosaic(rgb: np.ndarray, cfa: str) -> np.ndarray:
-    """The raw Bayer frames (..., H, W) a sensor with pattern ``cfa`` records of RGB (..., H, W, 3)."""
-    masks = bayer_masks(cfa, *rgb.shape[-3:-1])
-    return np.einsum("...hwc,chw->...hw", rgb, masks.astype(rgb.dtype))
-
-
-_OPENCV_CODES = {"RGGB": "COLOR_BayerRGGB2RGB_EA", "BGGR": "COLOR_BayerBGGR2RGB_EA",
-                 "GRBG": "COLOR_BayerGRBG2RGB_EA", "GBRG": "COLOR_BayerGBRG2RGB_EA"}
-
-
-def demosaic(raw: np.ndarray, cfa: str) -> np.ndarray:
-    """Raw Bayer frames (F, H, W) float in [0, 1] -> RGB (F, H, W, 3) float32, OpenCV edge-aware."""
-    from hbis_torch.capture.frames import import_cv2
-
-    cv2 = import_cv2("demosaicking Bayer frames")
-    code = getattr(cv2, _OPENCV_CODES[cfa])
-    scaled = np.round(np.clip(raw, 0.0, 1.0) * 65535).astype(np.uint16)
-    out = np.stack([cv2.cvtColor(np.ascontiguousarray(f), code) for f in scaled])
-    return out.astype(np.float32) / 65535
 
 
 def _joint_demosaic_classical(stack, registration: str, messages=None, deblur: bool = True,

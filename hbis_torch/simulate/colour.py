@@ -40,7 +40,7 @@ def simulate_colour_stack(rgb, system: FoveaSystem, plan, roi=None, sensor: Sens
         Frames (F, H, W, 3), or (F, H, W) raw Bayer with ``cfa``.
     truth : np.ndarray, shape (h*H, h*W, 3), float32 in [0, 1]
     """
-    from hbis_torch.reconstruct.colour import mosaic
+    from hbis_torch.capture.bayer import mosaic
 
     sensor = SensorModel() if sensor is None else sensor
     image = np.asarray(rgb)
