@@ -81,3 +81,38 @@ def test_camera_spec_and_missing_source_are_input_errors(tmp_path):
     pytest.importorskip("cv2")
     with pytest.raises(HbisInputError, match="cannot open"), OpenCVCamera(str(tmp_path / "none.avi")):
         pass
+
+
+def test_capture_cmd_writing_a_pattern_ends_in_a_stack(tmp_path, capsys):
+    """--capture-cmd writes each frame by pattern; --stack assembles them when the scan is done."""
+    import sys
+
+    grab = (f"{sys.executable} -c \"import sys, numpy, tifffile; "
+            "tifffile.imwrite(sys.argv[1], numpy.full((12, 16), int(sys.argv[2]), numpy.uint8))\" "
+            f"{tmp_path}/cap_{{index}}.tif {{index}}")
+    with GrblSimulator(speedup=50, max_lifetime_s=60) as sim:
+        code = main(["motors", "--port", sim.port, *FAST, "scan", "--h", "2", "--settle-s", "0",
+                     "--journal", str(tmp_path / "j.json"), "--capture-cmd", grab,
+                     "--frames", str(tmp_path / "cap_{index}.tif"), "--roi", "600,450,16,12",
+                     "--stack", str(tmp_path / "stack.tif")])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    stack = read_stack(tmp_path / "stack.tif")
+    assert stack.frames.shape == (4, 12, 16) and [int(f[0, 0]) for f in stack.frames] == [0, 1, 2, 3]
+    assert stack.reference_index == 3 and stack.bit_depth == 8
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--stack", "s.tif"], "need --frames"),
+    (["--camera", "sim:flat", "--capture-cmd", "true", "--frames", "f{index}.tif"], "not both"),
+    (["--frames", "f.tif", "--stack", "s.tif", "--capture-cmd", "true"], "must hold {index}"),
+    (["--camera", "webcam", "--frames", "f{index}.tif"], "opencv:SOURCE"),
+])
+def test_capture_options_are_checked_before_anything_moves(tmp_path, capsys, args, fragment, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with GrblSimulator(speedup=50, max_lifetime_s=30) as sim:
+        assert main(["motors", "--port", sim.port, *FAST, "scan", "--h", "2", *args]) == 2
+        assert sim.machine.position_deg()[:2] == (0.0, 0.0)
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and fragment in err, err
+    assert not (tmp_path / "s.tif").exists()
