@@ -9,7 +9,6 @@ import shlex
 import subprocess
 from pathlib import Path
 
-from hbis_torch.capture.cameras import camera_from_spec
 from hbis_torch.errors import HbisInputError
 from hbis_torch.hardware.grbl import GrblController, GrblTimeouts
 from hbis_torch.hardware.grbl_protocol import nearest_step_phase
@@ -223,6 +222,8 @@ def run_scan_cmd(args) -> int:
         if args.dry_run:
             return 0
         if args.camera:
+            from hbis_torch.capture.cameras import camera_from_spec
+
             camera = camera_from_spec(args.camera, system_from_args(args), roi, args.h, initial, seed=args.seed)
             stack.enter_context(camera)
             capture = _camera_capture(camera, args.frames)
@@ -311,7 +312,7 @@ def _camera_capture(camera, pattern: str):
 def _assemble(args, plan, initial, result, roi, camera) -> None:
     """Assemble the scan's frame files into --stack (the checks of 'hbis assemble')."""
     from hbis_torch.capture import ScanPhases, assemble_stack, read_frames
-    from hbis_torch.stack_io import write_stack
+    from hbis_torch.stack_io import system_meta, write_stack
 
     system = system_from_args(args)
     scan = ScanPhases(args.h, result.phases_deg.numpy(), result.targets_deg.numpy(), int(plan.reference_index),
