@@ -216,3 +216,14 @@ def test_dark_flat_and_bad_pixels_undo_a_sensor_s_pixel_response(tmp_path):
     assert main(["reconstruct", str(tmp_path / "raw_stack.tif"), "--flat", str(tmp_path / "small.tif"),
                  "--out", str(tmp_path / "sr2.tif")]) == 2
     assert not (tmp_path / "sr2.tif").exists()
+
+
+def test_without_opencv_a_video_is_one_clear_line(tmp_path, monkeypatch):
+    import sys
+
+    from hbis_torch.errors import HbisInputError
+
+    (tmp_path / "scan.avi").write_bytes(b"\0" * 16)
+    monkeypatch.setitem(sys.modules, "cv2", None)  # as if the 'camera' extra were not installed
+    with pytest.raises(HbisInputError, match=r"needs OpenCV: pip install 'hbis-torch\[camera\]'"):
+        read_frames([str(tmp_path / "scan.avi")])
