@@ -126,3 +126,22 @@ def test_opencv_filestorage_calibration_yaml_and_json(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err and "for a 640 x 480 sensor" in err
     assert not (tmp_path / "stack.tif").exists()
+
+
+def test_a_stack_keeps_its_lens_and_the_reconstruction_needs_it(tmp_path):
+    """A strongly distorting lens (k1 = -0.6), frames at the sensor's corner: reconstructing
+    through the stored calibration beats assuming the ideal camera (measured 19.01 vs 18.75 dB)."""
+    from hbis_torch.metrics import psnr
+    from hbis_torch.reconstruct import reconstruct
+    from hbis_torch.simulate import SensorModel, simulate_stack
+    from hbis_torch.stack_io import Stack, read_stack, write_stack
+
+    lens = LensCalibration(3210.0, 3195.0, 651.3, 470.2, (-0.6, 0.3, 0.004, -0.003, 0.0), (1280, 960))
+    system = FoveaSystem(replace(Camera(), lens=lens))
+    stack, truth = simulate_stack("siemens-star", system, 4, (0, 0, 32, 32), SensorModel(noise=False))
+    write_stack(tmp_path / "s.tif", stack)
+    back = read_stack(tmp_path / "s.tif")
+    assert back.system.camera.lens == lens and back.meta["camera"]["lens"]["distortion"][0] == -0.6
+    ideal = Stack(back.frames, {**back.meta, "camera": {k: v for k, v in back.meta["camera"].items() if k != "lens"}})
+    with_lens = psnr(reconstruct(back, "classical", registration="optics"), truth)
+    assert with_lens > psnr(reconstruct(ideal, "classical", registration="optics"), truth) + 0.1
