@@ -419,9 +419,16 @@ def read_stack(path) -> Stack:
     return Stack(frames, meta)
 
 
-def _tiff_write(tmp: Path, array: np.ndarray, description: str) -> None:
+def _tiff_write(tmp: Path, array: np.ndarray, description: str, pixel_size_um: float | None = None) -> None:
+    """One ImageDescription (``description``, the file's JSON) and, with ``pixel_size_um``, the
+    pixel size as XResolution/YResolution in pixels per centimetre (ResolutionUnit 3), the TIFF
+    unit that ImageJ/Fiji, napari's tifffile-based readers and GDAL read as the image's scale."""
     import tifffile
 
+    resolution = {}
+    if pixel_size_um is not None and math.isfinite(pixel_size_um) and pixel_size_um > 0:
+        per_cm = 1e4 / float(pixel_size_um)
+        resolution = {"resolution": (per_cm, per_cm), "resolutionunit": tifffile.RESUNIT.CENTIMETER}
     tifffile.imwrite(
         tmp,
         array,
@@ -429,7 +436,28 @@ def _tiff_write(tmp: Path, array: np.ndarray, description: str) -> None:
         metadata=None,
         photometric="rgb" if array.ndim == 4 or (array.ndim == 3 and array.shape[-1] == 3) else "minisblack",
         bigtiff=array.nbytes > 2**31,
+        **resolution,
     )
+
+
+def object_pixel_um(system: FoveaSystem, h: int = 1) -> float:
+    """Size on the object plane (at the object distance v) of one pixel of an image sampled
+    ``h`` times finer than the sensor, in um: ``p * v / f' / h``. The pixel size every hbis TIFF
+    records (stack frames: ``h = 1``; ground truths and reconstructions: the stack's ``h``)."""
+    return 1e3 * system.object_pixel_mm / int(h)
+
+
+def read_pixel_size_um(path) -> float | None:
+    """The pixel size a TIFF records in its resolution tags, in um (None where it has none)."""
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        tags = tif.pages[0].tags
+        unit, res = tags.get("ResolutionUnit"), tags.get("XResolution")
+        if unit is None or res is None or int(unit.value) != 3:
+            return None
+        per_cm = res.value[0] / res.value[1]
+    return 1e4 / per_cm if per_cm > 0 else None
 
 
 def write_stack(path, stack: Stack) -> None:
@@ -442,14 +470,20 @@ def write_stack(path, stack: Stack) -> None:
         description = json.dumps(meta, allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise StackFormatError(f"{path}: the stack's JSON cannot be written ({exc})") from None
+    try:
+        pixel_um = object_pixel_um(_system_from_meta(meta, str(path)))
+    except HbisInputError:
+        pixel_um = None
     with atomic_path(path) as tmp:
-        _tiff_write(tmp, frames, description)
+        _tiff_write(tmp, frames, description, pixel_um)
 
 
-def write_image(path, image, meta: dict | None = None) -> None:
+def write_image(path, image, meta: dict | None = None, pixel_size_um: float | None = None) -> None:
     """Write one float32 image (H, W) in [0, 1] (a ground truth or a reconstruction) atomically.
 
-    ``meta`` (optional) goes to the ImageDescription as JSON.
+    ``meta`` (optional) goes to the ImageDescription as JSON. ``pixel_size_um`` (optional, on the
+    object plane: :func:`object_pixel_um`) goes to the resolution tags and to the JSON as
+    ``pixel_size_um`` with ``pixel_plane: "object"``.
     """
     path = Path(path)
     image = np.asarray(image.detach().cpu() if isinstance(image, torch.Tensor) else image)
@@ -458,9 +492,12 @@ def write_image(path, image, meta: dict | None = None) -> None:
     image = image.astype(np.float32)
     if not np.isfinite(image).all():
         raise HbisInputError(f"{path}: the image contains NaN or infinite values")
-    description = json.dumps(_jsonable(meta or {}), allow_nan=False)
+    meta = dict(meta or {})
+    if pixel_size_um is not None:
+        meta.update(pixel_size_um=float(pixel_size_um), pixel_plane="object")
+    description = json.dumps(_jsonable(meta), allow_nan=False)
     with atomic_path(path) as tmp:
-        _tiff_write(tmp, image, description)
+        _tiff_write(tmp, image, description, pixel_size_um)
 
 
 def read_image(path) -> tuple[np.ndarray, dict]:

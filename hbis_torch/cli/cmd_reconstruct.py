@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -44,9 +43,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from hbis_torch.io_utils import atomic_path
     from hbis_torch.reconstruct.registry import METHODS, reconstruct
-    from hbis_torch.stack_io import read_stack
+    from hbis_torch.stack_io import object_pixel_um, read_stack, write_image
 
     if args.method not in METHODS:
         raise HbisInputError(
@@ -73,13 +71,9 @@ def run(args) -> int:
                         messages=messages, **kw)
     for line in messages:
         print(f"hbis reconstruct: {line}", file=sys.stderr)
-    description = json.dumps({"format": "hbis-sr/1", "source": args.stack.name, "method": args.method,
-                              "registration": args.registration, "h": stack.h, "roi": list(stack.roi),
-                              "reference_index": stack.reference_index})
-    import tifffile
-
-    with atomic_path(args.out) as tmp:
-        tifffile.imwrite(tmp, image, description=description,
-                         photometric="rgb" if image.ndim == 3 else "minisblack")
+    meta = {"format": "hbis-sr/1", "source": args.stack.name, "method": args.method,
+            "registration": args.registration, "h": stack.h, "roi": list(stack.roi),
+            "reference_index": stack.reference_index}
+    write_image(args.out, image, meta, pixel_size_um=object_pixel_um(stack.system, stack.h))
     print(f"wrote {args.out} ({image.shape[0]} x {image.shape[1]} px, float32{', RGB' if image.ndim == 3 else ''})")
     return 0

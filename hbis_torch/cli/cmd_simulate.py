@@ -112,7 +112,7 @@ def run(args) -> int:
     from hbis_torch.scan import plan_scan
     from hbis_torch.simulate import SensorModel, simulate_stack
     from hbis_torch.simulate.stacks import scene_for_roi
-    from hbis_torch.stack_io import write_image, write_stack
+    from hbis_torch.stack_io import object_pixel_um, write_image, write_stack
 
     system = system_from_args(args)
     check_h(args.h)
@@ -148,7 +148,8 @@ def run(args) -> int:
                f"{scene.size_mm[0]:.3f} x {scene.size_mm[1]:.3f} mm")
     if args.truth:
         write_image(args.truth, truth, {"format": "hbis-truth/1", "h": args.h, "roi": list(roi),
-                                        "reference_index": stack.reference_index, "stack": out.name})
+                                        "reference_index": stack.reference_index, "stack": out.name},
+                    pixel_size_um=object_pixel_um(system, args.h))
         message += f"; truth {args.truth}: {truth.shape[1]} x {truth.shape[0]} float32"
     print(message)
     return 0
