@@ -37,8 +37,10 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from hbis_torch.progress import progress_enabled
+
     system = system_from_args(args)
     for name in args.only or FIGURE_SET_NAMES:
-        for path in figure_set(name)(Path(args.out), system):
+        for path in figure_set(name)(Path(args.out), system, progress=progress_enabled()):
             print(path)
     return 0

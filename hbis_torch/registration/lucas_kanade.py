@@ -234,7 +234,9 @@ class _LucasKanade:
         # ``tol`` since (its last, small step is applied), so these are its statistics:
         # [r, mask, w, sigma, slope, target, normal matrix], each with the frames first.
         last: list[Tensor] = []
-        for _ in range(iterations):
+        from hbis_torch.progress import progress
+
+        for _ in progress(range(iterations), desc=f"registration ({model})", unit="it"):
             todo = ~(converged | diverged)
             everyone = bool(todo.all())
             active = slice(None) if everyone else todo.nonzero()[:, 0]

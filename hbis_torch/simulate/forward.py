@@ -242,6 +242,9 @@ def render_scan(
     if given is not None and tuple(given.shape) != (n_frames, height, width, 2):
         raise HbisInputError(f"positions must have shape {(n_frames, height, width, 2)}, got {tuple(given.shape)}")
     positions = torch.empty(n_frames, height, width, 2, dtype=torch.float64) if return_positions else None
+    from hbis_torch.progress import progress
+
+    bar = progress(total=-(-height // tile) * -(-width // tile), desc="simulate", unit="tile")
     for tv in range(v0, v0 + height, tile):
         for tu in range(u0, u0 + width, tile):
             tw, th = min(tile, u0 + width - tu), min(tile, v0 + height - tv)
@@ -276,6 +279,8 @@ def render_scan(
             irradiance[:, tv - v0:tv - v0 + th, tu - u0:tu - u0 + tw] = values.float()
             if positions is not None:
                 positions[:, tv - v0:tv - v0 + th, tu - u0:tu - u0 + tw] = q
+            bar.update()
+    bar.close()
     if positions is not None:
         positions -= torch.tensor([u0, v0], dtype=torch.float64)
     return RenderedScan(irradiance.clamp_(0.0, 1.0), truth.clamp_(0.0, 1.0), positions, scene)

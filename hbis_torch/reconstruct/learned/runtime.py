@@ -243,8 +243,20 @@ class LearnedSR:
         return self.session.run(["image"], {"frames": frames_reg, "offsets": offsets})[0]
 
     def run_network(self, frames_reg: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """Raw network output for registered inputs, tiled; (h^2, H, W), (2h^2, H, W) -> (hH, hW)."""
-        return run_tiled(self.infer, frames_reg, offsets, self.h, self.tile, self.halo)
+        """Raw network output for registered inputs, tiled; (h^2, H, W), (2h^2, H, W) -> (hH, hW).
+
+        A progress bar counts the tiles (:mod:`hbis_torch.progress`)."""
+        from hbis_torch.progress import progress
+
+        rows, cols = frames_reg.shape[-2:]
+        tiles = 1 if rows <= self.tile and cols <= self.tile else -(-rows // self.tile) * -(-cols // self.tile)
+        with progress(total=tiles, desc=f"learned SR ({self.provider})", unit="tile") as bar:
+            def infer(frames, offsets):
+                image = self.infer(frames, offsets)
+                bar.update()
+                return image
+
+            return run_tiled(infer, frames_reg, offsets, self.h, self.tile, self.halo)
 
     def __call__(self, frames, positions) -> np.ndarray:
         """Super-resolve frames (F, H, W) in [0, 1] with positions (F, H, W, 2) -> (hH, hW) in [0, 1]."""
