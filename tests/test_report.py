@@ -1,6 +1,7 @@
 """The demo's outputs and its one-page HTML report (checked in a real browser when one exists)."""
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -70,6 +71,38 @@ def test_demo_numbers_are_consistent(demo_dir):
     assert sr.shape == tuple(summary["sr"]["shape"])
 
 
+def test_report_opens_on_its_headline_numbers_with_real_captions(demo_dir):
+    import hbis_torch
+    from hbis_torch.system.report.report import FIGURE_CAPTIONS
+
+    out, page, summary = demo_dir
+    text = page.read_text()
+    top = text[:text.index("<img")]  # everything above the first picture
+    assert "<h2>Summary</h2>" in top and f"hbis-torch {hbis_torch.__version__}" in top and " UTC" in top
+    sr = summary["sr"]
+    for number in (f"{summary['fer']['measured_refined']['rectangle']['fer_h']:.2f}",
+                   f"{summary['foveal_ratio']['measured']:.2f}", f"{summary['bandwidth']['bsr_from_coverage']:.3f}",
+                   f"{sr['psnr_sr_db']:.2f} dB", f"bicubic {sr['psnr_bicubic_db']:.2f} dB", "time of the chain"):
+        assert number in top, number
+    # the fixture's chain runs the classical method, so its PSNR is the SR's own (another method
+    # would be compared with it in the summary: test_summary_compares_another_method_with_classical)
+    assert summary["config"]["method"] == "classical" and sr["psnr_classical_db"] == sr["psnr_sr_db"]
+    assert "varphi" not in text and "φ" in text
+    for name in ("fig4_fov_fer.png", "fig6_bsr.png", "fig10_fov_layout.png"):
+        assert f"<figcaption>{FIGURE_CAPTIONS[name]}</figcaption>".replace("'", "&#x27;") in text
+    assert set(summary["timings_s"]) == set(__import__("hbis_torch.system.pipeline", fromlist=["x"]).STAGES)
+
+
+def test_summary_compares_another_method_with_classical(demo_dir):
+    from hbis_torch.system.report.report import render_report
+
+    _, _, summary = demo_dir
+    learned = {**summary, "config": {**summary["config"], "method": "learned"},
+               "sr": {**summary["sr"], "psnr_sr_db": 40.0, "psnr_classical_db": 35.5}}
+    text = render_report(learned, design(FoveaSystem()).to_dict(), [], {"version": "9", "date": "d", "command": "c"})
+    assert "SR PSNR, learned" in text and "40.00 dB" in text and "classical 35.50 dB" in text
+
+
 @pytest.mark.skipif(BROWSER is None, reason="no chromium installed")
 def test_report_renders_in_a_headless_browser(demo_dir):
     out, page, _ = demo_dir
@@ -88,6 +121,16 @@ def test_report_renders_in_a_headless_browser(demo_dir):
     # the page shows pictures, not a blank or an error page: much of it is neither white nor flat
     assert float(grey.std()) > 40.0
     assert float((grey < 200).mean()) > 0.25
+    # the browser's first heading after the title is the summary, with its table
+    with tempfile.TemporaryDirectory() as profile:
+        dom = subprocess.run(
+            [BROWSER, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-sync",
+             "--disable-background-networking", "--disable-component-update", f"--user-data-dir={profile}",
+             "--dump-dom", page.resolve().as_uri()],
+            check=True, capture_output=True, text=True, timeout=120,
+        ).stdout
+    headings = re.findall(r"<h2>([^<]+)</h2>", dom)
+    assert headings[0] == "Summary" and dom.index("<table>") < dom.index("<img")
 
 
 def test_demo_cli_design_only_and_bad_arguments(tmp_path, capsys):

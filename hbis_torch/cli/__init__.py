@@ -157,6 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser(argv)
     parser.argv = argv
     args = parser.parse_args(parser.argv)
+    args.argv = ["hbis", *argv]  # the command line, for outputs that record it (the demo's report)
     configure_logging(args.verbose, args.quiet)
     try:
         code = int(args.func(args) or 0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -86,17 +87,22 @@ def _run(args):
     report = design(system).to_dict()
     prototype = design(system, varphi_h_deg=15.0, varphi_v_deg=10.0, h=4).to_dict()
     sets = FIGURE_SET_NAMES if args.figure_sets is None else args.figure_sets
-    figures = [str(p) for name in sets for p in figure_set(name)(out / "figures", system)]
+    from hbis_torch.progress import progress_enabled
+
+    figures = [str(p) for name in sets
+               for p in figure_set(name)(out / "figures", system, progress=progress_enabled())]
     summary = {"design_at_limits": report, "prototype_15_10_h4": prototype, "figures": figures}
     _print_design(report, prototype)
     if args.design_only:
         return summary, None
     config = ChainConfig(h=args.h, roi_size=args.roi, seed=args.seed, refine=not args.no_refine,
                          assembly_sigma_deg=args.assembly_error_deg, method=args.method, model=args.model)
-    system_summary = run_chain(out, system, config)
+    system_summary = run_chain(out, system, config, log=logging.getLogger("hbis_torch.system.pipeline").info)
     summary["system"] = system_summary
     relative = [str(Path(f).relative_to(out)) for f in figures]
-    page = write_report(out, system_summary, report, relative)
+    from hbis_torch.system.report.report import run_info
+
+    page = write_report(out, system_summary, report, relative, run=run_info(getattr(args, "argv", None)))
     _print_system(system_summary)
     return summary, page
 

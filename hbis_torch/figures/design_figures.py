@@ -38,7 +38,10 @@ def _sweeps(system: FoveaSystem, progress: bool) -> dict:
 
 
 def figure_4(system: FoveaSystem, sweeps: dict, path: Path) -> Path:
-    """Whole FOV and FER (shaded between varphi = theta and the upper limit) vs alpha and n."""
+    """Whole FOV and FER (shaded between varphi = theta and the upper limit) vs alpha and n.
+
+    FER = FOV / (2 theta) in each direction, so the two are one curve: it is drawn once (red,
+    the FOV on the left axis) and the right axis reads the same curve in FER."""
     theta = dict(zip("hv", half_fov_deg(system.camera)))
     fig, axes = plt.subplots(2, 2, figsize=(11, 8))
     panels = [("alpha", "v", "(a) vertical, n = 1.5"), ("alpha", "h", "(b) horizontal, n = 1.5"),
@@ -51,12 +54,11 @@ def figure_4(system: FoveaSystem, sweeps: dict, path: Path) -> Path:
         ax.plot(x, fov_hi, color="tab:red")
         ax.set_xlabel("wedge angle a [deg]" if key == "alpha" else "refractive index n")
         ax.set_ylabel("whole FOV [deg]", color="tab:red")
-        ax2 = ax.twinx()
-        fer_hi = np.array(s[f"fer_{d}"])
-        ax2.fill_between(x, np.full_like(fer_hi, 2.0), fer_hi, color="tab:blue", alpha=0.2,
-                         label="FER range")
-        ax2.plot(x, fer_hi, color="tab:blue")
-        ax2.set_ylabel("FER", color="tab:blue")
+        ax.tick_params(axis="y", colors="tab:red")
+        two_theta = 2 * theta[d]
+        ax2 = ax.secondary_yaxis("right", functions=(lambda f, t=two_theta: f / t, lambda r, t=two_theta: r * t))
+        ax2.set_ylabel("FER = FOV / 2θ (same curve)")
+        ax.legend(fontsize=8, loc="upper left")
         ax.set_title(title)
         ax.grid(alpha=0.3)
     fig.suptitle("Fig. 4: whole FOV and FOV extension ratio")
@@ -118,7 +120,8 @@ def figure_10(system: FoveaSystem, path: Path, cases=((18.4, 12.9, 4.0), (11.3, 
             poly = _to_angles(rays @ rot.T)
             ax.fill(poly[:, 0], poly[:, 1], alpha=0.12, color="tab:blue")
             ax.plot(poly[:, 0], poly[:, 1], color="tab:blue", lw=1)
-            ax.text(*poly.mean(0), f"C{r}{c}", ha="center", va="center", fontsize=8)
+            ax.text(*poly.mean(0), f"C{r}{c}", ha="center", va="center", fontsize=8, zorder=5,
+                    bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
         phases = torch.arange(0.0, 360.0, 7.5, dtype=torch.float64)
         fovea = exit_directions(rays, phases[:, None], phases[:, None], s.prisms)
         for poly in _to_angles(fovea):
@@ -131,8 +134,9 @@ def figure_10(system: FoveaSystem, path: Path, cases=((18.4, 12.9, 4.0), (11.3, 
         ax.set_aspect("equal")
         ax.set_xlabel("horizontal angle [deg]")
         ax.set_ylabel("vertical angle [deg]")
-        ax.set_title(f"({tag}) varphi_h = {vh}, varphi_v = {vv}, a = {alpha} deg")
-        ax.grid(alpha=0.3)
+        ax.set_title(f"({tag}) $\\varphi_h$ = {vh}°, $\\varphi_v$ = {vv}°, a = {alpha}°")
+        ax.set_axisbelow(True)
+        ax.grid(alpha=0.3, zorder=0)
         ax.legend(fontsize=7, loc="lower right")
     fig.suptitle("Fig. 10: FOV of the periphery cameras and the fovea's scan field")
     fig.tight_layout()

@@ -100,14 +100,17 @@ def figure_5(system: FoveaSystem, path: Path, h: int = 7, progress: bool = True)
         (axes[2], "refractive_index", INDICES, "refractive index n", "(c) refractive index "
          "(a = %g deg)" % system.prisms.wedge_angle_deg),
     ):
-        for initial in EXAMPLES:
+        # Distinct line styles and widths, widest first: curves that coincide stay visible.
+        styles = (("-", "o", 3.2), ("--", "s", 2.0), (":", "^", 1.2))
+        for initial, (style, mark, width) in zip(EXAMPLES, styles):
             ys = []
             for value in values:
                 s = replace(system, prisms=replace(system.prisms, **{param: float(value)}))
                 ys.append(max_axis_ae(s, h, initial))
                 exact_worst = max(exact_worst, max_axis_ae(s, h, initial, "exact") or 0.0)
                 bar.update(2)
-            ax.plot(values, _gaps(ys), marker=".", label=f"initial ({initial[0]:g}, {initial[1]:g})")
+            ax.plot(values, _gaps(ys), linestyle=style, lw=width, marker=mark, ms=3.5, markevery=4,
+                    label=f"initial ({initial[0]:g}, {initial[1]:g})")
         ax.set_xlabel(label)
         ax.set_ylabel("maximum axis AE [SL]")
         ax.set_title(title)

@@ -81,6 +81,11 @@ class ChainConfig:
     path: Trajectory | None = None  # the moving object's path (None: scenario.default_path())
 
 
+#: The stages :func:`run_chain` times (``timings_s``) and shows in its progress bar.
+STAGES = ("render views", "refine stitching", "two-stage loop", "panorama", "composite and measures",
+          "SR quality", "pictures")
+
+
 def make_reconstruct_fn(method: str, model: str | None = None):
     """``reconstruct_fn`` for the loop: ``hbis_torch.reconstruct.reconstruct(stack, method, ...)``."""
     from hbis_torch.reconstruct import reconstruct
@@ -167,14 +172,19 @@ def run_chain(out_dir, system: FoveaSystem = FoveaSystem(), config: ChainConfig 
     """Run the chain, write its pictures into ``out_dir``; returns the summary (see module)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    from hbis_torch.progress import progress
+
     timings: dict[str, float] = {}
     clock = time.perf_counter()
+    bar = progress(total=len(STAGES), desc="demo", unit="stage")
 
     def lap(name: str) -> None:
         nonlocal clock
         now = time.perf_counter()
         timings[name] = round(now - clock, 2)
         clock = now
+        bar.set_postfix_str(name)
+        bar.update()
 
     cfg = config
     nominal = CameraArray(system, cfg.varphi_h_deg, cfg.varphi_v_deg)
@@ -223,9 +233,15 @@ def run_chain(out_dir, system: FoveaSystem = FoveaSystem(), config: ChainConfig 
     quality = {}
     if capture.truth is not None:
         quality = {"psnr_sr_db": psnr(capture.sr, capture.truth), "psnr_bicubic_db": psnr(bicubic, capture.truth)}
+        # The classical method on the same stack, so that the report compares the two methods.
+        classical = (capture.sr if cfg.method == "classical"
+                     else make_reconstruct_fn("classical")(capture))
+        quality["psnr_classical_db"] = psnr(classical, capture.truth)
+    lap("SR quality")
     images = _pictures(out, cfg, views, pano, pano_design, fer, composites, capture, sub_image, t_sr,
                        (result.events, _truth_x(scene, result.end_s)))
     lap("pictures")
+    bar.close()
     events = [e.to_dict() for e in result.events]
     return {
         "config": asdict(cfg),

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import html
 import re
+import shlex
+import sys
+from datetime import datetime, timezone
 from pathlib import Path
 
 from hbis_torch.io_utils import atomic_write_text
@@ -26,7 +29,75 @@ figcaption { font-size: 0.9em; color: #555; }
 .pair { display: flex; gap: 1em; flex-wrap: wrap; } .pair figure { flex: 1 1 45%; }
 .pair figure img { width: 100%; } img.pixels { image-rendering: pixelated; }
 .note { font-size: 0.9em; color: #555; }
+.meta { font-size: 0.85em; color: #555; margin-top: 0; } .meta code { font-size: 0.95em; }
+.summary { background: #f6f8fa; border: 1px solid #d0d7de; border-radius: 6px; padding: 0.4em 1em 0.8em; }
+.summary h2 { margin-top: 0.4em; } .summary table { font-size: 1em; background: #fff; }
+.summary td:nth-child(2) { font-weight: 600; }
 """
+
+#: Captions of the figures ``hbis figures`` draws, by file name (a file not listed: its stem).
+FIGURE_CAPTIONS = {
+    "fig3_scan_patterns.png": "Fig. 3: the h x h sub-pixel scan patterns (raster order, x fastest), frames "
+    "numbered from 0 as in the stack; green: the reference frame, taken at the initial phases.",
+    "fig4_fov_fer.png": "Fig. 4: the whole FOV (left axis) and the FOV extension ratio FER = FOV / 2θ "
+    "(right axis: the same curve read in FER) against the wedge angle a and the refractive index n; shaded: "
+    "from φ = θ up to the largest inclination without a blind zone.",
+    "fig5_max_ae.png": "Fig. 5: the largest alignment error of the optical axis with the paper's inverse "
+    "(eqs. 8-9), h = 7, against φ2 for three φ1, against the wedge angle and against the index; the exact "
+    "inverse's worst value is quoted on each panel.",
+    "fig6_bsr.png": "Fig. 6: the bandwidth saving ratio (eq. 10) at the FER limits, one curve per h, against "
+    "the wedge angle and the refractive index.",
+    "fig10_fov_layout.png": "Fig. 10: the FOV of the eight periphery cameras (blue, labelled C_row,col) and the "
+    "fovea's scan field (red: its FOV with the prisms aligned at every phase; dashed: its axis at full "
+    "deviation), for the two design cases.",
+    "scan_pixel_ae.png": "The pixel alignment error, worst over the 7 x 7 scan with the paper's inverse, for "
+    "the three example initial phases (sensor convention).",
+}
+
+
+def figure_caption(path: str) -> str:
+    """The caption of a figure file (:data:`FIGURE_CAPTIONS`, else its file stem)."""
+    return FIGURE_CAPTIONS.get(Path(path).name, Path(path).stem.replace("_", " "))
+
+
+def run_info(command: list[str] | None = None) -> dict:
+    """Version, UTC date and command line of this run, for the report's header."""
+    from hbis_torch import __version__
+
+    argv = list(sys.argv if command is None else command)
+    if argv:
+        first = Path(argv[0])
+        argv[0] = "hbis" if first.name == "hbis" or first.parent.name == "hbis_torch" else first.name
+    return {"version": __version__, "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+            "command": shlex.join(argv)}
+
+
+def _summary(s: dict) -> str:
+    """The headline numbers: FER, foveal ratio, BSR, SR PSNR and the run's timings."""
+    fer, theory = s["fer"]["measured_refined"]["rectangle"], s["fer"]["theory"]
+    paper = s["fer"]["paper_prototype_measured"]
+    bw, sr, cfg = s["bandwidth"], s["sr"], s["config"]
+    rows = [
+        ["FER, horizontal / vertical", f"{fer['fer_h']:.2f} / {fer['fer_v']:.2f}",
+         f"theory {theory['fer_h']:.2f} / {theory['fer_v']:.2f}; paper's prototype {paper['h']} / {paper['v']}"],
+        ["foveal ratio", f"{s['foveal_ratio']['measured']:.2f}", f"theory {s['foveal_ratio']['theory']} (= h)"],
+        ["bandwidth saving ratio (BSR)", f"{bw['bsr_from_coverage']:.3f}",
+         f"eq. 10 with the design FER {bw.get('bsr_eq10_design_fer', float('nan')):.3f}"],
+    ]
+    if "psnr_sr_db" in sr:
+        versus = f"bicubic {sr['psnr_bicubic_db']:.2f} dB"
+        if "psnr_classical_db" in sr and cfg["method"] != "classical":
+            versus += f", classical {sr['psnr_classical_db']:.2f} dB"
+        rows.append([f"SR PSNR, {cfg['method']} (h = {cfg['h']})", f"{sr['psnr_sr_db']:.2f} dB",
+                     f"{versus} (against the ground truth)"])
+    timings = s.get("timings_s", {})
+    if timings:
+        slowest = sorted(timings.items(), key=lambda kv: -kv[1])[:3]
+        rows.append(["time of the chain", f"{sum(timings.values()):.1f} s",
+                     ", ".join(f"{k} {v:.1f} s" for k, v in slowest)])
+    return ("<section class='summary'><h2>Summary</h2>"
+            + _table(["measure", "this run", "for comparison"], rows) + "</section>")
+
 
 
 def _fmt(value, digits: int = 3) -> str:
@@ -52,8 +123,8 @@ def image_links(page: str) -> list[str]:
     return re.findall(r'<img[^>]*\ssrc="([^"]+)"', page)
 
 
-def render_report(summary: dict, design_report: dict, design_figures: list[str]) -> str:
-    """The report page as a string (see :func:`write_report`)."""
+def render_report(summary: dict, design_report: dict, design_figures: list[str], run: dict | None = None) -> str:
+    """The report page as a string (see :func:`write_report`); ``run``: :func:`run_info`."""
     s, img = summary, summary["images"]
     fer, theory = s["fer"]["measured_refined"], s["fer"]["theory"]
     design_fer = s["fer"]["measured_design_stitch"]
@@ -63,8 +134,10 @@ def render_report(summary: dict, design_report: dict, design_figures: list[str])
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
         "<title>HBIS demo report</title>", f"<style>{_CSS}</style></head><body>",
         "<h1>HBIS demo: FOV extension and foveated super-resolution</h1>",
-        f"<p class='note'>A simulated 3 x 3 hybrid bionic image sensor (Table 1 cameras, varphi_h = "
-        f"{cfg['varphi_h_deg']:g} deg, varphi_v = {cfg['varphi_v_deg']:g} deg, side cameras misassembled by "
+        _meta(run),
+        _summary(s),
+        f"<p class='note'>A simulated 3 x 3 hybrid bionic image sensor (Table 1 cameras, φ<sub>h</sub> = "
+        f"{cfg['varphi_h_deg']:g}°, φ<sub>v</sub> = {cfg['varphi_v_deg']:g}°, side cameras misassembled by "
         f"{cfg['assembly_sigma_deg']:g} deg rms) watches a wall of photographs. A sign moves in, stops and leaves; "
         f"the periphery detects it, the Risley fovea is steered onto it and super-resolves it (h = {cfg['h']}, "
         f"method <b>{html.escape(cfg['method'])}</b>). Panorama views are binned {s['binning']['panorama']} x "
@@ -88,7 +161,7 @@ def render_report(summary: dict, design_report: dict, design_figures: list[str])
             ["design-angle stitch (no assembly error), rectangle", design_fer["rectangle"]["fer_h"],
              design_fer["rectangle"]["fer_v"], design_fer["rectangle"]["fov_h_deg"],
              design_fer["rectangle"]["fov_v_deg"]],
-            ["theory, 2 (varphi + theta) / 2 theta", theory["fer_h"], theory["fer_v"], theory["fov_h_deg"],
+            ["theory, 2 (φ + θ) / 2θ", theory["fer_h"], theory["fer_v"], theory["fov_h_deg"],
              theory["fov_v_deg"]],
             ["paper: prototype measured (theory 2.3 / 2.2)", paper["h"], paper["v"], "49", "34"],
         ]),
@@ -146,11 +219,11 @@ def render_report(summary: dict, design_report: dict, design_figures: list[str])
         "<h2>The paper's figures (design, scanning)</h2>",
         _table(["quantity", "value"], [
             ["one camera's FOV [deg]", f"{design_report['single_fov_h_deg']:.1f} x {design_report['single_fov_v_deg']:.1f}"],
-            ["varphi limits [deg]", f"h <= {design_report['varphi_h_max_deg']:.2f}, v <= {design_report['varphi_v_max_deg']:.2f}"],
+            ["φ limits [deg]", f"h <= {design_report['varphi_h_max_deg']:.2f}, v <= {design_report['varphi_v_max_deg']:.2f}"],
             ["H (diffraction), h_max", f"{design_report['H']:.2f}, {design_report['h_max']}"],
         ]),
     ]
-    parts += [_figure(f, Path(f).stem.replace("_", " ")) for f in design_figures]
+    parts += [_figure(f, figure_caption(f)) for f in design_figures]
     parts += [
         "<h2>Run</h2>",
         _table(["step", "seconds"], [[k, v] for k, v in s["timings_s"].items()]),
@@ -159,9 +232,18 @@ def render_report(summary: dict, design_report: dict, design_figures: list[str])
     return "\n".join(parts)
 
 
+def _meta(run: dict | None) -> str:
+    if not run:
+        return ""
+    return (f"<p class='meta'>hbis-torch {html.escape(str(run['version']))} · {html.escape(run['date'])} · "
+            f"<code>{html.escape(run['command'])}</code></p>")
+
+
 def write_report(out_dir, summary: dict, design_report: dict, design_figures: list[str],
-                 name: str = "report.html") -> Path:
-    """Write the page into ``out_dir`` (atomically); image paths are relative to it."""
+                 name: str = "report.html", run: dict | None = None) -> Path:
+    """Write the page into ``out_dir`` (atomically); image paths are relative to it. ``run``
+    (:func:`run_info`: version, date, command line) goes under the title; by default this
+    process's."""
     path = Path(out_dir) / name
-    atomic_write_text(path, render_report(summary, design_report, design_figures))
+    atomic_write_text(path, render_report(summary, design_report, design_figures, run or run_info()))
     return path
