@@ -85,11 +85,11 @@ def figure_5(system: FoveaSystem, path: Path, h: int = 7, progress: bool = True)
             singular = np.isclose((p2 - phi1) % 180.0, 0.0)
             values.append(None if singular else max_axis_ae(system, h, (phi1, p2)))
             bar.update()
-        line, = ax.plot(phi2, _gaps(values), label=f"phi1 = {phi1:g} deg")
+        line, = ax.plot(phi2, _gaps(values), label=f"$\\phi_1$ = {phi1:g}°")
         for p2 in ((phi1 % 360), (phi1 + 180) % 360):  # avoided, as in the paper: circles
             ax.plot([p2], [0.0], "o", mfc="none", ms=9, color=line.get_color())
         exact_worst = max(exact_worst, max_axis_ae(system, h, (phi1, phi1 + 65.0), "exact") or 0.0)
-    ax.set_xlabel("phi2 [deg]")
+    ax.set_xlabel(r"$\phi_2$ [deg]")
     ax.set_ylabel("maximum axis AE [SL]")
     ax.set_title("(a) initial phases (a = %g deg, n = %g)"
                  % (system.prisms.wedge_angle_deg, system.prisms.refractive_index))
