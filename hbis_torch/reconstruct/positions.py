@@ -5,16 +5,18 @@
 1. *The optics.* Sample (u, v) of frame k sees the object point its chief ray lands on at the
    frame's phases; the reference frame would image that point at
    ``sensor_position(system, point, phi_ref)``. :func:`hbis_torch.simulate.sample_positions`
-   computes this (docs/design.md, section 1), either tracing every pixel (``exact=True``,
-   the classical method: its output stays bit-identical to the per-pixel trace it always used)
-   or tracing nodes 8 px apart and interpolating with cubic splines (``exact=False``, < 1e-6 px
-   from the exact trace and much faster: the learned method, whose network is float32 anyway).
+   computes this (docs/design.md, section 1), either tracing every pixel (``exact=True``, the
+   contract's definition) or tracing nodes 32 px apart and interpolating with cubic splines
+   (``exact=False``, the default of both methods: < 1e-6 px from the exact trace, and a
+   full frame's positions in about a second instead of half a minute; tests/test_fullframe.py
+   checks both the positions and the classical output against the exact trace).
    The stack's own ROI is traced, so a corner ROI gets the corner's geometry.
 2. *The registration* (``"data"`` or ``"auto"``, stacks of more than one frame).
    :func:`~hbis_torch.registration.register_stack` measures each frame's homography H_k,
    starting from the optics' prediction P_k (a homography fitted to the traced positions); the
    data's correction C_k = H_k P_k^-1 is applied to the traced per-pixel positions, which keeps
-   the optics' non-homographic part.
+   the optics' non-homographic part. (With ``exact=False`` the correction is applied on the
+   nodes, before the one interpolation to every pixel: C_k is smooth too.)
 3. *Untrusted frames* (those the registration cannot trust) keep their optical positions, and
    :func:`stack_sample_positions` says which frames those are (``trusted``). What to do with
    them is each method's own policy:
@@ -67,7 +69,7 @@ def optical_positions(stack, exact: bool = False) -> Tensor:
     exact : bool
         Trace every pixel (a few frames per call for large stacks, each call with the reference
         frame's phases appended, which gives the same bits as one call); False traces nodes
-        8 px apart and interpolates with cubic splines (< 1e-6 px from the exact trace).
+        32 px apart and interpolates with cubic splines (< 1e-6 px from the exact trace).
 
     Returns
     -------
@@ -122,7 +124,7 @@ def stack_sample_positions(stack, registration: str = "auto", *, exact: bool = F
         registering the frames, for the frames the registration trusts (the two differ only in
         what the method does with the others).
     exact : bool
-        Trace every pixel (classical) or nodes and cubic splines (learned); see
+        Trace every pixel, or nodes and cubic splines (both methods' default); see
         :func:`optical_positions`.
     frames : Tensor, shape (F, H, W), optional
         The stack's frames as ``stack.to_float()`` gives them, if the caller has them already
@@ -140,20 +142,58 @@ def stack_sample_positions(stack, registration: str = "auto", *, exact: bool = F
         one-frame stacks).
     """
     check_registration(registration)
+    if not exact:
+        return _node_sample_positions(stack, registration, frames, messages)
     positions = optical_positions(stack, exact)
     count = positions.shape[0]
     if registration == "optics" or count == 1:
         return positions, torch.ones(count, dtype=torch.bool)
-    from hbis_torch.registration import apply_homography, homographies_from_positions, register_stack
+    from hbis_torch.registration import apply_homography, homographies_from_positions
+
+    predicted = homographies_from_positions(positions)
+    correction, ok = _registration_correction(stack, frames, predicted, messages)
+    corrected = apply_homography(correction, positions.reshape(count, -1, 2)).reshape(positions.shape)
+    return torch.where(ok[:, None, None, None], corrected, positions), ok
+
+
+def _registration_correction(stack, frames, predicted: Tensor, messages) -> tuple[Tensor, Tensor]:
+    """The data's correction C_k = H_k P_k^-1 (F, 3, 3) of the optics' homographies
+    ``predicted`` (P_k), and which frames the registration trusts (F,), bool."""
+    from hbis_torch.registration import register_stack
 
     if frames is None:
         frames = stack.to_float()
-    predicted = homographies_from_positions(positions)
     reg = register_stack(frames, stack.reference_index, prediction=predicted)
     if messages is not None:
         messages.extend(reg.messages)
-    # The data's correction on top of the optics: C_k = H_k P_k^-1, applied to the per-pixel
-    # positions (which carry the optics' non-homographic part).
-    correction = reg.homographies @ torch.linalg.inv(predicted)
-    corrected = apply_homography(correction, positions.reshape(count, -1, 2)).reshape(positions.shape)
-    return torch.where(reg.ok[:, None, None, None], corrected, positions), reg.ok
+    return reg.homographies @ torch.linalg.inv(predicted), reg.ok
+
+
+def _node_sample_positions(stack, registration: str, frames, messages) -> tuple[Tensor, Tensor]:
+    """:func:`stack_sample_positions` with ``exact=False``: everything on the spline nodes, one
+    interpolation to every pixel at the end.
+
+    The optics' prediction is fitted to the same pixels as with ``exact=True``
+    (:func:`~hbis_torch.registration.fit_grid`, evaluated from the nodes), so the registration
+    starts from the same homographies; its correction is then applied to the nodes.
+    """
+    from hbis_torch.simulate.geometry import interpolate_positions, node_positions
+
+    nodes = node_positions(stack.system, stack.phases_deg, stack.reference_index, stack.roi)
+    count = nodes.values.shape[0]
+    if registration == "optics" or count == 1:
+        return interpolate_positions(nodes), torch.ones(count, dtype=torch.bool)
+    from hbis_torch.registration import (
+        apply_homography,
+        fit_grid,
+        homographies_from_grid,
+    )
+
+    rows, cols = fit_grid(nodes.height, nodes.width)
+    on_grid = interpolate_positions(nodes, rows.numpy(), cols.numpy())
+    predicted = homographies_from_grid(on_grid, rows, cols, nodes.height, nodes.width)
+    correction, ok = _registration_correction(stack, frames, predicted, messages)
+    values = nodes.values
+    corrected = apply_homography(correction, values.reshape(count, -1, 2)).reshape(values.shape)
+    values = torch.where(ok[:, None, None, None], corrected, values)
+    return interpolate_positions(nodes._replace(values=values)), ok

@@ -41,6 +41,8 @@ from hbis_torch.registration.homography import (
     MODELS,
     N_PARAMS,
     apply_homography,
+    fit_grid,
+    homographies_from_grid,
     homographies_from_positions,
     lk_motion_difference,
 )
@@ -59,7 +61,9 @@ __all__ = [
     "Registration",
     "apply_homography",
     "bspline_sample",
+    "fit_grid",
     "gaussian_kernel",
+    "homographies_from_grid",
     "homographies_from_positions",
     "lk_motion_difference",
     "noise_sigma",

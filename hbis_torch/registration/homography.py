@@ -73,12 +73,42 @@ def homographies_from_positions(positions, step: int = 4) -> Tensor:
         raise HbisInputError(f"positions must have shape (F, H, W, 2), got {tuple(positions.shape)}")
     if not torch.isfinite(positions).all():
         raise HbisInputError("positions contain non-finite values")
-    F, H, W, _ = positions.shape
+    H, W = positions.shape[1:3]
+    rows, cols = fit_grid(H, W, step)
+    return homographies_from_grid(positions[:, rows][:, :, cols], rows, cols, H, W)
+
+
+def fit_grid(H: int, W: int, step: int = 4) -> tuple[Tensor, Tensor]:
+    """The rows and columns (int64) :func:`homographies_from_positions` fits a homography on:
+    every ``step``-th one of an (H, W) frame, and the last."""
     rows = torch.unique(torch.cat((torch.arange(0, H, step), torch.tensor([H - 1]))))
     cols = torch.unique(torch.cat((torch.arange(0, W, step), torch.tensor([W - 1]))))
-    vv, uu = torch.meshgrid(rows.double(), cols.double(), indexing="ij")
+    return rows, cols
+
+
+def homographies_from_grid(positions, rows, cols, H: int, W: int) -> Tensor:
+    """:func:`homographies_from_positions` from the positions of a product grid of pixels only.
+
+    Parameters
+    ----------
+    positions : Tensor, shape (F, len(rows), len(cols), 2)
+        Where pixel (cols[j], rows[i]) of frame k lands, in reference pixel coordinates.
+    rows, cols : Tensor
+        Pixel rows and columns of an (H, W) frame (for example :func:`fit_grid`'s).
+    H, W : int
+        The frame's size (it conditions the fit).
+
+    Returns
+    -------
+    Tensor, shape (F, 3, 3), float64
+    """
+    positions = torch.as_tensor(positions, dtype=torch.float64)
+    if not torch.isfinite(positions).all():
+        raise HbisInputError("positions contain non-finite values")
+    F = positions.shape[0]
+    vv, uu = torch.meshgrid(torch.as_tensor(rows).double(), torch.as_tensor(cols).double(), indexing="ij")
     src = torch.stack((uu, vv), -1).reshape(1, -1, 2).expand(F, -1, -1)
-    dst = positions[:, rows][:, :, cols].reshape(F, -1, 2)
+    dst = positions.reshape(F, -1, 2)
     # Condition the DLT: centre and scale both point sets the same way.
     norm = _normaliser(H, W, torch.float64).expand(F, 3, 3)
     h_n = kornia.geometry.homography.find_homography_dlt(

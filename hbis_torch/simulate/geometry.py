@@ -10,13 +10,15 @@ sensor at the reference phases (the output-grid convention of docs/data.md):
 
 Both maps are smooth over the sensor (the prisms add a slowly varying distortion to a pinhole),
 so the fast paths trace exactly on a coarse grid of nodes and interpolate with separable
-not-a-knot cubic splines; tests/test_simulate_parts.py bounds the error (< 1e-6 pixel).
+not-a-knot cubic splines; tests/test_simulate_parts.py bounds the error (< 1e-6 pixel; nodes
+32 px apart for the sample positions, 8 px for the simulator's landing maps).
 """
 
 from __future__ import annotations
 
 import math
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -121,7 +123,7 @@ def sample_positions(
     reference_index: int,
     roi: Roi | None = None,
     exact: bool = False,
-    node_step: float = 8.0,
+    node_step: float = 32.0,
     local: bool = True,
 ) -> Tensor:
     """Sample positions of every pixel of every frame on the reference frame's pixel grid.
@@ -137,7 +139,8 @@ def sample_positions(
         Pixels of each frame (None: the whole sensor).
     exact : bool
         Trace every pixel (the contract's definition, slower) instead of interpolating exact
-        node values with cubic splines (error < 1e-6 pixel).
+        node values with cubic splines (:func:`node_positions`, :func:`interpolate_positions`;
+        error < 1e-6 pixel).
     local : bool
         Return roi-local coordinates (minus (u0, v0)), as the contract states; False gives
         full-sensor pixel coordinates.
@@ -147,29 +150,113 @@ def sample_positions(
     Tensor, shape (F, H, W, 2), float64
         (u, v) of each sample in reference-frame pixels.
     """
-    phases = check_phases(phases_deg)
-    if not 0 <= int(reference_index) < phases.shape[0]:
-        raise HbisInputError(f"reference index {reference_index} is not a frame index (0..{phases.shape[0] - 1})")
-    u0, v0, width, height = check_roi(system.camera, roi)
-    ref = phases[int(reference_index)]
-    u = np.arange(u0, u0 + width, dtype=np.float64)
-    v = np.arange(v0, v0 + height, dtype=np.float64)
-    if exact:
-        uu, vv = torch.from_numpy(u)[None, :], torch.from_numpy(v)[:, None]
-        grid_u, grid_v = uu, vv
-    else:
-        nu, nv = _nodes(u[0], u[-1], node_step), _nodes(v[0], v[-1], node_step)
-        grid_u, grid_v = torch.from_numpy(nu)[None, :], torch.from_numpy(nv)[:, None]
-    p1, p2 = phases[:, 0, None, None], phases[:, 1, None, None]
-    landing = landing_at(system, grid_u, grid_v, p1, p2)  # (F, n_v, n_u, 2)
-    positions = sensor_position(system, landing, ref[0], ref[1])
     if not exact:
-        base = torch.stack(torch.broadcast_tensors(grid_u, grid_v), -1)
-        shift = (positions - base).movedim(-1, 1)  # (F, 2, n_v, n_u): smooth displacement
-        bu, bv = _regular_basis(len(u), len(nu)), _regular_basis(len(v), len(nv))
-        shift = (bv @ shift @ bu.T).movedim(1, -1)
-        uu, vv = torch.from_numpy(u)[None, :], torch.from_numpy(v)[:, None]
-        positions = shift + torch.stack(torch.broadcast_tensors(uu, vv), -1)
+        nodes = node_positions(system, phases_deg, reference_index, roi, node_step, local)
+        return interpolate_positions(nodes)
+    phases = check_phases(phases_deg)
+    ref = _reference_phases(phases, reference_index)
+    u0, v0, width, height = check_roi(system.camera, roi)
+    uu = torch.arange(u0, u0 + width, dtype=torch.float64)[None, :]
+    vv = torch.arange(v0, v0 + height, dtype=torch.float64)[:, None]
+    p1, p2 = phases[:, 0, None, None], phases[:, 1, None, None]
+    landing = landing_at(system, uu, vv, p1, p2)  # (F, H, W, 2)
+    positions = sensor_position(system, landing, ref[0], ref[1])
     if local:
         positions = positions - torch.tensor([u0, v0], dtype=torch.float64)
     return positions
+
+
+def _reference_phases(phases: np.ndarray, reference_index: int) -> np.ndarray:
+    if not 0 <= int(reference_index) < phases.shape[0]:
+        raise HbisInputError(f"reference index {reference_index} is not a frame index (0..{phases.shape[0] - 1})")
+    return phases[int(reference_index)]
+
+
+class NodePositions(NamedTuple):
+    """Exact sample positions on a coarse grid of nodes, from which
+    :func:`interpolate_positions` gives every pixel's.
+
+    Attributes
+    ----------
+    values : Tensor, shape (F, n_v, n_u, 2), float64
+        (u, v) on the reference grid of the samples at the nodes (coordinates as the pixels').
+    u, v : np.ndarray, shape (n_u,), (n_v,)
+        The nodes' columns and rows, in the same coordinates (fractional, evenly spaced).
+    width, height : int
+        The pixel grid the nodes span: columns ``u[0] .. u[0] + width - 1``, rows likewise.
+    """
+
+    values: Tensor
+    u: np.ndarray
+    v: np.ndarray
+    width: int
+    height: int
+
+
+def node_positions(
+    system: FoveaSystem,
+    phases_deg,
+    reference_index: int,
+    roi: Roi | None = None,
+    node_step: float = 32.0,
+    local: bool = True,
+) -> NodePositions:
+    """The exact sample positions (:func:`sample_positions` with ``exact=True``) on nodes about
+    ``node_step`` px apart, spanning the ROI (at least 4 per axis, the ROI's first and last pixels
+    among them). Maps that are smooth over the frame can be applied to ``values`` before
+    :func:`interpolate_positions` (a homography correction, for example), so that every pixel is
+    computed once."""
+    phases = check_phases(phases_deg)
+    ref = _reference_phases(phases, reference_index)
+    u0, v0, width, height = check_roi(system.camera, roi)
+    nu, nv = _nodes(u0, u0 + width - 1, node_step), _nodes(v0, v0 + height - 1, node_step)
+    grid_u, grid_v = torch.from_numpy(nu)[None, :], torch.from_numpy(nv)[:, None]
+    p1, p2 = phases[:, 0, None, None], phases[:, 1, None, None]
+    landing = landing_at(system, grid_u, grid_v, p1, p2)  # (F, n_v, n_u, 2)
+    values = sensor_position(system, landing, ref[0], ref[1])
+    if local:
+        values = values - torch.tensor([u0, v0], dtype=torch.float64)
+        nu, nv = nu - u0, nv - v0
+    return NodePositions(values, nu, nv, width, height)
+
+
+def interpolate_positions(nodes: NodePositions, rows=None, cols=None) -> Tensor:
+    """Every pixel's position from the nodes': separable not-a-knot cubic splines of the
+    displacement (position minus the pixel's own coordinates), which is smooth: its variation
+    about each frame's mean is interpolated in float32 (rounding about 1e-7 of that variation),
+    the mean and the pixel grid are added in float64.
+
+    Parameters
+    ----------
+    nodes : NodePositions
+    rows, cols : array of int, optional
+        Only these rows and columns of the pixel grid (0-based, within ``height`` and ``width``).
+
+    Returns
+    -------
+    Tensor, shape (F, len(rows), len(cols), 2), float64
+        (default: every row and column, (F, height, width, 2)).
+    """
+    values, nu, nv = nodes.values, nodes.u, nodes.v
+    base_u = torch.from_numpy(nu)[None, :]
+    base_v = torch.from_numpy(nv)[:, None]
+    base = torch.stack(torch.broadcast_tensors(base_u, base_v), -1)
+    shift = (values - base).movedim(-1, 1)  # (F, 2, n_v, n_u), smooth
+    # each frame's mean displacement stays in float64 (the splines reproduce constants)
+    offset = shift.mean(dim=(2, 3))  # (F, 2)
+    shift = (shift - offset[:, :, None, None]).to(torch.float32)
+    bu = _regular_basis(nodes.width, len(nu)).to(torch.float32)
+    bv = _regular_basis(nodes.height, len(nv)).to(torch.float32)
+    cols = np.arange(nodes.width) if cols is None else np.asarray(cols)
+    rows = np.arange(nodes.height) if rows is None else np.asarray(rows)
+    bu, bv = bu[torch.from_numpy(cols)], bv[torch.from_numpy(rows)]
+    # the narrow pass (along u, on n_v rows) first: fewer flops than along v first
+    shift = bv @ (shift @ bu.T)  # (F, 2, rows, cols)
+    uu = torch.from_numpy(nu[0] + cols.astype(np.float64))[None, :]
+    vv = torch.from_numpy(nv[0] + rows.astype(np.float64))[:, None]
+    out = torch.empty(shift.shape[0], len(rows), len(cols), 2, dtype=torch.float64)
+    out[..., 0] = shift[:, 0]
+    out[..., 1] = shift[:, 1]
+    out[..., 0] += uu + offset[:, 0, None, None]
+    out[..., 1] += vv + offset[:, 1, None, None]
+    return out

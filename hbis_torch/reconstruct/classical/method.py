@@ -38,7 +38,7 @@ def reconstruct_classical(stack, registration: str = "auto", *, deblur: bool = T
     """Classical super-resolution of a stack (see :func:`hbis_torch.reconstruct.reconstruct`).
 
     The samples' positions follow the layer's policy
-    (:func:`~hbis_torch.reconstruct.positions.stack_sample_positions`, exact per-pixel trace);
+    (:func:`~hbis_torch.reconstruct.positions.stack_sample_positions`, node splines);
     with ``registration="data"`` the frames the registration could not trust get weight 0 (left
     out, with a message), with ``"auto"`` they are used at their optical positions.
 
@@ -61,7 +61,7 @@ def reconstruct_classical(stack, registration: str = "auto", *, deblur: bool = T
     """
     check_registration(registration)
     frames = _stack_frames(stack)
-    positions, trusted = stack_sample_positions(stack, registration, exact=True, frames=frames,
+    positions, trusted = stack_sample_positions(stack, registration, frames=frames,
                                                 messages=messages)
     weights = None
     if registration == "data" and frames.shape[0] > 1:
