@@ -12,7 +12,7 @@ from torch import Tensor
 
 from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
-from hbis_torch.reconstruct.classical.splat import common_offset, fill_holes, snap_to_lattice, splat
+from hbis_torch.reconstruct.classical.splat import common_offset, fill_holes, splat, splat_on_lattice
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
 
 
@@ -158,8 +158,10 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     values, x, y = frames.reshape(-1), (X - offset[0]).reshape(-1), (Y - offset[1]).reshape(-1)
     shape = (h * H, h * W)
     if on_lattice:
-        values, x, y = snap_to_lattice(values, x, y, shape, kernel_sigma, w)
-    num, den = splat(values, x, y, shape, kernel_sigma, w)
+        # snap_to_lattice, then splat: the same sums, the nodes shared
+        num, den = splat_on_lattice(values, x, y, shape, kernel_sigma, w)
+    else:
+        num, den = splat(values, x, y, shape, kernel_sigma, w)
     return fill_holes(num, den), den, offset
 
 

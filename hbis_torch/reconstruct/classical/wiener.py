@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from functools import partial
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -28,6 +29,7 @@ def wiener_deblur(
     cutoff: float | None = None,
     strength: float = 1.0,
     aliases: int = 1,
+    dtype=torch.float32,
 ) -> Tensor:
     """Wiener (MMSE linear) estimate of the p/h sensor's image from the interpolated one.
 
@@ -67,28 +69,41 @@ def wiener_deblur(
         Multiplies the noise power (1: the estimated noise).
     aliases : int
         Aliases summed per axis on each side.
+    dtype : torch.dtype
+        Precision of the FFTs and the filter (float32: the output differs from float64's by
+        about 1e-6, far below the noise floor; tests/test_fullframe.py checks it). The prior's
+        fit is always float64.
 
     Returns
     -------
-    Tensor, shape (rows, cols)
+    Tensor, shape (rows, cols), in ``image``'s dtype
     """
     # The FFT sees the image as periodic; its borders' jumps would ring through the whole image
     # at the frequencies the pixel aperture nearly erases. Deblur only the periodic part and
     # add the smooth rest back (Moisan 2011).
-    p, smooth = periodic_smooth(image)
-    fy = torch.fft.fftfreq(p.shape[0], dtype=image.dtype)[:, None]
-    fx = torch.fft.rfftfreq(p.shape[1], dtype=image.dtype)[None, :]
-    spectrum = torch.fft.rfft2(p) / (splat_transfer(fx, kernel_sigma) * splat_transfer(fy, kernel_sigma))
+    work = image.to(dtype)
+    p, smooth = periodic_smooth(work)
+    shape = p.shape
+    fy = torch.fft.fftfreq(shape[0], dtype=torch.float64)[:, None]
+    fx = torch.fft.rfftfreq(shape[1], dtype=torch.float64)[None, :]
+    spectrum = torch.fft.rfft2(p)
+    del p
+    spectrum /= (splat_transfer(fx, kernel_sigma) * splat_transfer(fy, kernel_sigma)).to(dtype)
 
     if h == 1:  # nothing to deblur: only the splat's smoothing is undone
-        return torch.fft.irfft2(spectrum, s=p.shape) + shift_image(smooth, offset)
-    eps2 = (0.5 / max(p.shape)) ** 2  # keeps the prior finite at f = 0
-    kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2)
+        return (torch.fft.irfft2(spectrum, s=shape) + shift_image(smooth, offset)).to(image.dtype)
+    eps2 = (0.5 / max(shape)) ** 2  # keeps the prior finite at f = 0
     shifts = [(kx, ky) for ky in range(-aliases, aliases + 1) for kx in range(-aliases, aliases + 1)]
     noise2 = max(noise, NOISE_FLOOR) ** 2
+    # the prior's fit evaluates the model on a subsample, in float64
+    kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2)
     s2, beta = fit_spectrum(spectrum, fx, fy, kernel, shifts, noise2)
-    filt = _mmse_filter(spectrum, p.shape, kernel, shifts, s2, beta, noise2, strength)
-    return torch.fft.irfft2(spectrum * filt, s=p.shape) + shift_image(smooth, offset)
+    model = _Model(fx[0].to(dtype), fy[:, 0].to(dtype), h, aperture, cutoff, offset, eps2)
+    spectrum *= _mmse_filter(spectrum, shape, model, shifts, s2, beta, noise2, strength)
+    out = torch.fft.irfft2(spectrum, s=shape)
+    del spectrum
+    out += shift_image(smooth, offset)
+    return out.to(image.dtype)
 
 
 def _alias_kernel(fx: Tensor, fy: Tensor, h: int, aperture: float, cutoff: float | None,
@@ -120,7 +135,45 @@ def _alias_kernel(fx: Tensor, fy: Tensor, h: int, aperture: float, cutoff: float
     return k_mag, w, phase, r2
 
 
-def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], kernel, shifts, s2: float, beta: float,
+class _Model(NamedTuple):
+    """The image model of :func:`wiener_deblur` on the half spectrum's frequencies: ``fx``
+    (cols,) and ``fy`` (rows,) in cycles per HR px (the dtype of the filter), and the other
+    arguments as there."""
+
+    fx: Tensor
+    fy: Tensor
+    h: int
+    aperture: float
+    cutoff: float | None
+    offset: tuple[float, float]
+    eps2: float
+
+    def band(self, k: int, f: Tensor) -> Tensor:
+        """Indices along one axis where alias k can pass the optics (|f + k| below the cutoff,
+        in cycles per HR px): elsewhere its every term is 0."""
+        if self.cutoff is None:
+            return torch.arange(len(f))
+        return torch.nonzero((f + k).abs() < self.cutoff / self.h)[:, 0]
+
+    def terms(self, kx: int, ky: int, rows: Tensor, cols: Tensor, s2: float, beta: float):
+        """The prior P = s2 |f + k|^-beta, |K| and W of alias (kx, ky) at rows x cols."""
+        gx, gy = self.fx[cols][None, :] + kx, self.fy[rows][:, None] + ky
+        r2 = gx * gx + gy * gy + self.eps2
+        optics = (torch.ones_like(r2) if self.cutoff is None
+                  else diffraction_otf(torch.sqrt(r2) * (self.h / self.cutoff)))
+        prior = r2.pow_(-0.5 * beta).mul_(s2)
+        k_mag = optics * (box(gx, self.h * self.aperture) * box(gy, self.h * self.aperture))
+        optics *= box(gx, self.aperture) * box(gy, self.aperture)
+        return prior, k_mag, optics
+
+    def phase(self) -> Tensor:
+        """The lattice's phase factor of the unaliased term, exp(-2 pi i f . offset), (rows, cols)."""
+        px = torch.exp(-2j * math.pi * self.fx.double() * self.offset[0]).to(self.fx.dtype.to_complex())
+        py = torch.exp(-2j * math.pi * self.fy.double() * self.offset[1]).to(self.fx.dtype.to_complex())
+        return py[:, None] * px[None, :]
+
+
+def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], model: _Model, shifts, s2: float, beta: float,
                  noise2: float, strength: float) -> Tensor:
     """The MMSE filter of :func:`wiener_deblur` at every frequency of the half spectrum.
 
@@ -130,8 +183,8 @@ def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], kernel, shifts, s2: f
         rfft2 of the periodic part, the splat's transfer divided out.
     shape : (rows, cols)
         Shape of the image the spectrum is of.
-    kernel : callable
-        (kx, ky) -> (|K|, W, phase, |f + k|^2) of an alias (:func:`_alias_kernel`).
+    model : _Model
+        The image model on the spectrum's frequencies (its dtype is the filter's).
     shifts : list of (kx, ky)
         The aliases, (0, 0) included.
     s2, beta : float
@@ -145,29 +198,52 @@ def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], kernel, shifts, s2: f
     -------
     Tensor, shape of ``spectrum``, complex
     """
-    # The aliases one at a time (the whole-image arrays of all nine would not fit for a full
-    # frame at h = 4); the unaliased term last, since its prior depends on the others' sum.
-    cross = torch.zeros_like(spectrum)
-    power = torch.zeros(spectrum.shape, dtype=spectrum.real.dtype)
+    # Alias k's lattice phase is the unaliased one times the constant exp(-2 pi i k . offset),
+    # so the numerator is phase(f) sum_k c_k P W |K|: two real sums. The aliases one at a time,
+    # each only where the optics passes it; the unaliased term last, since its prior depends on
+    # the others' sum.
+    dtype = model.fx.dtype
+    cross_re = torch.zeros(spectrum.shape, dtype=dtype)
+    cross_im = torch.zeros(spectrum.shape, dtype=dtype)
+    power = torch.zeros(spectrum.shape, dtype=dtype)
     for kx, ky in shifts:
-        if (kx, ky) != (0, 0):
-            k_mag, w, phase, r2 = kernel(kx, ky)
-            weighted = s2 * r2 ** (-0.5 * beta) * k_mag
-            cross += weighted * w * phase
-            power += weighted * k_mag
+        if (kx, ky) == (0, 0):
+            continue
+        rows, cols = model.band(ky, model.fy), model.band(kx, model.fx)
+        if len(rows) == 0 or len(cols) == 0:
+            continue
+        prior, k_mag, w = model.terms(kx, ky, rows, cols, s2, beta)
+        weighted = prior.mul_(k_mag)
+        angle = 2 * math.pi * (kx * model.offset[0] + ky * model.offset[1])
+        c0, c1 = cols[0], cols[-1] + 1  # the columns are contiguous (fx increases)
+        power[:, c0:c1].index_add_(0, rows, weighted * k_mag)
+        weighted *= w
+        cross_re[:, c0:c1].index_add_(0, rows, weighted, alpha=math.cos(angle))
+        cross_im[:, c0:c1].index_add_(0, rows, weighted, alpha=-math.sin(angle))
+        del prior, k_mag, w, weighted
     # Where the image holds more power than the power law explains (a grating, a texture), the
     # prior of the unaliased frequency is raised to what is measured (power smoothed over 3 x 3
     # frequencies, less the noise and the aliases' share), as long as the aperture passes it.
-    k0, w0, phase0, r20 = kernel(0, 0)
-    prior = s2 * r20 ** (-0.5 * beta)
+    every_row, every_col = torch.arange(spectrum.shape[0]), torch.arange(spectrum.shape[1])
+    prior, k0, w0 = model.terms(0, 0, every_row, every_col, s2, beta)
     measured = torch.nn.functional.avg_pool2d(
-        (spectrum.abs() ** 2 / (shape[0] * shape[1]))[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
-    seen = (k0 * k0).expand_as(measured)
-    empirical = (measured - noise2 - power).clamp_min(0) / seen.clamp_min(1e-12)
+        (spectrum.abs().square_() / (shape[0] * shape[1]))[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
+    seen = k0 * k0
+    empirical = measured.sub_(noise2).sub_(power).clamp_min_(0).div_(seen.clamp_min(1e-12))
     prior = torch.where(seen > 0.05, torch.maximum(prior, empirical), prior)
-    cross += prior * w0 * k0 * phase0
-    power += prior * k0 * k0
-    return cross / (power + strength * noise2)
+    del measured, empirical
+    prior *= k0
+    power += prior * k0
+    cross_re += prior.mul_(w0)
+    del prior, k0, w0, seen
+    power += strength * noise2
+    cross_re /= power
+    cross_im /= power
+    del power
+    filt = torch.complex(cross_re, cross_im)
+    del cross_re, cross_im
+    filt *= model.phase()
+    return filt
 
 
 def shift_image(image: Tensor, offset: tuple[float, float]) -> Tensor:
@@ -201,7 +277,7 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
     """
     rows, half = spectrum.shape
     cols = 2 * (half - 1) if half > 1 else 1
-    measured = (spectrum.abs() ** 2 / (rows * cols)).reshape(-1)
+    measured = (spectrum.abs().double() ** 2 / (rows * cols)).reshape(-1)
     rad = torch.sqrt(fx * fx + fy * fy).expand(spectrum.shape).reshape(-1)
     edges = torch.logspace(math.log10(1.5 / max(rows, cols)), math.log10(0.71), 25, dtype=rad.dtype)
     ring = torch.bucketize(rad, edges) - 1  # -1 and 24: outside the rings
@@ -257,10 +333,12 @@ def periodic_smooth(image: Tensor) -> tuple[Tensor, Tensor]:
     v[:, 0] += image[:, -1] - image[:, 0]
     v[:, -1] += image[:, 0] - image[:, -1]
     q = torch.arange(M, dtype=image.dtype)[:, None]
-    r = torch.arange(N, dtype=image.dtype)[None, :]
+    r = torch.arange(N // 2 + 1, dtype=image.dtype)[None, :]  # v is real: half the spectrum
     den = 2 * torch.cos(2 * math.pi * q / M) + 2 * torch.cos(2 * math.pi * r / N) - 4
     den[0, 0] = 1.0
-    S = torch.fft.fft2(v) / den
+    S = torch.fft.rfft2(v)
+    del v
+    S /= den
     S[0, 0] = 0
-    s = torch.fft.ifft2(S).real
+    s = torch.fft.irfft2(S, s=(M, N))
     return image - s, s

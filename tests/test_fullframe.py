@@ -1,0 +1,103 @@
+"""The fast full-frame paths give what the exact ones gave: sample positions from nodes (with the
+registration's correction applied on the nodes) against the per-pixel trace, the float32 Wiener
+step against float64, and the holes filled from local blurs against whole-image ones. Behaviour,
+not speed (that is benchmarks/bench_fullframe.py)."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from hbis_torch.config import FoveaSystem
+from hbis_torch.metrics import psnr
+from hbis_torch.optics import sensor_position
+from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, wiener_deblur
+from hbis_torch.reconstruct.classical.splat import _blur_at, _gaussian_blur, fill_holes
+from hbis_torch.reconstruct.positions import stack_sample_positions
+from hbis_torch.scan import plan_scan
+from hbis_torch.simulate.cases import make_stack
+from hbis_torch.simulate.geometry import interpolate_positions, landing_at, node_positions
+
+SYSTEM = FoveaSystem()
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.fixture(scope="module")
+def stack_and_truth():
+    return make_stack(SYSTEM, 4, (900, 600, 96, 80), "camera", 7)
+
+
+def test_node_positions_match_the_exact_trace_over_the_whole_sensor():
+    """On the full 960 x 1280 frame, at a spread of pixels up to the corners: < 1e-6 px."""
+    plan = plan_scan(SYSTEM, 4)
+    phases, ref = plan.phases_deg, plan.reference_index
+    nodes = node_positions(SYSTEM, phases, ref)
+    rows = np.unique(np.r_[np.linspace(0, SYSTEM.camera.rows - 1, 23).round().astype(int), 1, 958])
+    cols = np.unique(np.r_[np.linspace(0, SYSTEM.camera.cols - 1, 29).round().astype(int), 1, 1278])
+    fast = interpolate_positions(nodes, rows, cols)
+    u = torch.from_numpy(cols.astype(np.float64))[None, :]
+    v = torch.from_numpy(rows.astype(np.float64))[:, None]
+    landing = landing_at(SYSTEM, u, v, phases[:, 0, None, None], phases[:, 1, None, None])
+    exact = sensor_position(SYSTEM, landing, phases[ref, 0], phases[ref, 1])
+    assert fast.dtype == torch.float64 and fast.shape == (len(phases), len(rows), len(cols), 2)
+    assert float((fast - exact).abs().max()) < 1e-6
+
+
+@pytest.mark.parametrize("registration", ["optics", "auto"])
+def test_stack_positions_from_nodes_match_the_exact_path(stack_and_truth, registration):
+    """The registration's correction applied on the nodes, then interpolated, against applied to
+    every exactly traced pixel: the same positions within 1e-3 output px, the same frames trusted."""
+    stack, _ = stack_and_truth
+    fast, ok_fast = stack_sample_positions(stack, registration)
+    exact, ok_exact = stack_sample_positions(stack, registration, exact=True)
+    assert torch.equal(ok_fast, ok_exact)
+    assert float((fast - exact).abs().max()) * stack.h < 1e-3
+
+
+def test_classical_output_with_node_positions_matches_the_exact_positions(stack_and_truth):
+    stack, truth = stack_and_truth
+    frames = stack.to_float()
+    cutoff = optics_cutoff(SYSTEM)
+    images = [classical_sr(frames, stack_sample_positions(stack, "auto", exact=exact)[0], stack.h,
+                           cutoff=cutoff).numpy() for exact in (False, True)]
+    assert abs(psnr(images[0], truth) - psnr(images[1], truth)) < 0.05
+    assert np.abs(images[0] - images[1]).max() < 1e-3
+
+
+def test_wiener_in_float32_matches_float64():
+    """The deblurring's FFTs and filter in float32 against float64 (odd and even sizes, a
+    sub-pixel offset and the optics): differences far below the noise floor."""
+    gen = torch.Generator().manual_seed(3)
+    for shape, offset in (((96, 130), (0.5, 0.5)), ((101, 77), (0.2, -0.35))):
+        image = torch.rand(shape, generator=gen, dtype=torch.float64)
+        image = torch.nn.functional.avg_pool2d(image[None, None], 3, 1, 1)[0, 0]  # some smoothness
+        kw = dict(h=4, offset=offset, kernel_sigma=0.45, noise=0.01, cutoff=optics_cutoff(SYSTEM), strength=2.0)
+        single = wiener_deblur(image, dtype=torch.float32, **kw)
+        double = wiener_deblur(image, dtype=torch.float64, **kw)
+        assert single.dtype == torch.float64 and single.shape == shape
+        assert float((single - double).abs().max()) < 1e-4
+        rms = float((single - double).square().mean().sqrt())
+        # as PSNR against the float64 result: far above any reconstruction's (< 60 dB)
+        assert -20 * math.log10(rms) > 90
+
+
+def test_holes_filled_from_local_blurs_match_whole_image_blurs():
+    gen = torch.Generator().manual_seed(5)
+    img = torch.rand(60, 70, generator=gen, dtype=torch.float64)
+    rows = torch.tensor([0, 0, 59, 30, 1, 58, 12])
+    cols = torch.tensor([0, 69, 0, 35, 68, 1, 2])
+    for sigma in (1.0, 2.0, 4.0):
+        local = _blur_at(img, sigma, rows, cols)
+        whole = _gaussian_blur(img, sigma)[rows, cols]
+        assert float((local - whole).abs().max()) < 2e-3 * float(whole.abs().max())
+    # a frame's border missing (the full frame's holes): filled near the neighbours' values
+    den = torch.ones(60, 70, dtype=torch.float64)
+    den[0, :] = 0
+    den[:, -1] = 0
+    num = img * den
+    filled = fill_holes(num, den)
+    assert torch.equal(filled[1:, :-1], img[1:, :-1])
+    assert float((filled[0, 1:-1] - img[1, 1:-1]).abs().max()) < 1.0
+    assert bool(torch.isfinite(filled).all())
