@@ -101,8 +101,8 @@ def child_env() -> dict:
 def measure(mode: str, stack: Path, out: Path) -> dict:
     """One measurement in a fresh process: its JSON, plus the process's whole wall time."""
     t0 = time.perf_counter()
-    done = subprocess.run([sys.executable, "-c", CHILD, mode, str(stack), str(out)], cwd=REPO,
-                          env=child_env(), capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-c", CHILD, mode, str(stack), str(out)], check=False,
+                          cwd=REPO, env=child_env(), capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if done.returncode != 0:
         raise RuntimeError(f"{mode} {stack.name} failed:\n{done.stderr}")
@@ -145,7 +145,9 @@ def run(hs, repeats: int, work: Path) -> dict:
 
 
 def ratios(summary: dict, h: int) -> dict:
-    s = lambda mode, size="full", what="seconds": summary[f"{mode} h{h} {size}"][what]  # noqa: E731
+    def s(mode, size="full", what="seconds"):
+        return summary[f"{mode} h{h} {size}"][what]
+
     area = (1280 * 960) / (256 * 256)
     return {
         "learned_over_network": s("learned") / s("network"),
@@ -160,8 +162,8 @@ def ratios(summary: dict, h: int) -> dict:
 
 def markdown(result: dict, hs, load: tuple) -> str:
     summary = result["summary"]
-    lines = [f"Load average {load[0]:.1f} / {load[1]:.1f} at the start and end (2 cores); medians of "
-             f"{result['settings']['repeats']} rounds, each measurement in its own process.", "",
+    lines = [(f"Load average {load[0]:.1f} / {load[1]:.1f} at the start and end (2 cores); medians of "
+              f"{result['settings']['repeats']} rounds, each measurement in its own process."), "",
              "| h | ROI | method | e2e s | CPU s | start-up s | peak RSS GB | PSNR dB |",
              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for h in hs:
@@ -173,9 +175,9 @@ def markdown(result: dict, hs, load: tuple) -> str:
                 psnr_cell = f"{m['psnr']:.2f}" if "psnr" in m else "-"
                 lines.append(f"| {h} | {roi} | {name} | {m['seconds']:.2f} | {m['cpu_seconds']:.1f} | "
                              f"{m['startup_seconds']:.2f} | {m['max_peak_rss_gb']:.2f} | {psnr_cell} |")
-    lines += ["", "| h | learned e2e / network (goal <= 1.3) | classical / learned e2e (goal) | "
-              "full / (area x 256^2): learned, classical (goal <= 1.2) | peak RSS, full frame: "
-              "learned, classical (goal <= 2 GB) |", "| --- | --- | --- | --- | --- |"]
+    lines += ["", ("| h | learned e2e / network (goal <= 1.3) | classical / learned e2e (goal) | "
+                   "full / (area x 256^2): learned, classical (goal <= 1.2) | peak RSS, full frame: "
+                   "learned, classical (goal <= 2 GB) |"), "| --- | --- | --- | --- | --- |"]
     for h in hs:
         r = result["ratios"][str(h)]
         goal = GOALS["classical_over_learned"].get(h, "-")

@@ -73,7 +73,8 @@ def test_wiener_in_float32_matches_float64():
     for shape, offset in (((96, 130), (0.5, 0.5)), ((101, 77), (0.2, -0.35))):
         image = torch.rand(shape, generator=gen, dtype=torch.float64)
         image = torch.nn.functional.avg_pool2d(image[None, None], 3, 1, 1)[0, 0]  # some smoothness
-        kw = dict(h=4, offset=offset, kernel_sigma=0.45, noise=0.01, cutoff=optics_cutoff(SYSTEM), strength=2.0)
+        kw = {"h": 4, "offset": offset, "kernel_sigma": 0.45, "noise": 0.01, "cutoff": optics_cutoff(SYSTEM),
+              "strength": 2.0}
         single = wiener_deblur(image, dtype=torch.float32, **kw)
         double = wiener_deblur(image, dtype=torch.float64, **kw)
         assert single.dtype == torch.float64 and single.shape == shape

@@ -16,11 +16,21 @@ from hbis_torch.errors import HbisInputError
 
 def common_offset(coords: Tensor) -> float:
     """Circular mean of the fractional parts of HR coordinates, in [-0.5, 0.5)."""
-    angle = 2 * math.pi * coords
-    z = torch.complex(torch.cos(angle).mean(), torch.sin(angle).mean())
-    if float(z.abs()) < 0.2:  # no common offset (irregular samples): use the output grid
-        return 0.0
-    return float(torch.angle(z)) / (2 * math.pi)
+    return offset_from_sums(*circular_sums(coords))
+
+
+def circular_sums(coords: Tensor) -> tuple[float, float, int]:
+    """(sum of cos 2 pi c, sum of sin 2 pi c, count) of coordinates: :func:`common_offset`'s
+    sums, which add up over batches of samples."""
+    angle = 2 * math.pi * (coords - torch.round(coords))  # the fractional part: exact, and small
+    return float(torch.cos(angle).sum()), float(torch.sin(angle).sum()), coords.numel()
+
+
+def offset_from_sums(cos_sum: float, sin_sum: float, count: int) -> float:
+    """:func:`common_offset` from :func:`circular_sums` (added over batches)."""
+    if count == 0 or math.hypot(cos_sum, sin_sum) / count < 0.2:
+        return 0.0  # no common offset (irregular samples): use the output grid
+    return math.atan2(sin_sum, cos_sum) / (2 * math.pi)
 
 
 def splat(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: float,
@@ -67,67 +77,100 @@ def _splat_on_nodes(values: Tensor, xi: Tensor, yi: Tensor, shape: tuple[int, in
     """:func:`splat` for samples that sit on nodes: the Gaussian's 3 x 3 weights are then the
     same for every sample, so the samples are summed per node once and the sums spread with the
     separable kernel [a, 1, a] x [a, 1, a], a = exp(-1 / (2 sigma^2))."""
-    nodes = _OnNodes(xi, yi, shape, sigma, weights)
-    return nodes.spread(nodes.w * values), nodes.spread(nodes.w)
+    sums = NodeSums(shape, sigma, 2, values.dtype)
+    idx, w = sums.nodes(xi, yi, weights)
+    sums.add(0, idx, w * values)
+    sums.add(1, idx, w)
+    return sums.spread(0), sums.spread(1)
 
 
-class _OnNodes:
-    """Samples sitting on nodes (integer ``xi``, ``yi``, shape (N,)): their node indices and
-    weights, computed once for any number of value sets (:func:`_splat_on_nodes`)."""
+class NodeSums:
+    """Per-node sums of samples that sit on nodes (:func:`_splat_on_nodes`), accumulated a batch
+    of samples at a time, then spread with the splat's 3 x 3 kernel.
 
-    def __init__(self, xi: Tensor, yi: Tensor, shape: tuple[int, int], sigma: float, weights: Tensor):
+    Parameters
+    ----------
+    shape : (rows, cols)
+    sigma : float
+        The splat Gaussian (grid px).
+    count : int
+        How many sums are kept (numerator, denominator, ...).
+    dtype : torch.dtype
+    """
+
+    def __init__(self, shape: tuple[int, int], sigma: float, count: int, dtype=torch.float64):
         rows, cols = shape
         # A one-node frame around the grid keeps what samples just outside give to the border nodes.
-        near = (xi >= -1) & (xi <= cols) & (yi >= -1) & (yi <= rows)
-        self.idx = ((yi + 1) * (cols + 2) + xi + 1).clamp(0, (rows + 2) * (cols + 2) - 1).long()
-        self.w = weights * near
+        self.sums = torch.zeros(count, (rows + 2) * (cols + 2), dtype=dtype)
         self.shape, self.a = shape, math.exp(-1 / (2 * sigma * sigma))
 
-    def spread(self, weighted: Tensor) -> Tensor:
-        """(rows, cols): the per-node sums of ``weighted`` (N,), spread with the 3 x 3 kernel."""
+    def nodes(self, xi: Tensor, yi: Tensor, weights: Tensor | None) -> tuple[Tensor, Tensor]:
+        """Flat node index (int64) and weight (0 for samples beyond the frame) of samples at
+        integer ``xi``, ``yi`` (N,) with ``weights`` (N,) (None: 1)."""
         rows, cols = self.shape
-        sums = torch.zeros((rows + 2) * (cols + 2), dtype=weighted.dtype)
-        sums.index_add_(0, self.idx, weighted)
-        sums = sums.view(rows + 2, cols + 2)
+        near = (xi >= -1) & (xi <= cols) & (yi >= -1) & (yi <= rows)
+        idx = ((yi + 1) * (cols + 2) + xi + 1).clamp(0, (rows + 2) * (cols + 2) - 1).long()
+        return idx, near.to(self.sums.dtype) if weights is None else weights * near
+
+    def add(self, k: int, idx: Tensor, weighted: Tensor) -> None:
+        """Add samples' ``weighted`` values (N,) to sum ``k`` at their nodes ``idx``."""
+        self.sums[k].index_add_(0, idx, weighted)
+
+    def spread(self, k: int) -> Tensor:
+        """(rows, cols): sum ``k`` spread with the 3 x 3 kernel."""
+        rows, cols = self.shape
+        sums = self.sums[k].view(rows + 2, cols + 2)
         a = self.a
         sums = a * (sums[:, :-2] + sums[:, 2:]) + sums[:, 1:-1]
         return a * (sums[:-2] + sums[2:]) + sums[1:-1]
 
 
-def splat_on_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: float,
-                     weights: Tensor | None = None) -> tuple[Tensor, Tensor]:
-    """:func:`snap_to_lattice` followed by :func:`splat`, the same sums with one pass fewer: the
-    snapped samples' nodes and weights (hence the denominator) serve both the pilot and the result.
+def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Tensor, Tensor]:
+    """:func:`snap_to_lattice` followed by :func:`splat`, the same sums in bounded memory: the
+    samples come in batches (each pass over them calls ``batches()`` anew), and the snapped
+    samples' nodes and weights (hence the denominator) serve both the pilot and the result.
 
     Parameters
     ----------
-    values, x, y, shape, sigma, weights
-        As :func:`snap_to_lattice`'s.
+    batches : callable
+        () -> iterable of (values, x, y, weights) batches, each as :func:`snap_to_lattice`'s
+        arguments (weights may be None).
+    shape : (rows, cols)
+    sigma : float
 
     Returns
     -------
     numerator, denominator : Tensor, shape (rows, cols)
         As :func:`splat`'s of :func:`snap_to_lattice`'s samples.
     """
-    xn, yn = torch.round(x), torch.round(y)
-    dx, dy = xn - x, yn - y
-    nodes = _OnNodes(xn, yn, shape, sigma, torch.ones_like(values) if weights is None else weights)
-    den = nodes.spread(nodes.w)
-    num = nodes.spread(nodes.w * values)
-    if float(torch.maximum(dx.abs(), dy.abs()).max()) < 1e-3:
+    sums = NodeSums(shape, sigma, 2)
+    off_node = 0.0
+    for values, x, y, weights in batches():
+        xn, yn = torch.round(x), torch.round(y)
+        off_node = max(off_node, float((xn - x).abs().max()), float((yn - y).abs().max()))
+        idx, w = sums.nodes(xn, yn, weights)
+        sums.add(1, idx, w)
+        sums.add(0, idx, w * values)
+    num, den = sums.spread(0), sums.spread(1)
+    if off_node < 1e-3:
         return num, den
-    sx, sy = _slopes(fill_holes(num, den), x, y)
-    return nodes.spread(nodes.w * (values + sx * dx + sy * dy)), den
+    gy, gx = torch.gradient(fill_holes(num, den))
+    gradient = torch.stack((gx, gy))[None]
+    sums.sums[0].zero_()
+    for values, x, y, weights in batches():
+        xn, yn = torch.round(x), torch.round(y)
+        sx, sy = _sample(gradient, x, y)
+        idx, w = sums.nodes(xn, yn, weights)
+        sums.add(0, idx, w * (values + sx * (xn - x) + sy * (yn - y)))
+    return sums.spread(0), den
 
 
-def _slopes(pilot: Tensor, x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
-    """The gradient (d/dx, d/dy) of an image (rows, cols) at points (x, y), bilinear."""
-    gy, gx = torch.gradient(pilot)
-    rows, cols = pilot.shape
+def _sample(image: Tensor, x: Tensor, y: Tensor) -> Tensor:
+    """Channels of ``image`` (1, C, rows, cols) at points (x, y) (N,), bilinear: (C, N)."""
+    rows, cols = image.shape[-2:]
     grid = torch.stack((2 * x / max(cols - 1, 1) - 1, 2 * y / max(rows - 1, 1) - 1), -1)[None, None]
-    slopes = torch.nn.functional.grid_sample(torch.stack((gx, gy))[None], grid.to(pilot.dtype),
-                                             mode="bilinear", padding_mode="border", align_corners=True)
-    return slopes[0, 0, 0], slopes[0, 1, 0]
+    return torch.nn.functional.grid_sample(image, grid.to(image.dtype), mode="bilinear",
+                                           padding_mode="border", align_corners=True)[0, :, 0]
 
 
 def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: float,
@@ -160,13 +203,14 @@ def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int]
         return values, xn, yn
     # The pilot's only job is the local slope; built from the snapped samples it costs no
     # Gaussian per sample, and the slope it gives is off by second-order terms only.
-    sx, sy = _slopes(fill_holes(*splat(values, xn, yn, shape, sigma, weights)), x, y)
+    gy, gx = torch.gradient(fill_holes(*splat(values, xn, yn, shape, sigma, weights)))
+    sx, sy = _sample(torch.stack((gx, gy))[None], x, y)
     return values + sx * dx + sy * dy, xn, yn
 
 
 def _gaussian_blur(img: Tensor, sigma: float) -> Tensor:
     """Gaussian blur (rows, cols) with mirrored borders, via the FFT."""
-    pad = min(int(math.ceil(4 * sigma)), img.shape[0] - 1, img.shape[1] - 1)
+    pad = min(math.ceil(4 * sigma), img.shape[0] - 1, img.shape[1] - 1)
     p = torch.nn.functional.pad(img[None, None], (pad, pad, pad, pad), mode="reflect")[0, 0]
     fy = torch.fft.fftfreq(p.shape[0], dtype=img.dtype)[:, None]
     fx = torch.fft.rfftfreq(p.shape[1], dtype=img.dtype)[None, :]
@@ -179,7 +223,7 @@ def _blur_at(img: Tensor, sigma: float, rows: Tensor, cols: Tensor) -> Tensor:
     """:func:`_gaussian_blur` of ``img`` at the nodes (rows[i], cols[i]) only, (K,): sampled
     Gaussian taps out to 4 sigma, mirrored borders."""
     H, W = img.shape
-    pad = min(int(math.ceil(4 * sigma)), H - 1, W - 1)
+    pad = min(math.ceil(4 * sigma), H - 1, W - 1)
     d = torch.arange(-pad, pad + 1)
     g = torch.exp(-(d * d).to(img.dtype) / (2 * sigma * sigma))
     g = g / g.sum()
@@ -207,7 +251,7 @@ def fill_holes(num: Tensor, den: Tensor) -> Tensor:
     rows, cols = torch.nonzero(den < 0.25 * typical).unbind(1)
     sigma = 1.0
     while len(rows) and sigma <= 64:
-        taps = 2 * int(math.ceil(4 * sigma)) + 1
+        taps = 2 * math.ceil(4 * sigma) + 1
         if len(rows) * taps * taps <= num.numel() // 4:
             n2, d2 = _blur_at(num, sigma, rows, cols), _blur_at(den, sigma, rows, cols)
         else:

@@ -12,8 +12,18 @@ from torch import Tensor
 
 from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
-from hbis_torch.reconstruct.classical.splat import common_offset, fill_holes, splat, splat_on_lattice
+from hbis_torch.reconstruct.classical.splat import (
+    circular_sums,
+    fill_holes,
+    offset_from_sums,
+    splat,
+    splat_on_lattice,
+)
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
+
+# Samples per batch in lattice_image: its temporaries (some 100 bytes a sample) stay near 200 MB
+# whatever the stack's size.
+BATCH_SAMPLES = 1 << 21
 
 
 def classical_sr(
@@ -150,18 +160,39 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         Where the nodes sit relative to the output pixels, HR px.
     """
     F, H, W = frames.shape
-    X = (positions[..., 0] + 0.5) * h - 0.5
-    Y = (positions[..., 1] + 0.5) * h - 0.5
-    keep = torch.ones(F, H, W, dtype=torch.bool) if weights is None else weights > 0
-    offset = (common_offset(X[keep]), common_offset(Y[keep])) if on_lattice else (0.0, 0.0)
-    w = None if weights is None else weights.reshape(-1)
-    values, x, y = frames.reshape(-1), (X - offset[0]).reshape(-1), (Y - offset[1]).reshape(-1)
     shape = (h * H, h * W)
+    step = max(1, BATCH_SAMPLES // (H * W))  # frames per batch
+    slices = [slice(k, k + step) for k in range(0, F, step)]
+
+    def coords(part: slice):  # HR lattice coordinates of a batch of frames, and their weights
+        x = (positions[part, ..., 0].reshape(-1) + 0.5) * h - 0.5
+        y = (positions[part, ..., 1].reshape(-1) + 0.5) * h - 0.5
+        w = None if weights is None else weights[part].reshape(-1)
+        return x, y, w
+
+    offset = (0.0, 0.0)
     if on_lattice:
-        # snap_to_lattice, then splat: the same sums, the nodes shared
-        num, den = splat_on_lattice(values, x, y, shape, kernel_sigma, w)
+        sums = [0.0, 0.0, 0, 0.0, 0.0, 0]
+        for part in slices:
+            x, y, w = coords(part)
+            if w is not None:
+                x, y = x[w > 0], y[w > 0]
+            sums = [a + b for a, b in zip(sums, circular_sums(x) + circular_sums(y))]
+        offset = (offset_from_sums(*sums[:3]), offset_from_sums(*sums[3:]))
+
+    def batches():
+        for part in slices:
+            x, y, w = coords(part)
+            yield frames[part].reshape(-1), x.sub_(offset[0]), y.sub_(offset[1]), w
+
+    if on_lattice:
+        # snap_to_lattice, then splat: the same sums, in batches of frames
+        num, den = splat_on_lattice(batches, shape, kernel_sigma)
     else:
-        num, den = splat(values, x, y, shape, kernel_sigma, w)
+        num = den = 0
+        for values, x, y, w in batches():
+            n, d = splat(values, x, y, shape, kernel_sigma, w)
+            num, den = num + n, den + d
     return fill_holes(num, den), den, offset
 
 
