@@ -240,8 +240,8 @@ def test_exact_positions_are_the_per_frame_trace_bit_for_bit_in_any_chunks(corne
 def test_untrusted_frames_keep_the_optics_and_classical_data_mode_leaves_them_out(centre, distrust_frame):
     stack, _ = centre
     distrust_frame(2)
-    optical = optical_sample_positions(stack)
-    corrected, trusted = stack_sample_positions(stack, "data", exact=True)
+    optical = position_policy.optical_positions(stack)  # the methods' positions: node splines
+    corrected, trusted = stack_sample_positions(stack, "data")
     assert trusted.tolist() == [k != 2 for k in range(H * H)]
     assert torch.equal(corrected[2], optical[2]) and not torch.equal(corrected[4], optical[4])
     frames, kw = stack.to_float(), {"cutoff": optics_cutoff(SYSTEM), "fill_factor": stack_fill_factor(stack)}

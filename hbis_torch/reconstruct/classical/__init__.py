@@ -24,7 +24,8 @@ the optics, from the registration, or both), then:
 
 Coordinates: LR pixel (u, v) is the centre of column u, row v of the reference frame's ROI;
 HR pixel (U, V) is centred at LR ((U + 0.5)/h - 0.5, (V + 0.5)/h - 0.5) (docs/design.md, section 1).
-Computation is in float64; the result is rounded to float32.
+Positions and interpolation weights are float64; the per-node sums, the deblurring (FFTs and
+filter) and the result are float32 (tests/test_fullframe.py: within 1e-4 of float64).
 
 Modules
 -------

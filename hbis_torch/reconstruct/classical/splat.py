@@ -143,34 +143,40 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
     numerator, denominator : Tensor, shape (rows, cols)
         As :func:`splat`'s of :func:`snap_to_lattice`'s samples.
     """
-    sums = NodeSums(shape, sigma, 2)
+    # The sums in float32 (a node gets a few samples; the image is float32 in the end), the
+    # coordinates in float64.
+    sums = NodeSums(shape, sigma, 2, torch.float32)
     off_node = 0.0
     for values, x, y, weights in batches():
         xn, yn = torch.round(x), torch.round(y)
         off_node = max(off_node, float((xn - x).abs().max()), float((yn - y).abs().max()))
-        idx, w = sums.nodes(xn, yn, weights)
+        idx, w = sums.nodes(xn, yn, None if weights is None else weights.to(torch.float32))
         sums.add(1, idx, w)
-        sums.add(0, idx, w * values)
-    num, den = sums.spread(0), sums.spread(1)
-    if off_node < 1e-3:
-        return num, den
-    gy, gx = torch.gradient(fill_holes(num, den))
-    gradient = torch.stack((gx, gy))[None]
-    sums.sums[0].zero_()
-    for values, x, y, weights in batches():
-        xn, yn = torch.round(x), torch.round(y)
-        sx, sy = _sample(gradient, x, y)
-        idx, w = sums.nodes(xn, yn, weights)
-        sums.add(0, idx, w * (values + sx * (xn - x) + sy * (yn - y)))
-    return sums.spread(0), den
+        sums.add(0, idx, w * values.to(torch.float32))
+    den = sums.spread(1)
+    if off_node >= 1e-3:
+        pilot = fill_holes(sums.spread(0), den)
+        gradient = torch.stack(torch.gradient(pilot)[::-1])[None]  # (1, 2, rows, cols): d/dx, d/dy
+        del pilot
+        sums.sums[0].zero_()
+        for values, x, y, weights in batches():
+            xn, yn = torch.round(x), torch.round(y)
+            sx, sy = _sample(gradient, x, y)
+            idx, w = sums.nodes(xn, yn, None if weights is None else weights.to(torch.float32))
+            sums.add(0, idx, w * (values + sx * (xn - x) + sy * (yn - y)).to(torch.float32))
+        del gradient
+    num = sums.spread(0).to(torch.float64)
+    del sums
+    return num, den.to(torch.float64)
 
 
 def _sample(image: Tensor, x: Tensor, y: Tensor) -> Tensor:
     """Channels of ``image`` (1, C, rows, cols) at points (x, y) (N,), bilinear: (C, N)."""
     rows, cols = image.shape[-2:]
     grid = torch.stack((2 * x / max(cols - 1, 1) - 1, 2 * y / max(rows - 1, 1) - 1), -1)[None, None]
-    return torch.nn.functional.grid_sample(image, grid.to(image.dtype), mode="bilinear",
-                                           padding_mode="border", align_corners=True)[0, :, 0]
+    out = torch.nn.functional.grid_sample(image, grid.to(image.dtype), mode="bilinear",
+                                          padding_mode="border", align_corners=True)[0, :, 0]
+    return out.to(x.dtype)
 
 
 def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: float,

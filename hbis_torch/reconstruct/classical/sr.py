@@ -74,7 +74,8 @@ def classical_sr(
     Returns
     -------
     Tensor, shape (h*H, h*W), float32 in [0, 1]
-        Computed in float64 and rounded at the end.
+        Positions and the interpolation's weights in float64, the per-node sums and the
+        deblurring in float32 (tests/test_fullframe.py checks these against float64).
     """
     h = check_h(h)
     frames, positions, weights = _check_inputs(frames, positions, weights, fill_factor, kernel_sigma,
@@ -82,15 +83,19 @@ def classical_sr(
     image, den, offset = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur)
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
-        samples_per_node = float(den[den > 0].median()) / max(_peak_weight(kernel_sigma), 1e-12)
+        typical = float(den[den > 0].median())
+        samples_per_node = typical / max(_peak_weight(kernel_sigma), 1e-12)
+        # The deblurring works in float32 (wiener_deblur): so do the noise's median of second
+        # differences, and the image handed over (half the memory of a full frame's float64).
+        image = image.to(torch.float32)
         if noise is None:
-            typical = float(den[den > 0].median())
             node_noise = lattice_noise(image, kernel_sigma, den > 0.5 * typical)
         else:
             node_noise = noise / math.sqrt(max(samples_per_node, 1.0))
+        del den
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
                               cutoff, strength)
-    return image.clamp(0, 1).to(torch.float32)
+    return image.clamp_(0, 1).to(torch.float32)
 
 
 def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: float,
@@ -99,12 +104,15 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
 
     Returns
     -------
-    frames : Tensor, shape (F, H, W), float64
+    frames : Tensor, shape (F, H, W), float64 (float32 if given as a float32 tensor)
     positions : Tensor, shape (F, H, W, 2), float64
     weights : Tensor, shape (F, H, W), float64, or None
         Per-frame weights expanded to every sample.
     """
+    frames_in = frames
     frames = as_float64_tensor(frames, "frames")
+    if isinstance(frames_in, Tensor) and frames_in.dtype == torch.float32:
+        frames = frames_in  # checked; float32 samples are exact enough, and half the memory
     positions = as_float64_tensor(positions, "positions")
     if frames.ndim != 3 or min(frames.shape) < 1:
         raise HbisInputError(f"frames must have shape (F, H, W), got {tuple(frames.shape)}")
@@ -140,7 +148,7 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
 
     Parameters
     ----------
-    frames : Tensor, shape (F, H, W), float64
+    frames : Tensor, shape (F, H, W), float64 or float32
     positions : Tensor, shape (F, H, W, 2), float64
         ROI-local reference LR coordinates of the samples.
     h : int
@@ -183,7 +191,7 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     def batches():
         for part in slices:
             x, y, w = coords(part)
-            yield frames[part].reshape(-1), x.sub_(offset[0]), y.sub_(offset[1]), w
+            yield frames[part].reshape(-1).to(torch.float64), x.sub_(offset[0]), y.sub_(offset[1]), w
 
     if on_lattice:
         # snap_to_lattice, then splat: the same sums, in batches of frames

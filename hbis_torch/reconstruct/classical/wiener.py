@@ -166,11 +166,12 @@ class _Model(NamedTuple):
         optics *= box(gx, self.aperture) * box(gy, self.aperture)
         return prior, k_mag, optics
 
-    def phase(self) -> Tensor:
-        """The lattice's phase factor of the unaliased term, exp(-2 pi i f . offset), (rows, cols)."""
+    def phase(self) -> tuple[Tensor, Tensor]:
+        """The lattice's phase factor of the unaliased term, exp(-2 pi i f . offset), as its
+        factors along x (cols,) and y (rows,)."""
         px = torch.exp(-2j * math.pi * self.fx.double() * self.offset[0]).to(self.fx.dtype.to_complex())
         py = torch.exp(-2j * math.pi * self.fy.double() * self.offset[1]).to(self.fx.dtype.to_complex())
-        return py[:, None] * px[None, :]
+        return px, py
 
 
 def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], model: _Model, shifts, s2: float, beta: float,
@@ -242,7 +243,9 @@ def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], model: _Model, shifts
     del power
     filt = torch.complex(cross_re, cross_im)
     del cross_re, cross_im
-    filt *= model.phase()
+    px, py = model.phase()
+    filt *= py[:, None]
+    filt *= px[None, :]
     return filt
 
 
