@@ -21,22 +21,32 @@ default 0), ``black_level`` (digital number of a black pixel, default 0; integer
 
 Every problem with a file or a stack raises :class:`StackFormatError` (an HbisInputError) whose
 one-line message starts with the file name and says what was wrong. Writes are atomic.
+
+Reading checks what the TIFF headers declare (page count, each page's shape and dtype, where its
+data lies) before decoding anything: at most 256 pages (h = 16), one shape and one dtype, data
+inside the file, and no more than ``HBIS_MAX_STACK_MB`` MiB once decoded (default 1024, an
+environment variable the user can raise). A hostile file is refused in one line, quickly.
 docs/stack-format.md describes the format for outside tools.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
+import os
+import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from hbis_torch.checks import MAX_H
 from hbis_torch.config import Camera, FoveaSystem, LensCalibration, Prisms
 from hbis_torch.errors import HbisInputError, StackFormatError
-from hbis_torch.io_utils import atomic_path
+from hbis_torch.io_utils import atomic_path, load_json
 
 FORMAT = "hbis-stack/1"
 FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
@@ -45,6 +55,26 @@ CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 _CAMERA_KEYS = ("pixel_pitch_um", "rows", "cols", "focal_length_mm", "f_number")
 _PRISM_KEYS = ("wedge_angle_deg", "refractive_index")
 _TOP_KEYS = ("format", "h", "camera", "prisms", "object_distance_mm", "roi", "phases_deg")
+
+#: Most pages a stack file may hold: h x h frames with h <= MAX_H.
+MAX_PAGES = MAX_H * MAX_H
+#: Default of HBIS_MAX_STACK_MB: the most a file may take once decoded, MiB (h = 16 on the whole
+#: 960 x 1280 sensor in uint16 is 600 MiB).
+DEFAULT_MAX_STACK_MB = 1024
+
+
+def max_decoded_bytes() -> int:
+    """The most bytes one file may take once decoded: ``HBIS_MAX_STACK_MB`` MiB (default 1024)."""
+    text = os.environ.get("HBIS_MAX_STACK_MB", "").strip()
+    if not text:
+        return DEFAULT_MAX_STACK_MB * 2**20
+    try:
+        mb = float(text)
+    except ValueError:
+        mb = float("nan")
+    if not (math.isfinite(mb) and 0 < mb <= 2**30):
+        raise HbisInputError(f"HBIS_MAX_STACK_MB must be a positive number of MiB, got {text[:40]!r}")
+    return int(mb * 2**20)
 
 
 def _is_int(value) -> bool:
@@ -175,8 +205,8 @@ def _check_meta(meta, where: str) -> None:
         raise StackFormatError(f"{where}: missing key(s) {', '.join(missing)} in the stack JSON")
     if meta["format"] != FORMAT:
         raise StackFormatError(f"{where}: format is {meta['format']!r}, expected {FORMAT!r}")
-    if not _is_int(meta["h"]) or meta["h"] < 1:
-        raise StackFormatError(f"{where}: h must be a positive integer, got {meta['h']!r}")
+    if not _is_int(meta["h"]) or not 1 <= meta["h"] <= MAX_H:
+        raise StackFormatError(f"{where}: h must be an integer from 1 to {MAX_H}, got {meta['h']!r}")
     for key, needed in (("camera", _CAMERA_KEYS), ("prisms", _PRISM_KEYS)):
         block = meta[key]
         if not isinstance(block, dict):
@@ -248,7 +278,11 @@ def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None
         raise StackFormatError(
             f"{where}: frame dtype {frames.dtype} is not one of uint8, uint16, float32"
         )
-    n_frames, n_phases = frames.shape[0], len(meta["phases_deg"])
+    n_frames, n_phases, h = frames.shape[0], len(meta["phases_deg"]), meta["h"]
+    if n_frames != h * h:
+        raise StackFormatError(
+            f"{where}: {n_frames} frame(s), but a scan with h = {h} has h x h = {h * h}"
+        )
     if n_frames != n_phases:
         raise StackFormatError(
             f"{where}: {n_frames} frame(s) but {n_phases} entries in phases_deg (one per frame)"
@@ -366,14 +400,71 @@ class Stack:
         return ((x - black) / (white - black)).clamp_(0.0, 1.0)
 
 
-def _read_tiff(path: Path):
+@contextmanager
+def _quiet_tifffile():
+    """Keep tifffile's own log lines and warnings off stderr: the caller reports in one line."""
+    log = logging.getLogger("tifffile")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        log.setLevel(level)
+
+
+def _declared_pages(tif, path: Path, max_pages: int) -> list:
+    """The pages of an open TiffFile, checked from their headers alone (nothing is decoded).
+
+    Refuses more than ``max_pages`` pages, a page whose sample format cannot be read, pages of
+    different shapes or dtypes, data lying beyond the end of the file (a truncated file), and
+    more than :func:`max_decoded_bytes` once decoded.
+    """
+    pages = []
+    for page in tif.pages:
+        if len(pages) == max_pages:
+            what = "expected one image" if max_pages == 1 else f"a stack holds h x h frames, h <= {MAX_H}"
+            raise StackFormatError(f"{path}: more than {max_pages} page(s) ({what})")
+        pages.append(page)
+    if not pages:
+        raise StackFormatError(f"{path}: the TIFF holds no pages")
+    size, limit, total = tif.filehandle.size, max_decoded_bytes(), 0
+    for i, page in enumerate(pages):
+        shape, dtype = tuple(int(n) for n in page.shape), page.dtype
+        if dtype is None:
+            raise StackFormatError(f"{path}: page {i} has a sample format that cannot be read")
+        if not shape or min(shape) < 1:
+            raise StackFormatError(f"{path}: page {i} is empty (shape {shape})")
+        nbytes = math.prod(shape) * dtype.itemsize
+        total += nbytes
+        if total > limit:
+            raise StackFormatError(
+                f"{path}: the pages declare {total / 2**20:.0f} MiB or more once decoded "
+                f"({len(pages)} x {shape} {dtype}), over the limit of {limit / 2**20:.0f} MiB "
+                "(raise it with the environment variable HBIS_MAX_STACK_MB)"
+            )
+        counts = [int(c) for c in page.databytecounts]
+        ends = [int(o) + c for o, c in zip(page.dataoffsets, counts) if c]
+        packed = page.compression == 1 and page.bitspersample == dtype.itemsize * 8
+        if not ends or max(ends) > size or (packed and sum(counts) < nbytes):
+            raise StackFormatError(f"{path}: the file is truncated or damaged: page {i}'s data "
+                                   f"is missing or runs past the end of the file ({size} bytes)")
+    shapes = sorted({tuple(p.shape) for p in pages})
+    if len(shapes) != 1:
+        raise StackFormatError(f"{path}: the pages have different shapes {shapes}")
+    dtypes = sorted({str(p.dtype) for p in pages})
+    if len(dtypes) != 1:
+        raise StackFormatError(f"{path}: the pages have different dtypes ({', '.join(dtypes)})")
+    return pages
+
+
+def _read_tiff(path: Path, max_pages: int = MAX_PAGES):
     import tifffile
 
     try:
-        with tifffile.TiffFile(path) as tif:
-            pages = list(tif.pages)
-            if not pages:
-                raise StackFormatError(f"{path}: the TIFF holds no pages")
+        with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
+            pages = _declared_pages(tif, path, max_pages)
             description = pages[0].description
             arrays = [p.asarray() for p in pages]
     except StackFormatError:
@@ -382,11 +473,11 @@ def _read_tiff(path: Path):
         raise StackFormatError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise StackFormatError(f"{path}: is a directory, not a TIFF file") from None
+    except MemoryError:
+        raise StackFormatError(f"{path}: not enough memory to decode the file") from None
     except Exception as exc:  # noqa: BLE001 - tifffile raises many types for corrupt files
-        raise StackFormatError(f"{path}: not a readable TIFF file ({type(exc).__name__}: {exc})") from None
-    shapes = {a.shape for a in arrays}
-    if len(shapes) != 1:
-        raise StackFormatError(f"{path}: the pages have different shapes {sorted(shapes)}")
+        detail = str(exc).splitlines()[0][:200] if str(exc) else ""
+        raise StackFormatError(f"{path}: not a readable TIFF file ({type(exc).__name__}: {detail})") from None
     if not (arrays[0].ndim == 2 or (arrays[0].ndim == 3 and arrays[0].shape[-1] == 3)):
         raise StackFormatError(
             f"{path}: pages must be grayscale (rows, cols) or RGB (rows, cols, 3), got shape {arrays[0].shape}"
@@ -412,9 +503,9 @@ def read_stack(path) -> Stack:
     if not description:
         raise StackFormatError(f"{path}: page 0 has no ImageDescription (the stack's JSON)")
     try:
-        meta = json.loads(description)
-    except json.JSONDecodeError as exc:
-        raise StackFormatError(f"{path}: page 0's ImageDescription is not JSON ({exc.msg})") from None
+        meta = load_json(description, f"{path}: page 0's ImageDescription")
+    except HbisInputError as exc:
+        raise StackFormatError(str(exc)) from None
     validate_stack(frames, meta, str(path))
     return Stack(frames, meta)
 
@@ -503,11 +594,9 @@ def write_image(path, image, meta: dict | None = None, pixel_size_um: float | No
 def read_image(path) -> tuple[np.ndarray, dict]:
     """Read a single-page grayscale TIFF: (image (H, W), its JSON description or {})."""
     path = Path(path)
-    arrays, description = _read_tiff(path)
-    if arrays.shape[0] != 1:
-        raise StackFormatError(f"{path}: expected one image, found {arrays.shape[0]} pages")
+    arrays, description = _read_tiff(path, max_pages=1)
     try:
-        meta = json.loads(description) if description else {}
-    except json.JSONDecodeError:
+        meta = load_json(description, str(path)) if description else {}
+    except HbisInputError:
         meta = {}
     return arrays[0], meta if isinstance(meta, dict) else {}

@@ -30,7 +30,8 @@ def _stack(dtype=np.uint16, frames=4, roi=(100, 50, 6, 5), bit_depth=12, **extra
     else:
         data = rng.integers(0, 2 ** (bit_depth or np.dtype(dtype).itemsize * 8), shape).astype(dtype)
     phases = np.column_stack((5 + 0.01 * np.arange(frames), 70 - 0.013 * np.arange(frames)))
-    meta = make_meta(FoveaSystem(), 2, roi, phases, bit_depth=bit_depth,
+    h = int(round(frames ** 0.5))
+    meta = make_meta(FoveaSystem(), h, roi, phases, bit_depth=bit_depth,
                      reference_index=min(1, frames - 1), **extra)
     return Stack(data, meta)
 
@@ -123,9 +124,10 @@ def _set(key, value):
         (lambda f, m: (m["camera"].pop("rows"), f)[1], "missing key(s) camera.rows"),
         (lambda f, m: (m["prisms"].pop("refractive_index"), f)[1], "prisms.refractive_index"),
         (_set("format", "hbis-stack/2"), "format is 'hbis-stack/2'"),
-        (_set("h", 0), "h must be a positive integer"),
-        (_set("h", 2.5), "h must be a positive integer"),
-        (lambda f, m: f[:3], "3 frame(s) but 4 entries in phases_deg"),
+        (_set("h", 0), "h must be an integer from 1 to 16"),
+        (_set("h", 2.5), "h must be an integer from 1 to 16"),
+        (_set("h", 17), "h must be an integer from 1 to 16"),
+        (lambda f, m: f[:3], "3 frame(s), but a scan with h = 2 has h x h = 4"),
         (_set("phases_deg", [[1, 2]] * 5), "4 frame(s) but 5 entries in phases_deg"),
         (_set("phases_deg", [[1, 2, 3]] * 4), "phases_deg must be a non-empty list"),
         (_set("roi", [1275, 50, 6, 5]), "lies outside the 960 x 1280"),
@@ -163,7 +165,7 @@ def test_nan_and_out_of_range_floats_are_rejected(tmp_path):
     with pytest.raises(StackFormatError, match=r"must lie in \[0, 1\]"):
         read_stack(path)
     path = _broken(tmp_path, _set("phases_deg", [[1, float("nan")]] * 4), np.float32, None)
-    with pytest.raises(StackFormatError, match="phases_deg contains NaN"):
+    with pytest.raises(StackFormatError, match="NaN is not a JSON number"):
         read_stack(path)
 
 
@@ -180,7 +182,7 @@ def test_files_that_are_not_stacks(tmp_path):
     with pytest.raises(StackFormatError, match="no ImageDescription"):
         read_stack(plain)
     _raw_write(tmp_path / "text.tif", stack.frames, "hello")
-    with pytest.raises(StackFormatError, match="is not JSON"):
+    with pytest.raises(StackFormatError, match="not valid JSON"):
         read_stack(tmp_path / "text.tif")
     _raw_write(tmp_path / "list.tif", stack.frames, "[1, 2]")
     with pytest.raises(StackFormatError, match="not a JSON object"):
@@ -227,7 +229,7 @@ def test_overwrite_is_atomic_and_keeps_old_file_on_error(tmp_path):
 
 def test_stack_from_another_camera(tmp_path):
     system = FoveaSystem(camera=Camera(rows=20, cols=30, pixel_pitch_um=2.0))
-    meta = make_meta(system, 3, (0, 0, 30, 20), [[1.0, 2.0]], bit_depth=8)
+    meta = make_meta(system, 1, (0, 0, 30, 20), [[1.0, 2.0]], bit_depth=8)
     write_stack(tmp_path / "s.tif", Stack(np.zeros((1, 20, 30), np.uint8), meta))
     assert read_stack(tmp_path / "s.tif").system == system
 
