@@ -6,6 +6,7 @@ tensor) or raises :class:`~hbis_torch.errors.HbisInputError` with a one-line mes
 
 from __future__ import annotations
 
+import argparse
 import math
 
 import numpy as np
@@ -19,6 +20,9 @@ Roi = tuple[int, int, int, int]
 
 #: The largest resolution improvement factor hbis-torch accepts: 256 frames a stack.
 MAX_H = 16
+#: The largest prism phase accepted, degrees (a thousand turns and more; beyond it a float64
+#: angle loses the 1e-9 degree a scan plan resolves).
+MAX_PHASE_DEG = 1e6
 
 
 def check_h(h, minimum: int = 1) -> int:
@@ -57,6 +61,8 @@ def check_phases(phases_deg) -> Tensor:
         raise HbisInputError(f"phases must have shape (F, 2), got {tuple(phases.shape)}")
     if not bool(torch.isfinite(phases).all()):
         raise HbisInputError("phases contain non-finite values (NaN or infinite)")
+    if bool((phases.abs() > MAX_PHASE_DEG).any()):
+        raise HbisInputError(f"phases must lie within +-{MAX_PHASE_DEG:g} degrees")
     return phases
 
 
@@ -68,6 +74,8 @@ def check_phase_pair(phases_deg) -> tuple[float, float]:
         raise HbisInputError(f"phases must be two numbers in degrees, got {phases_deg!r}")
     if len(values) != 2 or not all(math.isfinite(v) for v in values):
         raise HbisInputError(f"phases must be two finite numbers in degrees, got {phases_deg!r}")
+    if max(abs(v) for v in values) > MAX_PHASE_DEG:
+        raise HbisInputError(f"phases must lie within +-{MAX_PHASE_DEG:g} degrees, got {phases_deg!r}")
     return values[0], values[1]
 
 
@@ -87,3 +95,53 @@ def as_float64_tensor(x, name: str) -> Tensor:
     if not torch.isfinite(x).all():
         raise HbisInputError(f"{name} contain non-finite values (NaN or inf)")
     return x
+
+
+# --------------------------------------------------------------------------- command-line numbers
+
+_MAX_NUMBER_CHARS = 64  # no sensible number is longer; int() of 5,000 digits is refused or slow
+
+
+def bounded_int(lo: int, hi: int):
+    """An argparse ``type=`` for an integer from ``lo`` to ``hi`` (inclusive).
+
+    A bad value raises ``argparse.ArgumentTypeError``: argparse prints one line, exit code 2.
+    """
+
+    def parse(text: str) -> int:
+        try:
+            if len(text) > _MAX_NUMBER_CHARS:
+                raise ValueError
+            value = int(text, 10)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer from {lo} to {hi}, got {text[:40]!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be an integer from {lo} to {hi}, got {value}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def bounded_float(lo: float, hi: float, *, lo_open: bool = False, hi_open: bool = False):
+    """An argparse ``type=`` for a finite number in [lo, hi] (``lo_open``/``hi_open``: excluded).
+
+    NaN and infinities are refused like any number out of range.
+    """
+    span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+
+    def parse(text: str) -> float:
+        try:
+            if len(text) > _MAX_NUMBER_CHARS:
+                raise ValueError
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number in {span}, got {text[:40]!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number in {span}, got {text!r}")
+        if value < lo or value > hi or (lo_open and value == lo) or (hi_open and value == hi):
+            raise argparse.ArgumentTypeError(f"must lie in {span}, got {value:g}")
+        return value
+
+    parse.__name__ = "number"
+    return parse

@@ -12,6 +12,10 @@ from dataclasses import asdict, dataclass, field
 from hbis_torch.errors import HbisInputError
 
 
+#: The most pixels a sensor side may have (sensors today have under 20,000).
+MAX_SENSOR_SIDE = 65536
+
+
 def _check_positive(name: str, value: float) -> None:
     if not math.isfinite(value) or value <= 0:
         raise HbisInputError(f"{name} must be a finite positive number, got {value!r}")
@@ -105,8 +109,12 @@ class Camera:
             _check_positive(name, float(getattr(self, name)))
         for name in ("rows", "cols"):
             value = getattr(self, name)
-            if int(value) != value or value < 1:
-                raise HbisInputError(f"{name} must be a positive integer, got {value!r}")
+            try:
+                whole = not isinstance(value, bool) and int(value) == value
+            except (TypeError, ValueError, OverflowError):
+                whole = False
+            if not whole or not 1 <= value <= MAX_SENSOR_SIDE:
+                raise HbisInputError(f"{name} must be an integer from 1 to {MAX_SENSOR_SIDE}, got {value!r}")
 
     @property
     def pitch_mm(self) -> float:

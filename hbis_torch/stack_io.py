@@ -401,7 +401,7 @@ class Stack:
 
 
 @contextmanager
-def _quiet_tifffile():
+def quiet_tifffile():
     """Keep tifffile's own log lines and warnings off stderr: the caller reports in one line."""
     log = logging.getLogger("tifffile")
     level = log.level
@@ -463,7 +463,7 @@ def _read_tiff(path: Path, max_pages: int = MAX_PAGES):
     import tifffile
 
     try:
-        with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
+        with quiet_tifffile(), tifffile.TiffFile(path) as tif:
             pages = _declared_pages(tif, path, max_pages)
             description = pages[0].description
             arrays = [p.asarray() for p in pages]

@@ -50,7 +50,7 @@ def test_scan_text_output(capsys):
 @pytest.mark.parametrize(
     "args,message",
     [
-        (["--h", "0", "--phases-deg", "5,70"], "h must be"),
+        (["--h", "0", "--phases-deg", "5,70"], "--h: must be an integer from 1 to 16"),
         (["--h", "3", "--phases-deg", "5"], "two numbers"),
         (["--h", "3", "--phases-deg", "5,nan"], "finite"),
         (["--h", "3", "--phases-deg", "5,6"], "maximum deviation"),

@@ -9,7 +9,9 @@ from pathlib import Path
 
 from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
-from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.io_utils import atomic_write_text, check_output_dir
+from hbis_torch.checks import bounded_float, bounded_int
+from hbis_torch.cli.common import SEED_ARG
 from hbis_torch.cli.cmd_figures import FIGURE_SET_NAMES, figure_set
 
 
@@ -34,13 +36,13 @@ def register(sub) -> None:
                    help="super-resolution method, a name hbis reconstruct knows (default: learned, "
                    "the shipped ONNX model run in onnxruntime)")
     p.add_argument("--model", default=None, help="model file for a learned method (optional)")
-    p.add_argument("--h", type=int, default=4, help="resolution improvement factor (default: 4)")
-    p.add_argument("--roi", type=int, default=160, help="side of the fovea's ROI in pixels (default: 160)")
-    p.add_argument("--seed", type=int, default=3, help="seed of the assembly errors (default: 3)")
-    p.add_argument("--assembly-error-deg", type=float, default=0.7,
+    p.add_argument("--h", type=bounded_int(1, 7), default=4, help="resolution improvement factor (default: 4)")
+    p.add_argument("--roi", type=bounded_int(16, 960), default=160, help="side of the fovea's ROI in pixels (default: 160)")
+    p.add_argument("--seed", type=SEED_ARG, default=3, help="seed of the assembly errors (default: 3)")
+    p.add_argument("--assembly-error-deg", type=bounded_float(0.0, 5.0), default=0.7,
                    help="rms misalignment of the side cameras, deg (default: 0.7; 0 = perfect)")
     p.add_argument("--no-refine", action="store_true", help="stitch with the design angles only")
-    p.add_argument("--threads", type=int, default=1,
+    p.add_argument("--threads", type=bounded_int(1, 1024), default=1,
                    help="torch threads (default: 1; the chain is many small tensor operations, for which "
                    "thread hand-offs cost more than they save)")
     p.add_argument("--figure-sets", nargs="*", choices=FIGURE_SET_NAMES, default=None,
@@ -112,8 +114,11 @@ def run(args) -> int:
         raise HbisInputError(f"unknown method {args.method!r}; available: {', '.join(_methods())}")
     if args.model is not None and not Path(args.model).is_file():
         raise HbisInputError(f"{args.model}: no such model file")
-    if args.threads < 1:
-        raise HbisInputError(f"--threads must be at least 1, got {args.threads}")
+    if args.method == "learned" and args.model is None and not args.design_only:
+        from hbis_torch.reconstruct.learned.runtime import default_model_path
+
+        default_model_path(args.h)  # no shipped model for this h: say so now, not after the design
+    check_output_dir(args.out)
     import torch
 
     start = time.perf_counter()

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import json
 
-from hbis_torch.cli.common import add_system_args, system_from_args
+from hbis_torch.checks import bounded_float
+from hbis_torch.cli.common import H_ARG, add_system_args, system_from_args
 
 
 def register(sub) -> None:
@@ -15,9 +16,9 @@ def register(sub) -> None:
         "--varphi-h-deg/--varphi-v-deg the largest inclinations with no blind zone are used.",
     )
     add_system_args(p)
-    p.add_argument("--varphi-h-deg", type=float, help="inclination of the left/right cameras [deg]")
-    p.add_argument("--varphi-v-deg", type=float, help="inclination of the upper/lower cameras [deg]")
-    p.add_argument("--h", type=int, help="resolution improvement factor (default: h_max)")
+    p.add_argument("--varphi-h-deg", type=bounded_float(0.0, 90.0, hi_open=True), help="inclination of the left/right cameras [deg]")
+    p.add_argument("--varphi-v-deg", type=bounded_float(0.0, 90.0, hi_open=True), help="inclination of the upper/lower cameras [deg]")
+    p.add_argument("--h", type=H_ARG, help="resolution improvement factor (default: h_max)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.set_defaults(func=run)
 

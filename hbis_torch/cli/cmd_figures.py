@@ -37,8 +37,10 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from hbis_torch.io_utils import check_output_dir
     from hbis_torch.progress import progress_enabled
 
+    check_output_dir(args.out)
     system = system_from_args(args)
     for name in args.only or FIGURE_SET_NAMES:
         for path in figure_set(name)(Path(args.out), system, progress=progress_enabled()):

@@ -13,8 +13,9 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.hardware.grbl import GrblController, GrblTimeouts
 from hbis_torch.hardware.grbl_protocol import nearest_step_phase
 from hbis_torch.hardware.simulator import add_simulator_args, serve_until_done, simulator_from_args
-from hbis_torch.io_utils import atomic_write_text
-from hbis_torch.cli.common import add_system_args, system_from_args
+from hbis_torch.io_utils import atomic_write_text, check_distinct_paths, check_output_path
+from hbis_torch.checks import bounded_float, bounded_int
+from hbis_torch.cli.common import H_ARG, PHASE_DEG, add_system_args, system_from_args
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:
@@ -37,9 +38,9 @@ def register(sub) -> None:
         "'hbis motors simulate' and pass the port it prints.",
     )
     p.add_argument("--port", help="pyserial URL of the controller")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
-    p.add_argument("--timeout-s", type=float, default=2.0, help="deadline for each reply (default 2 s)")
-    p.add_argument("--welcome-timeout-s", type=float, default=5.0,
+    p.add_argument("--baud", type=bounded_int(300, 4_000_000), default=115200, help="baud rate (default 115200)")
+    p.add_argument("--timeout-s", type=bounded_float(0.0, 3600.0, lo_open=True), default=2.0, help="deadline for each reply (default 2 s)")
+    p.add_argument("--welcome-timeout-s", type=bounded_float(0.0, 3600.0, lo_open=True), default=5.0,
                    help="deadline for the welcome line after a reset (default 5 s)")
     p.add_argument("--phase-offset-deg", default="0,0", metavar="O1,O2",
                    help="prism phases at machine position zero (default 0,0)")
@@ -56,9 +57,9 @@ def register(sub) -> None:
     a.set_defaults(func=run_unlock)
 
     a = actions.add_parser("goto", help="turn the prisms to phases PHI1 PHI2 (deg), the short way")
-    a.add_argument("phi1", type=float, help="phase of prism 1 [deg]")
-    a.add_argument("phi2", type=float, help="phase of prism 2 [deg]")
-    a.add_argument("--feed", type=float, help="feed [deg/min] (default: rapid, $110/$111)")
+    a.add_argument("phi1", type=PHASE_DEG, help="phase of prism 1 [deg]")
+    a.add_argument("phi2", type=PHASE_DEG, help="phase of prism 2 [deg]")
+    a.add_argument("--feed", type=bounded_float(0.0, 1e6, lo_open=True), help="feed [deg/min] (default: rapid, $110/$111)")
     a.set_defaults(func=run_goto)
 
     a = actions.add_parser(
@@ -67,17 +68,17 @@ def register(sub) -> None:
         "the controller's step size, then take every frame: move, wait for Idle, settle, read the "
         "phases back, run --capture-cmd. A journal records the frames taken; rerunning the same "
         "command after a fault resumes at the first frame not taken.")
-    a.add_argument("--h", type=int, required=True, help="resolution improvement factor h (h x h frames)")
+    a.add_argument("--h", type=H_ARG, required=True, help="resolution improvement factor h (h x h frames)")
     a.add_argument("--phases-deg", default="5,70", metavar="A,B", help="initial phases (default 5,70)")
     a.add_argument("--method", choices=("exact", "paper"), default="exact", help="inverse solution (default exact)")
     a.add_argument("--journal", default="motors-scan-journal.json",
                    help="journal of frames taken, for resuming (default ./motors-scan-journal.json)")
-    a.add_argument("--settle-s", type=float, default=0.2, help="pause after each move before capturing (default 0.2 s)")
-    a.add_argument("--feed", type=float, help="feed [deg/min] (default: rapid)")
+    a.add_argument("--settle-s", type=bounded_float(0.0, 3600.0), default=0.2, help="pause after each move before capturing (default 0.2 s)")
+    a.add_argument("--feed", type=bounded_float(0.0, 1e6, lo_open=True), help="feed [deg/min] (default: rapid)")
     a.add_argument("--capture-cmd", metavar="CMD",
                    help="command run for each frame; {index}, {phi1}, {phi2} are replaced by the frame "
                    "index and the read-back phases (deg)")
-    a.add_argument("--capture-timeout-s", type=float, default=60.0, help="deadline for --capture-cmd (default 60 s)")
+    a.add_argument("--capture-timeout-s", type=bounded_float(0.0, 86400.0, lo_open=True), default=60.0, help="deadline for --capture-cmd (default 60 s)")
     a.add_argument("--out", help="write the planned and read-back phases to this JSON file")
     c = a.add_argument_group("capture in-process and assemble the stack (docs/capture.md)")
     c.add_argument("--camera", metavar="SPEC",
@@ -203,6 +204,11 @@ def _capture_command(template: str, timeout_s: float):
 
 def run_scan_cmd(args) -> int:
     requested = _pair(args.phases_deg, "--phases-deg")
+    if not args.dry_run:
+        check_output_path(args.journal, "--journal")
+        if args.out:
+            check_output_path(args.out)
+            check_distinct_paths({"--journal": args.journal}, {"--out": args.out})
     if args.dry_run and args.steps_per_deg:
         steps = _pair(args.steps_per_deg, "--steps-per-deg")
         if not (steps[0] > 0 and steps[1] > 0):

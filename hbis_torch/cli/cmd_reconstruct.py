@@ -43,8 +43,12 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.reconstruct.registry import METHODS, reconstruct
     from hbis_torch.stack_io import object_pixel_um, read_stack, write_image
+
+    check_output_path(args.out)
+    check_distinct_paths({"STACK": args.stack}, {"--out": args.out})
 
     if args.method not in METHODS:
         raise HbisInputError(

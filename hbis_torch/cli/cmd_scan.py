@@ -5,7 +5,8 @@ from __future__ import annotations
 import json
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.cli.common import add_system_args, system_from_args
+from hbis_torch.checks import bounded_float, bounded_int
+from hbis_torch.cli.common import H_ARG, add_system_args, system_from_args
 
 # hbis_torch.scan's METHODS and CONVENTIONS, written out so that --help does not import torch
 # (tests/test_cli_conventions.py checks that they agree).
@@ -32,12 +33,12 @@ def register(sub) -> None:
         "alignment error of the axis and of the pixels (paper section 3.2).",
     )
     add_system_args(p)
-    p.add_argument("--h", type=int, required=True, help="resolution improvement factor h (>= 1)")
+    p.add_argument("--h", type=H_ARG, required=True, help="resolution improvement factor h (>= 1)")
     p.add_argument("--phases-deg", required=True, metavar="PHI1,PHI2",
                    help="initial phases of the two prisms in degrees, e.g. 5,70")
     p.add_argument("--method", choices=METHODS, default="exact",
                    help="inverse solution: the paper's eqs. 8-9 or the exact one (default)")
-    p.add_argument("--pixel-stride", type=int, default=4,
+    p.add_argument("--pixel-stride", type=bounded_int(1, 65536), default=4,
                    help="pixel AE on every k-th row and column plus the last ones "
                    "(1: every pixel of the sensor, slower; default 4)")
     p.add_argument("--pixel-convention", choices=CONVENTIONS, default="sensor",
@@ -45,7 +46,7 @@ def register(sub) -> None:
                    "paper) or on the object plane")
     p.add_argument("--steps-per-deg", metavar="S1,S2",
                    help="also report the axis AE with phases rounded to these motor steps/deg")
-    p.add_argument("--ae-bound", type=float,
+    p.add_argument("--ae-bound", type=bounded_float(0.0, 1000.0, lo_open=True),
                    help="also report the motor steps/deg that keep the axis AE under this bound")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import math
 import textwrap
 from pathlib import Path
 
-from hbis_torch.errors import HbisInputError
-from hbis_torch.cli.common import add_system_args, system_from_args
+from hbis_torch.checks import bounded_float, bounded_int
+from hbis_torch.cli.common import H_ARG, SEED_ARG, add_system_args, system_from_args
 
 DEFAULT_CROP = 256
 SUMMARY = "synthesise a stack (and its ground truth) through the Risley model"
@@ -61,7 +60,7 @@ def register(sub) -> None:
         epilog="example: hbis simulate --scene siemens-star --h 4 --out star.tif --truth star_truth.tif",
     )
     p.add_argument("--scene", required=True, help="built-in scene name or image path")
-    p.add_argument("--h", type=int, required=True, help="resolution improvement factor (h x h frames)")
+    p.add_argument("--h", type=H_ARG, required=True, help="resolution improvement factor (h x h frames)")
     p.add_argument("--out", required=True, help="output stack (hbis-stack/1 TIFF)")
     p.add_argument("--truth", help="also write the ground truth here (float32 TIFF)")
     g = p.add_argument_group("scan and scene")
@@ -74,28 +73,28 @@ def register(sub) -> None:
                    help="scan-plan inverse: exact (default) or the paper's eqs. 8-9")
     g.add_argument("--scene-size-mm", type=lambda t: _numbers(t, (1, 2), float, "--scene-size-mm"),
                    help="scene size on the object plane WIDTH[,HEIGHT] in mm (default: cover the view)")
-    g.add_argument("--seed", type=int, default=0, help="seed of the noise and of random scenes (default 0)")
-    g.add_argument("--phase-error-deg", type=float, default=0.0,
+    g.add_argument("--seed", type=SEED_ARG, default=0, help="seed of the noise and of random scenes (default 0)")
+    g.add_argument("--phase-error-deg", type=bounded_float(0.0, 10.0), default=0.0,
                    help="std. dev. of random prism phase errors [deg]; frames are rendered at the "
                    "erroneous phases, the stack records the planned ones (default 0)")
     s = p.add_argument_group("sensor")
     s.add_argument("--bit-depth", type=_bit_depth, default=defaults.bit_depth,
                    help=f"ADC bits 1..16 (uint8/uint16 frames) or 'float' (default {defaults.bit_depth})")
-    s.add_argument("--full-well", type=float, default=defaults.full_well_e,
+    s.add_argument("--full-well", type=bounded_float(0.0, 1e9, lo_open=True), default=defaults.full_well_e,
                    help=f"full well [electrons] (shot noise; default {defaults.full_well_e:g})")
-    s.add_argument("--read-noise", type=float, default=defaults.read_noise_e,
+    s.add_argument("--read-noise", type=bounded_float(0.0, 1e6), default=defaults.read_noise_e,
                    help=f"read noise [electrons] (default {defaults.read_noise_e:g})")
-    s.add_argument("--black-level", type=float, default=defaults.black_level_dn,
+    s.add_argument("--black-level", type=bounded_float(0.0, 65535.0), default=defaults.black_level_dn,
                    help=f"black level [DN] (default {defaults.black_level_dn:g})")
-    s.add_argument("--fill-factor", type=float, default=defaults.fill_factor,
+    s.add_argument("--fill-factor", type=bounded_float(0.0, 1.0, lo_open=True), default=defaults.fill_factor,
                    help=f"light-sensitive fraction of the pixel area (default {defaults.fill_factor:g})")
-    s.add_argument("--defocus-um", type=float, default=defaults.defocus_um,
+    s.add_argument("--defocus-um", type=bounded_float(-1e4, 1e4), default=defaults.defocus_um,
                    help=f"sensor distance from best focus [um] (default {defaults.defocus_um:g})")
     s.add_argument("--no-noise", action="store_true", help="noise-free frames (still quantised)")
     a = p.add_argument_group("forward model (advanced)")
-    a.add_argument("--oversample", type=int, default=8,
+    a.add_argument("--oversample", type=bounded_int(1, 64), default=8,
                    help="fine-grid points per sensor pixel, at least (default 8)")
-    a.add_argument("--margin-px", type=float, default=8.0,
+    a.add_argument("--margin-px", type=bounded_float(0.0, 1000.0), default=8.0,
                    help="grid margin [pixels] around the frames (default 8; see docs/data.md)")
     add_system_args(p)
     p.set_defaults(func=run)
@@ -112,12 +111,16 @@ def run(args) -> int:
     from hbis_torch.scan import plan_scan
     from hbis_torch.simulate import SensorModel, simulate_stack
     from hbis_torch.simulate.stacks import scene_for_roi
+    from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import object_pixel_um, write_image, write_stack
 
+    check_output_path(args.out)
+    if args.truth is not None:
+        check_output_path(args.truth, "--truth")
+    scene_file = args.scene if Path(args.scene).exists() else None
+    check_distinct_paths({"--scene": scene_file}, {"--out": args.out, "--truth": args.truth})
     system = system_from_args(args)
     check_h(args.h)
-    if args.oversample < 1 or not math.isfinite(args.margin_px) or args.margin_px < 0:
-        raise HbisInputError("--oversample must be >= 1 and --margin-px >= 0")
     if args.roi is None:
         roi = default_roi(system.camera)
     elif args.roi == "full":

@@ -1,25 +1,43 @@
-"""Options shared by several subcommands: the Table 1 parameters of the system."""
+"""Options shared by several subcommands: the Table 1 parameters of the system, and the
+``type=`` helpers that check every number at the door (argparse answers a bad one in one line
+with exit code 2, before any work)."""
 
 from __future__ import annotations
 
 import argparse
 
-from hbis_torch.config import Camera, Prisms, FoveaSystem
+from hbis_torch.checks import MAX_H, MAX_PHASE_DEG, bounded_float, bounded_int
+from hbis_torch.config import MAX_SENSOR_SIDE, Camera, Prisms, FoveaSystem
+
+
+#: Ranges of the Table 1 flags: physics (n > 1, 0 < alpha < 90, F >= 0.5 in air) and what a
+#: sensor can be (at most 65,536 pixels a side); generous elsewhere.
+H_ARG = bounded_int(1, MAX_H)
+SEED_ARG = bounded_int(0, 2**32 - 1)
+PIXEL_PITCH_UM = bounded_float(0.0, 1000.0, lo_open=True)
+SENSOR_SIDE = bounded_int(1, MAX_SENSOR_SIDE)
+FOCAL_LENGTH_MM = bounded_float(0.0, 1e5, lo_open=True)
+F_NUMBER = bounded_float(0.5, 1000.0)
+WAVELENGTH_NM = bounded_float(100.0, 20000.0)
+WEDGE_ANGLE_DEG = bounded_float(0.0, 90.0, lo_open=True, hi_open=True)
+REFRACTIVE_INDEX = bounded_float(1.0, 5.0, lo_open=True)
+OBJECT_DISTANCE_MM = bounded_float(0.0, 1e9, lo_open=True)
+PHASE_DEG = bounded_float(-MAX_PHASE_DEG, MAX_PHASE_DEG)
 
 
 def add_system_args(parser: argparse.ArgumentParser) -> None:
     """Add one flag per Table 1 parameter (defaults: the paper's prototype)."""
     cam, pr, sysd = Camera(), Prisms(), FoveaSystem()
     g = parser.add_argument_group("system (defaults: the paper's Table 1)")
-    g.add_argument("--pixel-pitch-um", type=float, default=cam.pixel_pitch_um, help="pixel pitch p [um]")
-    g.add_argument("--rows", type=int, default=cam.rows, help="sensor rows M")
-    g.add_argument("--cols", type=int, default=cam.cols, help="sensor columns N")
-    g.add_argument("--focal-length-mm", type=float, default=cam.focal_length_mm, help="focal length f' [mm]")
-    g.add_argument("--f-number", type=float, default=cam.f_number, help="F-number F")
-    g.add_argument("--wavelength-nm", type=float, default=cam.wavelength_nm, help="wavelength [nm]")
-    g.add_argument("--alpha-deg", type=float, default=pr.wedge_angle_deg, help="prism wedge angle a [deg]")
-    g.add_argument("--n", type=float, default=pr.refractive_index, help="prism refractive index n")
-    g.add_argument("--object-distance-mm", type=float, default=sysd.object_distance_mm,
+    g.add_argument("--pixel-pitch-um", type=PIXEL_PITCH_UM, default=cam.pixel_pitch_um, help="pixel pitch p [um]")
+    g.add_argument("--rows", type=SENSOR_SIDE, default=cam.rows, help="sensor rows M")
+    g.add_argument("--cols", type=SENSOR_SIDE, default=cam.cols, help="sensor columns N")
+    g.add_argument("--focal-length-mm", type=FOCAL_LENGTH_MM, default=cam.focal_length_mm, help="focal length f' [mm]")
+    g.add_argument("--f-number", type=F_NUMBER, default=cam.f_number, help="F-number F")
+    g.add_argument("--wavelength-nm", type=WAVELENGTH_NM, default=cam.wavelength_nm, help="wavelength [nm]")
+    g.add_argument("--alpha-deg", type=WEDGE_ANGLE_DEG, default=pr.wedge_angle_deg, help="prism wedge angle a [deg]")
+    g.add_argument("--n", type=REFRACTIVE_INDEX, default=pr.refractive_index, help="prism refractive index n")
+    g.add_argument("--object-distance-mm", type=OBJECT_DISTANCE_MM, default=sysd.object_distance_mm,
                    help="object distance v [mm]")
 
 

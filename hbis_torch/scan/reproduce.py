@@ -17,8 +17,10 @@ from dataclasses import replace
 
 import torch
 
+from hbis_torch.checks import bounded_int
 from hbis_torch.config import FoveaSystem
-from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import atomic_write_text, check_output_path
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at
 from hbis_torch.optics.inverse import axis_landing
 from hbis_torch.scan.alignment import axis_alignment_error, pixel_alignment_error, pixel_grid
@@ -133,11 +135,16 @@ def convention_study(system: FoveaSystem = FoveaSystem(), stride: int = 8) -> st
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--stride", type=int, default=1, help="pixel stride (1: every pixel)")
+    parser.add_argument("--stride", type=bounded_int(1, 65536), default=1, help="pixel stride (1: every pixel)")
     parser.add_argument("--conventions", action="store_true",
                         help="instead, compare the candidate pixel AE conventions")
     parser.add_argument("--out", help="also write the table to this file")
     args = parser.parse_args(argv)
+    if args.out:
+        try:
+            check_output_path(args.out)
+        except HbisInputError as exc:
+            parser.error(str(exc))
     if args.conventions:
         text = convention_study(stride=args.stride)
     else:

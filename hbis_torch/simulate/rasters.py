@@ -53,26 +53,45 @@ def photo(name: str) -> np.ndarray:
     return to_gray(getattr(skimage.data, name)())
 
 
+def _check_declared(path, shape, itemsize: int, limit: int) -> None:
+    """Refuse an image whose header declares more than ``limit`` bytes of float32 work, before decoding.
+
+    Gray conversion works in float32 on every channel, hence four bytes a sample at least.
+    """
+    need = math.prod(int(n) for n in shape) * max(itemsize, 4)
+    if need > limit:
+        raise HbisInputError(f"{path}: the image declares {' x '.join(map(str, shape))} samples, "
+                             f"{need / 2**20:.0f} MiB to convert, over the limit of {limit / 2**20:.0f} MiB "
+                             "(raise it with the environment variable HBIS_MAX_STACK_MB)")
+
+
 def read_image_file(path) -> np.ndarray:
     """An image file (PNG, JPEG, TIFF, ...) as float32 gray in [0, 1]."""
+    from hbis_torch.stack_io import max_decoded_bytes, quiet_tifffile
+
     path = Path(path)
+    limit = max_decoded_bytes()
     try:
         if path.suffix.lower() in (".tif", ".tiff"):
             import tifffile
 
-            array = tifffile.imread(path)
-            if array.ndim == 3 and array.shape[-1] not in (3, 4):
-                array = array[0]  # first page of a stack
+            with quiet_tifffile(), tifffile.TiffFile(path) as tif:
+                page = tif.pages.first
+                _check_declared(path, page.shape, page.dtype.itemsize if page.dtype else 8, limit)
+                array = page.asarray()  # the first page only (of a stack, its first frame)
         else:
             from PIL import Image
 
-            with Image.open(path) as image:
+            with quiet_tifffile(), Image.open(path) as image:  # quiet: PIL's bomb warning too
+                _check_declared(path, (image.height, image.width, len(image.getbands())), 4, limit)
                 if image.mode.startswith("I;16"):
                     array = np.asarray(image).astype(np.uint16)  # 16-bit: scaled by 65535
                 else:
                     array = np.asarray(image)
     except FileNotFoundError:
         raise HbisInputError(f"{path}: no such image file") from None
+    except HbisInputError:
+        raise
     except Exception as exc:  # noqa: BLE001 - the readers raise many types for bad files
         raise HbisInputError(f"{path}: cannot read the image ({type(exc).__name__}: {exc})") from None
     return to_gray(array)
