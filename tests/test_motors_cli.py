@@ -117,6 +117,13 @@ def test_scan_prints_ae_first_captures_each_frame_once_and_resumes(sim, tmp_path
     assert len(data["phases_deg"]) == 9
     for line, phases in zip(lines, data["phases_deg"]):  # the capture saw what the file records
         assert [float(v) for v in line.split()[1:]] == pytest.approx(phases, abs=1e-4)
+    # Run again on the finished journal: refused (exit 2, nothing moved or captured) unless --resume.
+    assert motors(sim.port, *args) == 2
+    err = capsys.readouterr().err
+    assert "already records all 9 frames" in err and "--resume" in err and len(err.strip().splitlines()) == 1
+    assert motors(sim.port, *args, "--resume") == 0
+    assert "none taken now" in capsys.readouterr().out
+    assert len(log.read_text().splitlines()) == 9
 
 
 def test_scan_dry_run_needs_no_controller(monkeypatch, capsys):

@@ -73,6 +73,9 @@ def register(sub) -> None:
     a.add_argument("--method", choices=("exact", "paper"), default="exact", help="inverse solution (default exact)")
     a.add_argument("--journal", default="motors-scan-journal.json",
                    help="journal of frames taken, for resuming (default ./motors-scan-journal.json)")
+    a.add_argument("--resume", action="store_true",
+                   help="accept a journal that already records the whole scan (nothing is moved; --out is "
+                   "written from it); a journal of an unfinished scan is always resumed")
     a.add_argument("--settle-s", type=bounded_float(0.0, 3600.0), default=0.2, help="pause after each move before capturing (default 0.2 s)")
     a.add_argument("--feed", type=bounded_float(0.0, 1e6, lo_open=True), help="feed [deg/min] (default: rapid)")
     a.add_argument("--capture-cmd", metavar="CMD",
@@ -243,13 +246,20 @@ def run_scan_cmd(args) -> int:
                   f"{record.target_deg[1]:.4f}) read back ({record.phases_deg[0]:.4f}, "
                   f"{record.phases_deg[1]:.4f}) deg", flush=True)
 
-        from hbis_torch.hardware.scan_executor import run_scan
+        from hbis_torch.hardware.scan_executor import ScanJournal, run_scan
 
-        result = run_scan(grbl, plan.phases_deg, capture, journal=Path(args.journal),
+        journal = ScanJournal.open(Path(args.journal), plan.phases_deg)
+        if journal.complete and not args.resume:
+            raise HbisInputError(f"the journal {args.journal} already records all {len(journal.targets)} frames of "
+                                 "this scan, so there is nothing to take: pass --resume to accept it as it is, "
+                                 "or give a new --journal")
+        result = run_scan(grbl, plan.phases_deg, capture, journal=journal,
                           settle_s=args.settle_s, feed_deg_per_min=args.feed, on_frame=progress)
         steps = list(grbl.steps_per_deg)
     frames = result.phases_deg.shape[0]
     resumed = f" (resumed at frame {result.resumed_from})" if result.resumed_from else ""
+    if result.resumed_from == frames:
+        resumed = " (all already in the journal: none taken now)"
     print(f"scan done: {frames} frames{resumed}, {result.retries} retried after recoverable faults; "
           f"journal {args.journal}")
     if args.out:

@@ -20,7 +20,7 @@ from typing import Callable
 import torch
 
 from hbis_torch.errors import HbisInputError, GrblMoveLost, GrblTimeout, ScanInterrupted
-from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.io_utils import atomic_write_text, load_json
 
 JOURNAL_FORMAT = "hbis-motor-journal/1"
 RETRYABLE = (GrblTimeout, GrblMoveLost)
@@ -69,7 +69,9 @@ class ScanJournal:
         if not journal.path.exists():
             return journal
         try:
-            data = json.loads(journal.path.read_text())
+            data = load_json(journal.path.read_text(errors="replace"), "its text")
+            if not isinstance(data, dict):
+                raise ValueError("not a JSON object")
             if data.get("format") != JOURNAL_FORMAT:
                 raise ValueError(f"format is {data.get('format')!r}, expected {JOURNAL_FORMAT!r}")
             stored = _as_targets(data["targets_deg"])
