@@ -212,6 +212,21 @@ def test_cli_reconstruct_corrupt_file_exit_2(tmp_path, capsys):
     assert "bad.tif" in err and len(err.strip().splitlines()) == 1
 
 
+def test_cli_reconstruct_refuses_to_overwrite_its_input_and_a_black_reference(centre, tmp_path, capsys):
+    stack, _ = centre
+    path = tmp_path / "stack.tif"
+    write_stack(path, stack)
+    before = path.read_bytes()
+    assert main(["reconstruct", str(path), "--out", str(path)]) == 2
+    assert "is the input" in capsys.readouterr().err and path.read_bytes() == before
+    black = copy.deepcopy(stack)
+    black.frames[black.reference_index] = 0
+    write_stack(path, black)
+    assert main(["reconstruct", str(path), "--registration", "data", "--out", str(tmp_path / "o.tif")]) == 2
+    err = capsys.readouterr().err
+    assert "is uniform" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "o.tif").exists()
+
+
 def test_the_registry_names_every_method_and_imports_no_onnx():
     import hbis_torch.reconstruct as layer
 

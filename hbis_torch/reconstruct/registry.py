@@ -47,6 +47,12 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     """
     if method not in METHODS:
         raise HbisInputError(f"unknown reconstruction method {method!r}; available: {', '.join(METHODS)}")
+    if registration == "data" and len(stack.frames) > 1:
+        ref = stack.frames[stack.reference_index]
+        if ref.min() == ref.max():  # nothing to register to: every other frame would be left out
+            raise HbisInputError(f"the reference frame {stack.reference_index} is uniform (every pixel "
+                                 f"{ref.flat[0]}), so no frame can be registered to it: use --registration "
+                                 "optics or auto")
     if getattr(stack, "colour", False):  # RGB or raw Bayer frames: every method, through one wrapper
         from hbis_torch.reconstruct.colour import reconstruct_colour
 
