@@ -121,7 +121,8 @@ def test_alarm_during_a_move_is_reported(sim, grbl):
     with pytest.raises(GrblAlarm, match="ALARM:1 .Hard limit") as info:
         grbl.move_to(30.0, 30.0)
     assert info.value.code == 1
-    with pytest.raises(GrblTimeout):  # after a hard limit GRBL hears nothing but a reset
+    # After a limit alarm GRBL hears nothing but a reset: status says it is in alarm, not silent.
+    with pytest.raises(GrblAlarm, match="ALARM:1 .* no status query until a soft reset"):
         grbl.status()
     grbl.reset()
     grbl.unlock()
@@ -178,3 +179,15 @@ def test_spy_url_logs_the_traffic(sim, tmp_path):
         g.move_to(1.0, 1.0)
     text = log.read_text()  # pyserial's hex dump: the reset byte out, "G21 G90" out, "Grbl" in
     assert "TX   0000  18 " in text and "47 32 31 20 47 39 30" in text and "47 72 62 6C" in text
+
+
+def test_settings_sent_later_are_read_again_and_inches_are_refused(sim, grbl):
+    assert not grbl.homing_enabled
+    grbl.send("$22=1")
+    assert grbl.homing_enabled  # read again after the write, not only when the port opened
+    grbl.send("$100=100")
+    assert grbl.steps_per_deg[0] == 100
+    with pytest.raises(HbisInputError, match=r"refusing '\$13=1'"):
+        grbl.send("$13=1")
+    assert grbl.settings.get(13, 0) == 0
+    grbl.send("$13=0")

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -39,6 +40,9 @@ _IO_ERRORS = (serial.SerialException, OSError, _TermiosError)
 
 _ALARM_HINT = "reset the controller, then home ($H) or unlock ($X) before moving again"
 # Fallbacks for timeout estimates when a controller does not report $110/$111 or $120/$121.
+# "$N=value": a setting written; the driver reads $$ again after it (and refuses $13=1).
+_SETTING_LINE = re.compile(r"^\$(\d+)\s*=\s*([-+0-9.eE]+)\s*$")
+
 _DEFAULT_RATE_DEG_PER_MIN = 500.0
 _DEFAULT_ACCEL_DEG_PER_S2 = 10.0
 
@@ -266,6 +270,10 @@ class GrblController:
         """
         if not isinstance(line, str) or "\n" in line or "\r" in line or not line.isascii():
             raise HbisInputError(f"a GRBL line must be one line of ASCII text, got {line!r}")
+        setting = _SETTING_LINE.match(line)
+        if setting and int(setting.group(1)) == 13 and setting.group(2).strip("+-0.") != "":
+            raise HbisInputError(f"refusing {line!r}: $13=1 makes GRBL report inches, and this driver "
+                                 "reads positions as degrees ($13 must stay 0)")
         if len(line) >= LINE_MAX_CHARS:
             raise HbisInputError(f"line too long for GRBL ({len(line)} >= {LINE_MAX_CHARS} characters): {line!r}")
         wait = self.timeouts.reply_s if timeout_s is None else float(timeout_s)
@@ -278,6 +286,8 @@ class GrblController:
                 raise GrblTimeout(f"no reply from the controller to {line!r} within {wait:.1f} s")
             kind, payload = event
             if kind is Kind.OK:
+                if setting or line.upper().startswith("$RST="):
+                    self.read_settings()  # a setting changed: what the driver relies on is read again
                 return replies
             if kind is Kind.ERROR:
                 raise GrblCommandError(payload, error_meaning(payload), line)
@@ -358,11 +368,19 @@ class GrblController:
                 self.stale_replies += 1
 
     def status(self) -> GrblStatus:
-        """One status report (raises :class:`GrblTimeout` if none comes)."""
+        """One status report.
+
+        Raises :class:`GrblAlarm` if none comes after an ``ALARM:N`` (GRBL ignores ``?`` after a
+        limit alarm until a soft reset), else :class:`GrblTimeout` if none comes.
+        """
         for _ in range(2):  # GRBL may drop a '?' that arrives while it is busy: ask twice
             report = self._poll(self.timeouts.status_s)
             if report is not None:
                 return report
+        if self.alarm_code is not None:
+            raise GrblAlarm(self.alarm_code, alarm_meaning(self.alarm_code),
+                            "it answers no status query until a soft reset: reconnect (the driver resets "
+                            "on opening), then home ($H) or unlock ($X)")
         raise GrblTimeout(f"no status report from the controller within 2 x {self.timeouts.status_s:.1f} s")
 
     def machine_position(self, report: GrblStatus) -> tuple[float, float]:
