@@ -32,6 +32,7 @@ import torch.nn.functional as F
 
 from hbis_torch.io_utils import atomic_path, atomic_write_text
 from hbis_torch.metrics import psnr
+from hbis_torch.run_lock import exit_with_parent, lock_dir, remove_temp_files
 from hbis_torch.reconstruct.learned.net import HbisSRNet, count_parameters
 from hbis_torch.reconstruct.learned.training_data import (NATURAL_SHARE, POOL_VERSION, build_pool, load_pool,
                                                         make_batch, save_pool, whole_example)
@@ -96,6 +97,7 @@ def git_commit() -> str:
 
 ddp = "RANK" in os.environ
 if ddp:
+    exit_with_parent()  # a worker ends with its launcher (torchrun killed outright)
     dist.init_process_group("gloo")
     rank, world = dist.get_rank(), dist.get_world_size()
 else:
@@ -106,7 +108,12 @@ torch.manual_seed(seed)  # same initial weights on every rank (DDP also broadcas
 out = Path(out_dir)
 commit = git_commit()
 if master:
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out_lock = lock_dir(out)  # one run per out_dir; released when this process ends
+    except ValueError as exc:
+        raise SystemExit(f"train_sr: {exc}") from None
+    for tmp in remove_temp_files(out):
+        print(f"removed {tmp.name}, left by a run that was killed")
 
 model = HbisSRNet(h, width=width, blocks=blocks, skip=skip)
 linear_params = [p for name, p in model.named_parameters() if name.startswith("linear.")]
