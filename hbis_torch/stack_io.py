@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hbis_torch.checks import MAX_H
+from hbis_torch.checks import MAX_H, MAX_PHASE_DEG
 from hbis_torch.config import Camera, FoveaSystem, LensCalibration, Prisms
 from hbis_torch.errors import HbisInputError, StackFormatError
 from hbis_torch.io_utils import atomic_path, load_json
@@ -237,6 +237,8 @@ def _check_meta(meta, where: str) -> None:
         raise StackFormatError(f"{where}: phases_deg must be a non-empty list of [phi1, phi2] numbers")
     if not np.isfinite(np.asarray(phases, dtype=np.float64)).all():
         raise StackFormatError(f"{where}: phases_deg contains NaN or infinite values")
+    if np.abs(np.asarray(phases, dtype=np.float64)).max() > MAX_PHASE_DEG:
+        raise StackFormatError(f"{where}: phases_deg must lie within +-{MAX_PHASE_DEG:g} degrees")
     bd = meta.get("bit_depth")
     if bd is not None and (not _is_int(bd) or not 1 <= bd <= 16):
         raise StackFormatError(f"{where}: bit_depth must be an integer from 1 to 16, got {bd!r}")
@@ -429,24 +431,25 @@ def _declared_pages(tif, path: Path, max_pages: int) -> list:
         pages.append(page)
     if not pages:
         raise StackFormatError(f"{path}: the TIFF holds no pages")
-    size, limit, total = tif.filehandle.size, max_decoded_bytes(), 0
+    size, limit, total, sizes = tif.filehandle.size, max_decoded_bytes(), 0, []
     for i, page in enumerate(pages):
         shape, dtype = tuple(int(n) for n in page.shape), page.dtype
         if dtype is None:
             raise StackFormatError(f"{path}: page {i} has a sample format that cannot be read")
         if not shape or min(shape) < 1:
             raise StackFormatError(f"{path}: page {i} is empty (shape {shape})")
-        nbytes = math.prod(shape) * dtype.itemsize
-        total += nbytes
-        if total > limit:
-            raise StackFormatError(
-                f"{path}: the pages declare {total / 2**20:.0f} MiB or more once decoded "
-                f"({len(pages)} x {shape} {dtype}), over the limit of {limit / 2**20:.0f} MiB "
-                "(raise it with the environment variable HBIS_MAX_STACK_MB)"
-            )
+        sizes.append(math.prod(shape) * dtype.itemsize)
+        total += sizes[-1]
+    if total > limit:
+        raise StackFormatError(
+            f"{path}: the pages declare {total / 2**20:.0f} MiB once decoded ({len(pages)} x "
+            f"{tuple(pages[0].shape)} {pages[0].dtype}), over the limit of {limit / 2**20:.0f} MiB "
+            "(raise it with the environment variable HBIS_MAX_STACK_MB)"
+        )
+    for i, (page, nbytes) in enumerate(zip(pages, sizes)):
         counts = [int(c) for c in page.databytecounts]
         ends = [int(o) + c for o, c in zip(page.dataoffsets, counts) if c]
-        packed = page.compression == 1 and page.bitspersample == dtype.itemsize * 8
+        packed = page.compression == 1 and page.bitspersample == page.dtype.itemsize * 8
         if not ends or max(ends) > size or (packed and sum(counts) < nbytes):
             raise StackFormatError(f"{path}: the file is truncated or damaged: page {i}'s data "
                                    f"is missing or runs past the end of the file ({size} bytes)")
