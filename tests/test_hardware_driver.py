@@ -163,6 +163,8 @@ def test_unasked_restart_is_reported(sim, grbl):
 def test_bad_targets_are_input_errors(grbl):
     with pytest.raises(HbisInputError, match="finite"):
         grbl.move_to(float("nan"), 0.0)
+    with pytest.raises(HbisInputError, match="within"):
+        grbl.move_to(1e308, 70.0)
     with pytest.raises(HbisInputError, match="one line"):
         grbl.send("G0 X1\nG0 X2")
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import serial
 
+from hbis_torch.checks import MAX_PHASE_DEG
 from hbis_torch.errors import (HbisInputError, GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
                      GrblProtocolError, GrblTimeout)
 from hbis_torch.hardware.grbl_codes import alarm_meaning, error_meaning
@@ -469,8 +470,8 @@ class GrblController:
             Phases read back from MPos after the move, unwrapped next to the targets, degrees.
         """
         target = (float(phi1_deg), float(phi2_deg))
-        if not all(math.isfinite(v) for v in target):
-            raise HbisInputError(f"target phases must be finite degrees, got {target}")
+        if not all(math.isfinite(v) and abs(v) <= MAX_PHASE_DEG for v in target):
+            raise HbisInputError(f"target phases must be finite degrees within +-{MAX_PHASE_DEG:g}, got {target}")
         if feed_deg_per_min is not None and not (math.isfinite(feed_deg_per_min) and feed_deg_per_min > 0):
             raise HbisInputError(f"feed must be a finite positive number of deg/min, got {feed_deg_per_min!r}")
         start = self.machine_position(self._check_ready())

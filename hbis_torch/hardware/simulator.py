@@ -143,6 +143,10 @@ class GrblSimulator:
         self.machine = GrblMachineModel(settings or {}, seed=seed)
         self.speedup = float(speedup)
         self.max_lifetime_s = float(max_lifetime_s)
+        if not self.max_lifetime_s > 0:  # NaN fails this too; inf (serve until stopped) passes
+            from hbis_torch.errors import HbisInputError
+
+            raise HbisInputError(f"the simulator's lifetime must be a positive number of seconds, got {max_lifetime_s!r}")
         self._tcp_port = tcp_port
         self._line = None
         self._thread: threading.Thread | None = None
