@@ -280,11 +280,7 @@ def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None
         raise StackFormatError(
             f"{where}: frame dtype {frames.dtype} is not one of uint8, uint16, float32"
         )
-    n_frames, n_phases, h = frames.shape[0], len(meta["phases_deg"]), meta["h"]
-    if n_frames != h * h:
-        raise StackFormatError(
-            f"{where}: {n_frames} frame(s), but a scan with h = {h} has h x h = {h * h}"
-        )
+    n_frames, n_phases = frames.shape[0], len(meta["phases_deg"])
     if n_frames != n_phases:
         raise StackFormatError(
             f"{where}: {n_frames} frame(s) but {n_phases} entries in phases_deg (one per frame)"
@@ -510,6 +506,9 @@ def read_stack(path) -> Stack:
     except HbisInputError as exc:
         raise StackFormatError(str(exc)) from None
     validate_stack(frames, meta, str(path))
+    h = meta["h"]
+    if len(frames) != h * h:  # a file is one whole scan (in memory, part of one may be a Stack)
+        raise StackFormatError(f"{path}: {len(frames)} frame(s), but a scan with h = {h} has h x h = {h * h}")
     return Stack(frames, meta)
 
 
