@@ -337,12 +337,12 @@ ARGUMENTS = [
     ["simulate", "--scene", "flat", "--h", "2", "--out", ""],
     ["simulate", "--scene", "flat", "--h", "2", "--out", "{file}/x.tif"],
     ["simulate", "--scene", "{valid}", "--h", "2", "--out", "{valid}"],
-    ["reconstruct", "{valid}", "--out", "{valid}"],
-    ["reconstruct", "{valid}", "--out", "{tmp}"],
-    ["reconstruct", "{valid}", "--out", ""],
-    ["reconstruct", "{valid}", "--out", "/proc/o.tif"],
-    ["reconstruct", "{valid}", "--out", "{file}/o.tif"],
-    ["reconstruct", "{valid}", "--out", "{link_to_valid}"],
+    ["reconstruct", "{valid}", "--registration", "optics", "--out", "{valid}"],
+    ["reconstruct", "{valid}", "--registration", "optics", "--out", "{tmp}"],
+    ["reconstruct", "{valid}", "--registration", "optics", "--out", ""],
+    ["reconstruct", "{valid}", "--registration", "optics", "--out", "/proc/o.tif"],
+    ["reconstruct", "{valid}", "--registration", "optics", "--out", "{file}/o.tif"],
+    ["reconstruct", "{valid}", "--registration", "optics", "--out", "{link_to_valid}"],
     ["figures", "--out", "{file}"],
 ]
 
