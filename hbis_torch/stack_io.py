@@ -419,12 +419,11 @@ def _declared_pages(tif, path: Path, max_pages: int) -> list:
     different shapes or dtypes, data lying beyond the end of the file (a truncated file), and
     more than :func:`max_decoded_bytes` once decoded.
     """
-    pages = []
-    for page in tif.pages:
-        if len(pages) == max_pages:
-            what = "expected one image" if max_pages == 1 else f"a stack holds h x h frames, h <= {MAX_H}"
-            raise StackFormatError(f"{path}: more than {max_pages} page(s) ({what})")
-        pages.append(page)
+    count = len(tif.pages)  # follows the IFD chain (loops detected) without parsing the pages
+    if count > max_pages:
+        what = "expected one image" if max_pages == 1 else f"a stack holds h x h frames, h <= {MAX_H}"
+        raise StackFormatError(f"{path}: {count} pages, more than {max_pages} ({what})")
+    pages = list(tif.pages)
     if not pages:
         raise StackFormatError(f"{path}: the TIFF holds no pages")
     size, limit, total, sizes = tif.filehandle.size, max_decoded_bytes(), 0, []

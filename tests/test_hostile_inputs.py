@@ -344,6 +344,11 @@ ARGUMENTS = [
     ["reconstruct", "{valid}", "--registration", "optics", "--out", "{file}/o.tif"],
     ["reconstruct", "{valid}", "--registration", "optics", "--out", "{link_to_valid}"],
     ["figures", "--out", "{file}"],
+    ["assemble", "{valid}", "--phases", "{file}", "--out", "{valid}"],
+    ["assemble", "{valid}", "--phases", "{file}", "--out", "{file}"],
+    ["assemble", "{valid}", "--phases", "{file}", "--out", "/proc/s.tif"],
+    ["assemble", "{valid}", "--phases", "{file}", "--bit-depth", "17", "--out", OUT],
+    ["assemble", "{valid}", "--phases", "{file}", "--black-level", "nan", "--out", OUT],
 ]
 
 
@@ -380,6 +385,23 @@ def test_an_output_written_through_a_link_keeps_the_link_and_the_umask(corpus, t
 
 
 # --------------------------------------------------------------------------- JSON elsewhere
+
+
+HOSTILE_JSON = ["9" * 5000, "[" * 100_000 + "]" * 100_000, '{"h": 2, "h": 3}', "NaN", "{", "[1, 2]",
+                '{"x": 1e999}', "\udcff"]
+
+
+@pytest.mark.parametrize("text", HOSTILE_JSON)
+def test_hostile_phases_and_system_files_are_one_input_error(tmp_path, text):
+    from hbis_torch.capture import read_phases
+    from hbis_torch.capture.system_file import load_system
+
+    path = tmp_path / "f.json"
+    path.write_text(text, errors="surrogateescape")
+    for read in (read_phases, load_system):
+        with pytest.raises(HbisInputError) as info:
+            read(path)
+        assert "\n" not in str(info.value) and str(path) in str(info.value)
 
 
 @pytest.mark.parametrize("text", ["9" * 5000, "[" * 100_000 + "]" * 100_000,

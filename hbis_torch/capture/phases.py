@@ -8,7 +8,6 @@ those keys existed are read without them).
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +16,7 @@ import numpy as np
 
 from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import load_json
 
 FORMAT = "hbis-motor-phases/1"
 
@@ -75,13 +75,12 @@ def read_phases(path) -> ScanPhases:
     """Read and check a phases file (one HbisInputError line naming it when anything is wrong)."""
     where = str(path)
     try:
-        data = json.loads(Path(path).read_text())
+        text = Path(path).read_bytes()
     except FileNotFoundError:
         raise HbisInputError(f"{where}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
         raise HbisInputError(f"{where}: cannot be read ({exc})") from None
-    except json.JSONDecodeError as exc:
-        raise HbisInputError(f"{where}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    data = load_json(text, where)  # hostile-safe: huge integers, deep nesting, duplicate keys
     if not isinstance(data, dict):
         raise HbisInputError(f"{where}: not a phases file (expected one JSON object)")
     if data.get("format", FORMAT) != FORMAT:

@@ -27,11 +27,11 @@ silently).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from hbis_torch.config import Camera, FoveaSystem, Prisms
 from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import load_json
 
 _CAMERA = ("pixel_pitch_um", "rows", "cols", "focal_length_mm", "f_number", "wavelength_nm")
 _PRISMS = ("wedge_angle_deg", "refractive_index")
@@ -44,16 +44,15 @@ def _load_mapping(path: Path) -> dict:
         raise HbisInputError(f"{path}: no such file") from None
     except OSError as exc:
         raise HbisInputError(f"{path}: cannot be read ({exc.strerror})") from None
-    try:
-        if path.suffix.lower() == ".toml":
+    if path.suffix.lower() != ".toml":
+        data = load_json(text, str(path))  # hostile-safe: huge integers, deep nesting, duplicate keys
+    else:
+        try:
             import tomllib
 
             data = tomllib.loads(text.decode("utf-8"))
-        else:
-            data = json.loads(text)
-    except (ValueError, UnicodeDecodeError) as exc:
-        kind = "TOML" if path.suffix.lower() == ".toml" else "JSON"
-        raise HbisInputError(f"{path}: not valid {kind} ({str(exc).splitlines()[0]})") from None
+        except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+            raise HbisInputError(f"{path}: not valid TOML ({(str(exc).splitlines() or [''])[0]})") from None
     if not isinstance(data, dict):
         raise HbisInputError(f"{path}: a system file holds one object (camera, prisms, object_distance_mm)")
     return data

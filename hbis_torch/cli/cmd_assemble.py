@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli.common import add_system_args, add_system_file_args, system_for
 
 CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
@@ -45,8 +46,8 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, type=Path, help="output stack (hbis-stack/1 TIFF)")
     p.add_argument("--roi", type=_roi, help="where the frames sit on the sensor, U0,V0,WIDTH,HEIGHT (default: "
                    "the whole sensor); full-sensor frames are cut to it")
-    p.add_argument("--bit-depth", type=int, help="significant bits of integer frames (default: 8 or 16 from the dtype)")
-    p.add_argument("--black-level", type=float, help="digital number of black (default 0)")
+    p.add_argument("--bit-depth", type=bounded_int(1, 16), help="significant bits of integer frames (default: 8 or 16 from the dtype)")
+    p.add_argument("--black-level", type=bounded_float(0.0, 65535.0), help="digital number of black (default 0)")
     p.add_argument("--cfa", type=str.upper, choices=CFA_PATTERNS,
                    help="raw Bayer frames: the colour filter pattern of the top-left 2 x 2 pixels")
     add_calibration_args(p)
@@ -62,8 +63,14 @@ def run(args) -> int:
         read_frames,
         read_phases,
     )
+    from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import write_stack
 
+    check_output_path(args.out)
+    inputs = {"--phases": args.phases, "--dark": args.dark, "--flat": args.flat, "--bad-pixels": args.bad_pixels,
+              "--system": getattr(args, "system", None), "--calibration": getattr(args, "calibration", None)}
+    inputs.update({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()})
+    check_distinct_paths(inputs, {"--out": args.out})
     system = system_for(args)
     scan = read_phases(args.phases)
     calibration = load_calibration(args.dark, args.flat, args.bad_pixels)
