@@ -9,12 +9,15 @@ from __future__ import annotations
 import argparse
 import math
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
-from torch import Tensor
 
 from hbis_torch.config import Camera
 from hbis_torch.errors import HbisInputError
+
+if TYPE_CHECKING:  # torch is imported where a check needs it: the CLI's --help loads no torch
+    from torch import Tensor
 
 Roi = tuple[int, int, int, int]
 
@@ -54,6 +57,8 @@ def check_roi(camera: Camera, roi: Roi | None) -> Roi:
 
 def check_phases(phases_deg) -> Tensor:
     """Prism phases in degrees, shape (F, 2) (a single pair may be given as (2,)), as float64."""
+    import torch
+
     phases = torch.as_tensor(phases_deg, dtype=torch.float64)
     if phases.ndim == 1 and phases.shape[0] == 2:
         phases = phases[None]
@@ -82,9 +87,11 @@ def check_phase_pair(phases_deg) -> tuple[float, float]:
 def as_float64_tensor(x, name: str) -> Tensor:
     """An array-like of real, finite numbers as a float64 tensor (NumPy arrays are not copied
     before the cast)."""
+    import torch
+
     if isinstance(x, np.ndarray):
         x = torch.from_numpy(np.ascontiguousarray(x))
-    if not isinstance(x, Tensor):
+    if not isinstance(x, torch.Tensor):
         try:
             x = torch.as_tensor(x)
         except (TypeError, ValueError, RuntimeError):
