@@ -187,7 +187,10 @@ def refused(argv, capsys, out_dir: Path, inputs=()):
     listing = _listing(out_dir)
     capsys.readouterr()
     start = time.perf_counter()
-    rc = main([str(a) for a in argv])
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse's own errors (one line, exit 2) leave main this way
+        rc = exc.code
     elapsed = time.perf_counter() - start
     err = capsys.readouterr().err
     lines = err.strip().splitlines()
