@@ -1,4 +1,4 @@
-"""Train the multi-frame super-resolution network (hbis_torch.reconstruct.learned.net) on simulated scans.
+"""Train the SR network (hbis_torch.reconstruct.learned.net), the refiner of the classical image, on simulated scans.
 
 Read it top to bottom: config, setup, data, the loop. One process:
 
@@ -11,7 +11,10 @@ Two processes on one machine (DDP over gloo, the same script unchanged):
 Any name in the config block can be overridden as ``name=value`` (Python literals). Killing the
 run and starting the same command again resumes from ``out_dir/ckpt.pt``. The outputs in
 ``out_dir``: ``ckpt.pt`` (latest, for resuming), ``model.pt`` (best validation PSNR),
-``history.json`` and ``val_psnr.png`` (the validation curve).
+``history.json`` and ``val_psnr.png`` (the validation curve against the classical image it refines).
+The training stacks draw their optics, noise, scan and reference frame at random
+(hbis_torch.reconstruct.learned.training_data); the held-out test on photographs and forward
+models the training never used is training/eval_matrix.py.
 """
 
 from __future__ import annotations
@@ -33,30 +36,23 @@ import torch.nn.functional as F
 from hbis_torch.io_utils import atomic_path, atomic_write_text
 from hbis_torch.metrics import psnr
 from hbis_torch.run_lock import exit_with_parent, lock_dir, remove_temp_files
-from hbis_torch.reconstruct.learned.net import HbisSRNet, count_parameters
-from hbis_torch.reconstruct.learned.training_data import (NATURAL_SHARE, POOL_VERSION, build_pool, load_pool,
-                                                        make_batch, save_pool, whole_example)
+from hbis_torch.reconstruct.learned.net import HbisSRNet, count_parameters, depth_to_space
+from hbis_torch.reconstruct.learned.training_data import (POOL_VERSION, build_pool, load_pool, make_batch, save_pool,
+                                                        whole_example)
 
 # ---------------------------------------------------------------------------- config
 h = 4  # resolution improvement factor; the model takes h*h frames
-width = 48  # feature channels
-blocks = 5  # residual blocks
-skip = 7  # kernel of the linear multi-frame base (0: bilinear base of the reference frame only)
+width = 32  # feature channels
+blocks = 4  # residual blocks
 patch = 32  # LR patch side of a training example (the output patch is h times larger)
-pool_size = 480  # simulated training stacks (procedural scenes, random places on the sensor)
+pool_size = 480  # simulated training stacks (random scenes, optics, noise and scans, see training_data)
 pool_roi = 96  # LR side of each simulated training stack; patches are cropped from them
-natural_share = 0.35  # share of natural-image scenes (dead leaves, 1/f^2 fields) in the training
-# pool; the validation pool always has the standard mix (0.35), so that runs compare
-noise_prob = 0.5  # share of training crops that get extra Gaussian noise ...
-noise_max = 0.06  # ... of a standard deviation uniform in [0, noise_max] (frames in [0, 1])
-val_size = 24  # held-out simulated stacks (their own seeds, never trained on)
+val_size = 24  # validation stacks (their own seeds, never trained on; same random degradations)
 val_roi = 64  # LR side of a validation stack (PSNR over the whole h*val_roi square)
 cache_dir = "training/runs/cache"  # simulated pools are generated once and reused
 batch_size = 8  # per process
 lr = 2e-3  # peak learning rate (AdamW), cosine decay to lr/20 over the budget
 weight_decay = 1e-4
-skip_lr = 0.1  # learning rate of the linear base relative to lr: Adam moves each of its many
-# correlated weights by about lr per step, which at the full lr makes the output jump around
 grad_clip = 1.0  # largest gradient norm (0: no clipping); guards against loss spikes at the peak lr
 warmup_steps = 50
 max_steps = 100_000  # whichever of max_steps / max_minutes comes first ends the run
@@ -115,11 +111,8 @@ if master:
     for tmp in remove_temp_files(out):
         print(f"removed {tmp.name}, left by a run that was killed")
 
-model = HbisSRNet(h, width=width, blocks=blocks, skip=skip)
-linear_params = [p for name, p in model.named_parameters() if name.startswith("linear.")]
-other_params = [p for name, p in model.named_parameters() if not name.startswith("linear.")]
-optimizer = torch.optim.AdamW([{"params": other_params, "lr_scale": 1.0},
-                               {"params": linear_params, "lr_scale": skip_lr}], lr=lr, weight_decay=weight_decay)
+model = HbisSRNet(h, width=width, blocks=blocks)
+optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
 step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
 ckpt_path = out / "ckpt.pt"
 if resume and ckpt_path.exists():
@@ -135,15 +128,14 @@ if master:
     print(f"HbisSRNet h={h}: {count_parameters(model)} parameters, {world} process(es)")
 
 # ---------------------------------------------------------------------------- data
-def cached_pool(name: str, count: int, size: int, pool_seed: int, share: float = NATURAL_SHARE) -> list[dict]:
+def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
     """A simulated pool, built once (split across the ranks) and cached as an .npz file."""
-    mix = "" if share == NATURAL_SHARE else f"_natural{share:g}"
-    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}_v{POOL_VERSION}{mix}.npz"
+    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}_v{POOL_VERSION}.npz"
     if not path.exists():
         part = Path(f"{path}.part{rank}of{world}.npz")
         if not part.exists():
             t0 = time.monotonic()
-            save_pool(part, build_pool(h, count, size, pool_seed, range(rank, count, world), share))
+            save_pool(part, build_pool(h, count, size, pool_seed, range(rank, count, world)))
             print(f"rank {rank}: simulated {len(range(rank, count, world))} {name} stacks in {time.monotonic() - t0:.0f} s")
         if ddp:
             dist.barrier()
@@ -159,64 +151,32 @@ def cached_pool(name: str, count: int, size: int, pool_seed: int, share: float =
 
 
 # Training and validation stacks come from disjoint seed streams (seed and seed + 1).
-train_pool = cached_pool("train", pool_size, pool_roi, seed, natural_share)
+train_pool = cached_pool("train", pool_size, pool_roi, seed)
 val_pool = cached_pool("val", val_size, val_roi, seed + 1)
 val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across the ranks
-
-
-def classical_baseline() -> float:
-    """Mean PSNR of the classical method (hbis_torch.reconstruct.classical) on the validation set, cached."""
-    # Cached per version of the classical method (a hash of its source).
-    import hbis_torch.reconstruct.classical as classical_module
-
-    version = classical_module.source_version()[:8]
-    path = Path(cache_dir) / f"val_h{h}_n{val_size}_roi{val_roi}_seed{seed + 1}_v{POOL_VERSION}.classical{version}.json"
-    if not path.exists():
-        from hbis_torch.config import FoveaSystem
-        from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
-
-        # As reconstruct(stack, "classical", registration="optics") runs it on these stacks.
-        cutoff = optics_cutoff(FoveaSystem())
-        sums = torch.zeros(2, dtype=torch.float64)
-        for ex in val_pool[rank::world]:
-            frames, positions = torch.from_numpy(ex["frames"]), torch.from_numpy(ex["positions"]).double()
-            image = classical_sr(frames, positions, h, cutoff=cutoff, fill_factor=1.0)
-            sums += torch.tensor([psnr(image.float().clamp(0, 1), ex["truth"]), 1.0])
-        if ddp:
-            dist.all_reduce(sums)
-        if master:
-            atomic_write_text(path, json.dumps({"classical_psnr": (sums[0] / sums[1]).item()}))
-        if ddp:
-            dist.barrier()
-    return json.loads(path.read_text())["classical_psnr"]
 
 
 # Every batch comes from its own seed (seed, rank, step), so a resumed run sees the same data
 # as an uninterrupted one and the ranks never see the same examples.
 def train_batch(at_step: int):
     rng = np.random.default_rng([seed, rank, at_step])
-    return [torch.from_numpy(a) for a in make_batch(train_pool, h, patch, batch_size, rng, noise_prob, noise_max)]
+    return [torch.from_numpy(a) for a in make_batch(train_pool, h, patch, batch_size, rng)]
 
 
 @torch.no_grad()
 def validate() -> tuple[float, float]:
-    """Mean PSNR (dB) over the whole validation set, network and its bilinear base."""
+    """Mean PSNR (dB) over the whole validation set: the network, and the classical image it refines."""
     model.eval()
     sums = torch.zeros(3, dtype=torch.float64)
-    for frames, offsets, truth in val_set:
-        frames, offsets, truth = (torch.from_numpy(a) for a in (frames, offsets, truth))
-        image = model(frames, offsets)
-        base = F.interpolate(frames[:, :1], scale_factor=h, mode="bilinear", align_corners=False)
-        sums += torch.tensor([psnr(image.clamp(0, 1), truth), psnr(base.clamp(0, 1), truth), 1.0], dtype=torch.float64)
+    for base, noise, truth in val_set:
+        base, noise, truth = (torch.from_numpy(a) for a in (base, noise, truth))
+        image = model(base, noise)
+        sums += torch.tensor([psnr(image.clamp(0, 1), truth), psnr(depth_to_space(base, h), truth), 1.0],
+                             dtype=torch.float64)
     if ddp:
         dist.all_reduce(sums)
     model.train()
     return (sums[0] / sums[2]).item(), (sums[1] / sums[2]).item()
-
-
-classical_psnr = classical_baseline()
-if master:
-    print(f"classical baseline on the validation set: {classical_psnr:.2f} dB")
 
 
 def save_checkpoint(path: Path, **extra) -> None:
@@ -236,8 +196,7 @@ def plot_history() -> None:
     minutes = [r["trained_s"] / 60 for r in history]
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(minutes, [r["val_psnr"] for r in history], "o-", ms=3, label="network")
-    ax.plot(minutes, [r["base_psnr"] for r in history], "--", label="bilinear (reference frame)")
-    ax.axhline(classical_psnr, color="k", ls=":", label=f"classical ({classical_psnr:.2f} dB)")
+    ax.plot(minutes, [r["base_psnr"] for r in history], "k:", label="classical (the network's input)")
     ax.set_xlabel("training time [min]")
     ax.set_ylabel("validation PSNR [dB]")
     ax.set_title(f"h = {h}, {world} process(es), batch {batch_size} x {world}, patch {patch}")
@@ -282,19 +241,18 @@ def train() -> None:
                     best_psnr = val_psnr
                     save_checkpoint(out / "model.pt", val_psnr=val_psnr)
                 save_checkpoint(ckpt_path)
-                atomic_write_text(out / "history.json", json.dumps({"config": config, "classical_psnr": classical_psnr, "git_commit": commit, "history": history}, indent=1))
+                atomic_write_text(out / "history.json", json.dumps({"config": config, "git_commit": commit, "history": history}, indent=1))
                 plot_history()
                 (bar.write if bar else print)(
-                    f"step {step}: val PSNR {val_psnr:.2f} dB (bilinear {base_psnr:.2f}, "
-                    f"classical {classical_psnr:.2f}), "
+                    f"step {step}: val PSNR {val_psnr:.2f} dB (classical {base_psnr:.2f}), "
                     f"{trained_s / 60:.1f} min"
                 )
         if done:
             break
         for group in optimizer.param_groups:
-            group["lr"] = learning_rate(progress.item(), step) * group["lr_scale"]
-        frames, offsets, truth = train_batch(step)
-        loss = F.l1_loss(net(frames, offsets), truth)
+            group["lr"] = learning_rate(progress.item(), step)
+        base, noise, truth = train_batch(step)
+        loss = F.l1_loss(net(base, noise), truth)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip if grad_clip > 0 else math.inf)

@@ -1,13 +1,13 @@
 """Learned multi-frame super-resolution: the network runs in onnxruntime, not torch.
 
-(torch is used only where the rest of the package uses it: tracing the sample positions, and
-the network's definition for training and export.)
-
-The network (:mod:`hbis_torch.reconstruct.learned.net`) sees the h^2 frames in *registered order* and, per pixel,
-how far each sample sits from its nominal sub-pixel phase. :func:`prepare_inputs` builds both
-from the frames and their sample positions (as given by the optics or by registration);
-:class:`LearnedSR` runs an exported model on them, in tiles so that a full 960 x 1280 frame fits
-in memory, and :func:`learned_sr` does the whole thing for a :class:`~hbis_torch.stack_io.Stack`.
+The network (:mod:`hbis_torch.reconstruct.learned.net`) refines the classical reconstruction: it
+sees the classical image cut into the h^2 sub-pixel phases of the LR grid and a per-pixel map of
+the frames' noise level (:func:`network_inputs`), from the stack's sensor model or measured from
+the frames. So it takes any stack the classical method takes (any reference frame, any scan,
+frames left out), and the optics enter through the classical step's transfer function.
+:class:`LearnedSR` runs an exported model in onnxruntime, in tiles so that a full 960 x 1280
+frame fits in memory, and :func:`learned_sr` does the whole thing for a
+:class:`~hbis_torch.stack_io.Stack`.
 
 Where the default model is found
 --------------------------------
@@ -20,26 +20,27 @@ Modules
 :mod:`.net`
     The network in torch (:class:`HbisSRNet`), for training and export.
 :mod:`.inputs`
-    Numpy glue around any runner of the network: :func:`prepare_inputs`,
-    :func:`exposure_gain`, :func:`run_tiled`, :func:`super_resolve`.
+    Numpy glue around any runner of the network: the noise model
+    (:func:`noise_params_from_meta`, :func:`estimate_noise_params`), :func:`network_inputs`,
+    :func:`run_tiled`, :func:`super_resolve`.
 :mod:`.runtime`
     onnxruntime: model discovery (:func:`models_dir`, :func:`default_model_path`), session
     options and execution providers, :class:`LearnedSR`, model metadata. onnxruntime and onnx
     are imported lazily, inside the functions that use them.
 :mod:`.method`
     A whole stack: :func:`learned_sr` and :func:`reconstruct_learned` (the ``"learned"`` entry
-    of :data:`hbis_torch.reconstruct.METHODS`); positions from
-    :func:`hbis_torch.reconstruct.positions.stack_sample_positions`.
+    of :data:`hbis_torch.reconstruct.METHODS`): the classical image
+    (:func:`hbis_torch.reconstruct.classical.reconstruct_classical`), refined.
 """
 
 from __future__ import annotations
 
 from hbis_torch.reconstruct.learned.inputs import (
-    DARK_TARGET,
-    MAX_GAIN,
+    NOISE_SCALE,
     TILE_HALO,
-    exposure_gain,
-    prepare_inputs,
+    estimate_noise_params,
+    network_inputs,
+    noise_params_from_meta,
     run_tiled,
     super_resolve,
 )
@@ -47,7 +48,6 @@ from hbis_torch.reconstruct.learned.method import learned_sr, reconstruct_learne
 from hbis_torch.reconstruct.learned.net import (
     HbisSRNet,
     ResidualBlock,
-    bilinear_kernel,
     count_parameters,
     depth_to_space,
     space_to_depth,
@@ -70,29 +70,28 @@ from hbis_torch.reconstruct.learned.runtime import (
 )
 
 __all__ = [
-    "DARK_TARGET",
     "HbisSRNet",
     "LearnedSR",
-    "MAX_GAIN",
     "MODEL_FORMAT",
+    "NOISE_SCALE",
     "NORMALISATION",
     "OPENVINO",
     "PROVIDERS",
     "ResidualBlock",
     "TILE_HALO",
     "available_providers",
-    "bilinear_kernel",
     "count_parameters",
     "default_model_path",
     "default_threads",
     "depth_to_space",
+    "estimate_noise_params",
     "execution_providers",
-    "exposure_gain",
     "learned_sr",
     "metadata_json",
     "models_dir",
+    "network_inputs",
+    "noise_params_from_meta",
     "onnxruntime_distributions",
-    "prepare_inputs",
     "read_model_metadata",
     "reconstruct_learned",
     "run_tiled",

@@ -1,171 +1,168 @@
 """The learned method's inputs and glue, in numpy (no torch, no onnxruntime).
 
-:func:`prepare_inputs` puts the frames in *registered order* and computes the per-pixel residual
-offsets the network takes; :func:`exposure_gain` brightens dark stacks; :func:`run_tiled` runs
-any network function over overlapping tiles; :func:`super_resolve` chains them around any runner
-of the network (the onnxruntime session of :class:`~hbis_torch.reconstruct.learned.LearnedSR`,
-or eager torch in the benchmark).
+The network refines the classical image (see :mod:`hbis_torch.reconstruct.learned.net`), so its
+inputs are defined by physics, not by the order of the frames: :func:`network_inputs` cuts the
+classical image into the h^2 sub-pixel phases of the LR grid and adds the noise map, whose
+Poisson-Gaussian parameters come from the stack's sensor model (:func:`noise_params_from_meta`)
+or, when the stack does not say, from the frames (:func:`estimate_noise_params`).
+:func:`run_tiled` runs any network function over overlapping tiles; :func:`super_resolve` chains
+them around any runner of the network (the onnxruntime session of
+:class:`~hbis_torch.reconstruct.learned.LearnedSR`, or eager torch in training and benchmarks).
+
+Noise model: a frame value ``x`` in [0, 1] (1 = full scale) has variance ``a x + b``: ``a`` from
+the shot noise (1 / full well in electrons), ``b`` from the read noise and the ADC's rounding.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
 
-# Least halo (LR pixels) around each tile: more than the network's receptive field radius (13
-# for the shipped models: head + 2 per block + tail + the bilinear base), so that tiling does
-# not change the result; deeper models get a wider one.
+# Least halo (LR pixels) around each tile: more than the network's receptive field radius (12
+# for the shipped models: head + 2 per block + tail), so that tiling does not change the result.
 TILE_HALO = 16
+# Frames' noise levels are scaled by this before the network (see net.NOISE_SCALE; the two are
+# one constant, kept here so that this module needs no torch).
+NOISE_SCALE = 10.0
 
 
-def _check_frames_positions(frames, positions) -> tuple[np.ndarray, np.ndarray]:
-    frames = np.asarray(frames)
-    positions = np.asarray(positions)
-    if frames.ndim != 3:
-        raise HbisInputError(f"frames must have shape (F, H, W), got {frames.shape}")
-    if positions.shape != frames.shape + (2,):
-        raise HbisInputError(
-            f"positions must have shape (F, H, W, 2) = {frames.shape + (2,)}, got {positions.shape}"
-        )
-    frames = frames.astype(np.float32, copy=False)
-    if not np.isfinite(frames).all():
-        raise HbisInputError("frames contain NaN or infinite values")
-    # (the positions are checked by their sums in prepare_inputs: one pass fewer over them)
-    return frames, positions.astype(np.float64, copy=False)
+def noise_params_from_meta(meta: dict) -> tuple[float, float] | None:
+    """Poisson-Gaussian noise parameters (a, b) of a stack from its sensor model, if it has one.
 
-
-def _shift_segments(shift: int, size: int) -> list[tuple[slice, slice]]:
-    """(destination, source) slices of one axis moved by ``shift`` whole pixels, edges repeated.
-
-    Destination index i takes source index ``clip(i - shift, 0, size - 1)``; a source slice of
-    length 1 is broadcast over its destination slice. Empty pieces are left out.
-    """
-    m = min(abs(int(shift)), size)
-    if shift > 0:
-        pieces = [(slice(0, m), slice(0, 1)), (slice(m, size), slice(0, size - m))]
-    elif shift < 0:
-        pieces = [(slice(0, size - m), slice(m, size)), (slice(size - m, size), slice(size - 1, size))]
-    else:
-        pieces = [(slice(0, size), slice(0, size))]
-    return [(dst, src) for dst, src in pieces if dst.stop > dst.start]
-
-
-def prepare_inputs(frames, positions, h: int) -> tuple[np.ndarray, np.ndarray]:
-    """Put the frames in registered order and compute the per-pixel residual offsets.
-
-    Frame k's mean displacement from the reference grid, in output pixels, is rounded to an
-    integer ``s_k = h * n_k + phase_k`` (``phase_k`` in 0 .. h-1 per axis). The frame goes to
-    channel ``phase_y * h + phase_x`` and is moved by the whole LR pixels ``n_k`` (edge pixels
-    repeated), so that its pixel (x, y) sits near output pixel (h x + phase_x, h y + phase_y)
-    minus the constant ``(h - 1) / 2`` of the output grid convention. The offset channels hold
-    what is left, exactly: ``h * (position - (x, y)) - phase`` for the sample that landed there.
+    Looks for ``full_well_e`` (and ``read_noise_e``, default 0) in the stack's ``sensor`` block,
+    else in ``simulation.sensor`` (the simulator's record); ``bit_depth`` adds the ADC's rounding
+    (1 DN^2 / 12).
 
     Parameters
     ----------
-    frames : array, shape (F, H, W)
-        Frames in [0, 1] (any order), F = h^2.
-    positions : array, shape (F, H, W, 2)
-        Sample positions in ROI-local reference-frame LR pixel coordinates (x, y).
-    h : int
-        Resolution improvement factor.
+    meta : dict
+        The stack's JSON metadata.
 
     Returns
     -------
-    frames_reg : ndarray, shape (h^2, H, W), float32
-    offsets : ndarray, shape (2 h^2, H, W), float32
-        Channels (2c, 2c+1) are (x, y) of registered channel c, in output pixels.
+    (a, b) : (float, float) or None
+        Variance ``a x + b`` of a frame value x in [0, 1]; None when the stack has no sensor
+        model.
 
     Raises
     ------
     HbisInputError
-        Wrong shapes, non-finite values, F != h^2, or frames that do not sample each of the
-        h x h sub-pixel phases once.
+        A sensor block whose full well or read noise is not a positive finite number.
     """
-    frames, positions = _check_frames_positions(frames, positions)
-    count, rows, cols = frames.shape
-    if count != h * h:
-        raise HbisInputError(
-            f"the stack has {count} frames but the model needs h^2 = {h * h} (h = {h})"
-        )
-    # mean(position - pixel) = mean(position) - centre of the frame
-    centre = np.array([(cols - 1) / 2, (rows - 1) / 2])
-    # (einsum: numpy's mean over two strided axes is several times slower)
-    position_sum = np.einsum("fnc->fc", positions.reshape(count, -1, 2))
-    if not np.isfinite(position_sum).all():  # NaN and infinities reach the sums
-        if np.isfinite(positions).all():
-            raise HbisInputError("sample positions are too large (their sum overflows)")
-        raise HbisInputError("sample positions contain NaN or infinite values")
-    mean_shift = h * (position_sum / (rows * cols) - centre)  # (F, 2), output pixels
-    steps = np.rint(mean_shift).astype(np.int64)
-    phases = np.mod(steps, h)
-    whole = (steps - phases) // h  # (F, 2) whole LR pixels
-    channel = phases[:, 1] * h + phases[:, 0]
-    if len(set(channel.tolist())) != count:
-        raise HbisInputError(
-            "the frames do not sample each of the h x h sub-pixel phases once "
-            f"(rounded shifts in output pixels: {steps.tolist()}); the scan does not fit h = {h}"
-        )
-    grids = (np.arange(cols, dtype=np.float64), np.arange(rows, dtype=np.float64)[:, None])
-    frames_reg = np.empty((count, rows, cols), np.float32)
-    offsets = np.empty((2 * count, rows, cols), np.float32)
-    scratch = np.empty((rows, cols), np.float64)  # reused: no new temporaries per frame
-    for k in range(count):
-        c = channel[k]
-        # Output-grid block (x, y) takes the frame's pixel (x - n_x, y - n_y), clamped at the
-        # edges: slices (edge rows and columns broadcast), no index arrays, no copies.
-        for dst_y, src_y in _shift_segments(whole[k, 1], rows):
-            for dst_x, src_x in _shift_segments(whole[k, 0], cols):
-                frames_reg[c, dst_y, dst_x] = frames[k, src_y, src_x]
-                for axis, grid in ((0, grids[0][dst_x]), (1, grids[1][dst_y])):
-                    # h * (position - pixel) - phase, in this order (as float64): the residual.
-                    # Only edge-repeated pixels can be far off; bound them so no input runs away.
-                    t = scratch[:dst_y.stop - dst_y.start, :dst_x.stop - dst_x.start]
-                    np.subtract(positions[k, src_y, src_x, axis], grid, out=t)
-                    np.multiply(t, h, out=t)
-                    np.subtract(t, phases[k, axis], out=t)
-                    np.clip(t, -h, h, out=offsets[2 * c + axis, dst_y, dst_x], casting="same_kind")
-    return frames_reg, offsets
+    for block in (meta.get("sensor"), (meta.get("simulation") or {}).get("sensor")):
+        if not isinstance(block, dict) or "full_well_e" not in block:
+            continue
+        full_well, read = block["full_well_e"], block.get("read_noise_e", 0.0)
+        for name, value, least in (("full_well_e", full_well, 1.0), ("read_noise_e", read, 0.0)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                    or value < least:
+                raise HbisInputError(f"the stack's sensor {name} must be a finite number >= {least:g}, got {value!r}")
+        b = (read / full_well) ** 2
+        bits = meta.get("bit_depth")
+        if isinstance(bits, int) and not isinstance(bits, bool) and bits > 0:
+            b += 1.0 / (12.0 * (2**bits - 1) ** 2)
+        return 1.0 / full_well, b
+    return None
 
 
-# Dark stacks are brightened before the network (and its output darkened by the same factor):
-# the training exposures put the highlights above half scale, and a stack whose brightest
-# pixels sit far below that is outside what the network has seen. Normal stacks are untouched.
-DARK_TARGET = 0.5
-MAX_GAIN = 64.0
+def estimate_noise_params(frames) -> tuple[float, float]:
+    """Poisson-Gaussian noise parameters (a, b) measured from the frames.
 
+    Immerkaer's operator ([1, -2, 1] x [1, -2, 1], which cancels smooth content; on white noise of
+    level s its output has level 6 s) is taken at every pixel, and the pixels are put in eight
+    bins of their local mean; each bin's level is the median absolute output (times 1.4826 / 6),
+    and ``s^2 = a x + b`` is fitted to the bins by least squares with a, b >= 0. Texture inflates
+    a bin's level a little, so the estimate errs on the noisy side.
 
-def exposure_gain(frames: np.ndarray) -> float:
-    """1 for stacks whose 99.9th percentile reaches DARK_TARGET, else up to MAX_GAIN to get there.
+    Parameters
+    ----------
+    frames : array, shape (F, H, W)
+        Frames in [0, 1], H and W at least 3.
 
-    The usual, bright stack is recognised by one count (enough values at or above the target put
-    the percentile there, whatever the interpolation), which is several times cheaper than the
-    percentile itself; only the others compute it. Same answer either way.
+    Returns
+    -------
+    (a, b) : (float, float)
     """
-    frames = np.asarray(frames)
-    # If fewer than rank values lie below `sure`, the sorted value at rank - 1 and every value
-    # above it are >= sure, so the percentile (interpolated between sorted values at
-    # floor(0.999 (n - 1)) >= rank and the next) is too. `sure` sits a little above the target so
-    # that the interpolation's rounding cannot take it below.
-    sure = np.float32(DARK_TARGET * (1 + 1e-6))
-    rank = int(np.floor(0.999 * (frames.size - 1))) - 1
-    if rank > 0 and np.count_nonzero(frames < sure) < rank:
-        return 1.0
-    high = float(np.percentile(frames, 99.9))
-    if high >= DARK_TARGET:
-        return 1.0
-    return float(min(MAX_GAIN, DARK_TARGET / max(high, DARK_TARGET / MAX_GAIN)))
+    frames = np.asarray(frames, dtype=np.float32)
+    if frames.ndim != 3 or min(frames.shape[1:]) < 3:
+        raise HbisInputError(f"frames must have shape (F, H >= 3, W >= 3), got {frames.shape}")
+    step = max(1, frames.shape[0] // 4)  # a few frames are plenty
+    f = frames[::step]
+    d = f[..., :-2] - 2 * f[..., 1:-1] + f[..., 2:]
+    d = (d[..., :-2, :] - 2 * d[..., 1:-1, :] + d[..., 2:, :]).ravel()
+    level = f[..., 1:-1, 1:-1].ravel()
+    stride = max(1, d.size // 200_000)
+    d, level = np.abs(d[::stride]), level[::stride]
+    edges = np.unique(np.quantile(level, np.linspace(0, 1, 9)))
+    if edges.size < 2:  # a constant stack: one bin
+        return 0.0, float((1.4826 * np.median(d) / 6.0) ** 2)
+    which = np.clip(np.searchsorted(edges, level, side="right") - 1, 0, edges.size - 2)
+    xs, vs = [], []
+    for k in range(edges.size - 1):
+        inside = which == k
+        if inside.sum() >= 50:
+            xs.append(float(level[inside].mean()))
+            vs.append(float((1.4826 * np.median(d[inside]) / 6.0) ** 2))
+    xs, vs = np.array(xs), np.array(vs)
+    if xs.size < 2 or np.ptp(xs) < 1e-6:
+        return 0.0, float(vs.mean())
+    a, b = np.polyfit(xs, vs, 1)
+    if a < 0:  # no signal dependence seen: a constant level
+        return 0.0, float(vs.mean())
+    if b < 0:  # pure shot noise: fit through the origin
+        return float((xs @ vs) / (xs @ xs)), 0.0
+    return float(a), float(b)
 
 
-def run_tiled(infer, frames_reg: np.ndarray, offsets: np.ndarray, h: int, tile: int = 256,
+def space_to_depth(image: np.ndarray, h: int) -> np.ndarray:
+    """(hH, hW) -> (h^2, H, W): channel ``dy * h + dx`` holds ``image[h y + dy, h x + dx]``."""
+    rows, cols = image.shape[0] // h, image.shape[1] // h
+    return np.ascontiguousarray(image.reshape(rows, h, cols, h).transpose(1, 3, 0, 2).reshape(h * h, rows, cols))
+
+
+def network_inputs(image, h: int, noise_params: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The network's inputs from the classical image and the frames' noise parameters.
+
+    Parameters
+    ----------
+    image : array, shape (h H, h W)
+        The classical reconstruction, in [0, 1].
+    h : int
+        Resolution improvement factor.
+    noise_params : (float, float)
+        (a, b) of the frames' noise variance ``a x + b``.
+
+    Returns
+    -------
+    base : ndarray, shape (h^2, H, W), float32
+        The image, space-to-depth.
+    noise : ndarray, shape (1, H, W), float32
+        ``NOISE_SCALE`` times the frames' noise level at each LR pixel's mean intensity.
+    """
+    image = np.asarray(image, dtype=np.float32)
+    if image.ndim != 2 or image.shape[0] % h or image.shape[1] % h or min(image.shape) < h:
+        raise HbisInputError(f"the classical image must be (h H, h W) with h = {h}, got {image.shape}")
+    a, b = (float(v) for v in noise_params)
+    if not (math.isfinite(a) and math.isfinite(b) and a >= 0 and b >= 0):
+        raise HbisInputError(f"noise parameters must be finite and >= 0, got {noise_params!r}")
+    base = space_to_depth(image, h)
+    level = np.clip(base.mean(axis=0), 0.0, 1.0)
+    noise = (NOISE_SCALE * np.sqrt(a * level + b))[None].astype(np.float32)
+    return base, noise
+
+
+def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 256,
               halo: int = TILE_HALO) -> np.ndarray:
     """Run ``infer`` over overlapping tiles and stitch the centres.
 
     Parameters
     ----------
     infer : callable
-        (1, h^2, h_t, w_t), (1, 2h^2, h_t, w_t) float32 arrays -> (1, 1, h h_t, h w_t).
-    frames_reg, offsets : ndarray, shapes (h^2, H, W) and (2h^2, H, W)
+        (1, h^2, h_t, w_t), (1, 1, h_t, w_t) float32 arrays -> (1, 1, h h_t, h w_t).
+    base, noise : ndarray, shapes (h^2, H, W) and (1, H, W)
     h, tile, halo : int
         Factor, tile side and halo in LR pixels; a halo wider than the network's receptive field
         radius makes the result independent of the tiling.
@@ -174,36 +171,35 @@ def run_tiled(infer, frames_reg: np.ndarray, offsets: np.ndarray, h: int, tile: 
     -------
     ndarray, shape (hH, hW), float32
     """
-    _, rows, cols = frames_reg.shape
+    _, rows, cols = base.shape
     if rows <= tile and cols <= tile:  # one tile: no halo, no stitching, no copies
-        return infer(np.ascontiguousarray(frames_reg[None]), np.ascontiguousarray(offsets[None]))[0, 0]
+        return infer(np.ascontiguousarray(base[None]), np.ascontiguousarray(noise[None]))[0, 0]
     out = np.empty((h * rows, h * cols), np.float32)
     for y0 in range(0, rows, tile):
         for x0 in range(0, cols, tile):
             y1, x1 = min(y0 + tile, rows), min(x0 + tile, cols)
             ya, xa = max(y0 - halo, 0), max(x0 - halo, 0)
             yb, xb = min(y1 + halo, rows), min(x1 + halo, cols)
-            image = infer(np.ascontiguousarray(frames_reg[None, :, ya:yb, xa:xb]),
-                          np.ascontiguousarray(offsets[None, :, ya:yb, xa:xb]))[0, 0]
+            image = infer(np.ascontiguousarray(base[None, :, ya:yb, xa:xb]),
+                          np.ascontiguousarray(noise[None, :, ya:yb, xa:xb]))[0, 0]
             out[h * y0:h * y1, h * x0:h * x1] = image[h * (y0 - ya):h * (y1 - ya), h * (x0 - xa):h * (x1 - xa)]
     return out
 
 
-def super_resolve(run_network, frames, positions, h: int, name: str = "the network") -> np.ndarray:
-    """Frames and sample positions -> image, around any runner of the network.
-
-    :func:`prepare_inputs`, the dark-stack gain (:func:`exposure_gain`), ``run_network``, then
-    a check that the output is finite and the clip to [0, 1]. :class:`LearnedSR` passes its
-    onnxruntime session; the benchmark passes eager torch, so that both pay for the same glue.
+def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
+                  name: str = "the network") -> np.ndarray:
+    """Classical image and noise parameters -> refined image, around any runner of the network.
 
     Parameters
     ----------
     run_network : callable
-        (h^2, H, W), (2h^2, H, W) float32 -> (hH, hW) float32, the raw network output, a new
-        array (it is clipped in place).
-    frames : array, shape (F, H, W)
-    positions : array, shape (F, H, W, 2)
+        (h^2, H, W), (1, H, W) float32 -> (hH, hW) float32, the raw network output, a new array
+        (it is clipped in place).
+    image : array, shape (hH, hW)
+        The classical reconstruction.
     h : int
+    noise_params : (float, float)
+        (a, b) of the frames' noise (:func:`noise_params_from_meta`, :func:`estimate_noise_params`).
     name : str
         How the error message names the model.
 
@@ -211,14 +207,10 @@ def super_resolve(run_network, frames, positions, h: int, name: str = "the netwo
     -------
     ndarray, shape (hH, hW), float32 in [0, 1]
     """
-    frames_reg, offsets = prepare_inputs(frames, positions, h)
-    gain = exposure_gain(frames_reg)
-    if gain == 1.0:  # the usual case: no copies
-        image = run_network(frames_reg, offsets)
-    else:
-        image = run_network(frames_reg * np.float32(gain), offsets) / np.float32(gain)
+    base, noise = network_inputs(image, h, noise_params)
+    out = run_network(base, noise)
     # A model is a function of float32 inputs in [0, 1]; anything non-finite here is a bug
     # in the model file, not in the stack.
-    if not np.isfinite(image).all():
+    if not np.isfinite(out).all():
         raise HbisInputError(f"model {name} produced non-finite values")
-    return np.clip(image, 0.0, 1.0, out=image)  # the image is ours: clip in place
+    return np.clip(out, 0.0, 1.0, out=out)

@@ -1,24 +1,35 @@
-"""Training data for the SR network: simulated scans, cut into patches.
+"""Training data for the SR network: simulated scans under randomised degradations.
 
-A *pool* is a list of simulated stacks (hbis_torch.simulate.simulate_stack, the project's physical
-forward model: exact Risley geometry, Airy PSF, pixel aperture, shot and read noise, 12-bit ADC)
-of procedural scenes (words, texture, edges, bars, Siemens stars, gradients) and of procedural
-*natural-image* rasters (dead leaves and 1/f^2 random fields, see :func:`natural_image`) at
-random places on the sensor, so that the network sees the off-grid shifts of the sensor's
-corners as well as its centre. Photographs are *not* used for training: they are the held-out
-test of the benchmark.
+A *pool* is a list of simulated stacks (:func:`hbis_torch.simulate.simulate_stack`, the project's
+physical forward model), each reconstructed by the classical method, which is what the network
+refines (:mod:`hbis_torch.reconstruct.learned.net`). Every example draws its own degradations,
+wider than any one sensor, so that the network holds on captured stacks whose optics, sensor and
+scan the training never saw exactly (:func:`draw_example`):
 
-Training examples are random crops of pool stacks under the 8 flips/transposes of the square.
-Flipping a stack is a valid new scan: the crop's sample positions are flipped with it and
-:func:`~hbis_torch.reconstruct.learned.prepare_inputs` finds the new registered order from them.
+* the scan: initial phases anywhere, the paper's or the exact inverse, phase errors, and the
+  reference frame anywhere in the scan;
+* the place on the sensor: anywhere, corners included;
+* the optics: Airy from F 1 (next to no blur at 3.75 um pixels) to F 8, defocus up to 0.6 waves
+  (unknown to the classical step, as a real lens's focus is), fill factor 0.5 to 1;
+* the noise: full well 1,000 to 100,000 e-, read noise 1 to 15 e-, 8 to 16 bits, exposures from
+  a tenth of full scale to clipped highlights;
+* the scene: procedural test scenes (words, texture, edges, bars, Siemens stars, gradients) and
+  procedural *natural-image* rasters (dead leaves and 1/f^2 random fields, :func:`natural_image`)
+  from 1/8 to 4 sensor pixels per raster pixel. Photographs are *not* used for training: they are
+  the held-out test (training/eval_matrix.py).
+
+Each example keeps the classical image, the truth and two noise models: the one the stack's
+sensor model gives and the one measured from its frames; a training crop takes either, so the
+network learns to use both. Crops are transformed by the 8 flips/transposes of the square
+(both images are on the same output grid, so they move together).
 
 This is the project's one training-data pipeline (training/train_sr.py, the tests and
 benchmarks/bench_simulate.py use it):
 
 1. :func:`draw_example` makes every random choice of pool example ``seed`` (cheap: nothing is
-   simulated), :func:`simulate_example` renders it, and :func:`build_pool` makes a pool of
-   examples whose seeds come from one pool seed and the example's index (:func:`example_seed`),
-   so example i of a pool is the same whichever process builds it;
+   simulated), :func:`simulate_example` renders and reconstructs it, and :func:`build_pool` makes
+   a pool of examples whose seeds come from one pool seed and the example's index
+   (:func:`example_seed`), so example i of a pool is the same whichever process builds it;
 2. :func:`save_pool` / :func:`load_pool` cache a pool as one .npz;
 3. :func:`make_batch` cuts a batch of random crops (:func:`crop_example`, :func:`dihedral`) in the
    network's input layout; :func:`whole_example` gives a whole example as a batch of one.
@@ -29,15 +40,17 @@ and batches, bit for bit.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from hbis_torch.config import FoveaSystem
+from hbis_torch.config import Camera, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_path
-from hbis_torch.reconstruct.learned import prepare_inputs
+from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
+from hbis_torch.reconstruct.learned.inputs import estimate_noise_params, network_inputs, noise_params_from_meta
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import (
     SceneSpec,
@@ -51,42 +64,20 @@ from hbis_torch.simulate.scenes import ImageScene
 
 NATURAL_SCENES = ("dead-leaves", "natural-field")
 TRAIN_SCENES = ("words", "texture", "edges", "bars", "siemens-star", "gradient", "slanted-edge") + NATURAL_SCENES
-SCENE_WEIGHTS = (0.2, 0.15, 0.1, 0.05, 0.05, 0.05, 0.05, 0.2, 0.15)
-NATURAL_SHARE = 0.35  # of SCENE_WEIGHTS: the natural scenes' share of the standard mix
-FULL_WELL_E = (2000.0, 30000.0)  # full well range of the examples' sensors, electrons (log-uniform)
-POOL_KEYS = ("frames", "positions", "truth", "roi", "scene")  # the entries of a pool example
-
-
-def scene_weights(natural_share: float = NATURAL_SHARE) -> tuple[float, ...]:
-    """SCENE_WEIGHTS with the natural scenes rescaled to ``natural_share`` of the mix (the
-    procedural ones to the rest, in their standard proportions).
-
-    Parameters
-    ----------
-    natural_share : float
-        Share of the natural scenes (:data:`NATURAL_SCENES`) in the mix, in [0, 1].
-
-    Returns
-    -------
-    tuple of float
-        One probability per name of :data:`TRAIN_SCENES`, summing to 1. The standard share
-        returns :data:`SCENE_WEIGHTS` itself, so that standard pools stay bit for bit.
-
-    Raises
-    ------
-    ValueError
-        ``natural_share`` outside [0, 1].
-    """
-    if not 0.0 <= natural_share <= 1.0:
-        raise ValueError(f"natural_share must lie in [0, 1], got {natural_share!r}")
-    if natural_share == NATURAL_SHARE:
-        return SCENE_WEIGHTS
-    n = len(NATURAL_SCENES)
-    procedural = [w * (1 - natural_share) / (1 - NATURAL_SHARE) for w in SCENE_WEIGHTS[:-n]]
-    natural = [w * natural_share / NATURAL_SHARE for w in SCENE_WEIGHTS[-n:]]
-    return tuple(procedural + natural)
-# Bumped whenever the scene mix changes, so that cached pools of another mix are not reused.
-POOL_VERSION = 2
+SCENE_WEIGHTS = (0.15, 0.1, 0.05, 0.05, 0.05, 0.05, 0.05, 0.3, 0.2)
+# Ranges of the randomised degradations (log-uniform where the range spans decades).
+F_NUMBER = (1.0, 8.0)
+DEFOCUS_WAVES = 0.6  # largest defocus (W020, waves), in half of the examples
+FILL_FACTOR = (0.5, 1.0)
+FULL_WELL_E = (1_000.0, 100_000.0)
+READ_NOISE_E = (1.0, 15.0)
+BIT_DEPTHS = (8, 10, 12, 14, 16)
+EXPOSURE = (0.1, 2.0)  # scale of a natural raster's grey levels before clipping at full scale
+RASTER_PX = (1 / 8, 4.0)  # sensor pixels per raster pixel of a natural raster
+PHASE_ERROR_DEG = 0.05  # largest phase error, in half of the examples
+POOL_KEYS = ("base", "truth", "noise", "roi", "scene")  # the entries of a pool example
+# Bumped whenever the pool's contents change, so that cached pools of another kind are not reused.
+POOL_VERSION = 3
 
 
 def dead_leaves(shape, rng: np.random.Generator, r_min: float = 1.0) -> np.ndarray:
@@ -129,13 +120,13 @@ def dead_leaves(shape, rng: np.random.Generator, r_min: float = 1.0) -> np.ndarr
     return np.nan_to_num(out, nan=0.5)
 
 
-def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator) -> ImageScene:
+def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator, exposure: float = 1.0) -> ImageScene:
     """A procedural stand-in for a photograph: a dead-leaves raster or a 1/f^2 random field.
 
-    The raster pixel is 1/4 to 4 sensor pixels (log-uniform) and the scene reads it by bilinear
-    interpolation, as a photograph stretched over the view is read: coarse rasters give the
-    smooth, interpolated content on which a linear (Wiener-like) prior is strong, fine ones give
-    sharp natural detail. Contrast and mean level are random.
+    The raster pixel is :data:`RASTER_PX` sensor pixels (log-uniform) and the scene reads it by
+    bilinear interpolation, as a photograph stretched over the view is read: coarse rasters give
+    smooth, interpolated content, fine ones sharp natural detail. Contrast and mean level are
+    random; ``exposure`` then scales the grey levels, and what passes full scale clips.
 
     Parameters
     ----------
@@ -146,13 +137,15 @@ def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator) -> Image
         pixel's footprint in the object plane, mm.
     rng : numpy.random.Generator
         Source of every random choice.
+    exposure : float
+        Scale of the grey levels (1: the raster as drawn, in [0, 1]).
 
     Returns
     -------
     ImageScene
         Of ``spec.size_mm``, its raster (rows, cols) float32 in [0, 1].
     """
-    raster_px = float(np.exp(rng.uniform(np.log(0.25), np.log(4.0))))  # sensor pixels per raster pixel
+    raster_px = float(np.exp(rng.uniform(np.log(RASTER_PX[0]), np.log(RASTER_PX[1]))))
     cols = max(8, int(np.ceil(spec.size_mm[0] / (spec.pixel_mm * raster_px))))
     rows = max(8, int(np.ceil(spec.size_mm[1] / (spec.pixel_mm * raster_px))))
     if name == "dead-leaves":
@@ -162,7 +155,7 @@ def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator) -> Image
                               beta=float(rng.uniform(0.8, 1.3)))
     contrast, gamma = rng.uniform(0.3, 1.0), float(np.exp(rng.uniform(-0.5, 0.5)))
     image = image**gamma
-    image = rng.uniform(0.0, 1.0 - contrast) + contrast * image
+    image = np.clip(exposure * (rng.uniform(0.0, 1.0 - contrast) + contrast * image), 0.0, 1.0)
     return ImageScene(size_mm=spec.size_mm, image=torch.from_numpy(image.astype(np.float32)), name=name)
 
 
@@ -178,16 +171,33 @@ class ExampleDraw:
         A name of :data:`TRAIN_SCENES`.
     scene_seed : int
         Seed of the scene's layout (:func:`natural_image` or ``load_scene``).
-    full_well_e : float
-        Full well of the sensor, electrons (sets the shot noise; the exposure).
+    exposure : float
+        Grey-level scale of a natural scene (:func:`natural_image`).
+    initial_phases_deg : (float, float)
+        Phases of the scan's initial frame, degrees.
+    plan_method : str
+        ``"paper"`` or ``"exact"`` (:func:`~hbis_torch.scan.plan_scan`).
+    phase_error_deg : float
+        Standard deviation of the prisms' phase errors, degrees.
+    reference_index : int
+        The frame that defines the output grid.
+    f_number : float
+    sensor : SensorModel
+        Fill factor, defocus, full well, read noise and bit depth.
     noise_seed : int
-        Seed of ``simulate_stack``'s noise.
+        Seed of ``simulate_stack``'s noise and phase errors.
     """
 
     roi: tuple[int, int, int, int]
     scene: str
     scene_seed: int
-    full_well_e: float
+    exposure: float
+    initial_phases_deg: tuple[float, float]
+    plan_method: str
+    phase_error_deg: float
+    reference_index: int
+    f_number: float
+    sensor: SensorModel
     noise_seed: int
 
 
@@ -202,23 +212,23 @@ def example_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
 
 
-def draw_example(system: FoveaSystem, size: int, seed: int, natural_share: float = NATURAL_SHARE) -> ExampleDraw:
-    """The random choices of the example of seed ``seed`` (cheap: nothing is built).
+def _log_uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
+    return float(np.exp(rng.uniform(np.log(bounds[0]), np.log(bounds[1]))))
 
-    The ROI lies anywhere on the sensor, uniformly (corners included), the scene is drawn from
-    the mix of :func:`scene_weights` and the full well log-uniformly from :data:`FULL_WELL_E`:
-    from dim (noisy) to bright exposures; the ADC is the default 12 bits.
+
+def draw_example(camera: Camera, h: int, size: int, seed: int) -> ExampleDraw:
+    """The random choices of the example of seed ``seed`` (cheap: nothing is built).
 
     Parameters
     ----------
-    system : FoveaSystem
-        Its camera bounds the ROI.
+    camera : Camera
+        Its sensor bounds the ROI (its f-number is drawn anew).
+    h : int
+        Resolution improvement factor (the reference frame is one of h^2).
     size : int
         Side of the square ROI, sensor pixels.
     seed : int
         The example's seed (:func:`example_seed` in a pool).
-    natural_share : float
-        Share of the natural scenes in the mix (:func:`scene_weights`).
 
     Returns
     -------
@@ -229,59 +239,76 @@ def draw_example(system: FoveaSystem, size: int, seed: int, natural_share: float
     HbisInputError
         ``size`` below 1 or larger than the sensor.
     """
-    cam = system.camera
-    if not 1 <= size <= min(cam.cols, cam.rows):
-        raise HbisInputError(f"example size {size} does not fit the {cam.cols} x {cam.rows} sensor")
+    if not 1 <= size <= min(camera.cols, camera.rows):
+        raise HbisInputError(f"example size {size} does not fit the {camera.cols} x {camera.rows} sensor")
     rng = np.random.default_rng(seed)
-    roi = (int(rng.integers(0, cam.cols - size + 1)), int(rng.integers(0, cam.rows - size + 1)), size, size)
-    name = str(rng.choice(TRAIN_SCENES, p=scene_weights(natural_share)))
+    roi = (int(rng.integers(0, camera.cols - size + 1)), int(rng.integers(0, camera.rows - size + 1)), size, size)
+    name = str(rng.choice(TRAIN_SCENES, p=SCENE_WEIGHTS))
     scene_seed = int(rng.integers(2**31))
-    full_well = float(np.exp(rng.uniform(np.log(FULL_WELL_E[0]), np.log(FULL_WELL_E[1]))))
-    return ExampleDraw(roi, name, scene_seed, full_well, int(rng.integers(2**31)))
+    exposure = _log_uniform(rng, EXPOSURE)
+    phases = (float(rng.uniform(0, 360)), float(rng.uniform(0, 360)))
+    method = str(rng.choice(("paper", "exact")))
+    phase_error = float(rng.uniform(0, PHASE_ERROR_DEG)) if rng.random() < 0.5 else 0.0
+    reference = int(rng.integers(h * h))
+    f_number = _log_uniform(rng, F_NUMBER)
+    waves = float(rng.uniform(0, DEFOCUS_WAVES)) if rng.random() < 0.5 else 0.0
+    # W020 = dz / (8 F^2) for a defocus dz, so dz = 8 F^2 lambda W020 (waves)
+    defocus_um = 8 * f_number**2 * camera.wavelength_nm * 1e-3 * waves
+    sensor = SensorModel(fill_factor=float(rng.uniform(*FILL_FACTOR)), defocus_um=defocus_um,
+                         full_well_e=_log_uniform(rng, FULL_WELL_E), read_noise_e=float(rng.uniform(*READ_NOISE_E)),
+                         bit_depth=int(rng.choice(BIT_DEPTHS)))
+    return ExampleDraw(roi, name, scene_seed, exposure, phases, method, phase_error, reference, f_number,
+                       sensor, int(rng.integers(2**31)))
 
 
-def simulate_example(system: FoveaSystem, plan, size: int, seed: int, natural_share: float = NATURAL_SHARE) -> dict:
-    """One simulated stack of a random scene of the mix (:func:`scene_weights`) at a random
-    place on the sensor.
+def simulate_example(h: int, size: int, seed: int, system: FoveaSystem | None = None) -> dict:
+    """One simulated stack under the degradations of :func:`draw_example`, and its classical image.
 
     Parameters
     ----------
-    system : FoveaSystem
-    plan : ScanPlan
-        The scan (``plan_scan(system, h)``); h = ``plan.h``.
+    h : int
+        Resolution improvement factor.
     size : int
         Side of the square ROI, sensor pixels.
     seed : int
         The example's seed: :func:`draw_example` makes its choices.
-    natural_share : float
-        Share of the natural scenes in the mix.
+    system : FoveaSystem, optional
+        The fovea (default: Table 1's); its camera's f-number is replaced by the drawn one.
 
     Returns
     -------
     dict
-        ``frames`` (F, size, size) float32 in [0, 1], ``positions`` (F, size, size, 2) float32
-        ROI-local LR pixels, ``truth`` (h size, h size) float32, ``roi`` (4,) and ``scene``
-        (name).
+        ``base`` (h size, h size) float32, the classical image; ``truth`` (h size, h size)
+        float32; ``noise`` (2, 2) float32, the noise parameters (a, b) of the stack's sensor
+        model (row 0) and measured from its frames (row 1); ``roi`` (4,) and ``scene`` (name).
     """
-    draw = draw_example(system, size, seed, natural_share)
+    system = system or FoveaSystem()
+    draw = draw_example(system.camera, h, size, seed)
+    system = dataclasses.replace(system, camera=dataclasses.replace(system.camera, f_number=draw.f_number))
+    plan = plan_scan(system, h, draw.initial_phases_deg, method=draw.plan_method)
+    plan = dataclasses.replace(plan, reference_index=draw.reference_index)
     spec = SceneSpec.around_roi(size, size, system.object_pixel_mm)
     if draw.scene in NATURAL_SCENES:
-        scene = natural_image(draw.scene, spec, np.random.default_rng(draw.scene_seed))
+        scene = natural_image(draw.scene, spec, np.random.default_rng(draw.scene_seed), draw.exposure)
     else:
         scene = load_scene(draw.scene, spec, seed=draw.scene_seed)
-    sensor = SensorModel(full_well_e=draw.full_well_e)
-    stack, truth = simulate_stack(scene, system, plan, roi=draw.roi, sensor=sensor, seed=draw.noise_seed)
+    stack, truth = simulate_stack(scene, system, plan, roi=draw.roi, sensor=draw.sensor, seed=draw.noise_seed,
+                                  phase_error_deg=draw.phase_error_deg)
+    # The classical step sees what a user's stack says: the planned phases, not the erroneous ones.
     positions = sample_positions(system, plan.phases_deg, plan.reference_index, draw.roi)
+    frames = stack.to_float()
+    base = classical_sr(frames, positions, h, cutoff=optics_cutoff(system), fill_factor=draw.sensor.fill_factor)
+    noise = np.array([noise_params_from_meta(stack.meta), estimate_noise_params(frames.numpy())], np.float32)
     return {
-        "frames": stack.to_float().numpy(),
-        "positions": positions.numpy().astype(np.float32),
+        "base": base.numpy(),
         "truth": np.asarray(truth, np.float32),
+        "noise": noise,
         "roi": np.asarray(draw.roi),
         "scene": draw.scene,
     }
 
 
-def build_pool(h: int, count: int, size: int, seed: int, indices=None, natural_share: float = NATURAL_SHARE) -> list[dict]:
+def build_pool(h: int, count: int, size: int, seed: int, indices=None) -> list[dict]:
     """``count`` simulated examples (or those of ``indices``) with seeds derived from ``seed``.
 
     Parameters
@@ -296,18 +323,14 @@ def build_pool(h: int, count: int, size: int, seed: int, indices=None, natural_s
         The pool's seed; example i gets :func:`example_seed` (seed, i).
     indices : iterable of int, optional
         Only these examples of the pool (a process's share of it).
-    natural_share : float
-        Share of the natural scenes in the mix.
 
     Returns
     -------
     list of dict
         :func:`simulate_example` dicts, in the order of ``indices``.
     """
-    system = FoveaSystem()
-    plan = plan_scan(system, h)
     indices = range(count) if indices is None else indices
-    return [simulate_example(system, plan, size, example_seed(seed, i), natural_share) for i in indices]
+    return [simulate_example(h, size, example_seed(seed, i)) for i in indices]
 
 
 def save_pool(path, pool: list[dict]) -> None:
@@ -329,46 +352,35 @@ def load_pool(path) -> list[dict]:
         return [{key: data[f"{i}/{key}"] for key in POOL_KEYS} for i in range(count)]
 
 
-def dihedral(frames, positions, truth, k: int):
-    """Apply the k-th (0..7) flip/transpose of the square to a square crop and its positions.
+def dihedral(base, truth, k: int):
+    """Apply the k-th (0..7) flip/transpose of the square to two images of one square crop.
 
     Parameters
     ----------
-    frames : ndarray, shape (F, P, P)
-    positions : ndarray, shape (F, P, P, 2)
-        Crop-local (x, y) sample positions, LR pixels; moved with the pixels.
-    truth : ndarray, shape (hP, hP)
+    base, truth : ndarray, shape (S, S)
+        Images on the same output grid.
     k : int
         Bit 4: transpose, bit 1: flip x, bit 2: flip y (applied in that order).
 
     Returns
     -------
-    frames, positions, truth
-        The same shapes (views where possible).
+    base, truth
+        The same shapes (views).
     """
-    size = frames.shape[-1]
-    if k & 4:  # transpose: swap rows and columns, and the x and y of every position
-        frames = frames.transpose(0, 2, 1)
-        positions = positions.transpose(0, 2, 1, 3)[..., ::-1]
-        truth = truth.T
-    if k & 1:  # flip x
-        frames, truth = frames[..., ::-1], truth[..., ::-1]
-        positions = positions[:, :, ::-1].copy()
-        positions[..., 0] = (size - 1) - positions[..., 0]
-    if k & 2:  # flip y
-        frames, truth = frames[:, ::-1], truth[::-1]
-        positions = positions[:, ::-1].copy()
-        positions[..., 1] = (size - 1) - positions[..., 1]
-    return frames, positions, truth
+    if k & 4:
+        base, truth = base.T, truth.T
+    if k & 1:
+        base, truth = base[:, ::-1], truth[:, ::-1]
+    if k & 2:
+        base, truth = base[::-1], truth[::-1]
+    return base, truth
 
 
-def crop_example(example: dict, h: int, patch: int, rng: np.random.Generator, augment: bool = True,
-                 noise_prob: float = 0.0, noise_max: float = 0.0):
-    """A random (patch x patch) crop, transformed, as (frames_reg, offsets, truth (1, hP, hP)).
+def crop_example(example: dict, h: int, patch: int, rng: np.random.Generator, augment: bool = True):
+    """A random (patch x patch) crop, transformed, as the network's inputs and the truth.
 
-    With probability ``noise_prob`` the frames get extra Gaussian noise of a standard deviation
-    drawn uniformly from [0, noise_max] (then clipped to [0, 1] as a sensor would), so that the
-    network also learns to denoise stacks far noisier than the simulator's default exposure.
+    The noise map comes from the example's sensor model or from its measured noise, one or the
+    other at random.
 
     Parameters
     ----------
@@ -379,17 +391,15 @@ def crop_example(example: dict, h: int, patch: int, rng: np.random.Generator, au
     patch : int
         Side of the crop, LR pixels.
     rng : numpy.random.Generator
-        Source of the crop's place, flip and noise.
+        Source of the crop's place, flip and noise model.
     augment : bool
         Apply a random one of the 8 flips/transposes (:func:`dihedral`).
-    noise_prob, noise_max : float
-        Chance of extra noise, and its largest standard deviation (frames in [0, 1]).
 
     Returns
     -------
-    frames_reg : ndarray, shape (h^2, patch, patch), float32
-    offsets : ndarray, shape (2 h^2, patch, patch), float32
-        As :func:`~hbis_torch.reconstruct.learned.prepare_inputs` gives them.
+    base : ndarray, shape (h^2, patch, patch), float32
+    noise : ndarray, shape (1, patch, patch), float32
+        As :func:`~hbis_torch.reconstruct.learned.network_inputs` gives them.
     truth : ndarray, shape (1, h patch, h patch), float32
 
     Raises
@@ -397,43 +407,43 @@ def crop_example(example: dict, h: int, patch: int, rng: np.random.Generator, au
     HbisInputError
         ``patch`` below 1 or larger than the example.
     """
-    frames, positions, truth = example["frames"], example["positions"], example["truth"]
-    size_y, size_x = frames.shape[1:]
+    image, truth = example["base"], example["truth"]
+    size_y, size_x = image.shape[0] // h, image.shape[1] // h
     if not 1 <= patch <= min(size_y, size_x):
         raise HbisInputError(f"patch {patch} does not fit the {size_x} x {size_y} example")
-    y0 = int(rng.integers(0, size_y - patch + 1))
-    x0 = int(rng.integers(0, size_x - patch + 1))
-    f = frames[:, y0:y0 + patch, x0:x0 + patch]
-    p = positions[:, y0:y0 + patch, x0:x0 + patch] - np.array([x0, y0], np.float32)
-    t = truth[h * y0:h * (y0 + patch), h * x0:h * (x0 + patch)]
+    y0 = h * int(rng.integers(0, size_y - patch + 1))
+    x0 = h * int(rng.integers(0, size_x - patch + 1))
+    image = image[y0:y0 + h * patch, x0:x0 + h * patch]
+    truth = truth[y0:y0 + h * patch, x0:x0 + h * patch]
     if augment:
-        f, p, t = dihedral(f, p, t, int(rng.integers(8)))
-    if noise_prob and rng.random() < noise_prob:
-        f = np.clip(f + rng.normal(0.0, rng.uniform(0.0, noise_max), f.shape), 0.0, 1.0)
-    frames_reg, offsets = prepare_inputs(f, p, h)
-    return frames_reg, offsets, np.ascontiguousarray(t, dtype=np.float32)[None]
+        image, truth = dihedral(image, truth, int(rng.integers(8)))
+    base, noise = network_inputs(image, h, example["noise"][int(rng.integers(2))])
+    return base, noise, np.ascontiguousarray(truth, dtype=np.float32)[None]
 
 
-def make_batch(pool: list[dict], h: int, patch: int, batch: int, rng: np.random.Generator,
-               noise_prob: float = 0.0, noise_max: float = 0.0):
-    """frames (B, h^2, P, P), offsets (B, 2h^2, P, P), truth (B, 1, hP, hP), float32.
+def make_batch(pool: list[dict], h: int, patch: int, batch: int, rng: np.random.Generator):
+    """base (B, h^2, P, P), noise (B, 1, P, P), truth (B, 1, hP, hP), float32.
 
     ``batch`` crops (:func:`crop_example`, augmented) of examples of ``pool`` drawn uniformly
     with ``rng``; the same generator state gives the same batch.
     """
-    parts = [crop_example(pool[int(rng.integers(len(pool)))], h, patch, rng, True, noise_prob, noise_max)
-             for _ in range(batch)]
+    parts = [crop_example(pool[int(rng.integers(len(pool)))], h, patch, rng) for _ in range(batch)]
     return tuple(np.stack(a) for a in zip(*parts))
 
 
-def whole_example(example: dict, h: int):
+def whole_example(example: dict, h: int, measured_noise: bool = False):
     """The full example as a batch of one (no crop, no augmentation).
+
+    Parameters
+    ----------
+    measured_noise : bool
+        Use the noise measured from the frames rather than the sensor model's.
 
     Returns
     -------
-    frames_reg : ndarray, shape (1, h^2, H, W), float32
-    offsets : ndarray, shape (1, 2 h^2, H, W), float32
+    base : ndarray, shape (1, h^2, H, W), float32
+    noise : ndarray, shape (1, 1, H, W), float32
     truth : ndarray, shape (1, 1, hH, hW), float32
     """
-    frames_reg, offsets = prepare_inputs(example["frames"], example["positions"], h)
-    return frames_reg[None], offsets[None], example["truth"][None, None]
+    base, noise = network_inputs(example["base"], h, example["noise"][int(measured_noise)])
+    return base[None], noise[None], example["truth"][None, None]
