@@ -8,7 +8,8 @@ Methods, all on the same simulated stacks (hbis_torch.simulate, 12-bit sensor, e
 - ``bicubic``: the reference frame alone, bicubic upsampling (torch, ``align_corners=False``).
 - ``classical``: :func:`hbis_torch.reconstruct.classical.classical_sr` with the optics' cutoff, i.e. what
   ``hbis reconstruct --method classical --registration optics`` computes.
-- ``learned-torch``: the network in eager PyTorch (float32, same tiling as below).
+- ``learned-torch``: the classical image refined by the network in eager PyTorch (float32, same
+  tiling as below).
 - ``learned-onnx``: the exported network in onnxruntime as shipped (:class:`hbis_torch.reconstruct.learned.LearnedSR`,
   provider "auto": the OpenVINO execution provider where this onnxruntime has it).
 - ``learned-onnx-cpu``: the same in onnxruntime's own CPU kernels (provider "cpu"; only where the
@@ -51,7 +52,9 @@ from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import sample_positions, simulate_stack
 from hbis_torch.simulate.cases import make_stack, roi_for, scene_cases
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
-from hbis_torch.reconstruct.learned import LearnedSR, available_providers, models_dir, run_tiled, super_resolve
+from hbis_torch.reconstruct.learned import (LearnedSR, available_providers, estimate_noise_params, models_dir,
+                                            run_tiled, super_resolve)
+from hbis_torch.reconstruct.learned.method import stack_noise_params
 from hbis_torch.reconstruct.learned.net import HbisSRNet
 
 REPO = Path(__file__).resolve().parents[1]  # the checkout: default output paths
@@ -157,6 +160,8 @@ def run_case(system, h, roi, scene_name, seed, runners, model, repeats, only=MET
     def classical():
         return classical_sr(frames, positions, h, cutoff=optics_cutoff(system), fill_factor=1.0).numpy()
 
+    noise = stack_noise_params(stack, frames_np)
+
     def learned_torch():  # LearnedSR.__call__ with eager torch in place of the session
         def infer(a, b):
             with torch.inference_mode():
@@ -164,13 +169,13 @@ def run_case(system, h, roi, scene_name, seed, runners, model, repeats, only=MET
 
         shipped = runners["learned-onnx"]
         return super_resolve(lambda a, b: run_tiled(infer, a, b, h, shipped.tile, shipped.halo),
-                             frames_np, positions_np, h)
+                             classical(), h, noise)
 
     methods = {"bicubic": bicubic, "classical": classical}
     if model is not None:
         methods["learned-torch"] = learned_torch
     for name, runner in runners.items():
-        methods[name] = lambda runner=runner: runner(frames_np, positions_np)
+        methods[name] = lambda runner=runner: runner(classical(), noise)
     methods = {name: fn for name, fn in methods.items() if name in only}
     small = roi[2] * roi[3] <= 256 * 256
     if interleave:
@@ -317,7 +322,8 @@ def hard_cases() -> str:
     lines = ["| case | " + " | ".join(f"learned (fp32, {p})" for p in runners)
              + " | classical (fp64) | largest abs(mean difference) |", "| --- |" + " ---: |" * (len(runners) + 2)]
     for name, (frames, truth) in cases.items():
-        learned = {p: runner(frames, positions) for p, runner in runners.items()}
+        image = classical_sr(frames, positions, h, cutoff=optics_cutoff(system)).numpy()
+        learned = {p: runner(image, estimate_noise_params(frames)) for p, runner in runners.items()}
         reference = classical_sr(torch.from_numpy(frames.astype(np.float64)), torch.from_numpy(positions), h,
                                  cutoff=optics_cutoff(system)).double().clamp(0, 1).numpy()
         scale = max(float(truth.max()), 1e-3)
@@ -343,8 +349,8 @@ def network_speed(hs, sizes, repeats: int) -> str:
         for size_arg in sizes:
             rows, cols = (cam.rows, cam.cols) if size_arg == "full" else (int(size_arg), int(size_arg))
             rng = np.random.default_rng(0)
-            frames = rng.random((h * h, rows, cols), dtype=np.float32)
-            offsets = (rng.random((2 * h * h, rows, cols), dtype=np.float32) - 0.5) * 0.5
+            frames = rng.random((h * h, rows, cols), dtype=np.float32)  # the classical image's phases
+            offsets = rng.random((1, rows, cols), dtype=np.float32)  # the noise map
 
             def torch_infer(a, b):
                 with torch.inference_mode():
@@ -423,8 +429,8 @@ def session_variants(h: int, sizes, repeats: int) -> str:
     for size_arg in sizes:
         rows, cols = (cam.rows, cam.cols) if size_arg == "full" else (int(size_arg), int(size_arg))
         rng = np.random.default_rng(0)
-        frames = rng.random((1, h * h, rows, cols), dtype=np.float32)
-        offsets = (rng.random((1, 2 * h * h, rows, cols), dtype=np.float32) - 0.5) * 0.5
+        frames = rng.random((1, h * h, rows, cols), dtype=np.float32)  # the classical image's phases
+        offsets = rng.random((1, 1, rows, cols), dtype=np.float32)  # the noise map
 
         def torch_infer(a, b):
             with torch.inference_mode():
@@ -435,12 +441,12 @@ def session_variants(h: int, sizes, repeats: int) -> str:
 
         calls = {"eager torch": tiled(torch_infer)}
         for name, sess in variants.items():
-            calls[name] = tiled(lambda a, b, sess=sess: sess.run(["image"], {"frames": a, "offsets": b})[0])
+            calls[name] = tiled(lambda a, b, sess=sess: sess.run(["image"], {"base": a, "noise": b})[0])
         if size_arg != "full":
             binding = variants["CPU EP, shipped settings"].io_binding()
             out = np.empty((1, 1, h * rows, h * cols), np.float32)
-            binding.bind_cpu_input("frames", frames)
-            binding.bind_cpu_input("offsets", offsets)
+            binding.bind_cpu_input("base", frames)
+            binding.bind_cpu_input("noise", offsets)
             binding.bind_output("image", "cpu", 0, np.float32, out.shape, out.ctypes.data)
             calls["IO binding"] = lambda: variants["CPU EP, shipped settings"].run_with_iobinding(binding)
         if openvino is not None:
@@ -457,8 +463,8 @@ def session_variants(h: int, sizes, repeats: int) -> str:
 
 
 def end_to_end(hs, sizes, repeats: int, full_repeats: int = 1) -> str:
-    """learned-torch against the onnxruntime runners only, end to end (input preparation, exposure
-    gain, tiles, clipping), on the stacks of the main table; one row per stack. They run in turn
+    """learned-torch against the onnxruntime runners only, end to end (the classical image, the
+    noise map, tiles, clipping), on the stacks of the main table; one row per stack. They run in turn
     (torch, onnx, torch, onnx, ...), medians of ``repeats`` after a warm-up (the full frame:
     ``full_repeats`` runs each, no warm-up), so that other jobs on the cores slow all alike."""
     system = FoveaSystem()

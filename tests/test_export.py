@@ -14,14 +14,12 @@ from hbis_torch.reconstruct.learned.export import CHECK_SIZE, EXPORT_SIZE, OPSET
 from hbis_torch.reconstruct.learned.net import HbisSRNet, space_to_depth
 
 
-@pytest.fixture(scope="module", params=[0, 5], ids=["bilinear-base", "linear-base"])
-def exported(tmp_path_factory, request):
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
     torch.manual_seed(0)
-    model = HbisSRNet(3, width=12, blocks=2, skip=request.param).eval()
+    model = HbisSRNet(3, width=12, blocks=2).eval()
     for p in model.tail.parameters():  # the tail starts at zero; make the whole net matter
         torch.nn.init.normal_(p, std=0.1)
-    if model.linear is not None:  # and the linear base more than bilinear upsampling
-        torch.nn.init.normal_(model.linear.weight, std=0.05)
     path = tmp_path_factory.mktemp("onnx") / "net.onnx"
     info = {"git_commit": "abc123", "val_psnr": 30.5, "step": 7, "config": {"h": 3}}
     export_model(model, path, info)
@@ -121,19 +119,19 @@ def test_metadata_props_carry_h_frames_normalisation_and_commit(exported):
     config = json.loads(meta["model_config"])
     assert {k: config[k] for k in ("h", "width", "blocks")} == {"h": 3, "width": 12, "blocks": 2}
     runner = LearnedSR(path)
-    assert runner.h == 3 and runner.frame_count == 9
-    assert runner.halo > 2 * 2 + 2 + config["skip"] // 2  # wider than the receptive field
+    assert runner.h == 3
+    assert runner.halo > 2 * 2 + 2  # wider than the receptive field
 
 
 def test_tiled_inference_equals_one_pass(exported):
     model, path = exported
     runner = LearnedSR(path, tile=16)
     g = torch.Generator().manual_seed(3)
-    frames = torch.rand(1, 9, 40, 37, generator=g)
-    offsets = torch.rand(1, 18, 40, 37, generator=g) - 0.5
-    tiled = runner.run_network(frames[0].numpy(), offsets[0].numpy())
+    base = torch.rand(1, 9, 40, 37, generator=g)
+    noise = torch.rand(1, 1, 40, 37, generator=g)
+    tiled = runner.run_network(base[0].numpy(), noise[0].numpy())
     with torch.no_grad():
-        whole = model(frames, offsets)[0, 0].numpy()
+        whole = model(base, noise)[0, 0].numpy()
     assert np.abs(tiled - whole).max() <= TOLERANCE
 
 
@@ -185,7 +183,7 @@ def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):
     from hbis_torch.reconstruct.learned.export import export
 
     torch.manual_seed(1)
-    model = HbisSRNet(2, width=8, blocks=1, skip=3).eval()
+    model = HbisSRNet(2, width=8, blocks=1).eval()
     first = export_model(model, tmp_path / "first.onnx", {"git_commit": "f00d", "val_psnr": 31.25, "step": 42,
                                                           "config": {"h": 2, "lr": 0.001}})
     weights = tmp_path / "weights.pt"
@@ -214,7 +212,7 @@ def test_the_scripts_export_and_check_from_any_folder(tmp_path):
 
     repo = Path(__file__).resolve().parents[1]
     torch.manual_seed(2)
-    model = HbisSRNet(2, width=8, blocks=1, skip=3).eval()
+    model = HbisSRNet(2, width=8, blocks=1).eval()
     weights = tmp_path / "weights.pt"
     torch.save({"model": model.state_dict(), "model_config": model.config()}, weights)
     run = [sys.executable, str(repo / "export" / "export_onnx.py"), str(weights), "net.onnx"]

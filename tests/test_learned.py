@@ -1,160 +1,110 @@
-"""Learned SR inputs and runner: registered order, offsets, clear errors for what cannot be served."""
+"""Learned SR inputs: the noise model (from the metadata or measured), the network's inputs, tiling."""
 
 import numpy as np
 import pytest
+import torch
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.scan import scan_offsets
-from hbis_torch.reconstruct.learned import prepare_inputs
+from hbis_torch.reconstruct.learned import (
+    NOISE_SCALE,
+    HbisSRNet,
+    estimate_noise_params,
+    network_inputs,
+    noise_params_from_meta,
+    run_tiled,
+    super_resolve,
+)
+from hbis_torch.reconstruct.learned.inputs import space_to_depth
+from hbis_torch.reconstruct.learned.net import space_to_depth as torch_space_to_depth
 
 
-def scan_positions(h, rows, cols, gain=1.0, bias=(0.0, 0.0), order=None):
-    """Positions of an ideal-ish scan: eq. 7 offsets / h, scaled and shifted; (F, rows, cols, 2)."""
-    offsets, ref = scan_offsets(h)
-    shifts = offsets.numpy() / h * gain + np.asarray(bias)
-    shifts[ref] = 0.0
-    yy, xx = np.mgrid[0:rows, 0:cols].astype(np.float64)
-    pos = np.stack((xx, yy), -1)[None] + shifts[:, None, None, :]
-    if order is not None:
-        pos = pos[order]
-    return pos
+def test_noise_params_come_from_the_sensor_model_with_the_adc_rounding():
+    meta = {"bit_depth": 12, "simulation": {"sensor": {"full_well_e": 20000.0, "read_noise_e": 4.0}}}
+    a, b = noise_params_from_meta(meta)
+    assert a == pytest.approx(1 / 20000)
+    assert b == pytest.approx((4 / 20000) ** 2 + 1 / (12 * 4095**2))
+    # A captured stack's own sensor block wins over nothing; no sensor model gives None.
+    assert noise_params_from_meta({"sensor": {"full_well_e": 1000}})[0] == pytest.approx(1e-3)
+    assert noise_params_from_meta({"bit_depth": 12}) is None
 
 
-@pytest.mark.parametrize("h", [2, 3, 4, 7])
-def test_registered_order_puts_each_frame_at_its_phase(h):
-    rows, cols = 6, 9
-    rng = np.random.default_rng(h)
-    order = rng.permutation(h * h)  # frames in any order
-    pos = scan_positions(h, rows, cols, gain=1.05, bias=(0.03, -0.02), order=order)
-    # Frame k carries its own index as value, so we can see where it went.
-    frames = np.broadcast_to(np.arange(h * h, dtype=np.float32)[:, None, None], (h * h, rows, cols)).copy()
-    frames_reg, offsets = prepare_inputs(frames, pos, h)
-    for k in range(h * h):
-        shift = h * (pos[k, 0, 0] - [0, 0])
-        phase = np.mod(np.rint(shift), h).astype(int)
-        channel = phase[1] * h + phase[0]
-        assert frames_reg[channel, rows // 2, cols // 2] == k
-        # The residual offset is the part of the shift that is not the whole output pixel.
-        expected = shift - np.rint(shift)
-        np.testing.assert_allclose(offsets[2 * channel:2 * channel + 2, rows // 2, cols // 2], expected, atol=1e-5)
+@pytest.mark.parametrize("bad", [0.0, -5.0, float("nan"), "10000", True])
+def test_a_sensor_model_with_a_bad_full_well_is_refused(bad):
+    with pytest.raises(HbisInputError, match="full_well_e"):
+        noise_params_from_meta({"sensor": {"full_well_e": bad}})
 
 
-def test_whole_pixel_shifts_move_the_frame():
+@pytest.mark.parametrize("a, b", [(1e-3, 1e-5), (1e-4, 4e-6), (0.0, 1e-4)])
+def test_measured_noise_params_find_shot_and_read_noise(a, b):
+    """Poisson-Gaussian noise on a smooth ramp: the measured level is within 20 % at every level."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:96, 0:96] / 95.0
+    clean = 0.05 + 0.9 * (0.5 * xx + 0.5 * yy)
+    frames = clean + rng.standard_normal((4, 96, 96)) * np.sqrt(a * clean + b)
+    ea, eb = estimate_noise_params(frames.astype(np.float32))
+    for level in (0.1, 0.5, 0.9):
+        assert np.sqrt(ea * level + eb) == pytest.approx(np.sqrt(a * level + b), rel=0.2)
+
+
+def test_measured_noise_of_a_noise_free_stack_is_near_zero():
+    yy, xx = np.mgrid[0:64, 0:64] / 63.0
+    frames = np.broadcast_to(0.2 + 0.6 * xx * yy, (4, 64, 64)).astype(np.float32)
+    a, b = estimate_noise_params(frames)
+    assert np.sqrt(a + b) < 1e-3
+
+
+def test_space_to_depth_is_the_networks_own():
+    image = np.random.default_rng(1).random((12, 20)).astype(np.float32)
+    want = torch_space_to_depth(torch.from_numpy(image)[None, None], 4)[0].numpy()
+    np.testing.assert_array_equal(space_to_depth(image, 4), want)
+
+
+def test_network_inputs_hold_the_image_and_the_noise_level_per_lr_pixel():
     h = 2
-    pos = scan_positions(h, 5, 5)
-    # Frame 1 is at (0, -1/2) LR pixel: output-pixel shift (0, -1) = phase (0, 1) one row up.
-    # Moved one LR pixel right, its shift is (2, -1): the same phase, one column further.
-    pos[1, ..., 0] += 1.0
-    frames = np.random.default_rng(0).random((4, 5, 5)).astype(np.float32)
-    frames_reg, offsets = prepare_inputs(frames, pos, h)
-    c = 1 * h + 0
-    np.testing.assert_array_equal(frames_reg[c, :-1, 1:], frames[1, 1:, :-1])
-    # Interior residuals stay small; the repeated edge pixels record how far off they are.
-    assert np.abs(offsets[2 * c:2 * c + 2, :-1, 1:]).max() < 1e-6
-    assert offsets[2 * c, 0, 0] == pytest.approx(h, abs=1e-6)  # column 0 repeats column 1
-    assert offsets[2 * c + 1, -1, 1] == pytest.approx(-h, abs=1e-6)  # last row repeats the one above
+    image = np.zeros((8, 6), np.float32)
+    image[:4] = 0.64  # top two LR rows bright
+    base, noise = network_inputs(image, h, (1e-3, 1e-4))
+    assert base.shape == (4, 4, 3) and noise.shape == (1, 4, 3)
+    np.testing.assert_allclose(noise[0, :2], NOISE_SCALE * np.sqrt(1e-3 * 0.64 + 1e-4), rtol=1e-6)
+    np.testing.assert_allclose(noise[0, 2:], NOISE_SCALE * np.sqrt(1e-4), rtol=1e-6)
 
 
-def test_frame_count_that_does_not_match_h_is_refused():
-    pos = scan_positions(3, 4, 4)
-    frames = np.zeros((9, 4, 4), np.float32)
-    with pytest.raises(HbisInputError, match="9 frames but the model needs h\\^2 = 16"):
-        prepare_inputs(frames, pos, 4)
-
-
-def test_two_frames_at_the_same_phase_are_refused():
-    pos = scan_positions(2, 4, 4)
-    pos[3] = pos[0]
-    with pytest.raises(HbisInputError, match="sub-pixel phases"):
-        prepare_inputs(np.zeros((4, 4, 4), np.float32), pos, 2)
-
-
-@pytest.mark.parametrize("bad", ["nan_frame", "inf_position", "shape"])
-def test_non_finite_or_misshapen_input_is_refused(bad):
-    pos = scan_positions(2, 4, 4)
-    frames = np.zeros((4, 4, 4), np.float32)
-    if bad == "nan_frame":
-        frames[1, 2, 2] = np.nan
-    elif bad == "inf_position":
-        pos[2, 1, 1, 0] = np.inf
-    else:
-        pos = pos[:, :3]
+@pytest.mark.parametrize("image, params", [(np.zeros((7, 8)), (0, 0)), (np.zeros((8, 8, 1)), (0, 0)),
+                                           (np.zeros((8, 8)), (-1e-3, 0)), (np.zeros((8, 8)), (np.nan, 0))])
+def test_bad_images_or_noise_params_are_refused(image, params):
     with pytest.raises(HbisInputError):
-        prepare_inputs(frames, pos, 2)
+        network_inputs(image, 2, params)
 
 
-def test_exposure_gain_leaves_normal_stacks_alone_and_lifts_dark_ones():
-    from hbis_torch.reconstruct.learned import MAX_GAIN, exposure_gain
-
-    rng = np.random.default_rng(1)
-    bright = rng.uniform(0, 0.9, (4, 16, 16)).astype(np.float32)
-    assert exposure_gain(bright) == 1.0
-    dark = bright * 0.05
-    assert exposure_gain(dark) == pytest.approx(0.5 / np.percentile(dark, 99.9))
-    assert exposure_gain(np.zeros((4, 16, 16), np.float32)) == MAX_GAIN
-
-
-def reference_prepare_inputs(frames, positions, h):
-    """prepare_inputs written the plain way (index arrays, temporaries): what the fast one must equal."""
-    count, rows, cols = frames.shape
-    centre = np.array([(cols - 1) / 2, (rows - 1) / 2])
-    steps = np.rint(h * (positions.reshape(count, -1, 2).mean(axis=1) - centre)).astype(np.int64)
-    phases = np.mod(steps, h)
-    whole = (steps - phases) // h
-    frames_reg = np.empty((count, rows, cols), np.float32)
-    offsets = np.empty((2 * count, rows, cols), np.float32)
-    for k in range(count):
-        src_x = np.clip(np.arange(cols) - whole[k, 0], 0, cols - 1)
-        src_y = np.clip(np.arange(rows) - whole[k, 1], 0, rows - 1)
-        pos = positions[k][src_y][:, src_x]
-        c = phases[k, 1] * h + phases[k, 0]
-        frames_reg[c] = frames[k][src_y][:, src_x]
-        offsets[2 * c] = np.clip(h * (pos[..., 0] - np.arange(cols)) - phases[k, 0], -h, h)
-        offsets[2 * c + 1] = np.clip(h * (pos[..., 1] - np.arange(rows)[:, None]) - phases[k, 1], -h, h)
-    return frames_reg, offsets
-
-
-@pytest.mark.parametrize("h, rows, cols", [(2, 5, 7), (3, 4, 4), (4, 9, 6), (7, 6, 11)])
-def test_prepare_inputs_equals_the_plain_computation_bit_for_bit(h, rows, cols):
-    # Whole-pixel shifts of up to 12 LR pixels per frame and axis: more than the frame in places,
-    # so some frames are nothing but repeated edge pixels.
-    rng = np.random.default_rng(rows * cols + h)
-    pos = scan_positions(h, rows, cols, gain=1.02, bias=(0.04, -0.03), order=rng.permutation(h * h))
-    pos = pos + rng.integers(-12, 13, (h * h, 1, 1, 2)) + rng.normal(0, 0.02, pos.shape)
-    frames = rng.random((h * h, rows, cols), dtype=np.float32)
-    got = prepare_inputs(frames, pos, h)
-    want = reference_prepare_inputs(frames, pos, h)
-    np.testing.assert_array_equal(got[0], want[0])
-    np.testing.assert_array_equal(got[1], want[1])
-
-
-def test_positions_too_large_to_sum_are_refused_by_name():
-    pos = scan_positions(2, 4, 4)
-    pos[1] = 1e308
-    with pytest.raises(HbisInputError, match="too large"):
-        prepare_inputs(np.zeros((4, 4, 4), np.float32), pos, 2)
-
-
-def test_exposure_gain_fast_path_gives_the_percentile_answer():
-    """The count that recognises bright stacks never answers 1 where the percentile would not."""
-    from hbis_torch.reconstruct.learned import DARK_TARGET, MAX_GAIN, exposure_gain
-
-    def by_percentile(x):
-        high = float(np.percentile(x, 99.9))
-        return 1.0 if high >= DARK_TARGET else min(MAX_GAIN, DARK_TARGET / max(high, DARK_TARGET / MAX_GAIN))
-
+def test_tiled_inference_equals_one_pass():
+    """A halo wider than the receptive field makes the tiles' seams invisible."""
+    torch.manual_seed(0)
+    net = HbisSRNet(3).eval()
+    for p in net.tail.parameters():  # an untrained tail is zero: give it something to show
+        torch.nn.init.normal_(p, std=0.05)
     rng = np.random.default_rng(2)
-    cases = []
-    for size in (16, 300, 4 * 37 * 29, 16 * 64 * 64):
-        cases.append(rng.random(size, dtype=np.float32))  # bright
-        cases.append(rng.random(size, dtype=np.float32) * 0.45)  # dark
-        cases.append(np.full(size, DARK_TARGET, np.float32))  # exactly at the target
-        for count in (size // 1000, size // 1000 + 1, size // 1000 + 2, 5):
-            # all just below the target but for `count` values at or just above it: the
-            # percentile crosses the target right here
-            x = np.full(size, np.nextafter(np.float32(DARK_TARGET), np.float32(0)), np.float32)
-            x[rng.choice(size, min(count, size), replace=False)] = rng.choice(
-                [DARK_TARGET, np.nextafter(np.float32(DARK_TARGET), np.float32(1)), 0.51, 1.0])
-            cases.append(x)
-    for x in cases:
-        assert exposure_gain(x) == by_percentile(x)
+    base, noise = network_inputs(rng.random((3 * 40, 3 * 37)).astype(np.float32), 3, (1e-3, 1e-5))
+
+    def infer(b, n):
+        with torch.no_grad():
+            return net(torch.from_numpy(b), torch.from_numpy(n)).numpy()
+
+    whole = run_tiled(infer, base, noise, 3, tile=64)
+    tiled = run_tiled(infer, base, noise, 3, tile=16)
+    np.testing.assert_allclose(tiled, whole, atol=1e-5)
+
+
+def test_an_untrained_network_returns_the_classical_image():
+    net = HbisSRNet(4).eval()
+    image = np.random.default_rng(3).random((32, 24)).astype(np.float32)
+
+    def run(b, n):
+        with torch.no_grad():
+            return net(torch.from_numpy(b)[None], torch.from_numpy(n)[None]).numpy()[0, 0]
+
+    np.testing.assert_allclose(super_resolve(run, image, 4, (1e-3, 1e-5)), image, atol=1e-6)
+
+
+def test_non_finite_network_output_is_named():
+    with pytest.raises(HbisInputError, match="non-finite"):
+        super_resolve(lambda b, n: np.full((8, 8), np.nan, np.float32), np.zeros((8, 8)), 2, (0, 0), "m.onnx")

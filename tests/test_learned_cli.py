@@ -11,8 +11,10 @@ from hbis_torch.config import FoveaSystem
 from hbis_torch.metrics import psnr
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, load_scene, simulate_stack
-from hbis_torch.reconstruct.learned import (available_providers, default_model_path, learned_sr, models_dir,
-                                            read_model_metadata)
+from hbis_torch.reconstruct.classical import reconstruct_classical
+from hbis_torch.reconstruct.learned import (LearnedSR, available_providers, default_model_path, learned_sr,
+                                            models_dir, read_model_metadata)
+from hbis_torch.reconstruct.learned.method import stack_noise_params
 from hbis_torch.reconstruct.positions import optical_positions, stack_sample_positions
 from hbis_torch.stack_io import read_stack, write_stack
 
@@ -78,21 +80,28 @@ def test_no_shipped_model_for_this_h_says_so(tmp_path, capsys):
     assert code == 2 and "no learned model for h = 3" in capsys.readouterr().err
 
 
-def test_learned_keeps_the_optical_positions_of_untrusted_frames(tmp_path, distrust_frame):
-    """The network needs every frame: a frame the registration cannot trust stays, at its optical
-    positions, with a message; learned_sr's own default is the optics alone."""
+def test_learned_treats_untrusted_frames_as_the_classical_method_does(tmp_path, distrust_frame):
+    """The learned method refines the classical image, so it follows the classical policy: with
+    "data" an untrusted frame is left out (with a message), with "auto" it stays at its optical
+    positions; learned_sr's own default is the optics alone."""
     stack_path, _ = simulated_stack_file(tmp_path, 2, size=32)
     stack = read_stack(stack_path)
     distrust_frame(1)
-    positions, trusted = stack_sample_positions(stack, "data")
+    _, trusted = stack_sample_positions(stack, "data")
     assert trusted.tolist() == [True, False, True, True]
-    assert np.array_equal(positions[1].numpy(), optical_positions(stack)[1].numpy())
+    runner = LearnedSR(h=2, threads=1, provider="cpu")
+    noise = stack_noise_params(stack)
     for mode in ("data", "auto"):
         messages = []
         image = learned_sr(stack, registration=mode, messages=messages, threads=1, provider="cpu")
-        assert messages[-1] == "kept the optical positions of 1 frame(s) the registration could not trust"
-        assert np.array_equal(image, learned_sr(stack, positions=positions, threads=1, provider="cpu"))
+        classical_messages = []
+        classical = reconstruct_classical(stack, mode, messages=classical_messages)
+        assert messages == classical_messages
+        left_out = "left out 1 frame(s) the registration could not trust"
+        assert (left_out in messages) == (mode == "data")
+        assert np.array_equal(image, runner(classical, noise))
     messages = []
     optics = learned_sr(stack, messages=messages, threads=1, provider="cpu")
     assert messages == []
-    assert np.array_equal(optics, learned_sr(stack, positions=optical_positions(stack), threads=1, provider="cpu"))
+    assert np.array_equal(optics, learned_sr(stack, positions=optical_positions(stack, exact=True), threads=1,
+                                             provider="cpu"))

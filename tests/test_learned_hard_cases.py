@@ -1,8 +1,10 @@
-"""The shipped h = 4 model on hard inputs, in float32, against the float64 classical reference.
+"""The shipped h = 4 model on hard inputs, against the float64 classical reference it refines.
 
 Cases: saturated highlights, a near-black stack, strong noise, a flat scene, an all-black and an
-all-white stack, and stacks the model cannot serve (wrong frame count, too small, NaN).
+all-white stack, and the stacks the old network refused (any reference frame, h = 7 at a corner).
 """
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -13,8 +15,9 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import EdgesScene, FlatScene, SensorModel, sample_positions, simulate_stack
+from hbis_torch.reconstruct import reconstruct
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
-from hbis_torch.reconstruct.learned import LearnedSR, available_providers, default_model_path
+from hbis_torch.reconstruct.learned import LearnedSR, available_providers, default_model_path, estimate_noise_params
 
 H = 4
 SYSTEM = FoveaSystem()
@@ -42,6 +45,12 @@ def simulate(scene, sensor=SensorModel()):
     return stack.to_float().numpy(), truth
 
 
+def learned(runner, frames, positions):
+    """The learned method on frames with known positions, its noise measured from them."""
+    image = classical_sr(frames, positions, H, cutoff=optics_cutoff(SYSTEM)).numpy()
+    return runner(image, estimate_noise_params(frames))
+
+
 def classical64(frames, positions):
     out = classical_sr(torch.from_numpy(frames.astype(np.float64)), torch.from_numpy(positions), H,
                        cutoff=optics_cutoff(SYSTEM))
@@ -56,9 +65,9 @@ def check_output(image, shape):
 
 def test_normal_stack_beats_the_classical_reference(runner, positions):
     frames, truth = simulate(None)
-    learned = runner(frames, positions)
-    check_output(learned, truth.shape)
-    assert psnr(learned, truth) > psnr(classical64(frames, positions), truth)
+    image = learned(runner, frames, positions)
+    check_output(image, truth.shape)
+    assert psnr(image, truth) > psnr(classical64(frames, positions), truth)
 
 
 @pytest.mark.parametrize("case", ["saturated", "near-black", "strong-noise"])
@@ -73,18 +82,18 @@ def test_hard_stacks_stay_close_to_the_classical_reference(runner, positions, ca
         truth = truth * 0.005
     else:  # noise 10 times the simulator's, clipped as a sensor would
         frames = np.clip(frames + rng.normal(0, 0.05, frames.shape), 0, 1).astype(np.float32)
-    learned = runner(frames, positions)
+    image = learned(runner, frames, positions)
     reference = classical64(frames, positions)
-    check_output(learned, truth.shape)
+    check_output(image, truth.shape)
     scale = max(float(truth.max()), 1e-3)
     # No bias against the float64 reference, relative to the image's own range.
-    assert abs(float(learned.mean()) - float(reference.mean())) < 0.02 * scale
+    assert abs(float(image.mean()) - float(reference.mean())) < 0.02 * scale
     # As close to the truth as the reference is, within 2 dB (relative to the range).
     rel = lambda img: psnr(img / scale, truth / scale)  # noqa: E731
-    assert rel(learned) > rel(reference) - 2.0
+    assert rel(image) > rel(reference) - 2.0
     if case == "saturated":
         clipped = truth >= 1.0
-        assert learned[clipped].mean() > 0.97
+        assert image[clipped].mean() > 0.97
 
 
 @pytest.mark.parametrize("level", [0.0, 0.5, 1.0])
@@ -94,22 +103,33 @@ def test_flat_stacks_give_flat_images(runner, positions, level):
     else:  # all black / all white: no light, or every pixel clipped
         frames = np.full((H * H, 32, 32), level, np.float32)
         truth = np.full((H * 32, H * 32), level)
-    learned = runner(frames, positions)
+    image = learned(runner, frames, positions)
     reference = classical64(frames, positions)
-    check_output(learned, truth.shape)
-    assert abs(float(learned.mean()) - level) < 0.01
-    assert abs(float(learned.mean()) - float(reference.mean())) < 0.01
+    check_output(image, truth.shape)
+    assert abs(float(image.mean()) - level) < 0.01
+    assert abs(float(image.mean()) - float(reference.mean())) < 0.01
     # The network must not invent structure: no more ripple than the noise it was given.
-    assert float(learned.std()) <= max(2 * float(reference.std()), 2e-3)
+    assert float(image.std()) <= max(2 * float(reference.std()), 2e-3)
 
 
-def test_stacks_the_model_cannot_serve_get_one_clear_error(runner, positions):
-    frames = np.zeros((9, 32, 32), np.float32)
-    with pytest.raises(HbisInputError, match="9 frames but model hbis_sr_h4.onnx needs 16"):
-        runner(frames, positions[:9])
-    with pytest.raises(HbisInputError, match="too small"):
-        runner(np.zeros((16, 3, 32), np.float32), positions[:, :3])
+def test_non_finite_frames_get_one_clear_error(runner, positions):
     bad = np.zeros((16, 32, 32), np.float32)
     bad[3, 4, 5] = np.nan
     with pytest.raises(HbisInputError, match="NaN"):
-        runner(bad, positions)
+        learned(runner, bad, positions)
+
+
+@pytest.mark.parametrize("h, reference", [(7, "first"), (7, "last"), (4, "first"), (2, "last")])
+def test_any_reference_frame_at_a_corner_is_served(h, reference):
+    """The stacks the old network refused or got wrong: the scan's first or last frame as the
+    reference, at the sensor's corner where the scan is least regular."""
+    plan = plan_scan(SYSTEM, h)
+    plan = dataclasses.replace(plan, reference_index=0 if reference == "first" else h * h - 1)
+    pixel = SYSTEM.object_pixel_mm
+    scene = EdgesScene(size_mm=(40 * pixel, 40 * pixel), normals_deg=(20.0, 110.0), offsets_mm=(0.0, 3 * pixel),
+                       levels=(0.1, 0.4, 0.7, 0.95))
+    stack, truth = simulate_stack(scene, SYSTEM, plan, roi=(4, 4, 24, 24), seed=5)
+    classical = reconstruct(stack, "classical", registration="optics")
+    image = reconstruct(stack, "learned", registration="optics")
+    check_output(image, truth.shape)
+    assert psnr(image, truth) > psnr(classical, truth) - 0.3

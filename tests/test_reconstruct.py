@@ -26,7 +26,6 @@ from hbis_torch.reconstruct import (
 from hbis_torch.reconstruct import positions as position_policy
 from hbis_torch.reconstruct.classical import (
     optics_cutoff,
-    source_version,
     stack_fill_factor,
 )
 from hbis_torch.reconstruct.positions import stack_sample_positions
@@ -270,16 +269,3 @@ def test_untrusted_frames_keep_the_optics_and_classical_data_mode_leaves_them_ou
     assert np.array_equal(auto, classical_sr(frames, corrected, H, **kw).numpy())
 
 
-def test_classical_source_version_hashes_the_whole_package():
-    import hashlib
-
-    import hbis_torch.reconstruct.classical as classical
-
-    version = source_version()
-    assert len(version) == 64 and int(version, 16) >= 0 and source_version() == version
-    files = sorted(Path(classical.__file__).parent.glob("*.py"))
-    assert {f.name for f in files} >= {"__init__.py", "method.py", "splat.py", "sr.py", "transfer.py", "wiener.py"}
-    digest = hashlib.sha256()
-    for path in files:
-        digest.update(path.name.encode() + path.read_bytes())
-    assert version == digest.hexdigest()

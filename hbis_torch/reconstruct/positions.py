@@ -24,9 +24,7 @@
    * classical, ``"data"``: weight 0, i.e. left out of the reconstruction (message "left out N
      frame(s) the registration could not trust"); ``"auto"``: used at their optical positions,
      without a message.
-   * learned, ``"data"`` and ``"auto"``: used at their optical positions, since the network needs
-     every one of the h^2 frames (message "kept the optical positions of N frame(s) the
-     registration could not trust").
+   * learned: as the classical method, since it refines the classical image.
 
 Defaults. :func:`hbis_torch.reconstruct.reconstruct`, ``hbis reconstruct --registration`` and both
 methods' registry entries default to ``"auto"``: a captured stack's phases are only what the

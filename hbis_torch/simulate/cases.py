@@ -1,7 +1,7 @@
 """The benchmark's test stacks: which scenes, where on the sensor, simulated how.
 
-benchmarks/bench_learned.py measures every super-resolution method on these stacks and
-training/eval_photos.py scores a checkpoint on the same ones, so that their numbers compare.
+benchmarks/bench_learned.py measures every super-resolution method's speed and error on these
+stacks. (The learned method's held-out validation is training/eval_matrix.py.)
 Case i of a ROI size is ``scene_cases(size)[i]``, placed at ``roi_for(system, size, i)`` and
 simulated by ``make_stack(system, h, roi, scene, 1000 + i)``. The scenes are procedural
 (:data:`SYNTHETIC_CASES`: the kind the network is trained on, with new seeds) and photographs

@@ -48,8 +48,6 @@ Modules
 
 from __future__ import annotations
 
-import hashlib
-from pathlib import Path
 
 from hbis_torch.reconstruct.classical.method import reconstruct_classical, stack_fill_factor
 from hbis_torch.reconstruct.classical.splat import common_offset, fill_holes, snap_to_lattice, splat
@@ -81,21 +79,8 @@ __all__ = [
     "reconstruct_classical",
     "shift_image",
     "snap_to_lattice",
-    "source_version",
     "splat",
     "splat_transfer",
     "stack_fill_factor",
     "wiener_deblur",
 ]
-
-
-def source_version() -> str:
-    """SHA-256 (hex) of the classical method's source: the name and bytes of every ``*.py`` of
-    this package, in sorted order. Caches of classical results (training/train_sr.py,
-    training/eval_photos.py) are keyed by it, so that any change to the method invalidates them.
-    """
-    digest = hashlib.sha256()
-    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
-        digest.update(path.name.encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()

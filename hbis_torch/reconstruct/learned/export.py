@@ -74,7 +74,7 @@ def load_checkpoint(path) -> tuple[HbisSRNet, dict]:
 
 
 def example_inputs(h: int, rows: int, cols: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
-    """Random frames (1, h^2, rows, cols) in [0, 1] and offsets (1, 2h^2, rows, cols) in +-0.5.
+    """A random classical image (1, h^2, rows, cols) in [0, 1] and noise map (1, 1, rows, cols) in [0, 1].
 
     Parameters
     ----------
@@ -87,14 +87,13 @@ def example_inputs(h: int, rows: int, cols: int, seed: int = 0) -> tuple[torch.T
 
     Returns
     -------
-    frames : Tensor, shape (1, h^2, rows, cols), float32
-    offsets : Tensor, shape (1, 2 h^2, rows, cols), float32
-        In output pixels.
+    base : Tensor, shape (1, h^2, rows, cols), float32
+    noise : Tensor, shape (1, 1, rows, cols), float32
     """
     g = torch.Generator().manual_seed(seed)
-    frames = torch.rand(1, h * h, rows, cols, generator=g)
-    offsets = torch.rand(1, 2 * h * h, rows, cols, generator=g) - 0.5
-    return frames, offsets
+    base = torch.rand(1, h * h, rows, cols, generator=g)
+    noise = torch.rand(1, 1, rows, cols, generator=g)
+    return base, noise
 
 
 def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: int = OPSET,
@@ -110,7 +109,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     Parameters
     ----------
     model : HbisSRNet
-        Inputs ``frames`` (B, h^2, H, W) and ``offsets`` (B, 2h^2, H, W), output ``image``
+        Inputs ``base`` (B, h^2, H, W) and ``noise`` (B, 1, H, W), output ``image``
         (B, 1, hH, hW); B, H and W stay dynamic in the file.
     out_path : str or Path
         The .onnx file to write.
@@ -127,12 +126,12 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
 
     info = info or {}
     model = model.eval()
-    frames, offsets = example_inputs(model.h, *EXPORT_SIZE)
+    base, noise = example_inputs(model.h, *EXPORT_SIZE)
     batch, rows, cols = (torch.export.Dim(n, min=1, max=8192) for n in ("batch", "height", "width"))
     dims = {0: batch, 2: rows, 3: cols}
     program = torch.onnx.export(
-        model, (frames, offsets), input_names=["frames", "offsets"], output_names=["image"],
-        dynamic_shapes={"frames": dims, "offsets": dims}, opset_version=opset, dynamo=True,
+        model, (base, noise), input_names=["base", "noise"], output_names=["image"],
+        dynamic_shapes={"base": dims, "noise": dims}, opset_version=opset, dynamo=True,
         external_data=False, verbose=False,
     )
     proto = program.model_proto
@@ -140,7 +139,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     metadata = {
         "format": MODEL_FORMAT,
         "h": str(model.h),
-        "frames": str(model.frame_count),
+        "frames": str(model.h * model.h),
         "normalisation": NORMALISATION,
         "training_commit": str(info.get("git_commit", "unknown")),
         "export_commit": git_head(),
@@ -155,7 +154,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     del proto.metadata_props[:]
     for key, value in metadata.items():
         proto.metadata_props.add(key=key, value=value)
-    proto.doc_string = f"hbis-torch multi-frame SR network, h = {model.h}; see hbis_torch/models/README.md"
+    proto.doc_string = f"hbis-torch SR refiner of the classical image, h = {model.h}; see hbis_torch/models/README.md"
     onnx.checker.check_model(proto)
     with atomic_path(out_path) as tmp:
         onnx.save(proto, str(tmp))
@@ -224,11 +223,11 @@ def check_parity(onnx_path, checkpoint, size=CHECK_SIZE, seed: int = 1, provider
         raise ValueError("check at a size other than the export size")
     model = checkpoint if isinstance(checkpoint, torch.nn.Module) else load_checkpoint(checkpoint)[0]
     model = model.eval()
-    frames, offsets = example_inputs(model.h, *size, seed=seed)
+    base, noise = example_inputs(model.h, *size, seed=seed)
     with torch.no_grad():
-        expected = model(frames, offsets).numpy()
+        expected = model(base, noise).numpy()
     runner = LearnedSR(onnx_path, provider=provider)
-    got = runner.session.run(["image"], {"frames": frames.numpy(), "offsets": offsets.numpy()})[0]
+    got = runner.infer(base.numpy(), noise.numpy())
     if got.shape != expected.shape:
         raise AssertionError(f"onnxruntime output {got.shape} != torch output {expected.shape}")
     return float(np.abs(got - expected).max())

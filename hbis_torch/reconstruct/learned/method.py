@@ -6,14 +6,35 @@ from __future__ import annotations
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, reconstruct_classical, stack_fill_factor
+from hbis_torch.reconstruct.learned.inputs import estimate_noise_params, noise_params_from_meta
 from hbis_torch.reconstruct.learned.runtime import LearnedSR
-from hbis_torch.reconstruct.positions import stack_sample_positions
+
+
+def stack_noise_params(stack, frames=None) -> tuple[float, float]:
+    """(a, b) of a stack's frame noise ``a x + b``: its sensor model's, else measured from the frames.
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+    frames : array (F, H, W), optional
+        ``stack.to_float()``, if already at hand.
+    """
+    params = noise_params_from_meta(stack.meta)
+    if params is None:
+        frames = stack.to_float() if frames is None else frames
+        params = estimate_noise_params(np.asarray(frames))
+    return params
 
 
 def learned_sr(stack, model=None, positions=None, threads: int | None = None,
                registration: str = "optics", messages: list | None = None,
                provider: str = "auto") -> np.ndarray:
-    """Super-resolve a captured or simulated stack with an ONNX model (onnxruntime, no torch).
+    """Super-resolve a stack: the classical image, refined by an ONNX model in onnxruntime.
+
+    The learned method takes every stack the classical method takes (any reference frame, any
+    scan, frames left out by the registration): the network sees only the classical image and
+    the frames' noise level (:mod:`hbis_torch.reconstruct.learned.net`).
 
     Parameters
     ----------
@@ -21,17 +42,15 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     model : path, optional
         Defaults to the shipped model for the stack's h (:func:`default_model_path`).
     positions : array (F, H, W, 2), optional
-        Sample positions in ROI-local reference LR pixels; by default the layer's policy
-        (:func:`~hbis_torch.reconstruct.positions.stack_sample_positions`, node splines), in which
-        the frames the registration could not trust keep their optical positions: the network
-        needs every frame.
+        Sample positions in ROI-local reference LR pixels; by default the classical method's
+        (:func:`~hbis_torch.reconstruct.classical.reconstruct_classical` with ``registration``).
     threads : int, optional
         onnxruntime intra-op threads.
     registration : {"optics", "data", "auto"}
         Where the positions come from when they are not given. The default here is ``"optics"``
-        (this function's behaviour from before registration was offered, and right for the
-        simulated stacks its direct callers pass); :func:`hbis_torch.reconstruct.reconstruct`
-        and ``hbis reconstruct`` default to ``"auto"`` (:mod:`hbis_torch.reconstruct.positions`).
+        (right for the simulated stacks its direct callers pass);
+        :func:`hbis_torch.reconstruct.reconstruct` and ``hbis reconstruct`` default to ``"auto"``
+        (:mod:`hbis_torch.reconstruct.positions`).
     messages : list, optional
         Receives the registration's warnings.
     provider : {"auto", "openvino", "cpu"}
@@ -47,13 +66,11 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         raise HbisInputError(f"model {runner.path.name} is for h = {runner.h}, the stack has h = {stack.h}")
     frames = stack.to_float()
     if positions is None:
-        positions, trusted = stack_sample_positions(stack, registration, frames=frames, messages=messages)
-        if messages is not None and not bool(trusted.all()):
-            messages.append(f"kept the optical positions of {int((~trusted).sum())} frame(s) the "
-                            "registration could not trust")
-    positions = np.asarray(positions.detach().cpu() if hasattr(positions, "detach") else positions)
-    frames = np.asarray(frames.detach().cpu() if hasattr(frames, "detach") else frames)
-    return runner(frames, positions)
+        image = reconstruct_classical(stack, registration, messages=messages)
+    else:
+        image = classical_sr(frames, positions, stack.h, cutoff=optics_cutoff(stack.system),
+                             fill_factor=stack_fill_factor(stack)).numpy()
+    return runner(image, stack_noise_params(stack, frames))
 
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,

@@ -18,11 +18,12 @@ import numpy as np
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.learned.inputs import TILE_HALO, run_tiled, super_resolve
 
-MODEL_FORMAT = "hbis-sr-onnx/1"
+MODEL_FORMAT = "hbis-sr-onnx/2"
 NORMALISATION = (
-    "frames: float32 in [0, 1] (stack.to_float), registered order; offsets: float32, output "
-    "pixels, sample position minus nominal phase, (x, y) per frame; image: float32, clip to [0, 1]; "
-    "dark stacks (99.9th percentile < 0.5) are scaled by up to 64x before and unscaled after"
+    "base: float32, the classical image (reconstruct_classical, in [0, 1]) space-to-depth by h, "
+    "channel dy*h+dx = image[h*y+dy, h*x+dx]; noise: float32, 10 * sqrt(a*level + b), the frames' "
+    "noise level at each LR pixel's mean level (variance a*x + b of a frame value x in [0, 1]); "
+    "image: float32, clip to [0, 1]"
 )
 
 
@@ -199,7 +200,7 @@ class LearnedSR:
 
     Attributes
     ----------
-    h, frame_count : int
+    h : int
     provider : str
         ``"openvino"`` or ``"cpu"``: what took the model.
     metadata : dict
@@ -228,47 +229,49 @@ class LearnedSR:
         if self.metadata.get("format") != MODEL_FORMAT:
             raise HbisInputError(f"{path} is not an hbis SR model (metadata format != {MODEL_FORMAT})")
         self.h = int(self.metadata["h"])
-        self.frame_count = int(self.metadata["frames"])
         if h is not None and int(h) != self.h:
             raise HbisInputError(f"model {path.name} is for h = {self.h}, the stack has h = {h}")
         self.path = path
         self.tile = int(tile)
-        # Receptive field radius: head + 2 per residual block + tail (+ 1), or the linear base's.
+        # Receptive field radius: head + 2 per residual block + tail (+ 1).
         config = json.loads(self.metadata.get("model_config", "{}"))
-        radius = max(2 * int(config.get("blocks", 5)) + 3, int(config.get("skip", 0)) // 2) + 1
-        self.halo = max(TILE_HALO, radius)
+        self.halo = max(TILE_HALO, 2 * int(config.get("blocks", 4)) + 3)
 
-    def infer(self, frames_reg: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """One network pass: (1, h^2, H, W), (1, 2h^2, H, W) float32 -> (1, 1, hH, hW)."""
-        return self.session.run(["image"], {"frames": frames_reg, "offsets": offsets})[0]
+    def infer(self, base: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """One network pass: (1, h^2, H, W), (1, 1, H, W) float32 -> (1, 1, hH, hW)."""
+        return self.session.run(["image"], {"base": base, "noise": noise})[0]
 
-    def run_network(self, frames_reg: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """Raw network output for registered inputs, tiled; (h^2, H, W), (2h^2, H, W) -> (hH, hW).
+    def run_network(self, base: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """Raw network output, tiled; (h^2, H, W), (1, H, W) -> (hH, hW).
 
         A progress bar counts the tiles (:mod:`hbis_torch.progress`)."""
         from hbis_torch.progress import progress
 
-        rows, cols = frames_reg.shape[-2:]
+        rows, cols = base.shape[-2:]
         tiles = 1 if rows <= self.tile and cols <= self.tile else -(-rows // self.tile) * -(-cols // self.tile)
         with progress(total=tiles, desc=f"learned SR ({self.provider})", unit="tile") as bar:
-            def infer(frames, offsets):
-                image = self.infer(frames, offsets)
+            def infer(b, n):
+                image = self.infer(b, n)
                 bar.update()
                 return image
 
-            return run_tiled(infer, frames_reg, offsets, self.h, self.tile, self.halo)
+            return run_tiled(infer, base, noise, self.h, self.tile, self.halo)
 
-    def __call__(self, frames, positions) -> np.ndarray:
-        """Super-resolve frames (F, H, W) in [0, 1] with positions (F, H, W, 2) -> (hH, hW) in [0, 1]."""
-        frames = np.asarray(frames)
-        if frames.ndim == 3 and frames.shape[0] != self.frame_count:
-            raise HbisInputError(
-                f"the stack has {frames.shape[0]} frames but model {self.path.name} needs "
-                f"{self.frame_count} (h = {self.h})"
-            )
-        if frames.ndim == 3 and min(frames.shape[1:]) < 4:
-            raise HbisInputError(f"frames of {frames.shape[1]} x {frames.shape[2]} are too small (min 4 x 4)")
-        return super_resolve(self.run_network, frames, positions, self.h, self.path.name)
+    def __call__(self, image, noise_params: tuple[float, float]) -> np.ndarray:
+        """Refine a classical image (hH, hW) in [0, 1] of frames of noise variance ``a x + b``.
+
+        Parameters
+        ----------
+        image : array, shape (hH, hW)
+            The classical reconstruction (:func:`hbis_torch.reconstruct.classical.reconstruct_classical`).
+        noise_params : (float, float)
+            (a, b) (:func:`noise_params_from_meta`, :func:`estimate_noise_params`).
+
+        Returns
+        -------
+        ndarray, shape (hH, hW), float32 in [0, 1]
+        """
+        return super_resolve(self.run_network, image, self.h, noise_params, self.path.name)
 
 
 def read_model_metadata(path) -> dict:
