@@ -58,7 +58,7 @@ def main() -> None:
             seconds = time.process_time() - start
             x = image[b:-b, b:-b]
             row = {"scene": name, "frames": kind, "method": method,
-                   "colour": mode if kind == "rgb" else ("joint demosaicking" if method == "classical" else "demosaic first, luma"),
+                   "colour": mode if kind == "rgb" else ("joint demosaicking" if method == "classical" else "joint demosaicking, refined"),
                    "psnr_rgb": round(psnr(x, t), 2), "psnr_luma": round(psnr(x @ LUMA, t @ LUMA), 2),
                    "cpu_s": round(seconds, 2)}
             rows.append(row)

@@ -17,8 +17,8 @@ Raw Bayer frames (F, H, W) with a ``cfa`` key: the classical method demosaicks j
 colour sample enters the splatting at its own position (the sample positions of its pixel), with
 per-channel masks as sample weights, as in Wronski et al., SIGGRAPH 2019; each colour plane is
 reconstructed from its own samples only (interpolated, not deblurred: see
-:func:`_joint_demosaic_classical`). The learned method demosaicks each frame first (OpenCV's
-edge-aware demosaicking) and then takes the RGB path.
+:func:`_joint_demosaic_classical`). The learned method refines each plane of that joint
+demosaicking, as it refines the classical image of a gray stack (:func:`_joint_demosaic_learned`).
 """
 
 from __future__ import annotations
@@ -105,6 +105,22 @@ def _joint_demosaic_classical(stack, registration: str, messages=None, deblur: b
     return np.stack(planes, axis=-1)
 
 
+def _joint_demosaic_learned(stack, registration: str, messages=None, model=None, threads=None,
+                            provider: str = "auto") -> np.ndarray:
+    """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
+    refined by the network, with the noise of the sensor model or of one colour's sub-lattice."""
+    from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params, noise_params_from_meta
+
+    runner = LearnedSR(model=model, h=None if model is not None else stack.h, threads=threads, provider=provider)
+    if runner.h != stack.h:
+        raise HbisInputError(f"model {runner.path.name} is for h = {runner.h}, the stack has h = {stack.h}")
+    planes = _joint_demosaic_classical(stack, registration, messages=messages)
+    noise = noise_params_from_meta(stack.meta)
+    if noise is None:  # one colour's pixels: a plain image of one sensor's noise, no mosaic in it
+        noise = estimate_noise_params(stack.to_float().numpy()[:, 0::2, 0::2])
+    return np.stack([runner(np.ascontiguousarray(planes[..., c]), noise) for c in range(3)], axis=-1)
+
+
 def reconstruct_colour(stack, method: str, registration: str = "auto", colour: str | None = None,
                        **kw) -> np.ndarray:
     """Super-resolve a colour stack (RGB frames, or raw Bayer frames with a ``cfa`` key).
@@ -134,6 +150,8 @@ def reconstruct_colour(stack, method: str, registration: str = "auto", colour: s
     if stack.meta.get("cfa") is not None:
         if method == "classical":
             return np.clip(_joint_demosaic_classical(stack, registration, **kw), 0, 1).astype(np.float32)
+        if method == "learned":
+            return np.clip(_joint_demosaic_learned(stack, registration, **kw), 0, 1).astype(np.float32)
         rgb = demosaic(stack.to_float().numpy(), stack.meta["cfa"])
     else:
         rgb = stack.to_float().numpy()
