@@ -103,5 +103,5 @@ def test_learned_treats_untrusted_frames_as_the_classical_method_does(tmp_path, 
     messages = []
     optics = learned_sr(stack, messages=messages, threads=1, provider="cpu")
     assert messages == []
-    assert np.array_equal(optics, learned_sr(stack, positions=optical_positions(stack, exact=True), threads=1,
+    assert np.array_equal(optics, learned_sr(stack, positions=optical_positions(stack), threads=1,
                                              provider="cpu"))
