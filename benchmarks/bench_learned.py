@@ -169,13 +169,13 @@ def run_case(system, h, roi, scene_name, seed, runners, model, repeats, only=MET
 
         shipped = runners["learned-onnx"]
         return super_resolve(lambda a, b: run_tiled(infer, a, b, h, shipped.tile, shipped.halo),
-                             classical(), h, noise)
+                             classical(), h, noise, cutoff=optics_cutoff(system))
 
     methods = {"bicubic": bicubic, "classical": classical}
     if model is not None:
         methods["learned-torch"] = learned_torch
     for name, runner in runners.items():
-        methods[name] = lambda runner=runner: runner(classical(), noise)
+        methods[name] = lambda runner=runner: runner(classical(), noise, optics_cutoff(system))
     methods = {name: fn for name, fn in methods.items() if name in only}
     small = roi[2] * roi[3] <= 256 * 256
     if interleave:
@@ -323,7 +323,7 @@ def hard_cases() -> str:
              + " | classical (fp64) | largest abs(mean difference) |", "| --- |" + " ---: |" * (len(runners) + 2)]
     for name, (frames, truth) in cases.items():
         image = classical_sr(frames, positions, h, cutoff=optics_cutoff(system)).numpy()
-        learned = {p: runner(image, estimate_noise_params(frames)) for p, runner in runners.items()}
+        learned = {p: runner(image, estimate_noise_params(frames), optics_cutoff(system)) for p, runner in runners.items()}
         reference = classical_sr(torch.from_numpy(frames.astype(np.float64)), torch.from_numpy(positions), h,
                                  cutoff=optics_cutoff(system)).double().clamp(0, 1).numpy()
         scale = max(float(truth.max()), 1e-3)

@@ -108,3 +108,19 @@ def test_an_untrained_network_returns_the_classical_image():
 def test_non_finite_network_output_is_named():
     with pytest.raises(HbisInputError, match="non-finite"):
         super_resolve(lambda b, n: np.full((8, 8), np.nan, np.float32), np.zeros((8, 8)), 2, (0, 0), "m.onnx")
+
+
+def test_band_limit_removes_only_what_lies_beyond_the_lens_cutoff():
+    from hbis_torch.reconstruct.learned.inputs import band_limit
+
+    h, n = 4, 128
+    x = np.arange(n)
+    yy, xx = np.meshgrid(x, x, indexing="ij")
+    low = np.cos(2 * np.pi * 8 / n * xx)  # 8 cycles over 32 LR px: 0.25 cycles per LR pixel
+    high = np.cos(2 * np.pi * 48 / n * yy)  # 1.5 cycles per LR pixel
+    correction = (low + high).astype(np.float32)
+    limited = band_limit(correction, h, cutoff=0.62)  # F 11 at 3.75 um, 550 nm
+    np.testing.assert_allclose(limited, low, atol=1e-5)
+    # a lens that passes everything the output grid holds changes nothing
+    assert band_limit(correction, h, cutoff=4.9) is correction
+    assert band_limit(correction, h, cutoff=None) is correction

@@ -11,7 +11,7 @@ from hbis_torch.config import FoveaSystem
 from hbis_torch.metrics import psnr
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, load_scene, simulate_stack
-from hbis_torch.reconstruct.classical import reconstruct_classical
+from hbis_torch.reconstruct.classical import optics_cutoff, reconstruct_classical
 from hbis_torch.reconstruct.learned import (LearnedSR, available_providers, default_model_path, learned_sr,
                                             models_dir, read_model_metadata)
 from hbis_torch.reconstruct.learned.method import stack_noise_params
@@ -99,7 +99,7 @@ def test_learned_treats_untrusted_frames_as_the_classical_method_does(tmp_path, 
         assert messages == classical_messages
         left_out = "left out 1 frame(s) the registration could not trust"
         assert (left_out in messages) == (mode == "data")
-        assert np.array_equal(image, runner(classical, noise))
+        assert np.array_equal(image, runner(classical, noise, optics_cutoff(stack.system)))
     messages = []
     optics = learned_sr(stack, messages=messages, threads=1, provider="cpu")
     assert messages == []

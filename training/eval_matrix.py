@@ -38,6 +38,7 @@ from hbis_torch.config import FoveaSystem
 from hbis_torch.io_utils import atomic_write_text
 from hbis_torch.metrics import psnr
 from hbis_torch.reconstruct import reconstruct
+from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR
 from hbis_torch.reconstruct.learned.method import stack_noise_params
 from hbis_torch.scan import plan_scan
@@ -157,7 +158,7 @@ def main(argv=None) -> int:
         size = args.size if h < 7 else (2 * args.size) // 3
         stack, truth = make_stack(CONDITIONS[c], photo, h, size, seed=1000 + c)
         classical_image = reconstruct(stack, "classical", registration="optics")
-        learned_image = runners[h](classical_image, stack_noise_params(stack))
+        learned_image = runners[h](classical_image, stack_noise_params(stack), optics_cutoff(stack.system))
         classical, learned = score(classical_image, truth, h), score(learned_image, truth, h)
         cells.append({"h": h, "condition": CONDITIONS[c].name, "photo": photo, "classical_db": classical,
                       "learned_db": learned, "delta_db": learned - classical})

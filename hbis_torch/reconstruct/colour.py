@@ -109,6 +109,7 @@ def _joint_demosaic_learned(stack, registration: str, messages=None, model=None,
                             provider: str = "auto") -> np.ndarray:
     """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
     refined by the network, with the noise of the sensor model or of one colour's sub-lattice."""
+    from hbis_torch.reconstruct.classical.transfer import optics_cutoff
     from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params, noise_params_from_meta
 
     runner = LearnedSR(model=model, h=None if model is not None else stack.h, threads=threads, provider=provider)
@@ -118,7 +119,8 @@ def _joint_demosaic_learned(stack, registration: str, messages=None, model=None,
     noise = noise_params_from_meta(stack.meta)
     if noise is None:  # one colour's pixels: a plain image of one sensor's noise, no mosaic in it
         noise = estimate_noise_params(stack.to_float().numpy()[:, 0::2, 0::2])
-    return np.stack([runner(np.ascontiguousarray(planes[..., c]), noise) for c in range(3)], axis=-1)
+    cutoff = optics_cutoff(stack.system)
+    return np.stack([runner(np.ascontiguousarray(planes[..., c]), noise, cutoff) for c in range(3)], axis=-1)
 
 
 def reconstruct_colour(stack, method: str, registration: str = "auto", colour: str | None = None,

@@ -186,8 +186,40 @@ def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 25
     return out
 
 
+def band_limit(correction: np.ndarray, h: int, cutoff: float | None) -> np.ndarray:
+    """The correction without what lies beyond the lens's diffraction cutoff.
+
+    An incoherent lens passes no spatial frequency above ``1 / (lambda F)``, so neither the scene
+    on the sensor nor the ground truth (which carries the lens's blur) has any: whatever the
+    network adds there is error. A raised-cosine taper from 0.85 to 1 times the cutoff avoids
+    ringing. Nothing changes when the cutoff lies beyond the output grid's corner frequency
+    (F 1.4 at 3.75 um pixels: 4.9 cycles per LR pixel, beyond h / sqrt(2) for h <= 6).
+
+    Parameters
+    ----------
+    correction : ndarray, shape (hH, hW), float32
+        Network output minus the classical image.
+    h : int
+    cutoff : float or None
+        Cutoff in cycles per LR pixel (:func:`hbis_torch.reconstruct.classical.optics_cutoff`);
+        None: no limit.
+
+    Returns
+    -------
+    ndarray, shape (hH, hW), float32
+    """
+    if cutoff is None or cutoff >= h / np.sqrt(2.0):
+        return correction
+    rows, cols = correction.shape
+    fy = np.fft.fftfreq(rows)[:, None] * h  # cycles per LR pixel
+    fx = np.fft.rfftfreq(cols)[None, :] * h
+    t = np.clip((np.hypot(fx, fy) / cutoff - 0.85) / 0.15, 0.0, 1.0)
+    mask = (0.5 + 0.5 * np.cos(np.pi * t)).astype(np.float32)
+    return np.fft.irfft2(np.fft.rfft2(correction) * mask, s=(rows, cols)).astype(np.float32)
+
+
 def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
-                  name: str = "the network") -> np.ndarray:
+                  name: str = "the network", cutoff: float | None = None) -> np.ndarray:
     """Classical image and noise parameters -> refined image, around any runner of the network.
 
     Parameters
@@ -202,6 +234,9 @@ def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
         (a, b) of the frames' noise (:func:`noise_params_from_meta`, :func:`estimate_noise_params`).
     name : str
         How the error message names the model.
+    cutoff : float, optional
+        The lens's diffraction cutoff, cycles per LR pixel: the network's correction is limited
+        to it (:func:`band_limit`).
 
     Returns
     -------
@@ -213,4 +248,7 @@ def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
     # in the model file, not in the stack.
     if not np.isfinite(out).all():
         raise HbisInputError(f"model {name} produced non-finite values")
+    if cutoff is not None and cutoff < h / np.sqrt(2.0):
+        image = np.asarray(image, dtype=np.float32)
+        out = image + band_limit(out - image, h, cutoff)
     return np.clip(out, 0.0, 1.0, out=out)

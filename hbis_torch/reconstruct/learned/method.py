@@ -70,7 +70,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     else:
         image = classical_sr(frames, positions, stack.h, cutoff=optics_cutoff(stack.system),
                              fill_factor=stack_fill_factor(stack)).numpy()
-    return runner(image, stack_noise_params(stack, frames))
+    return runner(image, stack_noise_params(stack, frames), optics_cutoff(stack.system))
 
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,

@@ -257,7 +257,7 @@ class LearnedSR:
 
             return run_tiled(infer, base, noise, self.h, self.tile, self.halo)
 
-    def __call__(self, image, noise_params: tuple[float, float]) -> np.ndarray:
+    def __call__(self, image, noise_params: tuple[float, float], cutoff: float | None = None) -> np.ndarray:
         """Refine a classical image (hH, hW) in [0, 1] of frames of noise variance ``a x + b``.
 
         Parameters
@@ -266,12 +266,16 @@ class LearnedSR:
             The classical reconstruction (:func:`hbis_torch.reconstruct.classical.reconstruct_classical`).
         noise_params : (float, float)
             (a, b) (:func:`noise_params_from_meta`, :func:`estimate_noise_params`).
+        cutoff : float, optional
+            The lens's diffraction cutoff in cycles per LR pixel
+            (:func:`hbis_torch.reconstruct.classical.optics_cutoff`); the correction is limited
+            to it (:func:`~hbis_torch.reconstruct.learned.inputs.band_limit`).
 
         Returns
         -------
         ndarray, shape (hH, hW), float32 in [0, 1]
         """
-        return super_resolve(self.run_network, image, self.h, noise_params, self.path.name)
+        return super_resolve(self.run_network, image, self.h, noise_params, self.path.name, cutoff)
 
 
 def read_model_metadata(path) -> dict:
