@@ -9,7 +9,9 @@ truths. Every measurement runs in a fresh Python process, in turn with the other
 rounds; the tables give medians:
 
 - ``network``: the learned network alone, :meth:`LearnedSR.run_network` on inputs prepared
-  beforehand (onnxruntime, the shipped provider): the floor of the learned method.
+  beforehand (the classical image and the noise map; onnxruntime, the shipped provider). Since
+  the network refines the classical image, the learned method's floor is the classical
+  method's time plus this.
 - ``learned``, ``classical``: end to end, as ``hbis reconstruct --method M`` does it (default
   registration "auto"): read the stack, :func:`hbis_torch.reconstruct.reconstruct`, write the
   TIFF. Timed inside the process from the first read to the written file ("e2e"); the process's
@@ -53,15 +55,15 @@ from hbis_torch.reconstruct.registry import reconstruct
 t_imports = time.perf_counter()
 result = {}
 if mode == "network":
-    from hbis_torch.reconstruct.learned import LearnedSR, prepare_inputs
-    from hbis_torch.reconstruct.positions import stack_sample_positions
+    from hbis_torch.reconstruct.learned import LearnedSR, network_inputs
+    from hbis_torch.reconstruct.learned.method import stack_noise_params
     stack = read_stack(stack_path)
     runner = LearnedSR(h=stack.h)
-    positions, _ = stack_sample_positions(stack, "optics")
-    frames_reg, offsets = prepare_inputs(stack.to_float().numpy(), positions.numpy(), stack.h)
-    del positions
+    image = reconstruct(stack, method="classical", registration="optics")
+    base, noise = network_inputs(image, stack.h, stack_noise_params(stack))
+    del image
     t0, c0 = time.perf_counter(), time.process_time()
-    runner.run_network(frames_reg, offsets)
+    runner.run_network(base, noise)
     result.update(seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0)
 else:
     import tifffile
