@@ -150,7 +150,7 @@ def run_case(system, h, roi, scene_name, seed, runners, model, repeats, only=MET
     frames = stack.to_float()
     positions, t_pos = timed_once(
         lambda: sample_positions(system, stack.phases_deg, stack.reference_index, stack.roi))
-    frames_np, positions_np = frames.numpy(), positions.numpy()
+    frames_np = frames.numpy()
     ref = frames[stack.reference_index][None, None]
     rows = {}
 

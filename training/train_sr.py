@@ -259,7 +259,8 @@ def train() -> None:
                     best_psnr = val_psnr
                     save_checkpoint(out / "model.pt", val_psnr=val_psnr)
                 save_checkpoint(ckpt_path)
-                atomic_write_text(out / "history.json", json.dumps({"config": config, "git_commit": commit, "history": history}, indent=1))
+                record = {"config": config, "git_commit": commit, "history": history}
+                atomic_write_text(out / "history.json", json.dumps(record, indent=1))
                 plot_history()
                 (bar.write if bar else print)(
                     f"step {step}: val PSNR {val_psnr:.2f} dB (classical {base_psnr:.2f}), "
