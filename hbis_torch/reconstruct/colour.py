@@ -10,7 +10,7 @@ RGB frames (F, H, W, 3) go through a method in one of two ways:
   the time), each at full resolution.
 
 The default (:data:`DEFAULT_MODE`) is ``"channels"``: on three photographs (astronaut, coffee,
-chelsea; h = 4, 64 x 64 px) it scored 0.3 dB (classical) and 1.6 dB (learned) more PSNR than
+chelsea; h = 4, 64 x 64 px) it scored 0.3 dB (classical) and 1.1 dB (learned) more PSNR than
 ``"luma"``, for about twice the time (benchmarks/bench_colour.py, docs/capture.md).
 
 Raw Bayer frames (F, H, W) with a ``cfa`` key: the classical method demosaicks jointly: every
