@@ -25,18 +25,15 @@ one-line message starts with the file name and says what was wrong. Writes are a
 Reading checks what the TIFF headers declare (page count, each page's shape and dtype, where its
 data lies) before decoding anything: at most 256 pages (h = 16), one shape and one dtype, data
 inside the file, and no more than ``HBIS_MAX_STACK_MB`` MiB once decoded (default 1024, an
-environment variable the user can raise). A hostile file is refused in one line, quickly.
+environment variable the user can raise; :mod:`hbis_torch.tiff_io`). A hostile file is refused in
+one line, quickly.
 docs/stack-format.md describes the format for outside tools.
 """
 
 from __future__ import annotations
 
 import json
-import logging
 import math
-import os
-import warnings
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +44,7 @@ from hbis_torch.checks import MAX_H, MAX_PHASE_DEG
 from hbis_torch.config import Camera, FoveaSystem, LensCalibration, Prisms
 from hbis_torch.errors import HbisInputError, StackFormatError
 from hbis_torch.io_utils import atomic_path, load_json
+from hbis_torch.tiff_io import read_tiff, write_tiff
 
 FORMAT = "hbis-stack/1"
 FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
@@ -58,23 +56,6 @@ _TOP_KEYS = ("format", "h", "camera", "prisms", "object_distance_mm", "roi", "ph
 
 #: Most pages a stack file may hold: h x h frames with h <= MAX_H.
 MAX_PAGES = MAX_H * MAX_H
-#: Default of HBIS_MAX_STACK_MB: the most a file may take once decoded, MiB (h = 16 on the whole
-#: 960 x 1280 sensor in uint16 is 600 MiB).
-DEFAULT_MAX_STACK_MB = 1024
-
-
-def max_decoded_bytes() -> int:
-    """The most bytes one file may take once decoded: ``HBIS_MAX_STACK_MB`` MiB (default 1024)."""
-    text = os.environ.get("HBIS_MAX_STACK_MB", "").strip()
-    if not text:
-        return DEFAULT_MAX_STACK_MB * 2**20
-    try:
-        mb = float(text)
-    except ValueError:
-        mb = float("nan")
-    if not (math.isfinite(mb) and 0 < mb <= 2**30):
-        raise HbisInputError(f"HBIS_MAX_STACK_MB must be a positive number of MiB, got {text[:40]!r}")
-    return int(mb * 2**20)
 
 
 def _is_int(value) -> bool:
@@ -398,91 +379,6 @@ class Stack:
         return ((x - black) / (white - black)).clamp_(0.0, 1.0)
 
 
-@contextmanager
-def quiet_tifffile():
-    """Keep tifffile's own log lines and warnings off stderr: the caller reports in one line."""
-    log = logging.getLogger("tifffile")
-    level = log.level
-    log.setLevel(logging.CRITICAL + 1)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            yield
-    finally:
-        log.setLevel(level)
-
-
-def _declared_pages(tif, path: Path, max_pages: int) -> list:
-    """The pages of an open TiffFile, checked from their headers alone (nothing is decoded).
-
-    Refuses more than ``max_pages`` pages, a page whose sample format cannot be read, pages of
-    different shapes or dtypes, data lying beyond the end of the file (a truncated file), and
-    more than :func:`max_decoded_bytes` once decoded.
-    """
-    count = len(tif.pages)  # follows the IFD chain (loops detected) without parsing the pages
-    if count > max_pages:
-        what = "expected one image" if max_pages == 1 else f"a stack holds h x h frames, h <= {MAX_H}"
-        raise StackFormatError(f"{path}: {count} pages, more than {max_pages} ({what})")
-    pages = list(tif.pages)
-    if not pages:
-        raise StackFormatError(f"{path}: the TIFF holds no pages")
-    size, limit, total, sizes = tif.filehandle.size, max_decoded_bytes(), 0, []
-    for i, page in enumerate(pages):
-        shape, dtype = tuple(int(n) for n in page.shape), page.dtype
-        if dtype is None:
-            raise StackFormatError(f"{path}: page {i} has a sample format that cannot be read")
-        if not shape or min(shape) < 1:
-            raise StackFormatError(f"{path}: page {i} is empty (shape {shape})")
-        sizes.append(math.prod(shape) * dtype.itemsize)
-        total += sizes[-1]
-    if total > limit:
-        raise StackFormatError(
-            f"{path}: the pages declare {total / 2**20:.0f} MiB once decoded ({len(pages)} x "
-            f"{tuple(pages[0].shape)} {pages[0].dtype}), over the limit of {limit / 2**20:.0f} MiB "
-            "(raise it with the environment variable HBIS_MAX_STACK_MB)"
-        )
-    for i, (page, nbytes) in enumerate(zip(pages, sizes)):
-        counts = [int(c) for c in page.databytecounts]
-        ends = [int(o) + c for o, c in zip(page.dataoffsets, counts) if c]
-        packed = page.compression == 1 and page.bitspersample == page.dtype.itemsize * 8
-        if not ends or max(ends) > size or (packed and sum(counts) < nbytes):
-            raise StackFormatError(f"{path}: the file is truncated or damaged: page {i}'s data "
-                                   f"is missing or runs past the end of the file ({size} bytes)")
-    shapes = sorted({tuple(p.shape) for p in pages})
-    if len(shapes) != 1:
-        raise StackFormatError(f"{path}: the pages have different shapes {shapes}")
-    dtypes = sorted({str(p.dtype) for p in pages})
-    if len(dtypes) != 1:
-        raise StackFormatError(f"{path}: the pages have different dtypes ({', '.join(dtypes)})")
-    return pages
-
-
-def _read_tiff(path: Path, max_pages: int = MAX_PAGES):
-    import tifffile
-
-    try:
-        with quiet_tifffile(), tifffile.TiffFile(path) as tif:
-            pages = _declared_pages(tif, path, max_pages)
-            description = pages[0].description
-            arrays = [p.asarray() for p in pages]
-    except StackFormatError:
-        raise
-    except FileNotFoundError:
-        raise StackFormatError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise StackFormatError(f"{path}: is a directory, not a TIFF file") from None
-    except MemoryError:
-        raise StackFormatError(f"{path}: not enough memory to decode the file") from None
-    except Exception as exc:  # noqa: BLE001 - tifffile raises many types for corrupt files
-        detail = str(exc).splitlines()[0][:200] if str(exc) else ""
-        raise StackFormatError(f"{path}: not a readable TIFF file ({type(exc).__name__}: {detail})") from None
-    if not (arrays[0].ndim == 2 or (arrays[0].ndim == 3 and arrays[0].shape[-1] == 3)):
-        raise StackFormatError(
-            f"{path}: pages must be grayscale (rows, cols) or RGB (rows, cols, 3), got shape {arrays[0].shape}"
-        )
-    return np.stack(arrays), description
-
-
 def read_stack(path) -> Stack:
     """Read and validate an hbis-stack/1 TIFF.
 
@@ -497,7 +393,7 @@ def read_stack(path) -> Stack:
         One line naming the file and what was wrong with it.
     """
     path = Path(path)
-    frames, description = _read_tiff(path)
+    frames, description = read_tiff(path, MAX_PAGES)
     if not description:
         raise StackFormatError(f"{path}: page 0 has no ImageDescription (the stack's JSON)")
     try:
@@ -511,45 +407,11 @@ def read_stack(path) -> Stack:
     return Stack(frames, meta)
 
 
-def _tiff_write(tmp: Path, array: np.ndarray, description: str, pixel_size_um: float | None = None) -> None:
-    """One ImageDescription (``description``, the file's JSON) and, with ``pixel_size_um``, the
-    pixel size as XResolution/YResolution in pixels per centimetre (ResolutionUnit 3), the TIFF
-    unit that ImageJ/Fiji, napari's tifffile-based readers and GDAL read as the image's scale."""
-    import tifffile
-
-    resolution = {}
-    if pixel_size_um is not None and math.isfinite(pixel_size_um) and pixel_size_um > 0:
-        per_cm = 1e4 / float(pixel_size_um)
-        resolution = {"resolution": (per_cm, per_cm), "resolutionunit": tifffile.RESUNIT.CENTIMETER}
-    tifffile.imwrite(
-        tmp,
-        array,
-        description=description,
-        metadata=None,
-        photometric="rgb" if array.ndim == 4 or (array.ndim == 3 and array.shape[-1] == 3) else "minisblack",
-        bigtiff=array.nbytes > 2**31,
-        **resolution,
-    )
-
-
 def object_pixel_um(system: FoveaSystem, h: int = 1) -> float:
     """Size on the object plane (at the object distance v) of one pixel of an image sampled
     ``h`` times finer than the sensor, in um: ``p * v / f' / h``. The pixel size every hbis TIFF
     records (stack frames: ``h = 1``; ground truths and reconstructions: the stack's ``h``)."""
     return 1e3 * system.object_pixel_mm / int(h)
-
-
-def read_pixel_size_um(path) -> float | None:
-    """The pixel size a TIFF records in its resolution tags, in um (None where it has none)."""
-    import tifffile
-
-    with tifffile.TiffFile(path) as tif:
-        tags = tif.pages[0].tags
-        unit, res = tags.get("ResolutionUnit"), tags.get("XResolution")
-        if unit is None or res is None or int(unit.value) != 3:
-            return None
-        per_cm = res.value[0] / res.value[1]
-    return 1e4 / per_cm if per_cm > 0 else None
 
 
 def write_stack(path, stack: Stack) -> None:
@@ -567,7 +429,7 @@ def write_stack(path, stack: Stack) -> None:
     except HbisInputError:
         pixel_um = None
     with atomic_path(path) as tmp:
-        _tiff_write(tmp, frames, description, pixel_um)
+        write_tiff(tmp, frames, description, pixel_um)
 
 
 def write_image(path, image, meta: dict | None = None, pixel_size_um: float | None = None) -> None:
@@ -589,13 +451,13 @@ def write_image(path, image, meta: dict | None = None, pixel_size_um: float | No
         meta.update(pixel_size_um=float(pixel_size_um), pixel_plane="object")
     description = json.dumps(_jsonable(meta), allow_nan=False)
     with atomic_path(path) as tmp:
-        _tiff_write(tmp, image, description, pixel_size_um)
+        write_tiff(tmp, image, description, pixel_size_um)
 
 
 def read_image(path) -> tuple[np.ndarray, dict]:
     """Read a single-page grayscale TIFF: (image (H, W), its JSON description or {})."""
     path = Path(path)
-    arrays, description = _read_tiff(path, max_pages=1)
+    arrays, description = read_tiff(path, max_pages=1)
     try:
         meta = load_json(description, str(path)) if description else {}
     except HbisInputError:

@@ -9,7 +9,8 @@ import tifffile
 
 from hbis_torch.cli import main
 from hbis_torch.config import FoveaSystem
-from hbis_torch.stack_io import object_pixel_um, read_image, read_pixel_size_um, read_stack
+from hbis_torch.stack_io import object_pixel_um, read_image, read_stack
+from hbis_torch.tiff_io import read_pixel_size_um
 
 
 def _descriptions(path) -> int:

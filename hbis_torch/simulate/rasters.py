@@ -67,7 +67,7 @@ def _check_declared(path, shape, itemsize: int, limit: int) -> None:
 
 def read_image_file(path) -> np.ndarray:
     """An image file (PNG, JPEG, TIFF, ...) as float32 gray in [0, 1]."""
-    from hbis_torch.stack_io import max_decoded_bytes, quiet_tifffile
+    from hbis_torch.tiff_io import max_decoded_bytes, quiet_tifffile
 
     path = Path(path)
     limit = max_decoded_bytes()
