@@ -25,14 +25,30 @@ def _mean_and_spread(frames: Tensor) -> tuple[Tensor, Tensor]:
     return mean, var.sqrt()
 
 
-def noise_sigma(frames: Tensor) -> Tensor:
-    """Robust per-frame noise level (F,), in the frames' units (Immerkaer 1996, median form).
+def immerkaer(frames):
+    """Immerkaer's (1996) 3 x 3 operator [[1, -2, 1], [-2, 4, -2], [1, -2, 1]] at every inner pixel.
 
-    The 3 x 3 operator [[1, -2, 1], [-2, 4, -2], [1, -2, 1]] cancels smooth content; on white
-    noise of level s its output has standard deviation 6 s. The median makes edges count little.
+    It cancels smooth content; on white noise of level s its output has standard deviation 6 s.
+    Written with slices only, so it takes a Tensor or a numpy array alike.
+
+    Parameters
+    ----------
+    frames : Tensor or ndarray, shape (..., H, W)
+
+    Returns
+    -------
+    Tensor or ndarray, shape (..., H - 2, W - 2)
     """
     # The operator is [1, -2, 1] along rows times the same along columns: two second differences.
     d = frames[..., :-2] - 2 * frames[..., 1:-1] + frames[..., 2:]
-    out = (d[..., :-2, :] - 2 * d[..., 1:-1, :] + d[..., 2:, :]).flatten(1)
+    return d[..., :-2, :] - 2 * d[..., 1:-1, :] + d[..., 2:, :]
+
+
+def noise_sigma(frames: Tensor) -> Tensor:
+    """Robust per-frame noise level (F,), in the frames' units (:func:`immerkaer`, median form).
+
+    The median makes edges count little.
+    """
+    out = immerkaer(frames).flatten(1)
     step = max(1, out.shape[1] // 2048)  # a couple of thousand values make a good median
     return 1.4826 * out[:, ::step].abs().median(-1).values / 6.0

@@ -71,8 +71,9 @@ def noise_params_from_meta(meta: dict) -> tuple[float, float] | None:
 def estimate_noise_params(frames) -> tuple[float, float]:
     """Poisson-Gaussian noise parameters (a, b) measured from the frames.
 
-    Immerkaer's operator ([1, -2, 1] x [1, -2, 1], which cancels smooth content; on white noise of
-    level s its output has level 6 s) is taken at every pixel, and the pixels are put in eight
+    Immerkaer's operator (:func:`hbis_torch.registration.noise.immerkaer`, which cancels smooth
+    content; on white noise of level s its output has level 6 s) is taken at every pixel, and the
+    pixels are put in eight
     bins of their local mean; each bin's level is the median absolute output (times 1.4826 / 6),
     and ``s^2 = a x + b`` is fitted to the bins by least squares with a, b >= 0. Texture inflates
     a bin's level a little, so the estimate errs on the noisy side.
@@ -86,13 +87,14 @@ def estimate_noise_params(frames) -> tuple[float, float]:
     -------
     (a, b) : (float, float)
     """
+    from hbis_torch.registration.noise import immerkaer  # (inside: this module stays torch-free)
+
     frames = np.asarray(frames, dtype=np.float32)
     if frames.ndim != 3 or min(frames.shape[1:]) < 3:
         raise HbisInputError(f"frames must have shape (F, H >= 3, W >= 3), got {frames.shape}")
     step = max(1, frames.shape[0] // 4)  # a few frames are plenty
     f = frames[::step]
-    d = f[..., :-2] - 2 * f[..., 1:-1] + f[..., 2:]
-    d = (d[..., :-2, :] - 2 * d[..., 1:-1, :] + d[..., 2:, :]).ravel()
+    d = immerkaer(f).ravel()
     level = f[..., 1:-1, 1:-1].ravel()
     stride = max(1, d.size // 200_000)
     d, level = np.abs(d[::stride]), level[::stride]
