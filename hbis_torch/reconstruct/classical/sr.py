@@ -95,6 +95,9 @@ def classical_sr(
         del den
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
                               cutoff, strength)
+    if not bool(torch.isfinite(image).all()):  # finite samples never should give this: say so
+        raise RuntimeError("the classical reconstruction produced non-finite values; please report "
+                           "the stack that caused it")
     return image.clamp_(0, 1).to(torch.float32)
 
 

@@ -270,7 +270,8 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
     with S_beta(f) = sum_k |K(f+k)|^2 / |f+k|^beta over the aliases k in ``shifts`` ((kx, ky)
     pairs); ``kernel(kx, ky, (rows, cols))`` gives (|K|, W, phase, |f+k|^2) of alias k at
     those entries of the spectrum.
-    In log-spaced frequency rings where the image stands clear of the noise (twice its power),
+    In log-spaced frequency rings where the image stands clear of the noise (twice its power)
+    and the kernel passes the scene (|K|^2 above 1e-4 of its largest ring value),
     log(power - sigma^2) - log S_beta is fitted by a constant (log s^2); the beta of a grid over
     [1.5, 4] (steps of 0.25) with the smallest scatter is kept.
 
@@ -296,7 +297,10 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
     at = [kernel(kx, ky, (pick // half, pick % half)) for kx, ky in shifts]
     k2 = torch.stack([t[0] * t[0] for t in at])  # (aliases, n)
     log_r2 = torch.stack([torch.log(t[3]) for t in at])
-    clear = (count >= 8) & (sub_count >= 1) & (m > 2 * noise2)
+    # Rings the kernel all but closes (beyond the lens's cutoff: only noise and rounding there)
+    # say nothing of the scene: fitted, their near-zero model would blow the level up.
+    passed = torch.bincount(sub_ring, k2.sum(0), minlength=24) / sub_count.clamp_min(1)
+    clear = (count >= 8) & (sub_count >= 1) & (m > 2 * noise2) & (passed > 1e-4 * float(passed.max()))
     betas = torch.arange(1.5, 4.01, 0.25).tolist()
     if int(clear.sum()) < 3:
         # Too few frequencies stand above the noise to fit a slope: a 1/f^2 law through those
