@@ -158,10 +158,15 @@ def main(argv=None) -> int:
         size = args.size if h < 7 else (2 * args.size) // 3
         stack, truth = make_stack(CONDITIONS[c], photo, h, size, seed=1000 + c)
         classical_image = reconstruct(stack, "classical", registration="optics")
-        learned_image = runners[h](classical_image, stack_noise_params(stack), optics_cutoff(stack.system))
+        args_ = (classical_image, stack_noise_params(stack), optics_cutoff(stack.system))
+        notes: list[str] = []
+        learned_image = runners[h](*args_, messages=notes)
         classical, learned = score(classical_image, truth, h), score(learned_image, truth, h)
-        cells.append({"h": h, "condition": CONDITIONS[c].name, "photo": photo, "classical_db": classical,
-                      "learned_db": learned, "delta_db": learned - classical})
+        cell = {"h": h, "condition": CONDITIONS[c].name, "photo": photo, "classical_db": classical,
+                "learned_db": learned, "delta_db": learned - classical, "outside_domain": bool(notes)}
+        if notes:  # what the network would have done there
+            cell["extrapolated_delta_db"] = score(runners[h](*args_, extrapolate=True), truth, h) - classical
+        cells.append(cell)
     print(f"# learned - classical, dB (PSNR vs truth, border {2} LR px); {time.monotonic() - started:.0f} s")
     for h in args.h:
         rows = [x for x in cells if x["h"] == h]
@@ -171,11 +176,17 @@ def main(argv=None) -> int:
         for cond in CONDITIONS:
             row = [x for x in rows if x["condition"] == cond.name]
             deltas = [x["delta_db"] for x in row]
-            print(f"| {cond.name} | " + " | ".join(f"{d:+.2f}" for d in deltas)
+            print(f"| {cond.name} | " + " | ".join(f"{x['delta_db']:+.2f}" + "*" * x["outside_domain"] for x in row)
                   + f" | {np.mean(deltas):+.2f} | {np.mean([x['classical_db'] for x in row]):.2f} |")
         deltas = np.array([x["delta_db"] for x in rows])
         print(f"\nh = {h}: mean {deltas.mean():+.2f} dB, worst cell {deltas.min():+.2f} dB, "
               f"{int((deltas < -0.3).sum())} of {deltas.size} cells below -0.3 dB")
+        outside = [x for x in rows if x["outside_domain"]]
+        if outside:
+            print(f"\n\\* outside the model's training domain: the classical image is returned. The network "
+                  f"run anyway (extrapolate=True) gives there: "
+                  + ", ".join(f"{x['photo']} {x['extrapolated_delta_db']:+.2f}" for x in outside)
+                  + f" (mean {np.mean([x['extrapolated_delta_db'] for x in outside]):+.2f} dB).")
     if args.out is not None:
         atomic_write_text(args.out, json.dumps(cells, indent=1))
     return 0

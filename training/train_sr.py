@@ -36,6 +36,7 @@ import torch.nn.functional as F
 from hbis_torch.io_utils import atomic_path, atomic_write_text
 from hbis_torch.metrics import psnr
 from hbis_torch.run_lock import exit_with_parent, lock_dir, remove_temp_files
+from hbis_torch.reconstruct.learned.domain import training_domain
 from hbis_torch.reconstruct.learned.net import HbisSRNet, count_parameters, depth_to_space
 from hbis_torch.reconstruct.learned.training_data import (POOL_VERSION, build_pool, load_pool, make_batch, save_pool,
                                                         whole_example)
@@ -105,6 +106,7 @@ torch.set_num_threads(threads or max(1, len(os.sched_getaffinity(0)) // world))
 torch.manual_seed(seed)  # same initial weights on every rank (DDP also broadcasts them)
 out = Path(out_dir)
 commit = git_commit()
+domain = training_domain()  # the optics and noise this pool spans: the model's domain
 if master:
     try:
         out_lock = lock_dir(out)  # one run per out_dir; released when this process ends
@@ -184,7 +186,7 @@ def validate() -> tuple[float, float]:
 def save_checkpoint(path: Path, **extra) -> None:
     state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
              "trained_s": trained_s, "history": history, "config": config,
-             "model_config": model.config(), "git_commit": commit, **extra}
+             "model_config": model.config(), "git_commit": commit, "training_domain": domain, **extra}
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
 

@@ -25,6 +25,10 @@ def register(sub) -> None:
     p.add_argument("--provider", choices=("auto", "openvino", "cpu"),
                    help="learned: what runs the model; 'auto' (the default) takes OpenVINO where "
                    "installed (pip install 'hbis-torch[openvino]'; faster), else onnxruntime's CPU kernels")
+    p.add_argument("--extrapolate", action="store_true",
+                   help="learned: run the network on a stack outside its training domain too (a lens "
+                   "blurrier, or noise far lower or higher, than any it was trained on); by default such "
+                   "a stack gets the classical image, with a message")
     p.add_argument("--out", type=Path, required=True, help="output TIFF")
     p.add_argument("--registration", choices=("auto", "optics", "data"), default="auto",
                    help="sample positions from the tracer ('optics'), the tracer corrected by "
@@ -59,9 +63,12 @@ def run(args) -> int:
         for name in ("model", "provider"):
             if getattr(args, name) is not None:
                 raise HbisInputError(f"--{name} is only for --method learned; the classical method has no ONNX model")
+        if args.extrapolate:
+            raise HbisInputError("--extrapolate is only for --method learned")
         kw["deblur"] = not args.no_deblur
     else:
         kw.update({name: getattr(args, name) for name in ("model", "provider") if getattr(args, name) is not None})
+        kw["extrapolate"] = args.extrapolate
     from hbis_torch.capture.calibration import calibrate_stack, load_calibration
 
     calibration = load_calibration(args.dark, args.flat, args.bad_pixels)

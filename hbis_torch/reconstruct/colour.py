@@ -106,7 +106,7 @@ def _joint_demosaic_classical(stack, registration: str, messages=None, deblur: b
 
 
 def _joint_demosaic_learned(stack, registration: str, messages=None, model=None, threads=None,
-                            provider: str = "auto") -> np.ndarray:
+                            provider: str = "auto", extrapolate: bool = False) -> np.ndarray:
     """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
     refined by the network, with the noise of the sensor model or of one colour's sub-lattice."""
     from hbis_torch.reconstruct.classical.transfer import optics_cutoff
@@ -120,7 +120,12 @@ def _joint_demosaic_learned(stack, registration: str, messages=None, model=None,
     if noise is None:  # one colour's pixels: a plain image of one sensor's noise, no mosaic in it
         noise = estimate_noise_params(stack.to_float().numpy()[:, 0::2, 0::2])
     cutoff = optics_cutoff(stack.system)
-    return np.stack([runner(np.ascontiguousarray(planes[..., c]), noise, cutoff) for c in range(3)], axis=-1)
+    notes: list[str] = []
+    out = np.stack([runner(np.ascontiguousarray(planes[..., c]), noise, cutoff, messages=notes,
+                           extrapolate=extrapolate) for c in range(3)], axis=-1)
+    if messages is not None:
+        messages.extend(dict.fromkeys(notes))  # the same line for each plane: once
+    return out
 
 
 def reconstruct_colour(stack, method: str, registration: str = "auto", colour: str | None = None,

@@ -7,7 +7,8 @@ file), with the exporter's depth-to-space replaced by one ``DepthToSpace`` node
 carrying what a user of the model needs: ``format``, ``h``, ``frames`` (= h^2),
 ``normalisation``, ``training_commit`` (git HEAD when the checkpoint was trained),
 ``export_commit``, ``opset``, ``parameters``, ``model_config``, ``val_psnr_db``,
-``training_steps``, ``training_config`` (JSON) and ``graph_rewrites``.
+``training_steps``, ``training_config`` (JSON), ``training_domain`` (JSON: the optics and noise the
+training spanned, :mod:`hbis_torch.reconstruct.learned.domain`) and ``graph_rewrites``.
 
 :func:`check_parity` compares the raw network outputs of torch and onnxruntime on random inputs
 at a size other than the export size (:data:`CHECK_SIZE`); :data:`TOLERANCE` is the largest
@@ -33,6 +34,7 @@ from hbis_torch.reconstruct.learned import (
     available_providers,
     count_parameters,
 )
+from hbis_torch.reconstruct.learned.domain import training_domain
 from hbis_torch.reconstruct.learned.onnx_rewrite import fuse_depth_to_space
 
 OPSET = 18
@@ -101,8 +103,9 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     """Export ``model`` to ``out_path`` (written atomically); returns the metadata written.
 
     ``info`` is the training checkpoint (or any dict) with ``git_commit``, ``val_psnr``,
-    ``step`` and ``config``; missing entries are recorded as unknown. ``rewrite``: replace the
-    exporter's reshape/transpose depth-to-space with ONNX DepthToSpace
+    ``step``, ``config`` and ``training_domain``; missing entries are recorded as unknown (the
+    domain as the current pipeline's, :func:`~hbis_torch.reconstruct.learned.domain.training_domain`).
+    ``rewrite``: replace the exporter's reshape/transpose depth-to-space with ONNX DepthToSpace
     (:func:`hbis_torch.reconstruct.learned.onnx_rewrite.fuse_depth_to_space`; same outputs,
     faster in onnxruntime).
 
@@ -149,6 +152,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
         "val_psnr_db": f"{float(info.get('val_psnr', float('nan'))):.3f}",
         "training_steps": str(info.get("step", "unknown")),
         "training_config": json.dumps(info.get("config", {})),
+        "training_domain": json.dumps(info.get("training_domain") or training_domain()),
         "graph_rewrites": f"DepthToSpace x{fused}",
     }
     del proto.metadata_props[:]
@@ -170,8 +174,8 @@ def training_info(ckpt: dict) -> dict:
     Returns
     -------
     dict
-        ``git_commit``, ``val_psnr`` (dB), ``step`` and ``config`` where known (a training
-        checkpoint is returned as it is).
+        ``git_commit``, ``val_psnr`` (dB), ``step``, ``config`` and ``training_domain`` where
+        known (a training checkpoint is returned as it is).
     """
     if "metadata" not in ckpt:
         return ckpt
@@ -179,7 +183,8 @@ def training_info(ckpt: dict) -> dict:
     return {"git_commit": meta.get("training_commit", "unknown"),
             "val_psnr": float(meta.get("val_psnr_db", "nan")),
             "step": meta.get("training_steps", "unknown"),
-            "config": json.loads(meta.get("training_config", "{}"))}
+            "config": json.loads(meta.get("training_config", "{}")),
+            "training_domain": json.loads(meta.get("training_domain", "null"))}
 
 
 def export(checkpoint, out_path, opset: int = OPSET) -> dict:

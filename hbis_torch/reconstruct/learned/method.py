@@ -29,7 +29,7 @@ def stack_noise_params(stack, frames=None) -> tuple[float, float]:
 
 def learned_sr(stack, model=None, positions=None, threads: int | None = None,
                registration: str = "optics", messages: list | None = None,
-               provider: str = "auto") -> np.ndarray:
+               provider: str = "auto", extrapolate: bool = False) -> np.ndarray:
     """Super-resolve a stack: the classical image, refined by an ONNX model in onnxruntime.
 
     The learned method takes every stack the classical method takes (any reference frame, any
@@ -52,9 +52,13 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         :func:`hbis_torch.reconstruct.reconstruct` and ``hbis reconstruct`` default to ``"auto"``
         (:mod:`hbis_torch.reconstruct.positions`).
     messages : list, optional
-        Receives the registration's warnings.
+        Receives the registration's warnings, and the line saying so when the stack lies outside
+        the model's training domain (:mod:`hbis_torch.reconstruct.learned.domain`).
     provider : {"auto", "openvino", "cpu"}
         onnxruntime execution provider (:func:`execution_providers`).
+    extrapolate : bool
+        Run the network on a stack outside its training domain too (by default such a stack gets
+        the classical image).
 
     Returns
     -------
@@ -70,15 +74,16 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     else:
         image = classical_sr(frames, positions, stack.h, cutoff=optics_cutoff(stack.system),
                              fill_factor=stack_fill_factor(stack)).numpy()
-    return runner(image, stack_noise_params(stack, frames), optics_cutoff(stack.system))
+    return runner(image, stack_noise_params(stack, frames), optics_cutoff(stack.system), messages=messages,
+                  extrapolate=extrapolate)
 
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
-                        threads: int | None = None, provider: str = "auto") -> np.ndarray:
+                        threads: int | None = None, provider: str = "auto", extrapolate: bool = False) -> np.ndarray:
     """The ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS` (``hbis reconstruct``).
 
     Unlike :func:`learned_sr`, the registration defaults to ``"auto"``, as for every method of
     :func:`hbis_torch.reconstruct.reconstruct`.
     """
     return learned_sr(stack, model=model, threads=threads, registration=registration, messages=messages,
-                      provider=provider)
+                      provider=provider, extrapolate=extrapolate)

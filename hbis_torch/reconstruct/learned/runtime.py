@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain
 from hbis_torch.reconstruct.learned.inputs import TILE_HALO, run_tiled, super_resolve
 
 MODEL_FORMAT = "hbis-sr-onnx/2"
@@ -232,6 +233,7 @@ class LearnedSR:
         if h is not None and int(h) != self.h:
             raise HbisInputError(f"model {path.name} is for h = {self.h}, the stack has h = {h}")
         self.path = path
+        self.domain = domain_from_metadata(self.metadata)
         self.tile = int(tile)
         # Receptive field radius: head + 2 per residual block + tail (+ 1).
         config = json.loads(self.metadata.get("model_config", "{}"))
@@ -257,8 +259,13 @@ class LearnedSR:
 
             return run_tiled(infer, base, noise, self.h, self.tile, self.halo)
 
-    def __call__(self, image, noise_params: tuple[float, float], cutoff: float | None = None) -> np.ndarray:
+    def __call__(self, image, noise_params: tuple[float, float], cutoff: float | None = None, *,
+                 messages: list | None = None, extrapolate: bool = False) -> np.ndarray:
         """Refine a classical image (hH, hW) in [0, 1] of frames of noise variance ``a x + b``.
+
+        A stack outside the model's training domain (:mod:`hbis_torch.reconstruct.learned.domain`)
+        gets the classical image back, and ``messages`` a line saying why, unless
+        ``extrapolate``.
 
         Parameters
         ----------
@@ -270,11 +277,21 @@ class LearnedSR:
             The lens's diffraction cutoff in cycles per LR pixel
             (:func:`hbis_torch.reconstruct.classical.optics_cutoff`); the correction is limited
             to it (:func:`~hbis_torch.reconstruct.learned.inputs.band_limit`).
+        messages : list, optional
+            Receives the line about a stack outside the training domain.
+        extrapolate : bool
+            Run the network outside its training domain too.
 
         Returns
         -------
         ndarray, shape (hH, hW), float32 in [0, 1]
         """
+        reason = outside_domain(self.domain, noise_params, cutoff)
+        if reason is not None and not extrapolate:
+            if messages is not None:
+                messages.append(f"{reason}: the learned method returns the classical image "
+                                "(--extrapolate runs the network anyway)")
+            return np.clip(np.asarray(image, dtype=np.float32), 0.0, 1.0)
         return super_resolve(self.run_network, image, self.h, noise_params, self.path.name, cutoff)
 
 
