@@ -253,11 +253,14 @@ def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
     """
     base, noise = network_inputs(image, h, noise_params)
     out = run_network(base, noise)
+    del base, noise  # a full frame's worth each: not held through what follows
     # A model is a function of float32 inputs in [0, 1]; anything non-finite here is a bug
     # in the model file, not in the stack.
     if not np.isfinite(out).all():
         raise HbisInputError(f"model {name} produced non-finite values")
     if cutoff is not None and cutoff < h / np.sqrt(2.0):
         image = np.asarray(image, dtype=np.float32)
-        out = image + band_limit(out - image, h, cutoff)
+        out -= image  # the correction, in place
+        out = band_limit(out, h, cutoff)
+        out += image
     return np.clip(out, 0.0, 1.0, out=out)

@@ -69,13 +69,15 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     if runner.h != stack.h:
         raise HbisInputError(f"model {runner.path.name} is for h = {runner.h}, the stack has h = {stack.h}")
     frames = stack.to_float()
+    noise_params = stack_noise_params(stack, frames)
     if positions is None:
+        del frames  # the classical method reads its own: a full frame's copy less at its peak
         image = reconstruct_classical(stack, registration, messages=messages)
     else:
         image = classical_sr(frames, positions, stack.h, cutoff=optics_cutoff(stack.system),
                              fill_factor=stack_fill_factor(stack)).numpy()
-    return runner(image, stack_noise_params(stack, frames), optics_cutoff(stack.system), messages=messages,
-                  extrapolate=extrapolate)
+        del frames
+    return runner(image, noise_params, optics_cutoff(stack.system), messages=messages, extrapolate=extrapolate)
 
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
