@@ -1,6 +1,7 @@
 """training/eval_matrix.py: the held-out stacks are what their conditions say."""
 
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -43,3 +44,17 @@ def test_the_unseen_forward_models_change_frames_and_truth_as_documented(em):
     gain = em.vignetting(np.array([0.0, 11.5]), np.array([0.0, 11.5]), 24, 24)
     assert gain[0] == pytest.approx(0.7) and gain[1] == pytest.approx(1.0)
     assert vignetted.frames.dtype == sharp.frames.dtype and truth.shape == (48, 48)
+
+
+def test_cells_outside_the_training_domain_report_both_the_method_and_the_network(em, tmp_path, capsys):
+    out = tmp_path / "cells.json"
+    assert em.main(["--h", "2", "--photos", "camera", "--size", "24", "--out", str(out)]) == 0
+    cells = {c["condition"]: c for c in json.loads(out.read_text())}
+    outside = cells[condition(em, "outside ranges").name]
+    inside = cells[condition(em, "reference frame 0").name]
+    assert outside["outside_domain"] and outside["delta_db"] == 0.0  # the classical image, returned
+    assert outside["extrapolated_delta_db"] != 0.0  # what the network would have given
+    assert not inside["outside_domain"] and "extrapolated_delta_db" not in inside
+    printed = capsys.readouterr().out
+    assert "+0.00*" in printed and "extrapolate=True" in printed
+    assert em.main(["--h", "2", "--out", str(out)]) == 2  # never overwrites a result
