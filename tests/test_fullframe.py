@@ -10,11 +10,13 @@ import pytest
 import torch
 
 from hbis_torch.config import FoveaSystem
+from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
 from hbis_torch.optics import sensor_position
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, wiener_deblur
+from hbis_torch.reconstruct.classical import sr as classical_sr_module
 from hbis_torch.reconstruct.classical.splat import _blur_at, _gaussian_blur, fill_holes
-from hbis_torch.reconstruct.positions import stack_sample_positions
+from hbis_torch.reconstruct.positions import stack_sample_nodes, stack_sample_positions
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate.cases import make_stack
 from hbis_torch.simulate.geometry import interpolate_positions, landing_at, node_positions
@@ -64,6 +66,24 @@ def test_classical_output_with_node_positions_matches_the_exact_positions(stack_
                            cutoff=cutoff).numpy() for exact in (False, True)]
     assert abs(psnr(images[0], truth) - psnr(images[1], truth)) < 0.05
     assert np.abs(images[0] - images[1]).max() < 1e-3
+
+
+def test_classical_from_nodes_matches_classical_from_every_position(stack_and_truth, monkeypatch):
+    """Positions interpolated from the nodes a batch of frames at a time (never the whole
+    stack's) give the image the whole stack's positions give, bit for bit."""
+    stack, _ = stack_and_truth
+    monkeypatch.setattr(classical_sr_module, "BATCH_SAMPLES", 3 * 96 * 80)  # 3 frames a batch
+    frames = stack.to_float()
+    nodes, ok_nodes = stack_sample_nodes(stack, "auto")
+    positions, ok = stack_sample_positions(stack, "auto")
+    assert torch.equal(ok_nodes, ok)
+    cutoff = optics_cutoff(SYSTEM)
+    whole = classical_sr(frames, positions, stack.h, cutoff=cutoff)
+    batched = classical_sr(frames, nodes, stack.h, cutoff=cutoff)
+    assert torch.equal(whole, batched)
+    wrong = nodes._replace(values=nodes.values[:-1])
+    with pytest.raises(HbisInputError, match="positions must have shape"):
+        classical_sr(frames, wrong, stack.h)
 
 
 def test_wiener_in_float32_matches_float64():

@@ -16,7 +16,9 @@
    starting from the optics' prediction P_k (a homography fitted to the traced positions); the
    data's correction C_k = H_k P_k^-1 is applied to the traced per-pixel positions, which keeps
    the optics' non-homographic part. (With ``exact=False`` the correction is applied on the
-   nodes, before the one interpolation to every pixel: C_k is smooth too.)
+   nodes, before the one interpolation to every pixel: C_k is smooth too.
+   :func:`stack_sample_nodes` stops at the nodes, for callers that interpolate a few frames at
+   a time: the classical method, whose full-frame stacks' positions would take a gigabyte.)
 3. *Untrusted frames* (those the registration cannot trust) keep their optical positions, and
    :func:`stack_sample_positions` says which frames those are (``trusted``). What to do with
    them is each method's own policy:
@@ -141,7 +143,10 @@ def stack_sample_positions(stack, registration: str = "auto", *, exact: bool = F
     """
     check_registration(registration)
     if not exact:
-        return _node_sample_positions(stack, registration, frames, messages)
+        from hbis_torch.simulate.geometry import interpolate_positions
+
+        nodes, trusted = stack_sample_nodes(stack, registration, frames=frames, messages=messages)
+        return interpolate_positions(nodes), trusted
     positions = optical_positions(stack, exact)
     count = positions.shape[0]
     if registration == "optics" or count == 1:
@@ -167,20 +172,36 @@ def _registration_correction(stack, frames, predicted: Tensor, messages) -> tupl
     return reg.homographies @ torch.linalg.inv(predicted), reg.ok
 
 
-def _node_sample_positions(stack, registration: str, frames, messages) -> tuple[Tensor, Tensor]:
-    """:func:`stack_sample_positions` with ``exact=False``: everything on the spline nodes, one
-    interpolation to every pixel at the end.
+def stack_sample_nodes(stack, registration: str = "auto", *, frames: Tensor | None = None,
+                       messages: list | None = None):
+    """:func:`stack_sample_positions` (``exact=False``) on the spline nodes only: every pixel's
+    position is ``interpolate_positions(nodes)``, which a caller may evaluate a few frames at a
+    time (``nodes._replace(values=nodes.values[part])``) instead of holding the whole stack's
+    (16 bytes a sample: about 1 GB for a full frame at h = 7).
 
     The optics' prediction is fitted to the same pixels as with ``exact=True``
     (:func:`~hbis_torch.registration.fit_grid`, evaluated from the nodes), so the registration
     starts from the same homographies; its correction is then applied to the nodes.
+
+    Parameters
+    ----------
+    stack, registration, frames, messages
+        As :func:`stack_sample_positions`'s.
+
+    Returns
+    -------
+    nodes : hbis_torch.simulate.geometry.NodePositions
+        ``values`` (F, n_v, n_u, 2), float64: (u, v) in the reference frame's ROI-local LR
+        pixel coordinates of the samples at the nodes, corrected where trusted.
+    trusted : Tensor, shape (F,), bool
     """
     from hbis_torch.simulate.geometry import interpolate_positions, node_positions
 
+    check_registration(registration)
     nodes = node_positions(stack.system, stack.phases_deg, stack.reference_index, stack.roi)
     count = nodes.values.shape[0]
     if registration == "optics" or count == 1:
-        return interpolate_positions(nodes), torch.ones(count, dtype=torch.bool)
+        return nodes, torch.ones(count, dtype=torch.bool)
     from hbis_torch.registration import (
         apply_homography,
         fit_grid,
@@ -194,4 +215,4 @@ def _node_sample_positions(stack, registration: str, frames, messages) -> tuple[
     values = nodes.values
     corrected = apply_homography(correction, values.reshape(count, -1, 2)).reshape(values.shape)
     values = torch.where(ok[:, None, None, None], corrected, values)
-    return interpolate_positions(nodes._replace(values=values)), ok
+    return nodes._replace(values=values), ok

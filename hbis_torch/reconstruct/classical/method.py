@@ -10,7 +10,7 @@ from torch import Tensor
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical.sr import classical_sr
 from hbis_torch.reconstruct.classical.transfer import optics_cutoff
-from hbis_torch.reconstruct.positions import check_registration, stack_sample_positions
+from hbis_torch.reconstruct.positions import check_registration, stack_sample_nodes
 
 
 def _stack_frames(stack) -> Tensor:
@@ -38,7 +38,8 @@ def reconstruct_classical(stack, registration: str = "auto", *, deblur: bool = T
     """Classical super-resolution of a stack (see :func:`hbis_torch.reconstruct.reconstruct`).
 
     The samples' positions follow the layer's policy
-    (:func:`~hbis_torch.reconstruct.positions.stack_sample_positions`, node splines);
+    (:func:`~hbis_torch.reconstruct.positions.stack_sample_positions`, node splines, evaluated a
+    few frames at a time: :func:`~hbis_torch.reconstruct.positions.stack_sample_nodes`);
     with ``registration="data"`` the frames the registration could not trust get weight 0 (left
     out, with a message), with ``"auto"`` they are used at their optical positions.
 
@@ -61,8 +62,7 @@ def reconstruct_classical(stack, registration: str = "auto", *, deblur: bool = T
     """
     check_registration(registration)
     frames = _stack_frames(stack)
-    positions, trusted = stack_sample_positions(stack, registration, frames=frames,
-                                                messages=messages)
+    positions, trusted = stack_sample_nodes(stack, registration, frames=frames, messages=messages)
     weights = None
     if registration == "data" and frames.shape[0] > 1:
         weights = trusted.to(torch.float64)

@@ -20,6 +20,7 @@ from hbis_torch.reconstruct.classical.splat import (
     splat_on_lattice,
 )
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
+from hbis_torch.simulate.geometry import NodePositions, interpolate_positions
 
 # Samples per batch in lattice_image: its temporaries (some 100 bytes a sample) stay near 200 MB
 # whatever the stack's size.
@@ -45,10 +46,12 @@ def classical_sr(
     ----------
     frames : Tensor or array, shape (F, H, W)
         Intensities in [0, 1].
-    positions : Tensor or array, shape (F, H, W, 2)
+    positions : Tensor or array, shape (F, H, W, 2), or NodePositions
         Position (u, v) of every sample in the reference frame's LR pixel coordinates
         (ROI-local), for example from
-        :func:`~hbis_torch.reconstruct.positions.stack_sample_positions`.
+        :func:`~hbis_torch.reconstruct.positions.stack_sample_positions`; or the spline nodes
+        they are interpolated from (:func:`~hbis_torch.reconstruct.positions.stack_sample_nodes`,
+        values (F, n_v, n_u, 2)), then interpolated a batch of frames at a time, never held whole.
     h : int
         Resolution improvement factor: the output is (h*H, h*W).
     deblur : bool
@@ -108,22 +111,27 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
     Returns
     -------
     frames : Tensor, shape (F, H, W), float64 (float32 if given as a float32 tensor)
-    positions : Tensor, shape (F, H, W, 2), float64
+    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions (as given, checked)
     weights : Tensor, shape (F, H, W), float64, or None
         Per-frame weights expanded to every sample.
     """
-    frames_in = frames
-    frames = as_float64_tensor(frames, "frames")
-    if isinstance(frames_in, Tensor) and frames_in.dtype == torch.float32:
-        frames = frames_in  # checked; float32 samples are exact enough, and half the memory
-    positions = as_float64_tensor(positions, "positions")
+    if isinstance(frames, Tensor) and frames.dtype == torch.float32:
+        # float32 samples are exact enough, and half the memory: checked, not copied
+        if not bool(torch.isfinite(frames).all()):
+            raise HbisInputError("frames contain non-finite values (NaN or inf)")
+    else:
+        frames = as_float64_tensor(frames, "frames")
     if frames.ndim != 3 or min(frames.shape) < 1:
         raise HbisInputError(f"frames must have shape (F, H, W), got {tuple(frames.shape)}")
     F, H, W = frames.shape
-    if tuple(positions.shape) != (F, H, W, 2):
-        raise HbisInputError(
-            f"positions must have shape {(F, H, W, 2)} to match the frames, got {tuple(positions.shape)}"
-        )
+    if isinstance(positions, NodePositions):
+        shape = (positions.values.shape[0], positions.height, positions.width, 2)
+        as_float64_tensor(positions.values, "positions")
+    else:
+        positions = as_float64_tensor(positions, "positions")
+        shape = tuple(positions.shape)
+    if shape != (F, H, W, 2):
+        raise HbisInputError(f"positions must have shape {(F, H, W, 2)} to match the frames, got {shape}")
     if not 0 < fill_factor <= 1:
         raise HbisInputError(f"fill_factor must lie in (0, 1], got {fill_factor!r}")
     if not 0.2 <= kernel_sigma <= 0.6:
@@ -152,8 +160,9 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     Parameters
     ----------
     frames : Tensor, shape (F, H, W), float64 or float32
-    positions : Tensor, shape (F, H, W, 2), float64
-        ROI-local reference LR coordinates of the samples.
+    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions
+        ROI-local reference LR coordinates of the samples (or the nodes they are interpolated
+        from, a batch of frames at a time).
     h : int
     kernel_sigma : float
     weights : Tensor, shape (F, H, W), optional
@@ -176,8 +185,12 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     slices = [slice(k, k + step) for k in range(0, F, step)]
 
     def coords(part: slice):  # HR lattice coordinates of a batch of frames, and their weights
-        x = (positions[part, ..., 0].reshape(-1) + 0.5) * h - 0.5
-        y = (positions[part, ..., 1].reshape(-1) + 0.5) * h - 0.5
+        if isinstance(positions, NodePositions):
+            where = interpolate_positions(positions._replace(values=positions.values[part]))
+        else:
+            where = positions[part]
+        x = (where[..., 0].reshape(-1) + 0.5) * h - 0.5
+        y = (where[..., 1].reshape(-1) + 0.5) * h - 0.5
         w = None if weights is None else weights[part].reshape(-1)
         return x, y, w
 
