@@ -101,7 +101,7 @@ class NodeSums:
     def __init__(self, shape: tuple[int, int], sigma: float, count: int, dtype=torch.float64):
         rows, cols = shape
         # A one-node frame around the grid keeps what samples just outside give to the border nodes.
-        self.sums = torch.zeros(count, (rows + 2) * (cols + 2), dtype=dtype)
+        self.sums = [torch.zeros((rows + 2) * (cols + 2), dtype=dtype) for _ in range(count)]
         self.shape, self.a = shape, math.exp(-1 / (2 * sigma * sigma))
 
     def nodes(self, xi: Tensor, yi: Tensor, weights: Tensor | None) -> tuple[Tensor, Tensor]:
@@ -110,19 +110,31 @@ class NodeSums:
         rows, cols = self.shape
         near = (xi >= -1) & (xi <= cols) & (yi >= -1) & (yi <= rows)
         idx = ((yi + 1) * (cols + 2) + xi + 1).clamp(0, (rows + 2) * (cols + 2) - 1).long()
-        return idx, near.to(self.sums.dtype) if weights is None else weights * near
+        return idx, near.to(self.sums[0].dtype) if weights is None else weights * near
 
     def add(self, k: int, idx: Tensor, weighted: Tensor) -> None:
         """Add samples' ``weighted`` values (N,) to sum ``k`` at their nodes ``idx``."""
         self.sums[k].index_add_(0, idx, weighted)
 
-    def spread(self, k: int) -> Tensor:
-        """(rows, cols): sum ``k`` spread with the 3 x 3 kernel."""
+    def spread(self, k: int, release: bool = False) -> Tensor:
+        """(rows, cols): sum ``k`` spread with the 3 x 3 kernel; ``release`` frees the sum
+        (a zero sum takes its place)."""
         rows, cols = self.shape
         sums = self.sums[k].view(rows + 2, cols + 2)
+        if release:
+            self.sums[k] = torch.zeros(0, dtype=sums.dtype)
         a = self.a
-        sums = a * (sums[:, :-2] + sums[:, 2:]) + sums[:, 1:-1]
-        return a * (sums[:-2] + sums[2:]) + sums[1:-1]
+        # a (left + right) + centre, then the same along the columns, with one temporary each
+        across = sums[:, :-2] + sums[:, 2:]
+        across.mul_(a).add_(sums[:, 1:-1])
+        del sums
+        out = across[:-2] + across[2:]
+        return out.mul_(a).add_(across[1:-1])
+
+    def clear(self, k: int) -> None:
+        """Sum ``k`` set to zeros again."""
+        rows, cols = self.shape
+        self.sums[k] = torch.zeros((rows + 2) * (cols + 2), dtype=self.sums[k].dtype)
 
 
 def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Tensor, Tensor]:
@@ -140,11 +152,11 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
 
     Returns
     -------
-    numerator, denominator : Tensor, shape (rows, cols)
+    numerator, denominator : Tensor, shape (rows, cols), float32
         As :func:`splat`'s of :func:`snap_to_lattice`'s samples.
     """
     # The sums in float32 (a node gets a few samples; the image is float32 in the end), the
-    # coordinates in float64.
+    # coordinates in float64. At most five (rows, cols) float32 arrays live at once.
     sums = NodeSums(shape, sigma, 2, torch.float32)
     off_node = 0.0
     for values, x, y, weights in batches():
@@ -153,21 +165,21 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
         idx, w = sums.nodes(xn, yn, None if weights is None else weights.to(torch.float32))
         sums.add(1, idx, w)
         sums.add(0, idx, w * values.to(torch.float32))
-    den = sums.spread(1)
+    den = sums.spread(1, release=True)
     if off_node >= 1e-3:
-        pilot = fill_holes(sums.spread(0), den)
-        gradient = torch.stack(torch.gradient(pilot)[::-1])[None]  # (1, 2, rows, cols): d/dx, d/dy
+        pilot = fill_holes(sums.spread(0, release=True), den)
+        gradient = torch.empty((1, 2) + pilot.shape, dtype=pilot.dtype)  # d/dx, d/dy
+        for axis in (0, 1):
+            gradient[0, axis] = torch.gradient(pilot, dim=1 - axis)[0]
         del pilot
-        sums.sums[0].zero_()
+        sums.clear(0)
         for values, x, y, weights in batches():
             xn, yn = torch.round(x), torch.round(y)
             sx, sy = _sample(gradient, x, y)
             idx, w = sums.nodes(xn, yn, None if weights is None else weights.to(torch.float32))
             sums.add(0, idx, w * (values + sx * (xn - x) + sy * (yn - y)).to(torch.float32))
         del gradient
-    num = sums.spread(0).to(torch.float64)
-    del sums
-    return num, den.to(torch.float64)
+    return sums.spread(0, release=True), den
 
 
 def _sample(image: Tensor, x: Tensor, y: Tensor) -> Tensor:
@@ -244,16 +256,24 @@ def _blur_at(img: Tensor, sigma: float, rows: Tensor, cols: Tensor) -> Tensor:
     return torch.einsum("ktu,t,u->k", window, g, g)
 
 
+def typical_weight(den: Tensor) -> float:
+    """The median of the splat weights' sums ``den`` (rows, cols) over the nodes that have any
+    (0 if none has)."""
+    weights = den[den > 0]
+    return float(weights.median()) if weights.numel() else 0.0
+
+
 def fill_holes(num: Tensor, den: Tensor) -> Tensor:
     """num / den, with nodes of little weight taken from the sums blurred wider and wider.
 
     Only the holes' blurred values are used: where there are few of them (a frame's border)
     they are computed at the holes alone (:func:`_blur_at`), else by blurring the whole image.
     """
-    typical = float(den[den > 0].median()) if bool((den > 0).any()) else 0.0
+    typical = typical_weight(den)
     if typical == 0.0:
         raise HbisInputError("no sample falls on the output grid")
-    image = num / den.clamp_min(1e-12)
+    image = den.clamp_min(1e-12)
+    torch.div(num, image, out=image)
     rows, cols = torch.nonzero(den < 0.25 * typical).unbind(1)
     sigma = 1.0
     while len(rows) and sigma <= 64:

@@ -18,6 +18,7 @@ from hbis_torch.reconstruct.classical.splat import (
     offset_from_sums,
     splat,
     splat_on_lattice,
+    typical_weight,
 )
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
 from hbis_torch.simulate.geometry import NodePositions, interpolate_positions
@@ -86,16 +87,17 @@ def classical_sr(
     image, den, offset = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur)
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
-        typical = float(den[den > 0].median())
+        typical = typical_weight(den)
         samples_per_node = typical / max(_peak_weight(kernel_sigma), 1e-12)
-        # The deblurring works in float32 (wiener_deblur): so do the noise's median of second
-        # differences, and the image handed over (half the memory of a full frame's float64).
-        image = image.to(torch.float32)
+        valid = den > 0.5 * typical
+        del den
+        # The deblurring works in float32 (wiener_deblur), as does the lattice image: so does
+        # the noise's median of second differences.
         if noise is None:
-            node_noise = lattice_noise(image, kernel_sigma, den > 0.5 * typical)
+            node_noise = lattice_noise(image, kernel_sigma, valid)
         else:
             node_noise = noise / math.sqrt(max(samples_per_node, 1.0))
-        del den
+        del valid
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
                               cutoff, strength)
     if not bool(torch.isfinite(image).all()):  # finite samples never should give this: say so
@@ -175,7 +177,8 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     Returns
     -------
     image, den : Tensor, shape (h*H, h*W)
-        The interpolated image and the splat weights' sum at each node.
+        The interpolated image and the splat weights' sum at each node: float32 on the lattice
+        (``on_lattice``), else float64.
     offset : (float, float)
         Where the nodes sit relative to the output pixels, HR px.
     """
@@ -241,18 +244,24 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
     taps = torch.tensor([1.0, -2.0, 1.0], dtype=image.dtype)
     smoothed = torch.nn.functional.conv1d(taps.view(1, 1, 3), torch.tensor([[[a, 1.0, a]]], dtype=image.dtype), padding=2)
     gain_1d = float(smoothed.norm()) / (1 + 2 * a)
-    # The operator is [1, -2, 1] along rows times the same along columns: two second differences.
-    d = image[:, :-2] - 2 * image[:, 1:-1] + image[:, 2:]
-    out = d[:-2] - 2 * d[1:-1] + d[2:]
+    # The operator is [1, -2, 1] along rows times the same along columns: two second differences
+    # (each (a - 2 b) + c, written in place: two image-sized temporaries at most).
+    d = image[:, 1:-1] * -2
+    d += image[:, :-2]
+    d += image[:, 2:]
+    out = d[1:-1] * -2
+    out += d[:-2]
+    out += d[2:]
+    del d
+    out.abs_()
     if valid is not None:
-        inner = valid[1:-1, 1:-1]
+        inner = valid[1:-1, 1:-1].clone()
         for dy in (-1, 0, 1):  # all nine nodes of the operator must have samples
             for dx in (-1, 0, 1):
-                inner = inner & valid[1 + dy:valid.shape[0] - 1 + dy, 1 + dx:valid.shape[1] - 1 + dx]
-        out = out[inner]
-    if out.numel() < 16:  # too few complete neighbourhoods: use every node
-        out = d[:-2] - 2 * d[1:-1] + d[2:]
-    return 1.4826 * float(out.abs().median()) / gain_1d ** 2
+                inner &= valid[1 + dy:valid.shape[0] - 1 + dy, 1 + dx:valid.shape[1] - 1 + dx]
+        if int(inner.sum()) >= 16:  # else too few complete neighbourhoods: use every node
+            out = out[inner]
+    return 1.4826 * float(out.median()) / gain_1d ** 2
 
 
 def _peak_weight(sigma: float) -> float:
