@@ -107,13 +107,15 @@ def homographies_from_grid(positions, rows, cols, H: int, W: int) -> Tensor:
         raise HbisInputError("positions contain non-finite values")
     F = positions.shape[0]
     vv, uu = torch.meshgrid(torch.as_tensor(rows).double(), torch.as_tensor(cols).double(), indexing="ij")
-    src = torch.stack((uu, vv), -1).reshape(1, -1, 2).expand(F, -1, -1)
-    dst = positions.reshape(F, -1, 2)
     # Condition the DLT: centre and scale both point sets the same way.
-    norm = _normaliser(H, W, torch.float64).expand(F, 3, 3)
-    h_n = kornia.geometry.homography.find_homography_dlt(
-        apply_homography(norm, src), apply_homography(norm, dst)
-    )
+    norm = _normaliser(H, W, torch.float64)
+    src = apply_homography(norm, torch.stack((uu, vv), -1).reshape(-1, 2))[None]  # (1, N, 2)
+    # One frame per DLT: its system (2N, 9) is a few tens of MB where a full frame's stack of
+    # them would take gigabytes; each frame's fit is independent.
+    h_n = torch.cat([
+        kornia.geometry.homography.find_homography_dlt(src, apply_homography(norm, frame.reshape(1, -1, 2)))
+        for frame in positions
+    ])
     out = torch.linalg.inv(norm) @ h_n @ norm
     return out / out[:, 2:3, 2:3]
 
