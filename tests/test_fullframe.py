@@ -14,6 +14,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
 from hbis_torch.optics import sensor_position
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, wiener_deblur
+from hbis_torch.reconstruct.classical import shift_image
 from hbis_torch.reconstruct.classical import sr as classical_sr_module
 from hbis_torch.reconstruct.classical.splat import _blur_at, _gaussian_blur, fill_holes
 from hbis_torch.reconstruct.positions import stack_sample_nodes, stack_sample_positions
@@ -122,3 +123,20 @@ def test_holes_filled_from_local_blurs_match_whole_image_blurs():
     assert torch.equal(filled[1:, :-1], img[1:, :-1])
     assert float((filled[0, 1:-1] - img[1, 1:-1]).abs().max()) < 1.0
     assert bool(torch.isfinite(filled).all())
+
+
+def test_shift_image_is_grid_samples_bicubic():
+    """The two 4-tap filters give grid_sample's bicubic (reflected borders) at every node,
+    small images included, without its (rows, cols, 2) grid."""
+    gen = torch.Generator().manual_seed(11)
+    for shape in ((50, 61), (7, 9), (3, 3), (2, 5), (1, 4)):
+        image = torch.rand(shape, generator=gen, dtype=torch.float64)
+        rows, cols = shape
+        for offset in ((0.5, 0.5), (0.2, -0.35), (-0.5, 0.0), (0.0, 0.25)):
+            v = (torch.arange(rows, dtype=torch.float64) - offset[1]) * (2 / max(rows - 1, 1)) - 1
+            u = (torch.arange(cols, dtype=torch.float64) - offset[0]) * (2 / max(cols - 1, 1)) - 1
+            grid = torch.stack(torch.meshgrid(v, u, indexing="ij")[::-1], -1)[None]
+            expected = torch.nn.functional.grid_sample(image[None, None], grid, mode="bicubic",
+                                                       padding_mode="reflection", align_corners=True)[0, 0]
+            assert float((shift_image(image, offset) - expected).abs().max()) < 1e-12
+    assert shift_image(image, (0.0, 0.0)) is image

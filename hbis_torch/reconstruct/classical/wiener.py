@@ -18,6 +18,14 @@ from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, spla
 # ~1e-3 px) dominate, and a sharper filter would amplify them near the aperture's zeros.
 NOISE_FLOOR = 2e-3
 
+# Rows of the half spectrum handled at a time where the filter and the prior's fit need
+# temporaries per frequency: they then stay a few MB whatever the image's size.
+BLOCK_ROWS = 256
+
+
+def _row_blocks(rows: int) -> list[slice]:
+    return [slice(r, min(r + BLOCK_ROWS, rows)) for r in range(0, rows, BLOCK_ROWS)]
+
 
 def wiener_deblur(
     image: Tensor,
@@ -88,7 +96,9 @@ def wiener_deblur(
     fx = torch.fft.rfftfreq(shape[1], dtype=torch.float64)[None, :]
     spectrum = torch.fft.rfft2(p)
     del p
-    spectrum /= (splat_transfer(fx, kernel_sigma) * splat_transfer(fy, kernel_sigma)).to(dtype)
+    blocks = _row_blocks(shape[0])
+    for block in blocks:
+        spectrum[block] /= (splat_transfer(fx, kernel_sigma) * splat_transfer(fy[block], kernel_sigma)).to(dtype)
 
     if h == 1:  # nothing to deblur: only the splat's smoothing is undone
         return (torch.fft.irfft2(spectrum, s=shape) + shift_image(smooth, offset)).to(image.dtype)
@@ -99,7 +109,14 @@ def wiener_deblur(
     kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2)
     s2, beta = fit_spectrum(spectrum, fx, fy, kernel, shifts, noise2)
     model = _Model(fx[0].to(dtype), fy[:, 0].to(dtype), h, aperture, cutoff, offset, eps2)
-    spectrum *= _mmse_filter(spectrum, shape, model, shifts, s2, beta, noise2, strength)
+    # the image's power, |Z|^2 / n averaged over 3 x 3 frequencies (the filter's prior needs
+    # each block's neighbours as they were before filtering)
+    measured = spectrum.abs().square_().div_(shape[0] * shape[1])
+    measured = torch.nn.functional.avg_pool2d(measured[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
+    for block in blocks:
+        spectrum[block] *= _mmse_filter(measured[block], model._replace(fy=model.fy[block]), shifts, s2,
+                                        beta, noise2, strength)
+    del measured
     out = torch.fft.irfft2(spectrum, s=shape)
     del spectrum
     out += shift_image(smooth, offset)
@@ -174,18 +191,18 @@ class _Model(NamedTuple):
         return px, py
 
 
-def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], model: _Model, shifts, s2: float, beta: float,
+def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float,
                  noise2: float, strength: float) -> Tensor:
-    """The MMSE filter of :func:`wiener_deblur` at every frequency of the half spectrum.
+    """The MMSE filter of :func:`wiener_deblur` at the frequencies of (rows of) the half spectrum.
 
     Parameters
     ----------
-    spectrum : Tensor, shape (rows, cols // 2 + 1), complex
-        rfft2 of the periodic part, the splat's transfer divided out.
-    shape : (rows, cols)
-        Shape of the image the spectrum is of.
+    measured : Tensor, shape (rows, cols // 2 + 1), real
+        The image's power at those frequencies: |Z|^2 / (number of pixels) of the periodic
+        part's rfft2 Z (the splat's transfer divided out), averaged over 3 x 3 frequencies.
     model : _Model
-        The image model on the spectrum's frequencies (its dtype is the filter's).
+        The image model on those frequencies, ``fy`` (rows,), ``fx`` (cols // 2 + 1,) (its
+        dtype is the filter's).
     shifts : list of (kx, ky)
         The aliases, (0, 0) included.
     s2, beta : float
@@ -197,16 +214,16 @@ def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], model: _Model, shifts
 
     Returns
     -------
-    Tensor, shape of ``spectrum``, complex
+    Tensor, shape of ``measured``, complex
     """
     # Alias k's lattice phase is the unaliased one times the constant exp(-2 pi i k . offset),
     # so the numerator is phase(f) sum_k c_k P W |K|: two real sums. The aliases one at a time,
     # each only where the optics passes it; the unaliased term last, since its prior depends on
     # the others' sum.
     dtype = model.fx.dtype
-    cross_re = torch.zeros(spectrum.shape, dtype=dtype)
-    cross_im = torch.zeros(spectrum.shape, dtype=dtype)
-    power = torch.zeros(spectrum.shape, dtype=dtype)
+    cross_re = torch.zeros(measured.shape, dtype=dtype)
+    cross_im = torch.zeros(measured.shape, dtype=dtype)
+    power = torch.zeros(measured.shape, dtype=dtype)
     for kx, ky in shifts:
         if (kx, ky) == (0, 0):
             continue
@@ -225,14 +242,12 @@ def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], model: _Model, shifts
     # Where the image holds more power than the power law explains (a grating, a texture), the
     # prior of the unaliased frequency is raised to what is measured (power smoothed over 3 x 3
     # frequencies, less the noise and the aliases' share), as long as the aperture passes it.
-    every_row, every_col = torch.arange(spectrum.shape[0]), torch.arange(spectrum.shape[1])
+    every_row, every_col = torch.arange(measured.shape[0]), torch.arange(measured.shape[1])
     prior, k0, w0 = model.terms(0, 0, every_row, every_col, s2, beta)
-    measured = torch.nn.functional.avg_pool2d(
-        (spectrum.abs().square_() / (shape[0] * shape[1]))[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
     seen = k0 * k0
-    empirical = measured.sub_(noise2).sub_(power).clamp_min_(0).div_(seen.clamp_min(1e-12))
+    empirical = measured.sub(noise2).sub_(power).clamp_min_(0).div_(seen.clamp_min(1e-12))
     prior = torch.where(seen > 0.05, torch.maximum(prior, empirical), prior)
-    del measured, empirical
+    del empirical
     prior *= k0
     power += prior * k0
     cross_re += prior.mul_(w0)
@@ -252,15 +267,40 @@ def _mmse_filter(spectrum: Tensor, shape: tuple[int, int], model: _Model, shifts
 def shift_image(image: Tensor, offset: tuple[float, float]) -> Tensor:
     """A smooth image whose node j sits at coordinate j + offset, resampled at the integer
     coordinates (that is, at nodes j - offset): bicubic, borders mirrored. Used for the smooth
-    part of the periodic + smooth split, which varies slowly, so a cubic needs no prefilter."""
-    if offset == (0.0, 0.0):
-        return image
-    rows, cols = image.shape
-    v = (torch.arange(rows, dtype=image.dtype) - offset[1]) * (2 / max(rows - 1, 1)) - 1
-    u = (torch.arange(cols, dtype=image.dtype) - offset[0]) * (2 / max(cols - 1, 1)) - 1
-    grid = torch.stack(torch.meshgrid(v, u, indexing="ij")[::-1], -1)[None]
-    return torch.nn.functional.grid_sample(image[None, None], grid, mode="bicubic",
-                                           padding_mode="reflection", align_corners=True)[0, 0]
+    part of the periodic + smooth split, which varies slowly, so a cubic needs no prefilter.
+
+    The interpolation is ``grid_sample``'s (bicubic, A = -0.75, reflection about the border
+    nodes, align_corners=True); the offset being the same for every node, it is applied as two
+    4-tap filters, one per axis, without a (rows, cols, 2) grid (a full frame's 0.5 GB).
+    Shapes (rows, cols)."""
+    out = image
+    for dim, shift in ((1, offset[0]), (0, offset[1])):
+        if shift:
+            out = _cubic_shift(out, float(shift), dim)
+    return out
+
+
+def _cubic_shift(image: Tensor, shift: float, dim: int) -> Tensor:
+    """``image`` resampled at j - ``shift`` along ``dim``: the bicubic (Keys, A = -0.75) of
+    ``torch.nn.functional.grid_sample``, its taps reflected about the first and last nodes."""
+    n = image.shape[dim]
+    start = math.floor(-shift)
+    t, A = -shift - start, -0.75
+    weights = (((A * (t + 1) - 5 * A) * (t + 1) + 8 * A) * (t + 1) - 4 * A,
+               ((A + 2) * t - (A + 3)) * t * t + 1,
+               ((A + 2) * (1 - t) - (A + 3)) * (1 - t) * (1 - t) + 1,
+               ((A * (2 - t) - 5 * A) * (2 - t) + 8 * A) * (2 - t) - 4 * A)
+    out = None
+    for k, w in enumerate(weights):
+        taps = torch.arange(n) + (start - 1 + k)
+        if n > 1:  # reflect about 0 and n - 1 (period 2 (n - 1))
+            taps = taps.remainder(2 * (n - 1))
+            taps = torch.where(taps > n - 1, 2 * (n - 1) - taps, taps)
+        else:
+            taps = torch.zeros_like(taps)
+        term = image.index_select(dim, taps).mul_(w)
+        out = term if out is None else out.add_(term)
+    return out
 
 
 def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: float) -> tuple[float, float]:
@@ -281,18 +321,27 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
     """
     rows, half = spectrum.shape
     cols = 2 * (half - 1) if half > 1 else 1
-    measured = (spectrum.abs().double() ** 2 / (rows * cols)).reshape(-1)
-    rad = torch.sqrt(fx * fx + fy * fy).expand(spectrum.shape).reshape(-1)
-    edges = torch.logspace(math.log10(1.5 / max(rows, cols)), math.log10(0.71), 25, dtype=rad.dtype)
-    ring = torch.bucketize(rad, edges) - 1  # -1 and 24: outside the rings
-    inside = (ring >= 0) & (ring < 24)
-    count = torch.bincount(ring[inside], minlength=24)
-    m = torch.bincount(ring[inside], measured[inside], minlength=24) / count.clamp_min(1)
+    edges = torch.logspace(math.log10(1.5 / max(rows, cols)), math.log10(0.71), 25, dtype=fx.dtype)
+
+    def ring_of(fx: Tensor, fy: Tensor) -> Tensor:  # ring index; -1 and 24: outside the rings
+        return torch.bucketize(torch.sqrt(fx * fx + fy * fy), edges) - 1
+
+    # The rings' mean power, a block of rows at a time (float64 temporaries of a few MB).
+    count = torch.zeros(24, dtype=torch.int64)
+    total = torch.zeros(24, dtype=torch.float64)
+    for block in _row_blocks(rows):
+        ring = ring_of(fx, fy[block]).reshape(-1)
+        inside = (ring >= 0) & (ring < 24)
+        measured = (spectrum[block].abs().double() ** 2 / (rows * cols)).reshape(-1)
+        count += torch.bincount(ring[inside], minlength=24)
+        total += torch.bincount(ring[inside], measured[inside], minlength=24)
+    m = total / count.clamp_min(1)
     # The model's shape is smooth in frequency: evaluate it on a subsample (about 16k points).
-    stride = max(1, rad.numel() // 16384)
-    pick = torch.arange(0, rad.numel(), stride)
-    pick = pick[inside[pick]]
-    sub_ring = ring[pick]
+    stride = max(1, rows * half // 16384)
+    pick = torch.arange(0, rows * half, stride)
+    ring = ring_of(fx[0, pick % half], fy[pick // half, 0])
+    inside = (ring >= 0) & (ring < 24)
+    pick, sub_ring = pick[inside], ring[inside]
     sub_count = torch.bincount(sub_ring, minlength=24)
     at = [kernel(kx, ky, (pick // half, pick % half)) for kx, ky in shifts]
     k2 = torch.stack([t[0] * t[0] for t in at])  # (aliases, n)
@@ -339,13 +388,14 @@ def periodic_smooth(image: Tensor) -> tuple[Tensor, Tensor]:
     v[-1, :] += image[0, :] - image[-1, :]
     v[:, 0] += image[:, -1] - image[:, 0]
     v[:, -1] += image[:, 0] - image[:, -1]
+    S = torch.fft.rfft2(v)  # v is real: half the spectrum
+    del v
     q = torch.arange(M, dtype=image.dtype)[:, None]
-    r = torch.arange(N // 2 + 1, dtype=image.dtype)[None, :]  # v is real: half the spectrum
+    r = torch.arange(N // 2 + 1, dtype=image.dtype)[None, :]
     den = 2 * torch.cos(2 * math.pi * q / M) + 2 * torch.cos(2 * math.pi * r / N) - 4
     den[0, 0] = 1.0
-    S = torch.fft.rfft2(v)
-    del v
     S /= den
+    del den
     S[0, 0] = 0
     s = torch.fft.irfft2(S, s=(M, N))
     return image - s, s
