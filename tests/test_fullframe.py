@@ -16,7 +16,7 @@ from hbis_torch.optics import sensor_position
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, wiener_deblur
 from hbis_torch.reconstruct.classical import shift_image
 from hbis_torch.reconstruct.classical import sr as classical_sr_module
-from hbis_torch.reconstruct.classical.splat import _blur_at, _gaussian_blur, fill_holes
+from hbis_torch.reconstruct.classical.splat import _blur_at, _gaussian_blur, fill_holes, gradient_into
 from hbis_torch.reconstruct.positions import stack_sample_nodes, stack_sample_positions
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate.cases import make_stack
@@ -70,18 +70,21 @@ def test_classical_output_with_node_positions_matches_the_exact_positions(stack_
 
 
 def test_classical_from_nodes_matches_classical_from_every_position(stack_and_truth, monkeypatch):
-    """Positions interpolated from the nodes a batch of frames at a time (never the whole
-    stack's) give the image the whole stack's positions give, bit for bit."""
+    """Positions interpolated from the nodes a batch at a time (never the whole stack's) give
+    the image the whole stack's positions give: in batches of 3 frames, bit for bit; in batches
+    of 30 rows of a frame (as full frames are), to float32 rounding."""
     stack, _ = stack_and_truth
-    monkeypatch.setattr(classical_sr_module, "BATCH_SAMPLES", 3 * 96 * 80)  # 3 frames a batch
     frames = stack.to_float()
     nodes, ok_nodes = stack_sample_nodes(stack, "auto")
     positions, ok = stack_sample_positions(stack, "auto")
     assert torch.equal(ok_nodes, ok)
     cutoff = optics_cutoff(SYSTEM)
     whole = classical_sr(frames, positions, stack.h, cutoff=cutoff)
-    batched = classical_sr(frames, nodes, stack.h, cutoff=cutoff)
-    assert torch.equal(whole, batched)
+    monkeypatch.setattr(classical_sr_module, "BATCH_SAMPLES", 3 * 96 * 80)
+    assert torch.equal(whole, classical_sr(frames, nodes, stack.h, cutoff=cutoff))
+    monkeypatch.setattr(classical_sr_module, "BATCH_SAMPLES", 30 * 96)
+    assert float((whole - classical_sr(frames, nodes, stack.h, cutoff=cutoff)).abs().max()) < 1e-5
+    assert float((whole - classical_sr(frames, positions, stack.h, cutoff=cutoff)).abs().max()) < 1e-5
     wrong = nodes._replace(values=nodes.values[:-1])
     with pytest.raises(HbisInputError, match="positions must have shape"):
         classical_sr(frames, wrong, stack.h)
@@ -140,3 +143,16 @@ def test_shift_image_is_grid_samples_bicubic():
                                                        padding_mode="reflection", align_corners=True)[0, 0]
             assert float((shift_image(image, offset) - expected).abs().max()) < 1e-12
     assert shift_image(image, (0.0, 0.0)) is image
+    base = torch.rand(shape, generator=gen, dtype=torch.float64)
+    total = shift_image(image, (0.2, -0.35), add_to=base.clone())
+    assert float((total - base - shift_image(image, (0.2, -0.35))).abs().max()) < 1e-12
+
+
+def test_gradient_into_is_torch_gradient():
+    gen = torch.Generator().manual_seed(2)
+    for shape in ((2, 7), (3, 2), (40, 33)):
+        for dtype in (torch.float32, torch.float64):
+            image = torch.rand(shape, generator=gen, dtype=dtype)
+            for dim in (0, 1):
+                out = torch.full(shape, float("nan"), dtype=dtype)
+                assert torch.equal(gradient_into(image, dim, out), torch.gradient(image, dim=dim)[0])

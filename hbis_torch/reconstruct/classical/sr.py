@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -17,15 +18,16 @@ from hbis_torch.reconstruct.classical.splat import (
     fill_holes,
     offset_from_sums,
     splat,
+    lower_median,
     splat_on_lattice,
     typical_weight,
 )
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
 from hbis_torch.simulate.geometry import NodePositions, interpolate_positions
 
-# Samples per batch in lattice_image: its temporaries (some 100 bytes a sample) stay near 200 MB
-# whatever the stack's size.
-BATCH_SAMPLES = 1 << 21
+# Samples per batch in lattice_image (whole frames, or rows of one frame where a frame has more):
+# its temporaries (some 150 bytes a sample) stay near 150 MB whatever the stack's size.
+BATCH_SAMPLES = 1 << 20
 
 
 def classical_sr(
@@ -185,11 +187,13 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     F, H, W = frames.shape
     shape = (h * H, h * W)
     step = max(1, BATCH_SAMPLES // (H * W))  # frames per batch
-    slices = [slice(k, k + step) for k in range(0, F, step)]
+    rows = min(H, max(1, BATCH_SAMPLES // W))  # rows per batch: all, unless a frame is too large
+    slices = [(slice(k, k + step), slice(r, r + rows)) for k in range(0, F, step) for r in range(0, H, rows)]
 
-    def coords(part: slice):  # HR lattice coordinates of a batch of frames, and their weights
+    def coords(part):  # HR lattice coordinates of a batch (frames, rows), and their weights
         if isinstance(positions, NodePositions):
-            where = interpolate_positions(positions._replace(values=positions.values[part]))
+            where = interpolate_positions(positions._replace(values=positions.values[part[0]]),
+                                          rows=np.arange(H)[part[1]])
         else:
             where = positions[part]
         x = (where[..., 0].reshape(-1) + 0.5) * h - 0.5
@@ -213,7 +217,7 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
             yield frames[part].reshape(-1).to(torch.float64), x.sub_(offset[0]), y.sub_(offset[1]), w
 
     if on_lattice:
-        # snap_to_lattice, then splat: the same sums, in batches of frames
+        # snap_to_lattice, then splat: the same sums, in batches of frames (or of rows)
         num, den = splat_on_lattice(batches, shape, kernel_sigma)
     else:
         num = den = 0
@@ -260,7 +264,7 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
             for dx in (-1, 0, 1):
                 inner &= valid[1 + dy:valid.shape[0] - 1 + dy, 1 + dx:valid.shape[1] - 1 + dx]
         if int(inner.sum()) >= 16:  # else too few complete neighbourhoods: use every node
-            out = out[inner]
+            return 1.4826 * lower_median(out, inner) / gain_1d ** 2
     return 1.4826 * float(out.median()) / gain_1d ** 2
 
 

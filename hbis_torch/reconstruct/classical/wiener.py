@@ -101,7 +101,7 @@ def wiener_deblur(
         spectrum[block] /= (splat_transfer(fx, kernel_sigma) * splat_transfer(fy[block], kernel_sigma)).to(dtype)
 
     if h == 1:  # nothing to deblur: only the splat's smoothing is undone
-        return (torch.fft.irfft2(spectrum, s=shape) + shift_image(smooth, offset)).to(image.dtype)
+        return shift_image(smooth, offset, add_to=torch.fft.irfft2(spectrum, s=shape)).to(image.dtype)
     eps2 = (0.5 / max(shape)) ** 2  # keeps the prior finite at f = 0
     shifts = [(kx, ky) for ky in range(-aliases, aliases + 1) for kx in range(-aliases, aliases + 1)]
     noise2 = max(noise, NOISE_FLOOR) ** 2
@@ -119,7 +119,7 @@ def wiener_deblur(
     del measured
     out = torch.fft.irfft2(spectrum, s=shape)
     del spectrum
-    out += shift_image(smooth, offset)
+    shift_image(smooth, offset, add_to=out)
     return out.to(image.dtype)
 
 
@@ -264,7 +264,7 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
     return filt
 
 
-def shift_image(image: Tensor, offset: tuple[float, float]) -> Tensor:
+def shift_image(image: Tensor, offset: tuple[float, float], add_to: Tensor | None = None) -> Tensor:
     """A smooth image whose node j sits at coordinate j + offset, resampled at the integer
     coordinates (that is, at nodes j - offset): bicubic, borders mirrored. Used for the smooth
     part of the periodic + smooth split, which varies slowly, so a cubic needs no prefilter.
@@ -272,17 +272,20 @@ def shift_image(image: Tensor, offset: tuple[float, float]) -> Tensor:
     The interpolation is ``grid_sample``'s (bicubic, A = -0.75, reflection about the border
     nodes, align_corners=True); the offset being the same for every node, it is applied as two
     4-tap filters, one per axis, without a (rows, cols, 2) grid (a full frame's 0.5 GB).
-    Shapes (rows, cols)."""
-    out = image
-    for dim, shift in ((1, offset[0]), (0, offset[1])):
-        if shift:
-            out = _cubic_shift(out, float(shift), dim)
-    return out
+    Shapes (rows, cols); with ``add_to`` the result is added to it in place (and returned).
+    """
+    axes = [(dim, float(shift)) for dim, shift in ((1, offset[0]), (0, offset[1])) if shift]
+    if not axes:
+        return image if add_to is None else add_to.add_(image)
+    for dim, shift in axes:
+        image = _cubic_shift(image, shift, dim, add_to if dim == axes[-1][0] else None)
+    return image
 
 
-def _cubic_shift(image: Tensor, shift: float, dim: int) -> Tensor:
-    """``image`` resampled at j - ``shift`` along ``dim``: the bicubic (Keys, A = -0.75) of
-    ``torch.nn.functional.grid_sample``, its taps reflected about the first and last nodes."""
+def _cubic_shift(image: Tensor, shift: float, dim: int, add_to: Tensor | None = None) -> Tensor:
+    """``image`` resampled at j - ``shift`` along ``dim`` (added to ``add_to`` if given): the
+    bicubic (Keys, A = -0.75) of ``torch.nn.functional.grid_sample``, its taps reflected about
+    the first and last nodes."""
     n = image.shape[dim]
     start = math.floor(-shift)
     t, A = -shift - start, -0.75
@@ -290,16 +293,16 @@ def _cubic_shift(image: Tensor, shift: float, dim: int) -> Tensor:
                ((A + 2) * t - (A + 3)) * t * t + 1,
                ((A + 2) * (1 - t) - (A + 3)) * (1 - t) * (1 - t) + 1,
                ((A * (2 - t) - 5 * A) * (2 - t) + 8 * A) * (2 - t) - 4 * A)
-    out = None
+    out = torch.zeros_like(image) if add_to is None else add_to
+    tap = torch.empty_like(image)
     for k, w in enumerate(weights):
-        taps = torch.arange(n) + (start - 1 + k)
+        index = torch.arange(n) + (start - 1 + k)
         if n > 1:  # reflect about 0 and n - 1 (period 2 (n - 1))
-            taps = taps.remainder(2 * (n - 1))
-            taps = torch.where(taps > n - 1, 2 * (n - 1) - taps, taps)
+            index = index.remainder(2 * (n - 1))
+            index = torch.where(index > n - 1, 2 * (n - 1) - index, index)
         else:
-            taps = torch.zeros_like(taps)
-        term = image.index_select(dim, taps).mul_(w)
-        out = term if out is None else out.add_(term)
+            index = torch.zeros_like(index)
+        out.add_(torch.index_select(image, dim, index, out=tap), alpha=w)
     return out
 
 
