@@ -156,3 +156,14 @@ def test_gradient_into_is_torch_gradient():
             for dim in (0, 1):
                 out = torch.full(shape, float("nan"), dtype=dtype)
                 assert torch.equal(gradient_into(image, dim, out), torch.gradient(image, dim=dim)[0])
+
+
+def test_wiener_overwrite_gives_the_same_image_and_leaves_the_input_alone_by_default():
+    gen = torch.Generator().manual_seed(4)
+    image = torch.nn.functional.avg_pool2d(torch.rand(1, 1, 64, 72, generator=gen), 3, 1, 1)[0, 0]
+    kw = {"h": 4, "offset": (0.5, 0.5), "kernel_sigma": 0.45, "noise": 0.01, "cutoff": optics_cutoff(SYSTEM)}
+    before = image.clone()
+    kept = wiener_deblur(image, **kw)
+    assert torch.equal(image, before)
+    reused = wiener_deblur(image, overwrite=True, **kw)
+    assert torch.equal(kept, reused) and reused.data_ptr() == image.data_ptr()

@@ -101,7 +101,7 @@ def classical_sr(
             node_noise = noise / math.sqrt(max(samples_per_node, 1.0))
         del valid
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
-                              cutoff, strength)
+                              cutoff, strength, overwrite=True)
     if not bool(torch.isfinite(image).all()):  # finite samples never should give this: say so
         raise RuntimeError("the classical reconstruction produced non-finite values; please report "
                            "the stack that caused it")

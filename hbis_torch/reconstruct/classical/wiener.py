@@ -38,6 +38,7 @@ def wiener_deblur(
     strength: float = 1.0,
     aliases: int = 1,
     dtype=torch.float32,
+    overwrite: bool = False,
 ) -> Tensor:
     """Wiener (MMSE linear) estimate of the p/h sensor's image from the interpolated one.
 
@@ -81,6 +82,9 @@ def wiener_deblur(
         Precision of the FFTs and the filter (float32: the output differs from float64's by
         about 1e-6, far below the noise floor; tests/test_fullframe.py checks it). The prior's
         fit is always float64.
+    overwrite : bool
+        ``image``'s memory may be reused (for the periodic part, then the result, which is then
+        ``image`` itself if it is of ``dtype``); its content is lost. Saves an image-sized array.
 
     Returns
     -------
@@ -90,18 +94,20 @@ def wiener_deblur(
     # at the frequencies the pixel aperture nearly erases. Deblur only the periodic part and
     # add the smooth rest back (Moisan 2011).
     work = image.to(dtype)
-    p, smooth = periodic_smooth(work)
+    own = overwrite or work.data_ptr() != image.data_ptr()  # work's memory may be reused
+    p, smooth = periodic_smooth(work, in_place=own)
+    del work
     shape = p.shape
     fy = torch.fft.fftfreq(shape[0], dtype=torch.float64)[:, None]
     fx = torch.fft.rfftfreq(shape[1], dtype=torch.float64)[None, :]
     spectrum = torch.fft.rfft2(p)
-    del p
+    p = p if own else None  # kept for the result, or freed
     blocks = _row_blocks(shape[0])
     for block in blocks:
         spectrum[block] /= (splat_transfer(fx, kernel_sigma) * splat_transfer(fy[block], kernel_sigma)).to(dtype)
 
     if h == 1:  # nothing to deblur: only the splat's smoothing is undone
-        return shift_image(smooth, offset, add_to=torch.fft.irfft2(spectrum, s=shape)).to(image.dtype)
+        return shift_image(smooth, offset, add_to=torch.fft.irfft2(spectrum, s=shape, out=p)).to(image.dtype)
     eps2 = (0.5 / max(shape)) ** 2  # keeps the prior finite at f = 0
     shifts = [(kx, ky) for ky in range(-aliases, aliases + 1) for kx in range(-aliases, aliases + 1)]
     noise2 = max(noise, NOISE_FLOOR) ** 2
@@ -117,7 +123,7 @@ def wiener_deblur(
         spectrum[block] *= _mmse_filter(measured[block], model._replace(fy=model.fy[block]), shifts, s2,
                                         beta, noise2, strength)
     del measured
-    out = torch.fft.irfft2(spectrum, s=shape)
+    out = torch.fft.irfft2(spectrum, s=shape, out=p)
     del spectrum
     shift_image(smooth, offset, add_to=out)
     return out.to(image.dtype)
@@ -271,39 +277,39 @@ def shift_image(image: Tensor, offset: tuple[float, float], add_to: Tensor | Non
 
     The interpolation is ``grid_sample``'s (bicubic, A = -0.75, reflection about the border
     nodes, align_corners=True); the offset being the same for every node, it is applied as two
-    4-tap filters, one per axis, without a (rows, cols, 2) grid (a full frame's 0.5 GB).
-    Shapes (rows, cols); with ``add_to`` the result is added to it in place (and returned).
+    4-tap filters, one per axis, a block of rows at a time (no (rows, cols, 2) grid: a full
+    frame's 0.5 GB). Shapes (rows, cols); with ``add_to`` the result is added to it in place
+    (and returned).
     """
-    axes = [(dim, float(shift)) for dim, shift in ((1, offset[0]), (0, offset[1])) if shift]
-    if not axes:
+    if offset == (0.0, 0.0):
         return image if add_to is None else add_to.add_(image)
-    for dim, shift in axes:
-        image = _cubic_shift(image, shift, dim, add_to if dim == axes[-1][0] else None)
-    return image
+    rows, cols = image.shape
+    out = torch.zeros_like(image) if add_to is None else add_to
+    wx, ix = _cubic_taps(float(offset[0]), cols)
+    wy, iy = _cubic_taps(float(offset[1]), rows)
+    for r0 in range(0, rows, BLOCK_ROWS):
+        r1 = min(r0 + BLOCK_ROWS, rows)
+        part = image.index_select(0, iy[r0:r1 + 3]).index_select(1, ix)  # (r1 - r0 + 3, cols + 3)
+        across = sum(w * part[:, k:k + cols] for k, w in enumerate(wx))
+        out[r0:r1] += sum(w * across[k:k + r1 - r0] for k, w in enumerate(wy))
+    return out
 
 
-def _cubic_shift(image: Tensor, shift: float, dim: int, add_to: Tensor | None = None) -> Tensor:
-    """``image`` resampled at j - ``shift`` along ``dim`` (added to ``add_to`` if given): the
-    bicubic (Keys, A = -0.75) of ``torch.nn.functional.grid_sample``, its taps reflected about
-    the first and last nodes."""
-    n = image.shape[dim]
+def _cubic_taps(shift: float, n: int) -> tuple[list[float], Tensor]:
+    """The bicubic (Keys, A = -0.75, as ``grid_sample``'s) that resamples n nodes at j - ``shift``:
+    its 4 weights, and the indices (n + 3,) whose entries j .. j + 3 are node j's taps, reflected
+    about the first and last nodes."""
     start = math.floor(-shift)
     t, A = -shift - start, -0.75
-    weights = (((A * (t + 1) - 5 * A) * (t + 1) + 8 * A) * (t + 1) - 4 * A,
+    weights = [(((A * (t + 1) - 5 * A) * (t + 1) + 8 * A) * (t + 1) - 4 * A),
                ((A + 2) * t - (A + 3)) * t * t + 1,
                ((A + 2) * (1 - t) - (A + 3)) * (1 - t) * (1 - t) + 1,
-               ((A * (2 - t) - 5 * A) * (2 - t) + 8 * A) * (2 - t) - 4 * A)
-    out = torch.zeros_like(image) if add_to is None else add_to
-    tap = torch.empty_like(image)
-    for k, w in enumerate(weights):
-        index = torch.arange(n) + (start - 1 + k)
-        if n > 1:  # reflect about 0 and n - 1 (period 2 (n - 1))
-            index = index.remainder(2 * (n - 1))
-            index = torch.where(index > n - 1, 2 * (n - 1) - index, index)
-        else:
-            index = torch.zeros_like(index)
-        out.add_(torch.index_select(image, dim, index, out=tap), alpha=w)
-    return out
+               ((A * (2 - t) - 5 * A) * (2 - t) + 8 * A) * (2 - t) - 4 * A]
+    index = torch.arange(n + 3) + (start - 1)
+    if n == 1:
+        return weights, torch.zeros_like(index)
+    index = index.remainder(2 * (n - 1))  # reflect about 0 and n - 1 (period 2 (n - 1))
+    return weights, torch.where(index > n - 1, 2 * (n - 1) - index, index)
 
 
 def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: float) -> tuple[float, float]:
@@ -379,11 +385,12 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
     return best[1], best[2]
 
 
-def periodic_smooth(image: Tensor) -> tuple[Tensor, Tensor]:
+def periodic_smooth(image: Tensor, in_place: bool = False) -> tuple[Tensor, Tensor]:
     """Periodic plus smooth decomposition (Moisan, J. Math. Imaging Vis. 39, 2011).
 
     image = p + s with p periodic (no jump between opposite borders) and s smooth (its
-    Laplacian vanishes inside; it carries the border jumps). Shapes (rows, cols).
+    Laplacian vanishes inside; it carries the border jumps). Shapes (rows, cols); ``in_place``
+    writes p over ``image``.
     """
     M, N = image.shape
     v = torch.zeros_like(image)
@@ -401,4 +408,4 @@ def periodic_smooth(image: Tensor) -> tuple[Tensor, Tensor]:
     del den
     S[0, 0] = 0
     s = torch.fft.irfft2(S, s=(M, N))
-    return image - s, s
+    return (image.sub_(s) if in_place else image - s), s
