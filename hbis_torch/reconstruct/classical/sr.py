@@ -196,8 +196,8 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
                                           rows=np.arange(H)[part[1]])
         else:
             where = positions[part]
-        x = (where[..., 0].reshape(-1) + 0.5) * h - 0.5
-        y = (where[..., 1].reshape(-1) + 0.5) * h - 0.5
+        x = (where[..., 0].reshape(-1) + 0.5).mul_(h).sub_(0.5)
+        y = (where[..., 1].reshape(-1) + 0.5).mul_(h).sub_(0.5)
         w = None if weights is None else weights[part].reshape(-1)
         return x, y, w
 
