@@ -111,11 +111,11 @@ def _joint_demosaic_learned(stack, registration: str, messages=None, model=None,
     refined by the network, with the noise of the sensor model or of one colour's sub-lattice."""
     from hbis_torch.reconstruct.classical.transfer import optics_cutoff
     from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params, noise_params_from_meta
+    from hbis_torch.reconstruct.learned.runtime import check_model
 
-    runner = LearnedSR(model=model, h=None if model is not None else stack.h, threads=threads, provider=provider)
-    if runner.h != stack.h:
-        raise HbisInputError(f"model {runner.path.name} is for h = {runner.h}, the stack has h = {stack.h}")
+    path, _ = check_model(model, stack.h)
     planes = _joint_demosaic_classical(stack, registration, messages=messages)
+    runner = LearnedSR(model=path, threads=threads, provider=provider)
     noise = noise_params_from_meta(stack.meta)
     if noise is None:  # one colour's pixels: a plain image of one sensor's noise, no mosaic in it
         noise = estimate_noise_params(stack.to_float().numpy()[:, 0::2, 0::2])

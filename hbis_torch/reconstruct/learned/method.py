@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, reconstruct_classical, stack_fill_factor
 from hbis_torch.reconstruct.learned.inputs import estimate_noise_params, noise_params_from_meta
-from hbis_torch.reconstruct.learned.runtime import LearnedSR
+from hbis_torch.reconstruct.learned.runtime import LearnedSR, check_model
 
 
 def stack_noise_params(stack, frames=None) -> tuple[float, float]:
@@ -64,10 +63,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     -------
     ndarray, shape (h H, h W), float32 in [0, 1]
     """
-    runner = LearnedSR(model=model, h=None if model is not None else stack.h, threads=threads,
-                       provider=provider)
-    if runner.h != stack.h:
-        raise HbisInputError(f"model {runner.path.name} is for h = {runner.h}, the stack has h = {stack.h}")
+    path, _ = check_model(model, stack.h)  # before any work; the session opens after the classical step
     frames = stack.to_float()
     noise_params = stack_noise_params(stack, frames)
     if positions is None:
@@ -77,6 +73,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         image = classical_sr(frames, positions, stack.h, cutoff=optics_cutoff(stack.system),
                              fill_factor=stack_fill_factor(stack)).numpy()
         del frames
+    runner = LearnedSR(model=path, threads=threads, provider=provider)
     return runner(image, noise_params, optics_cutoff(stack.system), messages=messages, extrapolate=extrapolate)
 
 

@@ -183,6 +183,47 @@ def _open_session(path: Path, provider: str, threads: int | None):
     return session, "openvino" if session.get_providers()[0] == OPENVINO else "cpu"
 
 
+def check_model(model=None, h: int | None = None) -> tuple[Path, dict]:
+    """A model file and its metadata, checked without starting a session (cheap: callers check
+    before the classical step and open the session after it).
+
+    Parameters
+    ----------
+    model : path, optional
+        The ``.onnx`` file; by default the shipped model for ``h``.
+    h : int, optional
+        The stack's factor: the model must be for it.
+
+    Returns
+    -------
+    path : Path
+    metadata : dict
+        Its ``metadata_props``.
+
+    Raises
+    ------
+    HbisInputError
+        No such file, not an ONNX file, not an hbis SR model, or a model for another h.
+    """
+    if model is None:
+        if h is None:
+            raise HbisInputError("give a model file or the factor h of a shipped model")
+        model = default_model_path(h)
+    path = Path(model)
+    if not path.is_file():
+        raise HbisInputError(f"model file not found: {path}")
+    try:
+        metadata = read_model_metadata(path)
+    except Exception as exc:  # onnx raises protobuf's own types for corrupt files
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise HbisInputError(f"cannot load ONNX model {path}: {reason}") from None
+    if metadata.get("format") != MODEL_FORMAT:
+        raise HbisInputError(f"{path} is not an hbis SR model (metadata format != {MODEL_FORMAT})")
+    if h is not None and int(h) != int(metadata["h"]):
+        raise HbisInputError(f"model {path.name} is for h = {metadata['h']}, the stack has h = {h}")
+    return path, metadata
+
+
 class LearnedSR:
     """An exported SR model in an onnxruntime session.
 
@@ -210,28 +251,14 @@ class LearnedSR:
 
     def __init__(self, model=None, h: int | None = None, threads: int | None = None, tile: int = 256,
                  provider: str = "auto"):
-        if model is None:
-            if h is None:
-                raise HbisInputError("give a model file or the factor h of a shipped model")
-            model = default_model_path(h)
-        path = Path(model)
-        if not path.is_file():
-            raise HbisInputError(f"model file not found: {path}")
+        path, self.metadata = check_model(model, h)
         if len(onnxruntime_distributions()) > 1:
             warnings.warn("both onnxruntime and onnxruntime-openvino are installed; they write the same "
                           "onnxruntime module over each other. Keep one: pip uninstall -y onnxruntime "
                           "onnxruntime-openvino, then pip install onnxruntime (and, for OpenVINO, "
                           "pip install 'hbis-torch[openvino]')", RuntimeWarning, stacklevel=2)
         self.session, self.provider = _open_session(path, provider, threads)
-        if isinstance(self.session, _OpenVINOSession):
-            self.metadata = read_model_metadata(path)
-        else:
-            self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
-        if self.metadata.get("format") != MODEL_FORMAT:
-            raise HbisInputError(f"{path} is not an hbis SR model (metadata format != {MODEL_FORMAT})")
         self.h = int(self.metadata["h"])
-        if h is not None and int(h) != self.h:
-            raise HbisInputError(f"model {path.name} is for h = {self.h}, the stack has h = {h}")
         self.path = path
         self.domain = domain_from_metadata(self.metadata)
         self.tile = int(tile)
