@@ -124,3 +124,17 @@ def test_band_limit_removes_only_what_lies_beyond_the_lens_cutoff():
     # a lens that passes everything the output grid holds changes nothing
     assert band_limit(correction, h, cutoff=4.9) is correction
     assert band_limit(correction, h, cutoff=None) is correction
+
+
+def test_band_limit_in_float32_bands_matches_a_float64_whole_transform():
+    from hbis_torch.reconstruct.learned.inputs import band_limit
+
+    h, cutoff = 7, 2.0
+    correction = np.random.default_rng(5).normal(0, 0.01, (601, 133)).astype(np.float32)  # bands of 256 rows
+    fy = np.fft.fftfreq(601)[:, None] * h
+    fx = np.fft.rfftfreq(133)[None, :] * h
+    t = np.clip((np.hypot(fx, fy) / cutoff - 0.85) / 0.15, 0.0, 1.0)
+    expected = np.fft.irfft2(np.fft.rfft2(correction.astype(np.float64)) * (0.5 + 0.5 * np.cos(np.pi * t)), s=(601, 133))
+    result = band_limit(correction, h, cutoff)
+    assert result is correction  # in place
+    np.testing.assert_allclose(result, expected, atol=1e-8)  # float32 is plenty next to corrections of 1e-2

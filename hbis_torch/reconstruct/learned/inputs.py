@@ -189,7 +189,7 @@ def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 25
 
 
 def band_limit(correction: np.ndarray, h: int, cutoff: float | None) -> np.ndarray:
-    """The correction without what lies beyond the lens's diffraction cutoff.
+    """The correction without what lies beyond the lens's diffraction cutoff, in place.
 
     An incoherent lens passes no spatial frequency above ``1 / (lambda F)``, so neither the scene
     on the sensor nor the ground truth (which carries the lens's blur) has any: whatever the
@@ -200,7 +200,7 @@ def band_limit(correction: np.ndarray, h: int, cutoff: float | None) -> np.ndarr
     Parameters
     ----------
     correction : ndarray, shape (hH, hW), float32
-        Network output minus the classical image.
+        Network output minus the classical image; overwritten with the result.
     h : int
     cutoff : float or None
         Cutoff in cycles per LR pixel (:func:`hbis_torch.reconstruct.classical.optics_cutoff`);
@@ -209,22 +209,33 @@ def band_limit(correction: np.ndarray, h: int, cutoff: float | None) -> np.ndarr
     Returns
     -------
     ndarray, shape (hH, hW), float32
+        ``correction`` itself.
     """
     if cutoff is None or cutoff >= h / np.sqrt(2.0):
         return correction
     import scipy.fft
 
+    if correction.dtype != np.float32 or not correction.flags.writeable:
+        raise HbisInputError("band_limit needs a writeable float32 array")
     rows, cols = correction.shape
-    # float32 FFTs on every core, the mask made a band of rows at a time: a full frame at h = 7
-    # (60 M output pixels) needs no float64 copy of itself.
-    spectrum = scipy.fft.rfft2(np.asarray(correction, dtype=np.float32), workers=-1)
+    # float32 FFTs on every core, one axis at a time; the rows go through the last axis's
+    # transforms a band at a time, written back into the correction: besides it, only the half
+    # spectrum is held (a full frame at h = 7 is 60 M output pixels).
+    band = 256
+    spectrum = np.empty((rows, cols // 2 + 1), np.complex64)
+    for r0 in range(0, rows, band):
+        spectrum[r0:r0 + band] = scipy.fft.rfft(correction[r0:r0 + band], axis=1, workers=-1)
+    spectrum = scipy.fft.fft(spectrum, axis=0, overwrite_x=True, workers=-1)
     fy = np.fft.fftfreq(rows) * h  # cycles per LR pixel
     fx2 = (np.fft.rfftfreq(cols) * h) ** 2
-    for r0 in range(0, rows, 256):
-        radius = np.sqrt(fy[r0:r0 + 256, None] ** 2 + fx2[None, :])
+    for r0 in range(0, rows, band):
+        radius = np.sqrt(fy[r0:r0 + band, None] ** 2 + fx2[None, :])
         t = np.clip((radius / cutoff - 0.85) / 0.15, 0.0, 1.0)
-        spectrum[r0:r0 + 256] *= (0.5 + 0.5 * np.cos(np.pi * t)).astype(np.float32)
-    return scipy.fft.irfft2(spectrum, s=(rows, cols), workers=-1).astype(np.float32, copy=False)
+        spectrum[r0:r0 + band] *= (0.5 + 0.5 * np.cos(np.pi * t)).astype(np.float32)
+    spectrum = scipy.fft.ifft(spectrum, axis=0, overwrite_x=True, workers=-1)
+    for r0 in range(0, rows, band):
+        correction[r0:r0 + band] = scipy.fft.irfft(spectrum[r0:r0 + band], n=cols, axis=1, workers=-1)
+    return correction
 
 
 def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
@@ -260,7 +271,7 @@ def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
         raise HbisInputError(f"model {name} produced non-finite values")
     if cutoff is not None and cutoff < h / np.sqrt(2.0):
         image = np.asarray(image, dtype=np.float32)
-        out -= image  # the correction, in place
-        out = band_limit(out, h, cutoff)
+        out -= image  # the correction, band-limited in place
+        band_limit(out, h, cutoff)
         out += image
     return np.clip(out, 0.0, 1.0, out=out)
