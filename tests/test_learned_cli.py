@@ -105,3 +105,22 @@ def test_learned_treats_untrusted_frames_as_the_classical_method_does(tmp_path, 
     assert messages == []
     assert np.array_equal(optics, learned_sr(stack, positions=optical_positions(stack), threads=1,
                                              provider="cpu"))
+
+
+def test_repeated_calls_reuse_the_session_until_the_model_file_changes(tmp_path):
+    import os
+    import shutil
+
+    from hbis_torch.reconstruct.learned import method
+
+    stack_path, _ = simulated_stack_file(tmp_path, 2, size=16)
+    stack = read_stack(stack_path)
+    model = tmp_path / "m.onnx"
+    shutil.copy(default_model_path(2), model)
+    method._runner.cache_clear()
+    first = learned_sr(stack, model=model)
+    np.testing.assert_array_equal(learned_sr(stack, model=model), first)
+    assert method._runner.cache_info().hits == 1 and method._runner.cache_info().misses == 1
+    os.utime(model, ns=(1, 1))  # a new file in its place: a new session
+    learned_sr(stack, model=model)
+    assert method._runner.cache_info().misses == 2

@@ -3,6 +3,8 @@ the ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS`."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, reconstruct_classical, stack_fill_factor
@@ -73,8 +75,15 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         image = classical_sr(frames, positions, stack.h, cutoff=optics_cutoff(stack.system),
                              fill_factor=stack_fill_factor(stack)).numpy()
         del frames
-    runner = LearnedSR(model=path, threads=threads, provider=provider)
+    runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider)
     return runner(image, noise_params, optics_cutoff(stack.system), messages=messages, extrapolate=extrapolate)
+
+
+@functools.lru_cache(maxsize=4)
+def _runner(path: str, mtime_ns: int, threads: int | None, provider: str) -> LearnedSR:
+    """One session per model file (and its modification time), threads and provider, kept for
+    the next call: a loop over stacks does not compile the model again (30 ms with OpenVINO)."""
+    return LearnedSR(model=path, threads=threads, provider=provider)
 
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
