@@ -66,15 +66,12 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     ndarray, shape (h H, h W), float32 in [0, 1]
     """
     path, _ = check_model(model, stack.h)  # before any work; the session opens after the classical step
-    frames = stack.to_float()
-    noise_params = stack_noise_params(stack, frames)
+    noise_params = stack_noise_params(stack)  # reads the frames only if the stack has no sensor model
     if positions is None:
-        del frames  # the classical method reads its own: a full frame's copy less at its peak
         image = reconstruct_classical(stack, registration, messages=messages)
     else:
-        image = classical_sr(frames, positions, stack.h, cutoff=optics_cutoff(stack.system),
+        image = classical_sr(stack.to_float(), positions, stack.h, cutoff=optics_cutoff(stack.system),
                              fill_factor=stack_fill_factor(stack)).numpy()
-        del frames
     runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider)
     return runner(image, noise_params, optics_cutoff(stack.system), messages=messages, extrapolate=extrapolate)
 
