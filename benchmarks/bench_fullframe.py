@@ -58,10 +58,11 @@ if mode == "network":
     from hbis_torch.reconstruct.learned import LearnedSR, network_inputs
     from hbis_torch.reconstruct.learned.method import stack_noise_params
     stack = read_stack(stack_path)
-    runner = LearnedSR(h=stack.h)
     image = reconstruct(stack, method="classical", registration="optics")
     base, noise = network_inputs(image, stack.h, stack_noise_params(stack))
-    del image
+    h = stack.h
+    del image, stack
+    runner = LearnedSR(h=h)  # opened after the classical step, as the learned method does
     t0, c0 = time.perf_counter(), time.process_time()
     runner.run_network(base, noise)
     result.update(seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0)
