@@ -16,9 +16,9 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical.splat import (
     circular_sums,
     fill_holes,
+    lower_median,
     offset_from_sums,
     splat,
-    lower_median,
     splat_on_lattice,
     typical_weight,
 )
