@@ -289,8 +289,8 @@ def recommend_h(frames, system, positions=None, h_max: int | None = None, tolera
         if tuple(positions.shape) != (F, H, W, 2):
             raise HbisInputError(f"positions must have shape {(F, H, W, 2)}, got {tuple(positions.shape)}")
         h0 = max(1, int(round(math.sqrt(F))))
-        image, den, _ = lattice_image(stack, positions, h0, 0.3)
-        sample_noise = lattice_noise(image, 0.3, den > 0.5 * float(den[den > 0].median()))
+        image, den, _, typical = lattice_image(stack, positions, h0, 0.3)
+        sample_noise = lattice_noise(image, 0.3, den > 0.5 * typical)
         if noise is None:  # back to a full-exposure frame's noise
             noise = sample_noise / h0 if budget == "total" else sample_noise
         s2, beta = fit_scene_spectrum(image, 1.0 / h0, sample_noise ** 2 / h0 ** 2, cutoff, aperture)

@@ -286,14 +286,15 @@ def lower_median(values: Tensor, where: Tensor) -> float:
     return float(picked[middle])
 
 
-def fill_holes(num: Tensor, den: Tensor) -> Tensor:
+def fill_holes(num: Tensor, den: Tensor, typical: float | None = None) -> Tensor:
     """num / den, with nodes of little weight taken from the sums blurred wider and wider.
 
     Only the holes' blurred values are used: where there are few of them (a frame's border)
     they are computed at the holes alone (:func:`_blur_at`), else by blurring the whole image.
-    Shapes (rows, cols).
+    Shapes (rows, cols); ``typical`` is :func:`typical_weight` of ``den``, if the caller has it.
     """
-    typical = typical_weight(den)
+    if typical is None:
+        typical = typical_weight(den)
     if typical == 0.0:
         raise HbisInputError("no sample falls on the output grid")
     image = num / den.clamp_min(1e-12)

@@ -86,10 +86,9 @@ def classical_sr(
     h = check_h(h)
     frames, positions, weights = _check_inputs(frames, positions, weights, fill_factor, kernel_sigma,
                                                cutoff, strength, noise)
-    image, den, offset = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur)
+    image, den, offset, typical = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur)
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
-        typical = typical_weight(den)
         samples_per_node = typical / max(_peak_weight(kernel_sigma), 1e-12)
         valid = den > 0.5 * typical
         del den
@@ -183,6 +182,9 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         (``on_lattice``), else float64.
     offset : (float, float)
         Where the nodes sit relative to the output pixels, HR px.
+    typical : float
+        The median of ``den`` over the nodes that received samples
+        (:func:`~hbis_torch.reconstruct.classical.splat.typical_weight`).
     """
     F, H, W = frames.shape
     shape = (h * H, h * W)
@@ -224,7 +226,8 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         for values, x, y, w in batches():
             n, d = splat(values, x, y, shape, kernel_sigma, w)
             num, den = num + n, den + d
-    return fill_holes(num, den), den, offset
+    typical = typical_weight(den)
+    return fill_holes(num, den, typical), den, offset, typical
 
 
 def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = None) -> float:
@@ -248,16 +251,9 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
     taps = torch.tensor([1.0, -2.0, 1.0], dtype=image.dtype)
     smoothed = torch.nn.functional.conv1d(taps.view(1, 1, 3), torch.tensor([[[a, 1.0, a]]], dtype=image.dtype), padding=2)
     gain_1d = float(smoothed.norm()) / (1 + 2 * a)
-    # The operator is [1, -2, 1] along rows times the same along columns: two second differences
-    # (each (a - 2 b) + c, written in place: two image-sized temporaries at most).
-    d = image[:, 1:-1] * -2
-    d += image[:, :-2]
-    d += image[:, 2:]
-    out = d[1:-1] * -2
-    out += d[:-2]
-    out += d[2:]
-    del d
-    out.abs_()
+    from hbis_torch.registration.noise import immerkaer  # (here: the package imports kornia)
+
+    out = immerkaer(image).abs_()
     if valid is not None:
         inner = valid[1:-1, 1:-1].clone()
         for dy in (-1, 0, 1):  # all nine nodes of the operator must have samples

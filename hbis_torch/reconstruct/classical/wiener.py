@@ -287,11 +287,11 @@ def shift_image(image: Tensor, offset: tuple[float, float], add_to: Tensor | Non
     out = torch.zeros_like(image) if add_to is None else add_to
     wx, ix = _cubic_taps(float(offset[0]), cols)
     wy, iy = _cubic_taps(float(offset[1]), rows)
-    for r0 in range(0, rows, BLOCK_ROWS):
-        r1 = min(r0 + BLOCK_ROWS, rows)
-        part = image.index_select(0, iy[r0:r1 + 3]).index_select(1, ix)  # (r1 - r0 + 3, cols + 3)
+    for block in _row_blocks(rows):
+        n = block.stop - block.start
+        part = image.index_select(0, iy[block.start:block.stop + 3]).index_select(1, ix)  # (n + 3, cols + 3)
         across = sum(w * part[:, k:k + cols] for k, w in enumerate(wx))
-        out[r0:r1] += sum(w * across[k:k + r1 - r0] for k, w in enumerate(wy))
+        out[block] += sum(w * across[k:k + n] for k, w in enumerate(wy))
     return out
 
 

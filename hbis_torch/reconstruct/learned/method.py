@@ -66,7 +66,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     ndarray, shape (h H, h W), float32 in [0, 1]
     """
     path, _ = check_model(model, stack.h)  # before any work; the session opens after the classical step
-    noise_params = stack_noise_params(stack)  # reads the frames only if the stack has no sensor model
+    noise_params = stack_noise_params(stack)  # looks at the frames only if the stack has no sensor model
     if positions is None:
         image = reconstruct_classical(stack, registration, messages=messages)
     else:
