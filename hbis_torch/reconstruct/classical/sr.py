@@ -192,7 +192,13 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     rows = min(H, max(1, BATCH_SAMPLES // W))  # rows per batch: all, unless a frame is too large
     slices = [(slice(k, k + step), slice(r, r + rows)) for k in range(0, F, step) for r in range(0, H, rows)]
 
+    # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2) its coordinates
+    # are computed once and kept for the three passes over the samples below.
+    kept = {}
+
     def coords(part):  # HR lattice coordinates of a batch (frames, rows), and their weights
+        if kept:
+            return kept["batch"]
         if isinstance(positions, NodePositions):
             where = interpolate_positions(positions._replace(values=positions.values[part[0]]),
                                           rows=np.arange(H)[part[1]])
@@ -201,6 +207,8 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         x = (where[..., 0].reshape(-1) + 0.5).mul_(h).sub_(0.5)
         y = (where[..., 1].reshape(-1) + 0.5).mul_(h).sub_(0.5)
         w = None if weights is None else weights[part].reshape(-1)
+        if len(slices) == 1:
+            kept["batch"] = (x, y, w)
         return x, y, w
 
     offset = (0.0, 0.0)
@@ -216,17 +224,17 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     def batches():
         for part in slices:
             x, y, w = coords(part)
-            yield frames[part].reshape(-1).to(torch.float64), x.sub_(offset[0]), y.sub_(offset[1]), w
+            yield frames[part].reshape(-1), x - offset[0], y - offset[1], w
 
     if on_lattice:
         # snap_to_lattice, then splat: the same sums, in batches of frames (or of rows)
-        num, den = splat_on_lattice(batches, shape, kernel_sigma)
+        num, den, typical = splat_on_lattice(batches, shape, kernel_sigma)
     else:
         num = den = 0
         for values, x, y, w in batches():
-            n, d = splat(values, x, y, shape, kernel_sigma, w)
+            n, d = splat(values.to(torch.float64), x, y, shape, kernel_sigma, w)
             num, den = num + n, den + d
-    typical = typical_weight(den)
+        typical = typical_weight(den)
     return fill_holes(num, den, typical), den, offset, typical
 
 

@@ -113,11 +113,11 @@ def wiener_deblur(
     noise2 = max(noise, NOISE_FLOOR) ** 2
     # the prior's fit evaluates the model on a subsample, in float64
     kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2)
-    s2, beta = fit_spectrum(spectrum, fx, fy, kernel, shifts, noise2)
+    measured = spectrum.abs().square_().div_(shape[0] * shape[1])  # the image's power, |Z|^2 / n
+    s2, beta = fit_spectrum(measured, fx, fy, kernel, shifts, noise2)
     model = _Model(fx[0].to(dtype), fy[:, 0].to(dtype), h, aperture, cutoff, offset, eps2)
-    # the image's power, |Z|^2 / n averaged over 3 x 3 frequencies (the filter's prior needs
-    # each block's neighbours as they were before filtering)
-    measured = spectrum.abs().square_().div_(shape[0] * shape[1])
+    # averaged over 3 x 3 frequencies for the filter's prior (which needs each block's
+    # neighbours as they were before filtering)
     measured = torch.nn.functional.avg_pool2d(measured[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
     for block in blocks:
         spectrum[block] *= _mmse_filter(measured[block], model._replace(fy=model.fy[block]), shifts, s2,
@@ -312,10 +312,11 @@ def _cubic_taps(shift: float, n: int) -> tuple[list[float], Tensor]:
     return weights, torch.where(index > n - 1, 2 * (n - 1) - index, index)
 
 
-def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: float) -> tuple[float, float]:
+def fit_spectrum(power: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: float) -> tuple[float, float]:
     """Fit the scene prior s^2 / |f|^beta to an image's power spectrum, the noise being known.
 
-    The model of the (splat-corrected) image's power is E|Z(f)|^2 / n = s^2 S_beta(f) + sigma^2
+    ``power`` (rows, cols // 2 + 1) is |Z(f)|^2 / n of the (splat-corrected) image's rfft2 Z
+    over its n pixels. The model of its expectation is s^2 S_beta(f) + sigma^2
     with S_beta(f) = sum_k |K(f+k)|^2 / |f+k|^beta over the aliases k in ``shifts`` ((kx, ky)
     pairs); ``kernel(kx, ky, (rows, cols))`` gives (|K|, W, phase, |f+k|^2) of alias k at
     those entries of the spectrum.
@@ -328,7 +329,7 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
     -------
     s2, beta : float
     """
-    rows, half = spectrum.shape
+    rows, half = power.shape
     cols = 2 * (half - 1) if half > 1 else 1
     edges = torch.logspace(math.log10(1.5 / max(rows, cols)), math.log10(0.71), 25, dtype=fx.dtype)
 
@@ -339,11 +340,9 @@ def fit_spectrum(spectrum: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise
     count = torch.zeros(24, dtype=torch.int64)
     total = torch.zeros(24, dtype=torch.float64)
     for block in _row_blocks(rows):
-        ring = ring_of(fx, fy[block]).reshape(-1)
-        inside = (ring >= 0) & (ring < 24)
-        measured = (spectrum[block].abs().double() ** 2 / (rows * cols)).reshape(-1)
-        count += torch.bincount(ring[inside], minlength=24)
-        total += torch.bincount(ring[inside], measured[inside], minlength=24)
+        bins = ring_of(fx, fy[block]).reshape(-1).add_(1)  # 0 and 25: outside the rings, dropped after
+        count += torch.bincount(bins, minlength=26)[1:25]
+        total += torch.bincount(bins, power[block].reshape(-1).double(), minlength=26)[1:25]
     m = total / count.clamp_min(1)
     # The model's shape is smooth in frequency: evaluate it on a subsample (about 16k points).
     stride = max(1, rows * half // 16384)
