@@ -56,10 +56,10 @@ t_imports = time.perf_counter()
 result = {}
 if mode == "network":
     from hbis_torch.reconstruct.learned import LearnedSR, network_inputs
-    from hbis_torch.reconstruct.learned.method import stack_noise_params
+    from hbis_torch.reconstruct.learned.method import classical_and_noise
     stack = read_stack(stack_path)
-    image = reconstruct(stack, method="classical", registration="optics")
-    base, noise = network_inputs(image, stack.h, stack_noise_params(stack))
+    image, noise_params = classical_and_noise(stack, "optics")
+    base, noise = network_inputs(image, stack.h, noise_params)
     h = stack.h
     del image, stack
     runner = LearnedSR(h=h)  # opened after the classical step, as the learned method does

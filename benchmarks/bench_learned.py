@@ -52,9 +52,8 @@ from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import sample_positions, simulate_stack
 from hbis_torch.simulate.cases import make_stack, roi_for, scene_cases
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
-from hbis_torch.reconstruct.learned import (LearnedSR, available_providers, estimate_noise_params, models_dir,
+from hbis_torch.reconstruct.learned import (LearnedSR, available_providers, models_dir, noise_params_from_meta,
                                             run_tiled, super_resolve)
-from hbis_torch.reconstruct.learned.method import stack_noise_params
 from hbis_torch.reconstruct.learned.net import HbisSRNet
 
 REPO = Path(__file__).resolve().parents[1]  # the checkout: default output paths
@@ -150,7 +149,6 @@ def run_case(system, h, roi, scene_name, seed, runners, model, repeats, only=MET
     frames = stack.to_float()
     positions, t_pos = timed_once(
         lambda: sample_positions(system, stack.phases_deg, stack.reference_index, stack.roi))
-    frames_np = frames.numpy()
     ref = frames[stack.reference_index][None, None]
     rows = {}
 
@@ -160,7 +158,7 @@ def run_case(system, h, roi, scene_name, seed, runners, model, repeats, only=MET
     def classical():
         return classical_sr(frames, positions, h, cutoff=optics_cutoff(system), fill_factor=1.0).numpy()
 
-    noise = stack_noise_params(stack, frames_np)
+    noise = noise_params_from_meta(stack.meta)  # the simulator records the sensor
 
     def learned_torch():  # LearnedSR.__call__ with eager torch in place of the session
         def infer(a, b):
@@ -322,8 +320,9 @@ def hard_cases() -> str:
     lines = ["| case | " + " | ".join(f"learned (fp32, {p})" for p in runners)
              + " | classical (fp64) | largest abs(mean difference) |", "| --- |" + " ---: |" * (len(runners) + 2)]
     for name, (frames, truth) in cases.items():
-        image = classical_sr(frames, positions, h, cutoff=optics_cutoff(system)).numpy()
-        learned = {p: runner(image, estimate_noise_params(frames), optics_cutoff(system)) for p, runner in runners.items()}
+        measured = []  # the frames' noise, measured on the classical step's lattice (as learned_sr does)
+        image = classical_sr(frames, positions, h, cutoff=optics_cutoff(system), noise_params_out=measured).numpy()
+        learned = {p: runner(image, measured[0], optics_cutoff(system)) for p, runner in runners.items()}
         reference = classical_sr(torch.from_numpy(frames.astype(np.float64)), torch.from_numpy(positions), h,
                                  cutoff=optics_cutoff(system)).double().clamp(0, 1).numpy()
         scale = max(float(truth.max()), 1e-3)

@@ -13,8 +13,7 @@ from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, load_scene, simulate_stack
 from hbis_torch.reconstruct.classical import optics_cutoff, reconstruct_classical
 from hbis_torch.reconstruct.learned import (LearnedSR, available_providers, default_model_path, learned_sr,
-                                            models_dir, read_model_metadata)
-from hbis_torch.reconstruct.learned.method import stack_noise_params
+                                            models_dir, noise_params_from_meta, read_model_metadata)
 from hbis_torch.reconstruct.positions import optical_positions, stack_sample_positions
 from hbis_torch.stack_io import read_stack, write_stack
 
@@ -90,7 +89,8 @@ def test_learned_treats_untrusted_frames_as_the_classical_method_does(tmp_path, 
     _, trusted = stack_sample_positions(stack, "data")
     assert trusted.tolist() == [True, False, True, True]
     runner = LearnedSR(h=2, threads=1, provider="cpu")
-    noise = stack_noise_params(stack)
+    noise = noise_params_from_meta(stack.meta)  # a simulated stack records its sensor
+    assert noise is not None
     for mode in ("data", "auto"):
         messages = []
         image = learned_sr(stack, registration=mode, messages=messages, threads=1, provider="cpu")

@@ -11,7 +11,8 @@ Held out from training on every axis at once:
 * **Settings outside the training ranges**: F 11 (training: F 1 to 8) and a 300,000 e- full well
   (training: 1,000 to 100,000).
 * **Captured-like metadata**: the stacks do not carry their noise model (as a stack assembled from
-  a camera does not), so the noise is measured from the frames; one row keeps it, to compare.
+  a camera does not), so the noise is measured (on the classical step's lattice,
+  :func:`~hbis_torch.reconstruct.learned.method.classical_and_noise`); one row keeps it, to compare.
 
 Every cell is one stack (a condition of :data:`CONDITIONS` x a photograph x h), reconstructed by
 both methods from the same stack with ``registration="optics"`` (the learned method as
@@ -37,10 +38,9 @@ from tqdm import tqdm
 from hbis_torch.config import FoveaSystem
 from hbis_torch.io_utils import atomic_write_text
 from hbis_torch.metrics import psnr
-from hbis_torch.reconstruct import reconstruct
 from hbis_torch.reconstruct.classical import optics_cutoff
-from hbis_torch.reconstruct.learned import LearnedSR
-from hbis_torch.reconstruct.learned.method import stack_noise_params
+from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
+from hbis_torch.reconstruct.learned.method import classical_and_noise
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
 from hbis_torch.simulate.stacks import scene_for_roi
@@ -132,6 +132,13 @@ def fixed_pattern(stack: Stack, truth, rng: np.random.Generator):
     return frames, (np.asarray(truth) * vignetting(xx, yy, cols, rows)).astype(np.float32)
 
 
+def noise_ratio(params, cond: Condition) -> float:
+    """Standard deviation at mid grey of noise parameters (a, b) over the condition's sensor's."""
+    a = 1 / cond.full_well_e
+    b = (cond.read_noise_e / cond.full_well_e) ** 2 + 1 / (12 * (2**cond.bit_depth - 1) ** 2)
+    return float(np.sqrt((params[0] * 0.5 + params[1]) / (a * 0.5 + b)))
+
+
 def score(image, truth, h: int) -> float:
     b = 2 * h
     return psnr(np.asarray(truth)[b:-b, b:-b], np.asarray(image)[b:-b, b:-b])
@@ -157,13 +164,16 @@ def main(argv=None) -> int:
     for h, c, photo in tqdm(jobs, desc="cells", disable=not sys.stderr.isatty()):
         size = args.size if h < 7 else (2 * args.size) // 3
         stack, truth = make_stack(CONDITIONS[c], photo, h, size, seed=1000 + c)
-        classical_image = reconstruct(stack, "classical", registration="optics")
-        args_ = (classical_image, stack_noise_params(stack), optics_cutoff(stack.system))
+        classical_image, noise_params = classical_and_noise(stack, "optics")
+        args_ = (classical_image, noise_params, optics_cutoff(stack.system))
         notes: list[str] = []
         learned_image = runners[h](*args_, messages=notes)
         classical, learned = score(classical_image, truth, h), score(learned_image, truth, h)
         cell = {"h": h, "condition": CONDITIONS[c].name, "photo": photo, "classical_db": classical,
-                "learned_db": learned, "delta_db": learned - classical, "outside_domain": bool(notes)}
+                "learned_db": learned, "delta_db": learned - classical, "outside_domain": bool(notes),
+                # the noise the network was told, and a single frame's estimate, over the sensor's
+                "noise_ratio": noise_ratio(noise_params, CONDITIONS[c]),
+                "frames_noise_ratio": noise_ratio(estimate_noise_params(stack.to_float().numpy()), CONDITIONS[c])}
         if notes:  # what the network would have done there
             cell["extrapolated_delta_db"] = score(runners[h](*args_, extrapolate=True), truth, h) - classical
         cells.append(cell)
@@ -178,6 +188,11 @@ def main(argv=None) -> int:
             deltas = [x["delta_db"] for x in row]
             print(f"| {cond.name} | " + " | ".join(f"{x['delta_db']:+.2f}" + "*" * x["outside_domain"] for x in row)
                   + f" | {np.mean(deltas):+.2f} | {np.mean([x['classical_db'] for x in row]):.2f} |")
+        ratios = np.array([x["noise_ratio"] for x in rows if not x["condition"].startswith("noise in the metadata")])
+        frames = np.array([x["frames_noise_ratio"] for x in rows])
+        print(f"\nMeasured noise over the sensor's at mid grey (stacks without a sensor model): on the "
+              f"lattice {np.median(ratios):.2f} (median; {ratios.min():.2f} to {ratios.max():.2f}); from a "
+              f"single frame {np.median(frames):.2f} ({frames.min():.2f} to {frames.max():.2f})")
         deltas = np.array([x["delta_db"] for x in rows])
         print(f"\nh = {h}: mean {deltas.mean():+.2f} dB, worst cell {deltas.min():+.2f} dB, "
               f"{int((deltas < -0.3).sum())} of {deltas.size} cells below -0.3 dB")

@@ -1,10 +1,12 @@
-"""Per-frame intensity statistics: mean, spread and the sensor's noise level.
+"""Per-frame intensity statistics: mean, spread and the sensor's noise level; the
+Poisson-Gaussian noise model fitted to a noise operator's output (:func:`fit_noise_params`).
 
-Frames are (F, H, W); every statistic is per frame, (F,), in the frames' units and dtype.
+Frames are (F, H, W); every per-frame statistic is (F,), in the frames' units and dtype.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -59,3 +61,57 @@ def noise_sigma(frames: Tensor) -> Tensor:
     out = immerkaer(frames).flatten(1)
     step = max(1, out.shape[1] // 2048)  # a couple of thousand values make a good median
     return 1.4826 * out[:, ::step].abs().median(-1).values / 6.0
+
+
+def fit_noise_params(residual, level, gain: float, where=None) -> tuple[float, float]:
+    """Fit the variance ``a x + b`` to a noise operator's output, binned by the local level.
+
+    The values are put in eight bins of their level (quantiles); each bin's noise level is the
+    median absolute output times 1.4826 / ``gain``, and ``s^2 = a x + b`` is fitted to the bins
+    by least squares with a, b >= 0. Texture inflates a bin's level a little, so the estimate errs
+    on the noisy side.
+
+    Parameters
+    ----------
+    residual : array, shape (...)
+        Absolute output of an operator that cancels smooth content.
+    level : array, shape of ``residual``
+        The image's value at the same places, in [0, 1].
+    gain : float
+        The operator's output level on white noise of level 1.
+    where : array of bool, shape of ``residual``, optional
+        The places to use (default: all).
+
+    Returns
+    -------
+    (a, b) : (float, float)
+    """
+    d, level = np.asarray(residual).ravel(), np.asarray(level).ravel()
+    if where is not None:
+        keep = np.asarray(where).ravel()
+        d, level = d[keep], level[keep]
+    stride = max(1, d.size // 200_000)  # a couple of hundred thousand values are plenty
+    d, level = d[::stride], level[::stride]
+    if not d.size:
+        raise ValueError("no pixels to measure the noise on")
+    edges = np.unique(np.quantile(level, np.linspace(0, 1, 9)))
+    if edges.size < 2:  # a constant stack: one bin
+        return 0.0, float((1.4826 * np.median(d) / gain) ** 2)
+    which = np.clip(np.searchsorted(edges, level, side="right") - 1, 0, edges.size - 2)
+    xs, vs = [], []
+    for k in range(edges.size - 1):
+        inside = which == k
+        if inside.sum() >= 50:
+            xs.append(float(level[inside].mean()))
+            vs.append(float((1.4826 * np.median(d[inside]) / gain) ** 2))
+    if not xs:  # too few values for any bin: one level
+        return 0.0, float((1.4826 * np.median(d) / gain) ** 2)
+    xs, vs = np.array(xs), np.array(vs)
+    if xs.size < 2 or np.ptp(xs) < 1e-6:
+        return 0.0, float(vs.mean())
+    a, b = np.polyfit(xs, vs, 1)
+    if a < 0:  # no signal dependence seen: a constant level
+        return 0.0, float(vs.mean())
+    if b < 0:  # pure shot noise: fit through the origin
+        return float((xs @ vs) / (xs @ xs)), 0.0
+    return float(a), float(b)

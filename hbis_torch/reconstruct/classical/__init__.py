@@ -39,7 +39,8 @@ Modules
     :func:`periodic_smooth`.
 :mod:`.sr`
     Both steps on frames with known positions: :func:`classical_sr`, :func:`lattice_image`,
-    :func:`lattice_noise`.
+    :func:`lattice_noise` (and :func:`lattice_noise_params`, the frames' noise model measured
+    on the lattice, for the learned method).
 :mod:`.method`
     A whole stack: :func:`reconstruct_classical` (the ``"classical"`` entry of
     :data:`hbis_torch.reconstruct.METHODS`; positions from
@@ -51,7 +52,7 @@ from __future__ import annotations
 
 from hbis_torch.reconstruct.classical.method import reconstruct_classical, stack_fill_factor
 from hbis_torch.reconstruct.classical.splat import common_offset, fill_holes, snap_to_lattice, splat
-from hbis_torch.reconstruct.classical.sr import classical_sr, lattice_image, lattice_noise
+from hbis_torch.reconstruct.classical.sr import classical_sr, lattice_image, lattice_noise, lattice_noise_params
 from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, optics_cutoff, splat_transfer
 from hbis_torch.reconstruct.classical.wiener import (
     NOISE_FLOOR,
@@ -73,6 +74,7 @@ __all__ = [
     "fit_spectrum",
     "lattice_image",
     "lattice_noise",
+    "lattice_noise_params",
     "optical_sample_positions",
     "optics_cutoff",
     "periodic_smooth",

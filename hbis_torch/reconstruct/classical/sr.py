@@ -44,6 +44,7 @@ def classical_sr(
     fill_factor: float = 1.0,
     cutoff: float | None = None,
     strength: float = 2.0,
+    noise_params_out: list | None = None,
 ) -> Tensor:
     """Super-resolve frames whose samples' positions are known.
 
@@ -78,6 +79,9 @@ def classical_sr(
         stacks (8 scenes x h = 3, 4, 5, 64 px, seed 1): it beat 1, 1.5 and 3 in mean PSNR (by
         0.4 dB over 1), the estimated noise being the median level while shot noise grows with
         the signal, and the power-law prior overstating some scenes' fine detail.
+    noise_params_out : list, optional
+        With ``deblur``, receives the frames' noise parameters (a, b) measured on the lattice
+        (:func:`lattice_noise_params`), for the learned method's noise map.
 
     Returns
     -------
@@ -100,6 +104,8 @@ def classical_sr(
             node_noise = lattice_noise(image, kernel_sigma, valid)
         else:
             node_noise = noise / math.sqrt(max(samples_per_node, 1.0))
+        if noise_params_out is not None:
+            noise_params_out.append(lattice_noise_params(image, kernel_sigma, valid, samples_per_node))
         del valid
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
                               cutoff, strength, overwrite=True)
@@ -250,7 +256,7 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
     On the h-times lattice neighbouring nodes hold samples of different frames a fraction of a
     pixel apart, so the scene is far smoother there than in any single (aliased) frame, and
     Immerkaer's operator [[1,-2,1],[-2,4,-2],[1,-2,1]] (median form) sees little but noise. The
-    splat's 3-tap smoothing changes the operator's noise gain from 6 to the value computed here.
+    splat's 3-tap smoothing changes the operator's noise gain from 6 to :func:`_lattice_gain`.
 
     Parameters
     ----------
@@ -261,21 +267,86 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
     valid : Tensor of bool, shape (rows, cols), optional
         Nodes to use (those that received samples).
     """
-    a = math.exp(-1 / (2 * kernel_sigma ** 2))
-    taps = torch.tensor([1.0, -2.0, 1.0], dtype=image.dtype)
-    smoothed = torch.nn.functional.conv1d(taps.view(1, 1, 3), torch.tensor([[[a, 1.0, a]]], dtype=image.dtype), padding=2)
-    gain_1d = float(smoothed.norm()) / (1 + 2 * a)
     from hbis_torch.registration.noise import immerkaer  # (here: the package imports kornia)
 
     out = immerkaer(image).abs_()
     if valid is not None:
-        inner = valid[1:-1, 1:-1].clone()
-        for dy in (-1, 0, 1):  # all nine nodes of the operator must have samples
-            for dx in (-1, 0, 1):
-                inner &= valid[1 + dy:valid.shape[0] - 1 + dy, 1 + dx:valid.shape[1] - 1 + dx]
+        inner = _complete(valid)
         if int(inner.sum()) >= 16:  # else too few complete neighbourhoods: use every node
-            return 1.4826 * lower_median(out, inner) / gain_1d ** 2
-    return 1.4826 * float(out.median()) / gain_1d ** 2
+            return 1.4826 * lower_median(out, inner) / _lattice_gain(kernel_sigma, image.dtype)
+    return 1.4826 * float(out.median()) / _lattice_gain(kernel_sigma, image.dtype)
+
+
+# Nodes the noise parameters are measured on, at most (evenly spaced strips of rows; the fit
+# takes a couple of hundred thousand of them)
+NOISE_NODES = 400_000
+
+
+def lattice_noise_params(image: Tensor, kernel_sigma: float, valid: Tensor | None = None,
+                         samples_per_node: float = 1.0) -> tuple[float, float]:
+    """Poisson-Gaussian noise parameters of the frames, measured on their lattice.
+
+    :func:`lattice_noise`'s operator, binned by the nodes' level and fitted by
+    :func:`~hbis_torch.registration.noise.fit_noise_params`: the variance ``a x + b`` of one
+    sample of value x in [0, 1]. A single frame is aliased, and its fine detail passes for noise
+    (:func:`~hbis_torch.reconstruct.learned.estimate_noise_params` overstates a low noise level
+    several times on photographs); on the lattice it does not. Measured on strips of rows that
+    hold about :data:`NOISE_NODES` nodes, whatever the image's size.
+
+    Parameters
+    ----------
+    image : Tensor, shape (rows, cols)
+        Normalized-convolution image on the lattice (:func:`lattice_image`), before deblurring.
+    kernel_sigma : float
+        The splat Gaussian (HR px).
+    valid : Tensor of bool, shape (rows, cols), optional
+        Nodes that received samples.
+    samples_per_node : float
+        Samples whose noise averages at a node (1 for an h x h scan): a sample's variance is
+        the nodes' times this.
+
+    Returns
+    -------
+    (a, b) : (float, float)
+    """
+    from hbis_torch.registration.noise import fit_noise_params, immerkaer
+
+    rows, cols = image.shape
+    strip = min(rows, 34)  # 32 inner rows
+    count = max(1, min(rows // strip, math.ceil(NOISE_NODES / (max(strip - 2, 1) * max(cols - 2, 1)))))
+    residual, level, where = [], [], []
+    for r in np.linspace(0, rows - strip, count).round().astype(int):
+        part = image[r:r + strip]
+        residual.append(immerkaer(part).abs_().numpy().ravel())
+        level.append(part[1:-1, 1:-1].numpy().ravel())
+        if valid is not None:
+            where.append(_complete(valid[r:r + strip]).numpy().ravel())
+    where = np.concatenate(where) if valid is not None else None
+    if where is not None and where.sum() < 16:  # too few complete neighbourhoods: every node
+        where = None
+    a, b = fit_noise_params(np.concatenate(residual), np.concatenate(level),
+                            _lattice_gain(kernel_sigma, image.dtype), where)
+    scale = max(samples_per_node, 1.0)
+    return a * scale, b * scale
+
+
+def _lattice_gain(kernel_sigma: float, dtype=torch.float32) -> float:
+    """Immerkaer's operator's output level on the lattice image of white noise of level 1 (6
+    without the splat's 3-tap smoothing)."""
+    a = math.exp(-1 / (2 * kernel_sigma ** 2))
+    taps = torch.tensor([1.0, -2.0, 1.0], dtype=dtype)
+    smoothed = torch.nn.functional.conv1d(taps.view(1, 1, 3), torch.tensor([[[a, 1.0, a]]], dtype=dtype), padding=2)
+    gain_1d = float(smoothed.norm()) / (1 + 2 * a)
+    return gain_1d ** 2
+
+
+def _complete(valid: Tensor) -> Tensor:
+    """(rows - 2, cols - 2): the inner nodes all nine of whose 3 x 3 neighbours are ``valid``."""
+    inner = valid[1:-1, 1:-1].clone()
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            inner &= valid[1 + dy:valid.shape[0] - 1 + dy, 1 + dx:valid.shape[1] - 1 + dx]
+    return inner
 
 
 def _peak_weight(sigma: float) -> float:

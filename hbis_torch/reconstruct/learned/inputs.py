@@ -69,14 +69,15 @@ def noise_params_from_meta(meta: dict) -> tuple[float, float] | None:
 
 
 def estimate_noise_params(frames) -> tuple[float, float]:
-    """Poisson-Gaussian noise parameters (a, b) measured from the frames.
+    """Poisson-Gaussian noise parameters (a, b) measured from the frames themselves.
 
     Immerkaer's operator (:func:`hbis_torch.registration.noise.immerkaer`, which cancels smooth
-    content; on white noise of level s its output has level 6 s) is taken at every pixel, and the
-    pixels are put in eight
-    bins of their local mean; each bin's level is the median absolute output (times 1.4826 / 6),
-    and ``s^2 = a x + b`` is fitted to the bins by least squares with a, b >= 0. Texture inflates
-    a bin's level a little, so the estimate errs on the noisy side.
+    content; on white noise of level s its output has level 6 s) is taken at every pixel and
+    fitted by :func:`~hbis_torch.registration.noise.fit_noise_params`. A single frame is aliased, and its fine detail counts as
+    noise: on photographs this overstates a low noise level several times (docs/learned.md).
+    The learned method measures the noise on the classical method's lattice instead
+    (:func:`~hbis_torch.reconstruct.classical.lattice_noise_params`), where the frames' samples
+    interleave a fraction of a pixel apart; this estimate serves where there is no lattice.
 
     Parameters
     ----------
@@ -87,36 +88,14 @@ def estimate_noise_params(frames) -> tuple[float, float]:
     -------
     (a, b) : (float, float)
     """
-    from hbis_torch.registration.noise import immerkaer  # (inside: this module stays torch-free)
+    from hbis_torch.registration.noise import fit_noise_params, immerkaer  # (inside: this module stays torch-free)
 
     frames = np.asarray(frames, dtype=np.float32)
     if frames.ndim != 3 or min(frames.shape[1:]) < 3:
         raise HbisInputError(f"frames must have shape (F, H >= 3, W >= 3), got {frames.shape}")
     step = max(1, frames.shape[0] // 4)  # a few frames are plenty
     f = frames[::step]
-    d = immerkaer(f).ravel()
-    level = f[..., 1:-1, 1:-1].ravel()
-    stride = max(1, d.size // 200_000)
-    d, level = np.abs(d[::stride]), level[::stride]
-    edges = np.unique(np.quantile(level, np.linspace(0, 1, 9)))
-    if edges.size < 2:  # a constant stack: one bin
-        return 0.0, float((1.4826 * np.median(d) / 6.0) ** 2)
-    which = np.clip(np.searchsorted(edges, level, side="right") - 1, 0, edges.size - 2)
-    xs, vs = [], []
-    for k in range(edges.size - 1):
-        inside = which == k
-        if inside.sum() >= 50:
-            xs.append(float(level[inside].mean()))
-            vs.append(float((1.4826 * np.median(d[inside]) / 6.0) ** 2))
-    xs, vs = np.array(xs), np.array(vs)
-    if xs.size < 2 or np.ptp(xs) < 1e-6:
-        return 0.0, float(vs.mean())
-    a, b = np.polyfit(xs, vs, 1)
-    if a < 0:  # no signal dependence seen: a constant level
-        return 0.0, float(vs.mean())
-    if b < 0:  # pure shot noise: fit through the origin
-        return float((xs @ vs) / (xs @ xs)), 0.0
-    return float(a), float(b)
+    return fit_noise_params(np.abs(immerkaer(f)), f[..., 1:-1, 1:-1], 6.0)
 
 
 def space_to_depth(image: np.ndarray, h: int) -> np.ndarray:

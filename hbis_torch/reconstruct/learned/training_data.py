@@ -19,8 +19,11 @@ scan the training never saw exactly (:func:`draw_example`):
   the held-out test (training/eval_matrix.py).
 
 Each example keeps the classical image, the truth and two noise models: the one the stack's
-sensor model gives and the one measured from its frames; a training crop takes either, so the
-network learns to use both. Crops are transformed by the 8 flips/transposes of the square
+sensor model gives and the one measured from its frames (:func:`estimate_noise_params`, which
+detailed scenes push several times too high at low noise); a training crop takes either, so the
+network learns to use both. The learned method measures a stack's noise on the classical step's
+lattice instead (:func:`~hbis_torch.reconstruct.learned.method.classical_and_noise`), close to the
+sensor model's: the noise the network saw in half of its crops. Crops are transformed by the 8 flips/transposes of the square
 (both images are on the same output grid, so they move together).
 
 This is the project's one training-data pipeline (training/train_sr.py, the tests and
