@@ -185,11 +185,14 @@ def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):
     torch.manual_seed(1)
     model = HbisSRNet(2, width=8, blocks=1).eval()
     first = export_model(model, tmp_path / "first.onnx", {"git_commit": "f00d", "val_psnr": 31.25, "step": 42,
-                                                          "config": {"h": 2, "lr": 0.001}})
+                                                          "config": {"h": 2, "lr": 0.001},
+                                                          "history": [{"base_psnr": 30.5}, {"base_psnr": 30.5}]})
+    assert first["val_classical_psnr_db"] == "30.500"
     weights = tmp_path / "weights.pt"
     torch.save({"model": model.state_dict(), "model_config": model.config(), "metadata": first}, weights)
     again = export(weights, tmp_path / "again.onnx")
-    for key in ("training_commit", "val_psnr_db", "training_steps", "training_config", "model_config", "h"):
+    for key in ("training_commit", "val_psnr_db", "val_classical_psnr_db", "training_steps", "training_config",
+                "model_config", "h"):
         assert again[key] == first[key], key
     assert again["training_commit"] == "f00d" and json.loads(again["training_config"])["lr"] == 0.001
     assert check_parity(tmp_path / "again.onnx", model) <= TOLERANCE

@@ -13,10 +13,12 @@ from hbis_torch.reconstruct.classical import optics_cutoff, reconstruct_classica
 from hbis_torch.reconstruct.learned import LearnedSR, default_model_path, learned_sr, read_model_metadata
 from hbis_torch.reconstruct.learned import training_data as td
 from hbis_torch.reconstruct.learned.domain import (
+    MIN_VALIDATION_GAIN_DB,
     domain_from_metadata,
     noise_at_mid_grey,
     outside_domain,
     training_domain,
+    validation_gain,
 )
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, SensorModel, load_scene, simulate_stack
@@ -122,3 +124,39 @@ def test_a_runner_checks_the_domain_it_was_given():
     out = runner(image, sensor_noise(300_000, 2, 16), messages=notes)
     np.testing.assert_array_equal(out, image)
     assert len(notes) == 1
+
+
+def model_with_gain(tmp_path, gain_db: float):
+    """The shipped h = 2 model, its metadata saying that it beat the classical image by gain_db."""
+    import onnx
+
+    proto = onnx.load(str(default_model_path(2)))
+    props = {p.key: p.value for p in proto.metadata_props}
+    for p in proto.metadata_props:
+        if p.key == "val_classical_psnr_db":
+            p.value = f"{float(props['val_psnr_db']) - gain_db:.3f}"
+    path = tmp_path / f"gain{gain_db}.onnx"
+    onnx.save(proto, str(path))
+    return path
+
+
+def test_a_model_that_did_not_beat_the_classical_image_on_its_validation_set_is_not_used(tmp_path):
+    stack = stack_at(2.0, 20_000)  # inside the domain
+    image = reconstruct_classical(stack, "optics")
+    args = (image, sensor_noise(20_000, 2.0, 16), optics_cutoff(stack.system))
+    notes = []
+    np.testing.assert_array_equal(LearnedSR(model_with_gain(tmp_path, 0.05))(*args, messages=notes), image)
+    assert len(notes) == 1 and "+0.05 dB on its validation set" in notes[0] and "--extrapolate" in notes[0]
+    forced = LearnedSR(model_with_gain(tmp_path, 0.05))(*args, extrapolate=True)
+    notes = []
+    used = LearnedSR(model_with_gain(tmp_path, 0.2))(*args, messages=notes)
+    assert notes == [] and np.array_equal(used, forced) and np.abs(used - image).max() > 1e-4
+
+
+@pytest.mark.parametrize("h, used", [(2, True), (4, True), (7, False)])
+def test_the_shipped_models_validation_gains(h, used):
+    """h = 2 and 4 beat the classical image on their validation sets by 1.3 and 1.0 dB; h = 7 by
+    0.03 dB, so the learned method returns the classical image at h = 7 (docs/learned.md)."""
+    metadata = read_model_metadata(default_model_path(h))
+    assert (validation_gain(metadata) >= MIN_VALIDATION_GAIN_DB) == used
+    assert (LearnedSR(h=h).unhelpful is None) == used

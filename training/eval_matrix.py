@@ -170,7 +170,8 @@ def main(argv=None) -> int:
         learned_image = runners[h](*args_, messages=notes)
         classical, learned = score(classical_image, truth, h), score(learned_image, truth, h)
         cell = {"h": h, "condition": CONDITIONS[c].name, "photo": photo, "classical_db": classical,
-                "learned_db": learned, "delta_db": learned - classical, "outside_domain": bool(notes),
+                "learned_db": learned, "delta_db": learned - classical,
+                "classical_returned": notes[0] if notes else None,  # and why
                 # the noise the network was told, and a single frame's estimate, over the sensor's
                 "noise_ratio": noise_ratio(noise_params, CONDITIONS[c]),
                 "frames_noise_ratio": noise_ratio(estimate_noise_params(stack.to_float().numpy()), CONDITIONS[c])}
@@ -186,7 +187,7 @@ def main(argv=None) -> int:
         for cond in CONDITIONS:
             row = [x for x in rows if x["condition"] == cond.name]
             deltas = [x["delta_db"] for x in row]
-            print(f"| {cond.name} | " + " | ".join(f"{x['delta_db']:+.2f}" + "*" * x["outside_domain"] for x in row)
+            print(f"| {cond.name} | " + " | ".join(f"{x['delta_db']:+.2f}" + "*" * bool(x["classical_returned"]) for x in row)
                   + f" | {np.mean(deltas):+.2f} | {np.mean([x['classical_db'] for x in row]):.2f} |")
         ratios = np.array([x["noise_ratio"] for x in rows if not x["condition"].startswith("noise in the metadata")])
         frames = np.array([x["frames_noise_ratio"] for x in rows])
@@ -196,12 +197,16 @@ def main(argv=None) -> int:
         deltas = np.array([x["delta_db"] for x in rows])
         print(f"\nh = {h}: mean {deltas.mean():+.2f} dB, worst cell {deltas.min():+.2f} dB, "
               f"{int((deltas < -0.3).sum())} of {deltas.size} cells below -0.3 dB")
-        outside = [x for x in rows if x["outside_domain"]]
-        if outside:
-            print(f"\n\\* outside the model's training domain: the classical image is returned. The network "
-                  f"run anyway (extrapolate=True) gives there: "
-                  + ", ".join(f"{x['photo']} {x['extrapolated_delta_db']:+.2f}" for x in outside)
-                  + f" (mean {np.mean([x['extrapolated_delta_db'] for x in outside]):+.2f} dB).")
+        returned = [x for x in rows if x["classical_returned"]]
+        if returned:
+            reasons = sorted({x["classical_returned"].split(":")[0] for x in returned})
+            by_row = {}
+            for x in returned:
+                by_row.setdefault(x["condition"], []).append(x["extrapolated_delta_db"])
+            print("\n\\* the classical image is returned, because " + "; or ".join(reasons) + ". The network run "
+                  "anyway (extrapolate=True) gives there, row means: "
+                  + ", ".join(f"{name} {np.mean(v):+.2f}" for name, v in by_row.items())
+                  + f" (worst cell {min(x['extrapolated_delta_db'] for x in returned):+.2f} dB).")
     if args.out is not None:
         atomic_write_text(args.out, json.dumps(cells, indent=1))
     return 0

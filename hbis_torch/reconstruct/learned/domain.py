@@ -13,6 +13,11 @@ returns the classical image and says why (:meth:`LearnedSR.__call__
 
 A model records its domain in its ``metadata_props`` as ``training_domain`` (JSON, written at
 export from :func:`training_domain`); a model without it is not checked.
+
+A model is also only as good as its validation says: one that beat the classical image it
+refines by less than :data:`MIN_VALIDATION_GAIN_DB` on its own validation set (``val_psnr_db``
+against ``val_classical_psnr_db`` in its metadata) has learned nothing the classical method
+lacks, and is not used either (:func:`unhelpful_model`).
 """
 
 from __future__ import annotations
@@ -26,6 +31,9 @@ import math
 # the training's defocused examples covered.
 NOISE_MARGIN = 1.4
 CUTOFF_MARGIN = 0.9
+# Least gain over the classical image, on the model's own validation set, for the network to be
+# used at all (dB).
+MIN_VALIDATION_GAIN_DB = 0.1
 
 
 def noise_at_mid_grey(noise_params: tuple[float, float]) -> float:
@@ -104,3 +112,22 @@ def outside_domain(domain: dict | None, noise_params: tuple[float, float], cutof
         return (f"the frames' noise ({100 * noise:.2f} % of full scale at mid-grey) lies outside the "
                 f"model's training range ({100 * lo:.2f} to {100 * hi:.2f} %)")
     return None
+
+
+def validation_gain(metadata: dict) -> float | None:
+    """A model's validation PSNR minus that of the classical image it refines on the same
+    validation set (dB), from its metadata; None where either is not recorded."""
+    try:
+        gain = float(metadata["val_psnr_db"]) - float(metadata["val_classical_psnr_db"])
+    except (KeyError, ValueError, TypeError):
+        return None
+    return gain if math.isfinite(gain) else None
+
+
+def unhelpful_model(metadata: dict) -> str | None:
+    """Why a model is not used on any stack (:data:`MIN_VALIDATION_GAIN_DB`), or None."""
+    gain = validation_gain(metadata)
+    if gain is None or gain >= MIN_VALIDATION_GAIN_DB:
+        return None
+    return (f"the model beat the classical image by only {gain:+.2f} dB on its validation set (less "
+            f"than {MIN_VALIDATION_GAIN_DB} dB)")

@@ -6,7 +6,9 @@ file), with the exporter's depth-to-space replaced by one ``DepthToSpace`` node
 (:func:`hbis_torch.reconstruct.learned.onnx_rewrite.fuse_depth_to_space`) and ``metadata_props``
 carrying what a user of the model needs: ``format``, ``h``, ``frames`` (= h^2),
 ``normalisation``, ``training_commit`` (git HEAD when the checkpoint was trained),
-``export_commit``, ``opset``, ``parameters``, ``model_config``, ``val_psnr_db``,
+``export_commit``, ``opset``, ``parameters``, ``model_config``, ``val_psnr_db`` and
+``val_classical_psnr_db`` (the network's and the classical image's PSNR on the validation set: a
+model that gains less than 0.1 dB is not used, :func:`~hbis_torch.reconstruct.learned.domain.unhelpful_model`),
 ``training_steps``, ``training_config`` (JSON), ``training_domain`` (JSON: the optics and noise the
 training spanned, :mod:`hbis_torch.reconstruct.learned.domain`) and ``graph_rewrites``.
 
@@ -103,7 +105,8 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     """Export ``model`` to ``out_path`` (written atomically); returns the metadata written.
 
     ``info`` is the training checkpoint (or any dict) with ``git_commit``, ``val_psnr``,
-    ``step``, ``config`` and ``training_domain``; missing entries are recorded as unknown (the
+    ``history`` or ``val_classical_psnr`` (:func:`classical_val_psnr`), ``step``, ``config`` and
+    ``training_domain``; missing entries are recorded as unknown (the
     domain as the current pipeline's, :func:`~hbis_torch.reconstruct.learned.domain.training_domain`).
     ``rewrite``: replace the exporter's reshape/transpose depth-to-space with ONNX DepthToSpace
     (:func:`hbis_torch.reconstruct.learned.onnx_rewrite.fuse_depth_to_space`; same outputs,
@@ -150,6 +153,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
         "parameters": str(count_parameters(model)),
         "model_config": json.dumps(model.config()),
         "val_psnr_db": f"{float(info.get('val_psnr', float('nan'))):.3f}",
+        "val_classical_psnr_db": f"{classical_val_psnr(info):.3f}",
         "training_steps": str(info.get("step", "unknown")),
         "training_config": json.dumps(info.get("config", {})),
         "training_domain": json.dumps(info.get("training_domain") or training_domain()),
@@ -166,6 +170,15 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     return metadata
 
 
+def classical_val_psnr(info: dict) -> float:
+    """The classical image's PSNR on the validation set (dB): ``val_classical_psnr``, else the
+    ``base_psnr`` of the training history (the same at every step); NaN if neither is there."""
+    if "val_classical_psnr" in info:
+        return float(info["val_classical_psnr"])
+    history = info.get("history") or []
+    return float(history[-1]["base_psnr"]) if history else float("nan")
+
+
 def training_info(ckpt: dict) -> dict:
     """What :func:`export_model` records about training, from a training checkpoint or from a
     weights file written by ``--weights`` (hbis_torch/models/hbis_sr_h*.pt), whose ``metadata`` is that of
@@ -174,7 +187,7 @@ def training_info(ckpt: dict) -> dict:
     Returns
     -------
     dict
-        ``git_commit``, ``val_psnr`` (dB), ``step``, ``config`` and ``training_domain`` where
+        ``git_commit``, ``val_psnr`` and ``val_classical_psnr`` (dB), ``step``, ``config`` and ``training_domain`` where
         known (a training checkpoint is returned as it is).
     """
     if "metadata" not in ckpt:
@@ -182,6 +195,7 @@ def training_info(ckpt: dict) -> dict:
     meta = ckpt["metadata"]
     return {"git_commit": meta.get("training_commit", "unknown"),
             "val_psnr": float(meta.get("val_psnr_db", "nan")),
+            "val_classical_psnr": float(meta.get("val_classical_psnr_db", "nan")),
             "step": meta.get("training_steps", "unknown"),
             "config": json.loads(meta.get("training_config", "{}")),
             "training_domain": json.loads(meta.get("training_domain", "null"))}

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain
+from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain, unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import TILE_HALO, run_tiled, super_resolve
 
 MODEL_FORMAT = "hbis-sr-onnx/2"
@@ -261,6 +261,7 @@ class LearnedSR:
         self.h = int(self.metadata["h"])
         self.path = path
         self.domain = domain_from_metadata(self.metadata)
+        self.unhelpful = unhelpful_model(self.metadata)
         self.tile = int(tile)
         # Receptive field radius: head + 2 per residual block + tail (+ 1).
         config = json.loads(self.metadata.get("model_config", "{}"))
@@ -290,7 +291,8 @@ class LearnedSR:
                  messages: list | None = None, extrapolate: bool = False) -> np.ndarray:
         """Refine a classical image (hH, hW) in [0, 1] of frames of noise variance ``a x + b``.
 
-        A stack outside the model's training domain (:mod:`hbis_torch.reconstruct.learned.domain`)
+        A stack outside the model's training domain, or any stack for a model that did not beat
+        the classical image on its validation set (:mod:`hbis_torch.reconstruct.learned.domain`),
         gets the classical image back, and ``messages`` a line saying why, unless
         ``extrapolate``.
 
@@ -305,15 +307,15 @@ class LearnedSR:
             (:func:`hbis_torch.reconstruct.classical.optics_cutoff`); the correction is limited
             to it (:func:`~hbis_torch.reconstruct.learned.inputs.band_limit`).
         messages : list, optional
-            Receives the line about a stack outside the training domain.
+            Receives the line saying why the classical image is returned.
         extrapolate : bool
-            Run the network outside its training domain too.
+            Run the network anyway.
 
         Returns
         -------
         ndarray, shape (hH, hW), float32 in [0, 1]
         """
-        reason = outside_domain(self.domain, noise_params, cutoff)
+        reason = self.unhelpful or outside_domain(self.domain, noise_params, cutoff)
         if reason is not None and not extrapolate:
             if messages is not None:
                 messages.append(f"{reason}: the learned method returns the classical image "
