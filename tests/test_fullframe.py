@@ -71,9 +71,9 @@ def test_classical_output_with_node_positions_matches_the_exact_positions(stack_
 
 def test_classical_from_nodes_matches_classical_from_every_position(stack_and_truth, monkeypatch):
     """Positions interpolated from the nodes a batch at a time (never the whole stack's) give
-    the image the whole stack's positions give: in batches of 3 frames, bit for bit (with the
-    samples' common offset from every row); in batches of 30 rows of a frame (as full frames are,
-    the offset from every fourth row), to 5e-5."""
+    the image the whole stack's positions give: in batches of 3 frames, bit for bit; in batches
+    of 30 rows of a frame (as full frames are, the samples' common offset from another set of
+    rows), to 5e-5."""
     stack, _ = stack_and_truth
     frames = stack.to_float()
     nodes, ok_nodes = stack_sample_nodes(stack, "auto")
@@ -82,11 +82,9 @@ def test_classical_from_nodes_matches_classical_from_every_position(stack_and_tr
     cutoff = optics_cutoff(SYSTEM)
     whole = classical_sr(frames, positions, stack.h, cutoff=cutoff)
     monkeypatch.setattr(classical_sr_module, "BATCH_SAMPLES", 3 * 96 * 80)
-    with monkeypatch.context() as every_row:
-        every_row.setattr(classical_sr_module, "OFFSET_ROW_STRIDE", 1)
-        assert torch.equal(whole, classical_sr(frames, nodes, stack.h, cutoff=cutoff))
+    assert torch.equal(whole, classical_sr(frames, nodes, stack.h, cutoff=cutoff))
     monkeypatch.setattr(classical_sr_module, "BATCH_SAMPLES", 30 * 96)
-    # (a fifth of a 12-bit step: float32 rounding, and the offset of 20 rows instead of 80)
+    # (a fifth of a 12-bit step: float32 rounding, and the offset from other rows)
     assert float((whole - classical_sr(frames, nodes, stack.h, cutoff=cutoff)).abs().max()) < 5e-5
     assert float((whole - classical_sr(frames, positions, stack.h, cutoff=cutoff)).abs().max()) < 5e-5
     wrong = nodes._replace(values=nodes.values[:-1])

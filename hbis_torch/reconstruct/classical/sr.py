@@ -15,6 +15,7 @@ from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical.splat import (
     circular_sums,
+    every_other,
     fill_holes,
     lower_median,
     offset_from_sums,
@@ -28,7 +29,7 @@ from hbis_torch.simulate.geometry import NodePositions, interpolate_positions
 # Samples per batch in lattice_image (whole frames, or rows of one frame where a frame has more):
 # its temporaries (some 150 bytes a sample) stay near 150 MB whatever the stack's size.
 BATCH_SAMPLES = 1 << 20
-# Rows used to find the samples' common sub-pixel offset where the samples come in several batches.
+# Rows used to find the samples' common sub-pixel offset: every fourth.
 OFFSET_ROW_STRIDE = 4
 
 
@@ -221,13 +222,17 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
 
     offset = (0.0, 0.0)
     if on_lattice:
-        # The samples' common offset from every fourth row where there are several batches (a
-        # quarter of the positions to interpolate; within 5e-5 HR px of the whole set's on a full
-        # frame at h = 4)
-        stride = 1 if len(slices) == 1 else OFFSET_ROW_STRIDE
+        # The samples' common offset from every fourth row: a quarter of the cosines to take, and
+        # where there are several batches of the positions to interpolate (within 5e-5 HR px of
+        # the whole set's on a full frame at h = 4).
+        stride = OFFSET_ROW_STRIDE
         sums = [0.0, 0.0, 0, 0.0, 0.0, 0]
         for frames_part, rows_part in slices:
-            x, y, w = coords((frames_part, slice(rows_part.start, rows_part.stop, stride)))
+            if len(slices) == 1:  # the batch's coordinates are kept whole: every fourth row of them
+                x, y, w = (None if t is None else t.view(-1, H, W)[:, ::stride].reshape(-1)
+                           for t in coords((frames_part, rows_part)))
+            else:
+                x, y, w = coords((frames_part, slice(rows_part.start, rows_part.stop, stride)))
             if w is not None:
                 x, y = x[w > 0], y[w > 0]
             sums = [a + b for a, b in zip(sums, circular_sums(x) + circular_sums(y))]
@@ -269,9 +274,9 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
     """
     from hbis_torch.registration.noise import immerkaer  # (here: the package imports kornia)
 
-    out = immerkaer(image).abs_()
+    out = every_other(immerkaer(image).abs_())  # on a large lattice, a quarter of the nodes
     if valid is not None:
-        inner = _complete(valid)
+        inner = every_other(_complete(valid))
         if int(inner.sum()) >= 16:  # else too few complete neighbourhoods: use every node
             return 1.4826 * lower_median(out, inner) / _lattice_gain(kernel_sigma, image.dtype)
     return 1.4826 * float(out.median()) / _lattice_gain(kernel_sigma, image.dtype)
