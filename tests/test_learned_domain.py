@@ -160,3 +160,15 @@ def test_the_shipped_models_validation_gains(h, used):
     metadata = read_model_metadata(default_model_path(h))
     assert (validation_gain(metadata) >= MIN_VALIDATION_GAIN_DB) == used
     assert (LearnedSR(h=h).unhelpful is None) == used
+
+
+def test_at_h7_the_learned_method_returns_the_classical_image_without_opening_a_session(monkeypatch):
+    import importlib
+
+    method = importlib.import_module("hbis_torch.reconstruct.learned.method")
+    monkeypatch.setattr(method, "_runner", lambda *args: pytest.fail("a session was opened"))
+    stack = stack_at(2.0, 20_000, h=7, size=14)
+    notes = []
+    image = learned_sr(stack, messages=notes)
+    np.testing.assert_array_equal(image, reconstruct_classical(stack, "optics"))
+    assert len(notes) == 1 and "validation set" in notes[0]

@@ -27,8 +27,8 @@ import json
 import math
 
 # How far past the trained ranges a stack may lie and still count as inside: the noise measured
-# from frames is good to some 20 %, and a cutoff 10 % below the blurriest lens is still a lens
-# the training's defocused examples covered.
+# on the lattice is good to some 20 % (1.7 times at worst on the held-out photographs), and a
+# cutoff 10 % below the blurriest lens is still a lens the training's defocused examples covered.
 NOISE_MARGIN = 1.4
 CUTOFF_MARGIN = 0.9
 # Least gain over the classical image, on the model's own validation set, for the network to be

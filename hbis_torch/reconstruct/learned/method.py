@@ -9,7 +9,8 @@ import numpy as np
 
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, reconstruct_classical, stack_fill_factor
 from hbis_torch.reconstruct.learned.inputs import noise_params_from_meta
-from hbis_torch.reconstruct.learned.runtime import LearnedSR, check_model
+from hbis_torch.reconstruct.learned.domain import unhelpful_model
+from hbis_torch.reconstruct.learned.runtime import LearnedSR, check_model, classical_returned
 
 
 def classical_and_noise(stack, registration: str = "optics", positions=None,
@@ -85,8 +86,11 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     -------
     ndarray, shape (h H, h W), float32 in [0, 1]
     """
-    path, _ = check_model(model, stack.h)  # before any work; the session opens after the classical step
+    path, metadata = check_model(model, stack.h)  # before any work; the session opens after the classical step
     image, noise_params = classical_and_noise(stack, registration, positions, messages)
+    unhelpful = unhelpful_model(metadata)
+    if unhelpful is not None and not extrapolate:  # no session to open
+        return classical_returned(image, unhelpful, messages)
     runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider)
     return runner(image, noise_params, optics_cutoff(stack.system), messages=messages, extrapolate=extrapolate)
 

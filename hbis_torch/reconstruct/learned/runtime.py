@@ -317,11 +317,19 @@ class LearnedSR:
         """
         reason = self.unhelpful or outside_domain(self.domain, noise_params, cutoff)
         if reason is not None and not extrapolate:
-            if messages is not None:
-                messages.append(f"{reason}: the learned method returns the classical image "
-                                "(--extrapolate runs the network anyway)")
-            return np.clip(np.asarray(image, dtype=np.float32), 0.0, 1.0)
+            return classical_returned(image, reason, messages)
         return super_resolve(self.run_network, image, self.h, noise_params, self.path.name, cutoff)
+
+
+def classical_returned(image, reason: str, messages: list | None = None) -> np.ndarray:
+    """The classical image (hH, hW), float32 in [0, 1], where the network is not run, and the line
+    saying ``reason`` appended to ``messages``. A float32 image already in [0, 1] is returned as
+    it is, not copied (a full frame's is 240 MB at h = 7)."""
+    if messages is not None:
+        messages.append(f"{reason}: the learned method returns the classical image "
+                        "(--extrapolate runs the network anyway)")
+    image = np.asarray(image, dtype=np.float32)
+    return image if image.size == 0 or (image.min() >= 0 and image.max() <= 1) else np.clip(image, 0.0, 1.0)
 
 
 def read_model_metadata(path) -> dict:
