@@ -187,7 +187,8 @@ def main(argv=None) -> int:
         for cond in CONDITIONS:
             row = [x for x in rows if x["condition"] == cond.name]
             deltas = [x["delta_db"] for x in row]
-            print(f"| {cond.name} | " + " | ".join(f"{x['delta_db']:+.2f}" + "*" * bool(x["classical_returned"]) for x in row)
+            cells_text = [f"{x['delta_db']:+.2f}" + "*" * bool(x["classical_returned"]) for x in row]
+            print(f"| {cond.name} | " + " | ".join(cells_text)
                   + f" | {np.mean(deltas):+.2f} | {np.mean([x['classical_db'] for x in row]):.2f} |")
         ratios = np.array([x["noise_ratio"] for x in rows if not x["condition"].startswith("noise in the metadata")])
         frames = np.array([x["frames_noise_ratio"] for x in rows])

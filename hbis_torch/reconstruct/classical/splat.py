@@ -164,7 +164,8 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
     # coordinates in float64. At most five (rows, cols) float32 arrays live at once.
     sums = NodeSums(shape, sigma, 2, torch.float32)
     off_node = 0.0
-    seen, kept = 0, None  # batches, and the first one's nodes and weights (for the second pass if it is the only one)
+    # batches seen, and the first one's nodes and weights (the second pass's, if it is the only one)
+    seen, kept = 0, None
     for values, x, y, weights in batches():
         xn, yn = torch.round(x), torch.round(y)
         off_node = max(off_node, float((xn - x).abs().max()), float((yn - y).abs().max()))

@@ -8,7 +8,8 @@ carrying what a user of the model needs: ``format``, ``h``, ``frames`` (= h^2),
 ``normalisation``, ``training_commit`` (git HEAD when the checkpoint was trained),
 ``export_commit``, ``opset``, ``parameters``, ``model_config``, ``val_psnr_db`` and
 ``val_classical_psnr_db`` (the network's and the classical image's PSNR on the validation set: a
-model that gains less than 0.1 dB is not used, :func:`~hbis_torch.reconstruct.learned.domain.unhelpful_model`),
+model that gains less than 0.1 dB is not used,
+:func:`~hbis_torch.reconstruct.learned.domain.unhelpful_model`),
 ``training_steps``, ``training_config`` (JSON), ``training_domain`` (JSON: the optics and noise the
 training spanned, :mod:`hbis_torch.reconstruct.learned.domain`) and ``graph_rewrites``.
 
@@ -187,8 +188,8 @@ def training_info(ckpt: dict) -> dict:
     Returns
     -------
     dict
-        ``git_commit``, ``val_psnr`` and ``val_classical_psnr`` (dB), ``step``, ``config`` and ``training_domain`` where
-        known (a training checkpoint is returned as it is).
+        ``git_commit``, ``val_psnr`` and ``val_classical_psnr`` (dB), ``step``, ``config`` and
+        ``training_domain`` where known (a training checkpoint is returned as it is).
     """
     if "metadata" not in ckpt:
         return ckpt

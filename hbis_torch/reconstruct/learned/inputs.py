@@ -73,11 +73,13 @@ def estimate_noise_params(frames) -> tuple[float, float]:
 
     Immerkaer's operator (:func:`hbis_torch.registration.noise.immerkaer`, which cancels smooth
     content; on white noise of level s its output has level 6 s) is taken at every pixel and
-    fitted by :func:`~hbis_torch.registration.noise.fit_noise_params`. A single frame is aliased, and its fine detail counts as
-    noise: on photographs this overstates a low noise level several times (docs/learned.md).
-    The learned method measures the noise on the classical method's lattice instead
+    fitted by :func:`~hbis_torch.registration.noise.fit_noise_params`. A single frame is
+    aliased, and its fine detail counts as noise: on photographs this overstates a low noise
+    level several times (docs/learned.md). The learned method measures the noise on the
+    classical method's lattice instead
     (:func:`~hbis_torch.reconstruct.classical.lattice_noise_params`), where the frames' samples
-    interleave a fraction of a pixel apart; this estimate serves where there is no lattice.
+    interleave a fraction of a pixel apart; this estimate serves where there is no lattice (and
+    as the training's second, pessimistic, noise model).
 
     Parameters
     ----------
@@ -88,7 +90,7 @@ def estimate_noise_params(frames) -> tuple[float, float]:
     -------
     (a, b) : (float, float)
     """
-    from hbis_torch.registration.noise import fit_noise_params, immerkaer  # (inside: this module stays torch-free)
+    from hbis_torch.registration.noise import fit_noise_params, immerkaer  # (here: this module stays torch-free)
 
     frames = np.asarray(frames, dtype=np.float32)
     if frames.ndim != 3 or min(frames.shape[1:]) < 3:

@@ -8,8 +8,8 @@ import functools
 import numpy as np
 
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, reconstruct_classical, stack_fill_factor
-from hbis_torch.reconstruct.learned.inputs import noise_params_from_meta
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
+from hbis_torch.reconstruct.learned.inputs import noise_params_from_meta
 from hbis_torch.reconstruct.learned.runtime import LearnedSR, check_model, classical_returned
 
 

@@ -22,9 +22,10 @@ Each example keeps the classical image, the truth and two noise models: the one 
 sensor model gives and the one measured from its frames (:func:`estimate_noise_params`, which
 detailed scenes push several times too high at low noise); a training crop takes either, so the
 network learns to use both. The learned method measures a stack's noise on the classical step's
-lattice instead (:func:`~hbis_torch.reconstruct.learned.method.classical_and_noise`), close to the
-sensor model's: the noise the network saw in half of its crops. Crops are transformed by the 8 flips/transposes of the square
-(both images are on the same output grid, so they move together).
+lattice instead (:func:`~hbis_torch.reconstruct.learned.method.classical_and_noise`), close to
+the sensor model's: the noise the network saw in half of its crops. Crops are transformed by the
+8 flips/transposes of the square (both images are on the same output grid, so they move
+together).
 
 This is the project's one training-data pipeline (training/train_sr.py, the tests and
 benchmarks/bench_simulate.py use it):
