@@ -124,3 +124,24 @@ def test_repeated_calls_reuse_the_session_until_the_model_file_changes(tmp_path)
     os.utime(model, ns=(1, 1))  # a new file in its place: a new session
     learned_sr(stack, model=model)
     assert method._runner.cache_info().misses == 2
+
+
+def test_reconstruct_threads_sets_them_for_the_call_and_refuses_zero(tmp_path, capsys):
+    import torch
+
+    stack_path, _ = simulated_stack_file(tmp_path, 2, size=32)
+    before = torch.get_num_threads()
+    for method in ("classical", "learned"):
+        images = []
+        for threads in ([], ["--threads", "1"]):
+            out = tmp_path / f"{method}{len(threads)}.tif"
+            assert main(["reconstruct", str(stack_path), "--method", method, "--registration", "optics",
+                         "--out", str(out)] + threads) == 0
+            images.append(tifffile.imread(out))
+        np.testing.assert_allclose(images[1], images[0], atol=1e-5)  # threads change sums' order only
+        assert torch.get_num_threads() == before
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as refused:
+        main(["reconstruct", str(stack_path), "--threads", "0", "--out", str(tmp_path / "z.tif")])
+    assert refused.value.code == 2 and "--threads" in capsys.readouterr().err
+    assert not (tmp_path / "z.tif").exists()

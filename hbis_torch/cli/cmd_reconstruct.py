@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from hbis_torch.checks import bounded_int
 from hbis_torch.errors import HbisInputError
 
 # Every method the command line knows; the library says which are available in this build.
@@ -36,6 +37,10 @@ def register(sub) -> None:
                    "trusted (default 'auto')")
     p.add_argument("--no-deblur", action="store_true",
                    help="classical: interpolation only, without the Wiener deblurring")
+    p.add_argument("--threads", type=bounded_int(1, 1024), default=None,
+                   help="threads for torch and the learned method's runtime (default: every CPU this "
+                   "process may use); where other jobs hold some of the cores, fewer run faster, as "
+                   "idle threads no longer wait on busy ones")
     p.add_argument("--colour", choices=("luma", "channels"),
                    help="colour stacks: super-resolve each of R, G, B ('channels', the default) or only the "
                    "luminance, interpolating the chroma ('luma', a third of the work); raw Bayer stacks are "
@@ -67,7 +72,8 @@ def run(args) -> int:
             raise HbisInputError("--extrapolate is only for --method learned")
         kw["deblur"] = not args.no_deblur
     else:
-        kw.update({name: getattr(args, name) for name in ("model", "provider") if getattr(args, name) is not None})
+        kw.update({name: getattr(args, name) for name in ("model", "provider", "threads")
+                   if getattr(args, name) is not None})
         kw["extrapolate"] = args.extrapolate
     from hbis_torch.capture.calibration import calibrate_stack, load_calibration
 
@@ -78,8 +84,16 @@ def run(args) -> int:
     if args.colour is not None:
         kw["colour"] = args.colour
     messages: list[str] = []
-    image = reconstruct(stack, method=args.method, registration=args.registration,
-                        messages=messages, **kw)
+    import torch
+
+    threads = torch.get_num_threads()
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    try:
+        image = reconstruct(stack, method=args.method, registration=args.registration,
+                            messages=messages, **kw)
+    finally:
+        torch.set_num_threads(threads)
     for line in messages:
         print(f"hbis reconstruct: {line}", file=sys.stderr)
     meta = {"format": "hbis-sr/1", "source": args.stack.name, "method": args.method,
