@@ -69,3 +69,15 @@ def test_the_noise_fit_with_too_few_values_for_any_bin_is_one_level():
     assert a == 0 and np.sqrt(b) == pytest.approx(0.01, rel=0.5)
     with pytest.raises(ValueError, match="no pixels"):
         fit_noise_params(residual, np.linspace(0, 1, 30), 6.0, where=np.zeros(30, bool))
+
+
+def test_a_stack_too_small_to_measure_its_noise_on_is_refused_before_any_work(monkeypatch):
+    import importlib
+
+    from hbis_torch.errors import HbisInputError
+
+    _, bare = photograph_stack(h=2, full_well=10_000, size=1)  # a 2 x 2 lattice
+    method = importlib.import_module("hbis_torch.reconstruct.learned.method")
+    monkeypatch.setattr(method, "reconstruct_classical", lambda *a, **k: pytest.fail("work was done"))
+    with pytest.raises(HbisInputError, match="too small to measure its noise"):
+        learned_sr(bare)

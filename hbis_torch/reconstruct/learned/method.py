@@ -7,6 +7,7 @@ import functools
 
 import numpy as np
 
+from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, reconstruct_classical, stack_fill_factor
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import noise_params_from_meta
@@ -38,8 +39,17 @@ def classical_and_noise(stack, registration: str = "optics", positions=None,
     -------
     image : ndarray, shape (h H, h W), float32 in [0, 1]
     (a, b) : (float, float)
+
+    Raises
+    ------
+    HbisInputError
+        A stack without a sensor model whose lattice is under 3 x 3 nodes (before any work).
     """
     params = noise_params_from_meta(stack.meta)
+    rows, cols = (stack.h * n for n in stack.frames.shape[1:3])
+    if params is None and min(rows, cols) < 3:  # the lattice's noise operator needs 3 x 3 nodes
+        raise HbisInputError(f"the stack's lattice ({rows} x {cols} nodes) is too small to measure its noise on; "
+                             "record the sensor (full_well_e, read_noise_e) in the stack's metadata")
     measured = None if params is not None else []
     if positions is None:
         image = reconstruct_classical(stack, registration, messages=messages, noise_params_out=measured)
