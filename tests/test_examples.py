@@ -1,9 +1,10 @@
 """Every script in examples/ runs (``--out`` a temporary folder, exit code 0) and prints numbers
 that say it worked: the Table 1 FER, an exact scan plan, super-resolution above bicubic, motors
-that reach their targets."""
+that reach their targets, a stack's noise measured near its sensor's."""
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -45,6 +46,14 @@ def check_simulate_and_reconstruct(out: str, folder: Path) -> None:
     assert scores["learned"] > scores["bicubic"] + 3
     assert {p.name for p in folder.glob("*.tif")} == {"stack.tif", "truth.tif", "sr_classical.tif",
                                                      "sr_learned.tif"}
+
+
+def check_measure_noise(out: str, folder: Path) -> None:
+    ratio = {name.strip(): float(r) for name, r in re.findall(r"^  (.+?) +a .*\((\S+) x the sensor's\)", out, re.M)}
+    assert set(ratio) == {"sensor", "single frames", "lattice"}
+    assert ratio["lattice"] == pytest.approx(1.0, abs=0.2)  # the lattice measures the sensor's noise
+    assert ratio["single frames"] > 2  # a frame's aliased detail passes for noise
+    assert set(json.loads((folder / "noise.json").read_text())) == set(ratio)
 
 
 def check_drive_simulated_motors(out: str, folder: Path) -> None:
