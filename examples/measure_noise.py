@@ -33,6 +33,7 @@ from pathlib import Path
 
 from hbis_torch import FoveaSystem
 from hbis_torch.reconstruct.learned import estimate_noise_params, noise_params_from_meta
+from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
 from hbis_torch.reconstruct.learned.method import classical_and_noise
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
@@ -65,7 +66,7 @@ def main() -> None:
         "single frames": estimate_noise_params(captured.to_float().numpy()),
         "lattice": classical_and_noise(captured, "optics")[1],
     }
-    mid = {name: math.sqrt(a / 2 + b) for name, (a, b) in estimates.items()}
+    mid = {name: noise_at_mid_grey(params) for name, params in estimates.items()}
     print(f"{args.scene}, h = {h}, {roi[2]} x {roi[3]} px, {sensor.full_well_e:.0f} e- full well, "
           f"{sensor.read_noise_e} e- read noise, {BITS} bit")
     for name, (a, b) in estimates.items():

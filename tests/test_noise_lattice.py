@@ -9,6 +9,7 @@ import pytest
 from hbis_torch.config import FoveaSystem
 from hbis_torch.reconstruct.classical import optics_cutoff, reconstruct_classical
 from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params, learned_sr, noise_params_from_meta
+from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
 from hbis_torch.reconstruct.learned.method import classical_and_noise
 from hbis_torch.registration.noise import fit_noise_params
 from hbis_torch.scan import plan_scan
@@ -33,17 +34,13 @@ def photograph_stack(h: int, full_well: float, size: int = 48):
     return stack, Stack(stack.frames, meta).validate("test stack")
 
 
-def mid_grey_sd(params) -> float:
-    return float(np.sqrt(params[0] * 0.5 + params[1]))
-
-
 def test_the_lattice_measures_a_photographs_low_noise_where_a_single_frame_overstates_it():
     stack, _ = photograph_stack(h=4, full_well=50_000)
-    truth = mid_grey_sd(noise_params_from_meta(stack.meta))
+    truth = noise_at_mid_grey(noise_params_from_meta(stack.meta))
     measured = []
     reconstruct_classical(stack, "optics", noise_params_out=measured)
-    assert mid_grey_sd(measured[0]) == pytest.approx(truth, rel=0.15)
-    assert mid_grey_sd(estimate_noise_params(stack.to_float().numpy())) > 2 * truth  # the aliased detail
+    assert noise_at_mid_grey(measured[0]) == pytest.approx(truth, rel=0.15)
+    assert noise_at_mid_grey(estimate_noise_params(stack.to_float().numpy())) > 2 * truth  # the aliased detail
 
 
 def test_the_learned_methods_noise_is_the_sensors_else_the_lattices():
@@ -55,9 +52,9 @@ def test_the_learned_methods_noise_is_the_sensors_else_the_lattices():
     measured = []
     np.testing.assert_array_equal(image, reconstruct_classical(bare, "optics", noise_params_out=measured))
     assert params == measured[0]
-    truth = mid_grey_sd(noise_params_from_meta(stack.meta))  # h = 2: a coarser lattice, still nearer
-    frames = mid_grey_sd(estimate_noise_params(bare.to_float().numpy()))
-    assert truth < mid_grey_sd(params) < frames
+    truth = noise_at_mid_grey(noise_params_from_meta(stack.meta))  # h = 2: a coarser lattice, still nearer
+    frames = noise_at_mid_grey(estimate_noise_params(bare.to_float().numpy()))
+    assert truth < noise_at_mid_grey(params) < frames
     runner = LearnedSR(h=2, threads=1, provider="cpu")
     np.testing.assert_array_equal(learned_sr(bare, threads=1, provider="cpu"),
                                   runner(image, params, optics_cutoff(bare.system)))

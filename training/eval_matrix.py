@@ -40,6 +40,8 @@ from hbis_torch.io_utils import atomic_write_text
 from hbis_torch.metrics import psnr
 from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
+from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
+from hbis_torch.reconstruct.learned.inputs import sensor_noise_params
 from hbis_torch.reconstruct.learned.method import classical_and_noise
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
@@ -134,9 +136,8 @@ def fixed_pattern(stack: Stack, truth, rng: np.random.Generator):
 
 def noise_ratio(params, cond: Condition) -> float:
     """Standard deviation at mid grey of noise parameters (a, b) over the condition's sensor's."""
-    a = 1 / cond.full_well_e
-    b = (cond.read_noise_e / cond.full_well_e) ** 2 + 1 / (12 * (2**cond.bit_depth - 1) ** 2)
-    return float(np.sqrt((params[0] * 0.5 + params[1]) / (a * 0.5 + b)))
+    sensor = sensor_noise_params(cond.full_well_e, cond.read_noise_e, cond.bit_depth)
+    return noise_at_mid_grey(params) / noise_at_mid_grey(sensor)
 
 
 def score(image, truth, h: int) -> float:

@@ -42,6 +42,7 @@ from hbis_torch.reconstruct.learned.inputs import (
     network_inputs,
     noise_params_from_meta,
     run_tiled,
+    sensor_noise_params,
     super_resolve,
 )
 from hbis_torch.reconstruct.learned.method import learned_sr, reconstruct_learned
@@ -95,6 +96,7 @@ __all__ = [
     "read_model_metadata",
     "reconstruct_learned",
     "run_tiled",
+    "sensor_noise_params",
     "session_options",
     "space_to_depth",
     "super_resolve",

@@ -57,6 +57,7 @@ def training_domain() -> dict:
     from hbis_torch.config import FoveaSystem
     from hbis_torch.reconstruct.classical import optics_cutoff
     from hbis_torch.reconstruct.learned import training_data as td
+    from hbis_torch.reconstruct.learned.inputs import sensor_noise_params
 
     base = FoveaSystem()
 
@@ -64,7 +65,7 @@ def training_domain() -> dict:
         return optics_cutoff(dataclasses.replace(base, camera=dataclasses.replace(base.camera, f_number=f_number)))
 
     def noise(full_well: float, read: float, bits: int) -> float:
-        return noise_at_mid_grey((1.0 / full_well, (read / full_well) ** 2 + 1.0 / (12.0 * (2**bits - 1) ** 2)))
+        return noise_at_mid_grey(sensor_noise_params(full_well, read, bits))
 
     return {"cutoff_cycles_per_px": [cutoff(td.F_NUMBER[1]), cutoff(td.F_NUMBER[0])],
             "noise_at_mid_grey": [noise(td.FULL_WELL_E[1], td.READ_NOISE_E[0], max(td.BIT_DEPTHS)),

@@ -60,12 +60,19 @@ def noise_params_from_meta(meta: dict) -> tuple[float, float] | None:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
                     or value < least:
                 raise HbisInputError(f"the stack's sensor {name} must be a finite number >= {least:g}, got {value!r}")
-        b = (read / full_well) ** 2
         bits = meta.get("bit_depth")
-        if isinstance(bits, int) and not isinstance(bits, bool) and bits > 0:
-            b += 1.0 / (12.0 * (2**bits - 1) ** 2)
-        return 1.0 / full_well, b
+        return sensor_noise_params(full_well, read, bits if isinstance(bits, int) and not isinstance(bits, bool)
+                                   and bits > 0 else None)
     return None
+
+
+def sensor_noise_params(full_well_e: float, read_noise_e: float, bit_depth: int | None = None) -> tuple[float, float]:
+    """Poisson-Gaussian noise parameters (a, b) of a sensor: a = 1 / full well (shot noise),
+    b = (read noise / full well)^2, plus the ADC's rounding (1 DN^2 / 12) for a ``bit_depth``."""
+    b = (read_noise_e / full_well_e) ** 2
+    if bit_depth is not None:
+        b += 1.0 / (12.0 * (2**bit_depth - 1) ** 2)
+    return 1.0 / full_well_e, b
 
 
 def estimate_noise_params(frames) -> tuple[float, float]:
