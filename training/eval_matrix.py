@@ -1,6 +1,6 @@
 """The learned method against the classical one on stacks the training never saw.
 
-    python training/eval_matrix.py [--h 2 4 7] [--models hbis_torch/models] [--out matrix.json]
+    python training/eval_matrix.py [--h 2 4 7] [--models hbis_torch/models] [--ensemble 8] [--out matrix.json]
 
 Held out from training on every axis at once:
 
@@ -152,6 +152,8 @@ def main(argv=None) -> int:
     parser.add_argument("--models", type=Path, default=None, help="folder of hbis_sr_h{h}.onnx (default: shipped)")
     parser.add_argument("--size", type=int, default=72, help="LR side of each stack (h = 7: 2/3 of it)")
     parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS)
+    parser.add_argument("--ensemble", type=int, default=1, choices=(1, 2, 4, 8),
+                        help="the learned method's geometric self-ensemble (hbis reconstruct --ensemble)")
     parser.add_argument("--out", type=Path, default=None, help="write every cell as JSON")
     args = parser.parse_args(argv)
     if args.out is not None and args.out.exists():
@@ -168,18 +170,20 @@ def main(argv=None) -> int:
         classical_image, noise_params = classical_and_noise(stack, "optics")
         args_ = (classical_image, noise_params, optics_cutoff(stack.system))
         notes: list[str] = []
-        learned_image = runners[h](*args_, messages=notes)
+        learned_image = runners[h](*args_, messages=notes, ensemble=args.ensemble)
         classical, learned = score(classical_image, truth, h), score(learned_image, truth, h)
-        cell = {"h": h, "condition": CONDITIONS[c].name, "photo": photo, "classical_db": classical,
+        cell = {"h": h, "condition": CONDITIONS[c].name, "photo": photo, "ensemble": args.ensemble,
+                "classical_db": classical,
                 "learned_db": learned, "delta_db": learned - classical,
                 "classical_returned": notes[0] if notes else None,  # and why
                 # the noise the network was told, and a single frame's estimate, over the sensor's
                 "noise_ratio": noise_ratio(noise_params, CONDITIONS[c]),
                 "frames_noise_ratio": noise_ratio(estimate_noise_params(stack.to_float().numpy()), CONDITIONS[c])}
         if notes:  # what the network would have done there
-            cell["extrapolated_delta_db"] = score(runners[h](*args_, extrapolate=True), truth, h) - classical
+            cell["extrapolated_delta_db"] = score(runners[h](*args_, extrapolate=True, ensemble=args.ensemble), truth, h) - classical
         cells.append(cell)
-    print(f"# learned - classical, dB (PSNR vs truth, border {2} LR px); {time.monotonic() - started:.0f} s")
+    print(f"# learned - classical, dB (PSNR vs truth, border {2} LR px), self-ensemble of {args.ensemble}; "
+          f"{time.monotonic() - started:.0f} s")
     for h in args.h:
         rows = [x for x in cells if x["h"] == h]
         print(f"\n## h = {h}\n")

@@ -30,6 +30,10 @@ def register(sub) -> None:
                    help="learned: run the network on a stack outside its training domain too (a lens "
                    "blurrier, or noise far lower or higher, than any it was trained on); by default such "
                    "a stack gets the classical image, with a message")
+    p.add_argument("--ensemble", type=int, choices=(1, 2, 4, 8), default=None,
+                   help="learned: average the network over this many of the square's 8 flips and "
+                   "rotations (geometric self-ensemble; default 1): as many times the network's time, "
+                   "for +0.1 to +0.2 dB on held-out photographs at 8")
     p.add_argument("--out", type=Path, required=True, help="output TIFF")
     p.add_argument("--registration", choices=("auto", "optics", "data"), default="auto",
                    help="sample positions from the tracer ('optics'), the tracer corrected by "
@@ -65,14 +69,14 @@ def run(args) -> int:
         )
     kw = {}
     if args.method == "classical":
-        for name in ("model", "provider"):
+        for name in ("model", "provider", "ensemble"):
             if getattr(args, name) is not None:
-                raise HbisInputError(f"--{name} is only for --method learned; the classical method has no ONNX model")
+                raise HbisInputError(f"--{name} is only for --method learned; the classical method runs no network")
         if args.extrapolate:
             raise HbisInputError("--extrapolate is only for --method learned")
         kw["deblur"] = not args.no_deblur
     else:
-        kw.update({name: getattr(args, name) for name in ("model", "provider", "threads")
+        kw.update({name: getattr(args, name) for name in ("model", "provider", "threads", "ensemble")
                    if getattr(args, name) is not None})
         kw["extrapolate"] = args.extrapolate
     from hbis_torch.capture.calibration import calibrate_stack, load_calibration

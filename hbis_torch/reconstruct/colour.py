@@ -106,14 +106,16 @@ def _joint_demosaic_classical(stack, registration: str, messages=None, deblur: b
 
 
 def _joint_demosaic_learned(stack, registration: str, messages=None, model=None, threads=None,
-                            provider: str = "auto", extrapolate: bool = False) -> np.ndarray:
+                            provider: str = "auto", extrapolate: bool = False, ensemble: int = 1) -> np.ndarray:
     """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
     refined by the network, with the noise of the sensor model or of one colour's sub-lattice."""
     from hbis_torch.reconstruct.classical.transfer import optics_cutoff
     from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params, noise_params_from_meta
+    from hbis_torch.reconstruct.learned.inputs import check_ensemble
     from hbis_torch.reconstruct.learned.runtime import check_model
 
     path, _ = check_model(model, stack.h)
+    check_ensemble(ensemble)
     planes = _joint_demosaic_classical(stack, registration, messages=messages)
     runner = LearnedSR(model=path, threads=threads, provider=provider)
     noise = noise_params_from_meta(stack.meta)
@@ -122,7 +124,7 @@ def _joint_demosaic_learned(stack, registration: str, messages=None, model=None,
     cutoff = optics_cutoff(stack.system)
     notes: list[str] = []
     out = np.stack([runner(np.ascontiguousarray(planes[..., c]), noise, cutoff, messages=notes,
-                           extrapolate=extrapolate) for c in range(3)], axis=-1)
+                           extrapolate=extrapolate, ensemble=ensemble) for c in range(3)], axis=-1)
     if messages is not None:
         messages.extend(dict.fromkeys(notes))  # the same line for each plane: once
     return out

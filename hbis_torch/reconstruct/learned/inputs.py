@@ -176,6 +176,83 @@ def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 25
     return out
 
 
+# The square's symmetries in the order a self-ensemble of 1, 2, 4 or 8 takes them: k < 4 is
+# rot90 k times; k >= 4 is the transpose, then rot90 (k - 4) times.
+ENSEMBLE_ORDER = (0, 4, 2, 6, 1, 5, 3, 7)
+ENSEMBLE_SIZES = (1, 2, 4, 8)
+
+
+def _transform_phases(phases: np.ndarray, k: int) -> np.ndarray:
+    """Symmetry ``k`` of the image behind ``phases`` (h, h, H, W), on the phases themselves.
+
+    Axis order (dy, dx, y, x): the image's row is ``h y + dy`` and its column ``h x + dx``, so
+    transposing the image swaps (dy, dx) and (y, x), and flipping its rows flips dy and y.
+    """
+    if k >= 4:
+        phases = phases.transpose(1, 0, 3, 2)
+    for _ in range(k % 4):  # np.rot90: the transpose, then the rows reversed
+        phases = phases.transpose(1, 0, 3, 2)[::-1, :, ::-1, :]
+    return phases
+
+
+def _transform_image(image: np.ndarray, k: int) -> np.ndarray:
+    return np.rot90(image.T if k >= 4 else image, k % 4)
+
+
+def _untransform_image(image: np.ndarray, k: int) -> np.ndarray:
+    image = np.rot90(image, -(k % 4))
+    return image.T if k >= 4 else image
+
+
+def check_ensemble(count) -> int:
+    """``count`` if it is a self-ensemble size (:data:`ENSEMBLE_SIZES`), else one clear error."""
+    if not isinstance(count, (int, np.integer)) or isinstance(count, bool) or count not in ENSEMBLE_SIZES:
+        raise HbisInputError(f"ensemble must be one of {', '.join(map(str, ENSEMBLE_SIZES))}, got {count!r}")
+    return int(count)
+
+
+def self_ensemble(run_network, h: int, count: int):
+    """``run_network`` averaged over ``count`` of the square's 8 symmetries (geometric self-ensemble).
+
+    The network was trained under all 8 flips and transposes of its crops, so each symmetry gives
+    an equally good estimate whose errors are partly independent; their mean is better than any
+    one (docs/learned.md, "Held-out validation"), at ``count`` times the network's cost.
+
+    Parameters
+    ----------
+    run_network : callable
+        (h^2, H, W), (1, H, W) float32 -> (hH, hW) float32.
+    h : int
+    count : {1, 2, 4, 8}
+        How many symmetries (:data:`ENSEMBLE_ORDER`); 1 returns ``run_network`` itself.
+
+    Returns
+    -------
+    callable
+        With the signature of ``run_network``.
+    """
+    if check_ensemble(count) == 1:
+        return run_network
+
+    def run(base: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        phases = base.reshape(h, h, *base.shape[1:])
+        total = None
+        for k in ENSEMBLE_ORDER[:count]:
+            b = np.ascontiguousarray(_transform_phases(phases, k))
+            b = b.reshape(h * h, *b.shape[2:])
+            n = np.ascontiguousarray(_transform_image(noise[0], k))[None]
+            out = _untransform_image(run_network(b, n), k)
+            if total is None:
+                total = np.array(out, dtype=np.float32)  # a new, C-ordered array
+            else:
+                total += out
+            del b, n, out
+        total /= np.float32(count)
+        return total
+
+    return run
+
+
 def band_limit(correction: np.ndarray, h: int, cutoff: float | None) -> np.ndarray:
     """The correction without what lies beyond the lens's diffraction cutoff, in place.
 
@@ -227,7 +304,7 @@ def band_limit(correction: np.ndarray, h: int, cutoff: float | None) -> np.ndarr
 
 
 def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
-                  name: str = "the network", cutoff: float | None = None) -> np.ndarray:
+                  name: str = "the network", cutoff: float | None = None, ensemble: int = 1) -> np.ndarray:
     """Classical image and noise parameters -> refined image, around any runner of the network.
 
     Parameters
@@ -245,11 +322,14 @@ def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
     cutoff : float, optional
         The lens's diffraction cutoff, cycles per LR pixel: the network's correction is limited
         to it (:func:`band_limit`).
+    ensemble : {1, 2, 4, 8}
+        Average the network over this many of the square's symmetries (:func:`self_ensemble`).
 
     Returns
     -------
     ndarray, shape (hH, hW), float32 in [0, 1]
     """
+    run_network = self_ensemble(run_network, h, ensemble)  # checks ``ensemble`` before any work
     base, noise = network_inputs(image, h, noise_params)
     out = run_network(base, noise)
     del base, noise  # a full frame's worth each: not held through what follows

@@ -288,7 +288,7 @@ class LearnedSR:
             return run_tiled(infer, base, noise, self.h, self.tile, self.halo)
 
     def __call__(self, image, noise_params: tuple[float, float], cutoff: float | None = None, *,
-                 messages: list | None = None, extrapolate: bool = False) -> np.ndarray:
+                 messages: list | None = None, extrapolate: bool = False, ensemble: int = 1) -> np.ndarray:
         """Refine a classical image (hH, hW) in [0, 1] of frames of noise variance ``a x + b``.
 
         A stack outside the model's training domain, or any stack for a model that did not beat
@@ -310,6 +310,9 @@ class LearnedSR:
             Receives the line saying why the classical image is returned.
         extrapolate : bool
             Run the network anyway.
+        ensemble : {1, 2, 4, 8}
+            Average the network over this many of the square's symmetries, at as many times its
+            cost (:func:`~hbis_torch.reconstruct.learned.inputs.self_ensemble`).
 
         Returns
         -------
@@ -318,7 +321,7 @@ class LearnedSR:
         reason = self.unhelpful or outside_domain(self.domain, noise_params, cutoff)
         if reason is not None and not extrapolate:
             return classical_returned(image, reason, messages)
-        return super_resolve(self.run_network, image, self.h, noise_params, self.path.name, cutoff)
+        return super_resolve(self.run_network, image, self.h, noise_params, self.path.name, cutoff, ensemble)
 
 
 def classical_returned(image, reason: str, messages: list | None = None) -> np.ndarray:
