@@ -58,6 +58,7 @@ weight_decay = 1e-4
 grad_clip = 1.0  # largest gradient norm (0: no clipping); guards against loss spikes at the peak lr
 warmup_steps = 200
 loss_kind = "db"  # "db": each crop's PSNR gain over its classical image (see crop_loss); "l1"
+loss_floor = 1e-9  # "db" loss: MSE added to both of its sides, so that crops cleaner than this (1e-5: 50 dB) count less
 max_steps = 100_000  # whichever of max_steps / max_minutes comes first ends the run
 max_minutes = 20.0  # wall-clock budget for training (validation included)
 eval_interval = 100  # steps between validation + checkpoint
@@ -219,13 +220,14 @@ def crop_loss(image, base_image, truth):
     over the classical image (in nepers, 1 = 4.34 dB), so that a clean crop near 60 dB counts as
     much as a noisy one near 30 dB: with a plain L1 the noisy crops dominate the gradient and the
     network learns to disturb the clean ones, which lose dB where the classical image was already
-    right. ``"l1"``: the plain mean absolute error.
+    right. ``loss_floor`` is added to both MSEs: a crop whose classical image is far cleaner than
+    it (``1e-5``: 50 dB) hardly counts. ``"l1"``: the plain mean absolute error.
     """
     if loss_kind == "l1":
         return F.l1_loss(image, truth)
     mse = (image - truth).square().mean(dim=(1, 2, 3))
     reference = (base_image - truth).square().mean(dim=(1, 2, 3))
-    return (torch.log(mse + 1e-9) - torch.log(reference + 1e-9)).mean()
+    return (torch.log(mse + loss_floor) - torch.log(reference + loss_floor)).mean()
 
 
 def learning_rate(progress: float, at_step: int) -> float:
