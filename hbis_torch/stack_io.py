@@ -376,7 +376,7 @@ class Stack:
         white = 2 ** self.bit_depth - 1
         black = self.black_level
         x = torch.from_numpy(self.frames.astype(np.float32))
-        return ((x - black) / (white - black)).clamp_(0.0, 1.0)
+        return x.sub_(black).div_(white - black).clamp_(0.0, 1.0)  # in place: a full frame's stack is 80 MB
 
 
 def read_stack(path) -> Stack:
