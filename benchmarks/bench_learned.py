@@ -167,7 +167,7 @@ def run_case(system, h, roi, scene_name, seed, runners, model, repeats, only=MET
 
         shipped = runners["learned-onnx"]
         return super_resolve(lambda a, b: run_tiled(infer, a, b, h, shipped.tile, shipped.halo),
-                             classical(), h, noise, cutoff=optics_cutoff(system))
+                             classical(), h, noise, cutoff=optics_cutoff(system), views=True)
 
     methods = {"bicubic": bicubic, "classical": classical}
     if model is not None:

@@ -107,13 +107,20 @@ def estimate_noise_params(frames) -> tuple[float, float]:
     return fit_noise_params(np.abs(immerkaer(f)), f[..., 1:-1, 1:-1], 6.0)
 
 
+def phase_planes(image: np.ndarray, h: int) -> np.ndarray:
+    """(hH, hW) -> (h, h, H, W), a view (no copy): ``[dy, dx, y, x]`` is ``image[h y + dy, h x + dx]``."""
+    rows, cols = image.shape[0] // h, image.shape[1] // h
+    return image.reshape(rows, h, cols, h).transpose(1, 3, 0, 2)
+
+
 def space_to_depth(image: np.ndarray, h: int) -> np.ndarray:
     """(hH, hW) -> (h^2, H, W): channel ``dy * h + dx`` holds ``image[h y + dy, h x + dx]``."""
-    rows, cols = image.shape[0] // h, image.shape[1] // h
-    return np.ascontiguousarray(image.reshape(rows, h, cols, h).transpose(1, 3, 0, 2).reshape(h * h, rows, cols))
+    planes = np.ascontiguousarray(phase_planes(image, h))
+    return planes.reshape(h * h, *planes.shape[2:])
 
 
-def network_inputs(image, h: int, noise_params: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+def network_inputs(image, h: int, noise_params: tuple[float, float],
+                   copy: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The network's inputs from the classical image and the frames' noise parameters.
 
     Parameters
@@ -124,10 +131,14 @@ def network_inputs(image, h: int, noise_params: tuple[float, float]) -> tuple[np
         Resolution improvement factor.
     noise_params : (float, float)
         (a, b) of the frames' noise variance ``a x + b``.
+    copy : bool
+        False: ``base`` is the (h, h, H, W) view of the image (:func:`phase_planes`), which
+        :func:`run_tiled` copies a tile at a time: no second image-sized array (240 MB for a
+        full frame at h = 7).
 
     Returns
     -------
-    base : ndarray, shape (h^2, H, W), float32
+    base : ndarray, shape (h^2, H, W) (``copy``) or (h, h, H, W) (a view), float32
         The image, space-to-depth.
     noise : ndarray, shape (1, H, W), float32
         ``NOISE_SCALE`` times the frames' noise level at each LR pixel's mean intensity.
@@ -138,10 +149,10 @@ def network_inputs(image, h: int, noise_params: tuple[float, float]) -> tuple[np
     a, b = (float(v) for v in noise_params)
     if not (math.isfinite(a) and math.isfinite(b) and a >= 0 and b >= 0):
         raise HbisInputError(f"noise parameters must be finite and >= 0, got {noise_params!r}")
-    base = space_to_depth(image, h)
-    level = np.clip(base.mean(axis=0), 0.0, 1.0)
+    planes = phase_planes(image, h)
+    level = np.clip(planes.mean(axis=(0, 1)), 0.0, 1.0)
     noise = (NOISE_SCALE * np.sqrt(a * level + b))[None].astype(np.float32)
-    return base, noise
+    return (space_to_depth(image, h) if copy else planes), noise
 
 
 def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 256,
@@ -152,7 +163,7 @@ def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 25
     ----------
     infer : callable
         (1, h^2, h_t, w_t), (1, 1, h_t, w_t) float32 arrays -> (1, 1, h h_t, h w_t).
-    base, noise : ndarray, shapes (h^2, H, W) and (1, H, W)
+    base, noise : ndarray, shapes (h^2, H, W) or (h, h, H, W) (:func:`phase_planes`), and (1, H, W)
     h, tile, halo : int
         Factor, tile side and halo in LR pixels; a halo wider than the network's receptive field
         radius makes the result independent of the tiling.
@@ -161,17 +172,20 @@ def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 25
     -------
     ndarray, shape (hH, hW), float32
     """
-    _, rows, cols = base.shape
-    if rows <= tile and cols <= tile:  # one tile: no halo, no stitching, no copies
-        return infer(np.ascontiguousarray(base[None]), np.ascontiguousarray(noise[None]))[0, 0]
+    rows, cols = base.shape[-2:]
+
+    def batch(array, ya, yb, xa, xb):  # (1, C, yb - ya, xb - xa), contiguous
+        return np.ascontiguousarray(array[..., ya:yb, xa:xb]).reshape(1, -1, yb - ya, xb - xa)
+
+    if rows <= tile and cols <= tile:  # one tile: no halo, no stitching
+        return infer(batch(base, 0, rows, 0, cols), batch(noise, 0, rows, 0, cols))[0, 0]
     out = np.empty((h * rows, h * cols), np.float32)
     for y0 in range(0, rows, tile):
         for x0 in range(0, cols, tile):
             y1, x1 = min(y0 + tile, rows), min(x0 + tile, cols)
             ya, xa = max(y0 - halo, 0), max(x0 - halo, 0)
             yb, xb = min(y1 + halo, rows), min(x1 + halo, cols)
-            image = infer(np.ascontiguousarray(base[None, :, ya:yb, xa:xb]),
-                          np.ascontiguousarray(noise[None, :, ya:yb, xa:xb]))[0, 0]
+            image = infer(batch(base, ya, yb, xa, xb), batch(noise, ya, yb, xa, xb))[0, 0]
             out[h * y0:h * y1, h * x0:h * x1] = image[h * (y0 - ya):h * (y1 - ya), h * (x0 - xa):h * (x1 - xa)]
     return out
 
@@ -211,7 +225,7 @@ def check_ensemble(count) -> int:
     return int(count)
 
 
-def self_ensemble(run_network, h: int, count: int):
+def self_ensemble(run_network, h: int, count: int, views: bool = False):
     """``run_network`` averaged over ``count`` of the square's 8 symmetries (geometric self-ensemble).
 
     The network was trained under all 8 flips and transposes of its crops, so each symmetry gives
@@ -221,10 +235,13 @@ def self_ensemble(run_network, h: int, count: int):
     Parameters
     ----------
     run_network : callable
-        (h^2, H, W), (1, H, W) float32 -> (hH, hW) float32.
+        base (h^2, H, W), noise (1, H, W), float32 -> (hH, hW) float32.
     h : int
     count : {1, 2, 4, 8}
         How many symmetries (:data:`ENSEMBLE_ORDER`); 1 returns ``run_network`` itself.
+    views : bool
+        ``run_network`` also takes base as a strided (h, h, H, W) view (as :func:`run_tiled`
+        does): each symmetry's base is then a view of the input, not a copy.
 
     Returns
     -------
@@ -235,11 +252,12 @@ def self_ensemble(run_network, h: int, count: int):
         return run_network
 
     def run(base: np.ndarray, noise: np.ndarray) -> np.ndarray:
-        phases = base.reshape(h, h, *base.shape[1:])
+        phases = base.reshape(h, h, *base.shape[-2:])
         total = None
         for k in ENSEMBLE_ORDER[:count]:
-            b = np.ascontiguousarray(_transform_phases(phases, k))
-            b = b.reshape(h * h, *b.shape[2:])
+            b = _transform_phases(phases, k)
+            if not views:
+                b = np.ascontiguousarray(b).reshape(h * h, *b.shape[2:])
             n = np.ascontiguousarray(_transform_image(noise[0], k))[None]
             out = _untransform_image(run_network(b, n), k)
             if total is None:
@@ -283,35 +301,43 @@ def band_limit(correction: np.ndarray, h: int, cutoff: float | None) -> np.ndarr
     if correction.dtype != np.float32 or not correction.flags.writeable:
         raise HbisInputError("band_limit needs a writeable float32 array")
     rows, cols = correction.shape
-    # float32 FFTs on every core, one axis at a time; the rows go through the last axis's
-    # transforms a band at a time, written back into the correction: besides it, only the half
-    # spectrum is held (a full frame at h = 7 is 60 M output pixels).
-    band = 256
-    spectrum = np.empty((rows, cols // 2 + 1), np.complex64)
+    fy2 = (np.fft.fftfreq(rows) * h)[:, None] ** 2  # cycles per LR pixel, squared
+    fx = np.fft.rfftfreq(cols) * h
+    # Only columns of the half spectrum that reach beyond 0.85 times the cutoff change (at h = 7
+    # and F 1.4 a third of them): the correction gains irfft2((taper - 1) x spectrum) there.
+    # float32 FFTs on every core, one axis at a time, a band of rows or columns at a time:
+    # besides the correction, only those columns' spectrum is held.
+    reaching = np.nonzero(np.sqrt(fx ** 2 + fy2.max()) > 0.85 * cutoff)[0]
+    if len(reaching) == 0:
+        return correction
+    first, band = int(reaching[0]), 256
+    spectrum = np.empty((rows, len(fx) - first), np.complex64)
     for r0 in range(0, rows, band):
-        spectrum[r0:r0 + band] = scipy.fft.rfft(correction[r0:r0 + band], axis=1, workers=-1)
-    spectrum = scipy.fft.fft(spectrum, axis=0, overwrite_x=True, workers=-1)
-    fy = np.fft.fftfreq(rows) * h  # cycles per LR pixel
-    fx2 = (np.fft.rfftfreq(cols) * h) ** 2
-    for r0 in range(0, rows, band):
-        radius = np.sqrt(fy[r0:r0 + band, None] ** 2 + fx2[None, :])
+        spectrum[r0:r0 + band] = scipy.fft.rfft(correction[r0:r0 + band], axis=1, workers=-1)[:, first:]
+    for c0 in range(0, spectrum.shape[1], band):
+        block = scipy.fft.fft(spectrum[:, c0:c0 + band], axis=0, workers=-1)
+        radius = np.sqrt(fy2 + fx[None, first + c0:first + c0 + band] ** 2)
         t = np.clip((radius / cutoff - 0.85) / 0.15, 0.0, 1.0)
-        spectrum[r0:r0 + band] *= (0.5 + 0.5 * np.cos(np.pi * t)).astype(np.float32)
-    spectrum = scipy.fft.ifft(spectrum, axis=0, overwrite_x=True, workers=-1)
+        block *= (0.5 * np.cos(np.pi * t) - 0.5).astype(np.float32)  # the taper, less 1
+        spectrum[:, c0:c0 + band] = scipy.fft.ifft(block, axis=0, overwrite_x=True, workers=-1)
+    full = np.zeros((min(band, rows), len(fx)), np.complex64)
     for r0 in range(0, rows, band):
-        correction[r0:r0 + band] = scipy.fft.irfft(spectrum[r0:r0 + band], n=cols, axis=1, workers=-1)
+        part = full[:min(band, rows - r0)]
+        part[:, first:] = spectrum[r0:r0 + band]
+        correction[r0:r0 + band] += scipy.fft.irfft(part, n=cols, axis=1, workers=-1)
     return correction
 
 
 def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
-                  name: str = "the network", cutoff: float | None = None, ensemble: int = 1) -> np.ndarray:
+                  name: str = "the network", cutoff: float | None = None, ensemble: int = 1,
+                  views: bool = False) -> np.ndarray:
     """Classical image and noise parameters -> refined image, around any runner of the network.
 
     Parameters
     ----------
     run_network : callable
-        (h^2, H, W), (1, H, W) float32 -> (hH, hW) float32, the raw network output, a new array
-        (it is clipped in place).
+        base (h^2, H, W), noise (1, H, W), float32 -> (hH, hW) float32, the raw network output,
+        a new array (it is clipped in place).
     image : array, shape (hH, hW)
         The classical reconstruction.
     h : int
@@ -324,15 +350,20 @@ def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
         to it (:func:`band_limit`).
     ensemble : {1, 2, 4, 8}
         Average the network over this many of the square's symmetries (:func:`self_ensemble`).
+    views : bool
+        ``run_network`` also takes base as the (h, h, H, W) view of the image
+        (:func:`phase_planes`), as :func:`run_tiled` and
+        :meth:`~hbis_torch.reconstruct.learned.LearnedSR.run_network` do: then no image-sized
+        copy of it is made (240 MB for a full frame at h = 7).
 
     Returns
     -------
     ndarray, shape (hH, hW), float32 in [0, 1]
     """
-    run_network = self_ensemble(run_network, h, ensemble)  # checks ``ensemble`` before any work
-    base, noise = network_inputs(image, h, noise_params)
+    run_network = self_ensemble(run_network, h, ensemble, views)  # checks ``ensemble`` before any work
+    base, noise = network_inputs(image, h, noise_params, copy=not views)
     out = run_network(base, noise)
-    del base, noise  # a full frame's worth each: not held through what follows
+    del base, noise
     # A model is a function of float32 inputs in [0, 1]; anything non-finite here is a bug
     # in the model file, not in the stack.
     if not np.isfinite(out).all():

@@ -272,7 +272,7 @@ class LearnedSR:
         return self.session.run(["image"], {"base": base, "noise": noise})[0]
 
     def run_network(self, base: np.ndarray, noise: np.ndarray) -> np.ndarray:
-        """Raw network output, tiled; (h^2, H, W), (1, H, W) -> (hH, hW).
+        """Raw network output, tiled; base (h^2, H, W) or (h, h, H, W), noise (1, H, W) -> (hH, hW).
 
         A progress bar counts the tiles (:mod:`hbis_torch.progress`)."""
         from hbis_torch.progress import progress
@@ -321,7 +321,8 @@ class LearnedSR:
         reason = self.unhelpful or outside_domain(self.domain, noise_params, cutoff)
         if reason is not None and not extrapolate:
             return classical_returned(image, reason, messages)
-        return super_resolve(self.run_network, image, self.h, noise_params, self.path.name, cutoff, ensemble)
+        return super_resolve(self.run_network, image, self.h, noise_params, self.path.name, cutoff, ensemble,
+                             views=True)
 
 
 def classical_returned(image, reason: str, messages: list | None = None) -> np.ndarray:
