@@ -150,7 +150,12 @@ def network_inputs(image, h: int, noise_params: tuple[float, float],
     if not (math.isfinite(a) and math.isfinite(b) and a >= 0 and b >= 0):
         raise HbisInputError(f"noise parameters must be finite and >= 0, got {noise_params!r}")
     planes = phase_planes(image, h)
-    level = np.clip(planes.mean(axis=(0, 1)), 0.0, 1.0)
+    # each LR pixel's mean over its h^2 phases, summed a phase at a time (numpy's mean over the
+    # two strided axes at once is 10 times slower, and this is its value over channels)
+    level = planes[0, 0].copy()
+    for phase in range(1, h * h):
+        level += planes[phase // h, phase % h]
+    level = np.clip(level / np.float32(h * h), 0.0, 1.0)
     noise = (NOISE_SCALE * np.sqrt(a * level + b))[None].astype(np.float32)
     return (space_to_depth(image, h) if copy else planes), noise
 
