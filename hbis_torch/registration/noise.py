@@ -94,18 +94,22 @@ def fit_noise_params(residual, level, gain: float, where=None) -> tuple[float, f
     d, level = d[::stride], level[::stride]
     if not d.size:
         raise ValueError("no pixels to measure the noise on")
+
+    def variance(values) -> float:  # robust: the median absolute output, as a Gaussian's
+        return float((1.4826 * np.median(values) / gain) ** 2)
+
     edges = np.unique(np.quantile(level, np.linspace(0, 1, 9)))
     if edges.size < 2:  # a constant stack: one bin
-        return 0.0, float((1.4826 * np.median(d) / gain) ** 2)
+        return 0.0, variance(d)
     which = np.clip(np.searchsorted(edges, level, side="right") - 1, 0, edges.size - 2)
     xs, vs = [], []
     for k in range(edges.size - 1):
         inside = which == k
         if inside.sum() >= 50:
             xs.append(float(level[inside].mean()))
-            vs.append(float((1.4826 * np.median(d[inside]) / gain) ** 2))
+            vs.append(variance(d[inside]))
     if not xs:  # too few values for any bin: one level
-        return 0.0, float((1.4826 * np.median(d) / gain) ** 2)
+        return 0.0, variance(d)
     xs, vs = np.array(xs), np.array(vs)
     if xs.size < 2 or np.ptp(xs) < 1e-6:
         return 0.0, float(vs.mean())

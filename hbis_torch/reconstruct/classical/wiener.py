@@ -140,8 +140,9 @@ def _irfft2_in_place(spectrum: Tensor, shape: tuple[int, int], out: Tensor | Non
     The inverse along the columns is done a block of columns at a time, written back into
     ``spectrum`` (which is overwritten), then the rows' inverse a block of rows at a time into
     ``out``: 240 MB less at the peak for a full frame at h = 7, in the same time there (1.45 s
-    against 1.50 s on 2 cores) but 1.6 times irfft2's on a full frame at h = 4, which is
-    why spectra under :data:`IN_PLACE_FFT_SIZE` go to irfft2 itself. The values are the same.
+    against 1.50 s, on 2 cores shared with two training runs) but 1.6 times irfft2's on a full
+    frame at h = 4, which is why spectra under :data:`IN_PLACE_FFT_SIZE` go to irfft2 itself.
+    The values are the same.
     """
     if spectrum.numel() < IN_PLACE_FFT_SIZE:
         return torch.fft.irfft2(spectrum, s=shape, out=out)
