@@ -13,8 +13,10 @@ from hbis_torch.reconstruct.learned.training_data import (
     BIT_DEPTHS,
     F_NUMBER,
     FULL_WELL_E,
+    HELD_OUT_PHOTOS,
     POOL_KEYS,
     SCENE_WEIGHTS,
+    TRAIN_PHOTOS,
     TRAIN_SCENES,
     build_pool,
     crop_example,
@@ -157,7 +159,7 @@ def test_dead_leaves_covers_the_raster_with_flat_discs():
     assert np.mean(image[:, 1:] == image[:, :-1]) > 0.5
 
 
-@pytest.mark.parametrize("name", ["dead-leaves", "natural-field"])
+@pytest.mark.parametrize("name", ["dead-leaves", "natural-field", "photograph"])
 def test_natural_images_fill_the_view_in_range_and_clip_when_overexposed(name):
     from hbis_torch.simulate import SceneSpec
 
@@ -172,3 +174,30 @@ def test_natural_images_fill_the_view_in_range_and_clip_when_overexposed(name):
         assert 40 / 4 - 1 <= image.shape[1] <= 40 * 8 + 1
         bright = natural_image(name, spec, np.random.default_rng(seed), exposure=4.0).image.numpy()
         assert bright.max() == 1.0 and np.mean(bright == 1.0) > np.mean(image == 1.0)
+
+
+def test_no_held_out_photograph_reaches_a_training_scene(monkeypatch):
+    from hbis_torch.reconstruct.learned import training_data
+    from hbis_torch.simulate import SceneSpec
+    from hbis_torch.simulate.rasters import PHOTOS, photo
+
+    assert set(HELD_OUT_PHOTOS) <= set(PHOTOS) and len(TRAIN_PHOTOS) >= 8
+    assert not set(TRAIN_PHOTOS) & set(HELD_OUT_PHOTOS)
+    read = []
+    monkeypatch.setattr(training_data, "photo", lambda name: read.append(name) or photo(name))
+    pixel = FoveaSystem().object_pixel_mm
+    spec = SceneSpec(size_mm=(96 * pixel, 96 * pixel), pixel_mm=pixel, detail_mm=pixel / 16)
+    for seed in range(40):
+        image = natural_image("photograph", spec, np.random.default_rng(seed)).image.numpy()
+        assert image.shape[0] >= 96 / 4 - 1 and image.shape[1] >= 96 / 4 - 1
+    assert set(read) <= set(TRAIN_PHOTOS) and len(set(read)) >= 6  # many photographs, never a held-out one
+
+
+def test_the_measured_noise_row_is_the_lattice_estimate_near_the_sensor_model():
+    # What the learned method measures on a stack without a sensor model; a single frame's
+    # estimate would be several times too high on detailed scenes.
+    from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
+
+    pool = build_pool(h=4, count=6, size=48, seed=0)
+    ratios = [noise_at_mid_grey(ex["noise"][1]) / noise_at_mid_grey(ex["noise"][0]) for ex in pool]
+    assert 0.9 < np.median(ratios) < 1.2 and max(ratios) < 2.0, ratios

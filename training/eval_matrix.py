@@ -4,8 +4,9 @@
 
 Held out from training on every axis at once:
 
-* **Scenes**: photographs from scikit-image (:data:`PHOTOS`); the training pool has only
-  procedural scenes and procedural natural-image rasters.
+* **Scenes**: photographs from scikit-image (:data:`PHOTOS`, the training pipeline's
+  ``HELD_OUT_PHOTOS``); the training pool has procedural scenes, procedural natural-image rasters
+  and scikit-image's other photographs (brick, grass, gravel, moon, ...), never these.
 * **Forward models** the training never used: a Gaussian lens PSF in place of the Airy one, and
   vignetting with fixed-pattern noise (pixel gain and dark offsets, the same in every frame).
 * **Settings outside the training ranges**: F 11 (training: F 1 to 8) and a 300,000 e- full well
@@ -43,12 +44,13 @@ from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
 from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
 from hbis_torch.reconstruct.learned.inputs import sensor_noise_params
 from hbis_torch.reconstruct.learned.method import classical_and_noise
+from hbis_torch.reconstruct.learned.training_data import HELD_OUT_PHOTOS
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
 from hbis_torch.simulate.stacks import scene_for_roi
 from hbis_torch.stack_io import Stack
 
-PHOTOS = ("camera", "astronaut", "coffee", "chelsea", "rocket")
+PHOTOS = HELD_OUT_PHOTOS
 
 
 @dataclasses.dataclass(frozen=True)

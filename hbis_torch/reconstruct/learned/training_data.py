@@ -13,19 +13,19 @@ scan the training never saw exactly (:func:`draw_example`):
   (unknown to the classical step, as a real lens's focus is), fill factor 0.5 to 1;
 * the noise: full well 1,000 to 100,000 e-, read noise 1 to 15 e-, 8 to 16 bits, exposures from
   a tenth of full scale to clipped highlights;
-* the scene: procedural test scenes (words, texture, edges, bars, Siemens stars, gradients) and
+* the scene: procedural test scenes (words, texture, edges, bars, Siemens stars, gradients),
   procedural *natural-image* rasters (dead leaves and 1/f^2 random fields, :func:`natural_image`)
-  from 1/8 to 4 sensor pixels per raster pixel. Photographs are *not* used for training: they are
-  the held-out test (training/eval_matrix.py).
+  and the photographs of :data:`TRAIN_PHOTOS` (:func:`photo_raster`), from 1/8 to 4 sensor pixels
+  per raster pixel. The photographs of :data:`HELD_OUT_PHOTOS` are never used for training: they
+  are the held-out test (training/eval_matrix.py).
 
 Each example keeps the classical image, the truth and two noise models: the one the stack's
-sensor model gives and the one measured from its frames (:func:`estimate_noise_params`, which
-detailed scenes push several times too high at low noise); a training crop takes either, so the
-network learns to use both. The learned method measures a stack's noise on the classical step's
-lattice instead (:func:`~hbis_torch.reconstruct.learned.method.classical_and_noise`), close to
-the sensor model's: the noise the network saw in half of its crops. Crops are transformed by the
-8 flips/transposes of the square (both images are on the same output grid, so they move
-together).
+sensor model gives and the one measured on the classical step's lattice
+(:func:`~hbis_torch.reconstruct.classical.lattice_noise_params`), as the learned method measures
+a stack without a sensor model (:func:`~hbis_torch.reconstruct.learned.method.classical_and_noise`);
+a training crop takes either, so the network learns the measurement's errors too. Crops are
+transformed by the 8 flips/transposes of the square (both images are on the same output grid, so
+they move together).
 
 This is the project's one training-data pipeline (training/train_sr.py, the tests and
 benchmarks/bench_simulate.py use it):
@@ -54,7 +54,7 @@ from hbis_torch.config import Camera, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_path
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
-from hbis_torch.reconstruct.learned.inputs import estimate_noise_params, network_inputs, noise_params_from_meta
+from hbis_torch.reconstruct.learned.inputs import network_inputs, noise_params_from_meta
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import (
     SceneSpec,
@@ -63,12 +63,16 @@ from hbis_torch.simulate import (
     sample_positions,
     simulate_stack,
 )
-from hbis_torch.simulate.rasters import texture_image
+from hbis_torch.simulate.rasters import PHOTOS, photo, texture_image
 from hbis_torch.simulate.scenes import ImageScene
 
-NATURAL_SCENES = ("dead-leaves", "natural-field")
+HELD_OUT_PHOTOS = ("camera", "astronaut", "coffee", "chelsea", "rocket")
+"""The photographs of the held-out test (training/eval_matrix.py): never in a training pool."""
+TRAIN_PHOTOS = tuple(name for name in PHOTOS if name not in HELD_OUT_PHOTOS)
+"""The other photographs shipped with scikit-image: rasters of the ``"photograph"`` scenes."""
+NATURAL_SCENES = ("dead-leaves", "natural-field", "photograph")
 TRAIN_SCENES = ("words", "texture", "edges", "bars", "siemens-star", "gradient", "slanted-edge") + NATURAL_SCENES
-SCENE_WEIGHTS = (0.15, 0.1, 0.05, 0.05, 0.05, 0.05, 0.05, 0.3, 0.2)
+SCENE_WEIGHTS = (0.15, 0.1, 0.05, 0.05, 0.05, 0.05, 0.05, 0.2, 0.1, 0.2)
 # Ranges of the randomised degradations (log-uniform where the range spans decades).
 F_NUMBER = (1.0, 8.0)
 DEFOCUS_WAVES = 0.6  # largest defocus (W020, waves), in half of the examples
@@ -81,7 +85,7 @@ RASTER_PX = (1 / 8, 4.0)  # sensor pixels per raster pixel of a natural raster
 PHASE_ERROR_DEG = 0.05  # largest phase error, in half of the examples
 POOL_KEYS = ("base", "truth", "noise", "roi", "scene")  # the entries of a pool example
 # Bumped whenever the pool's contents change, so that cached pools of another kind are not reused.
-POOL_VERSION = 3
+POOL_VERSION = 4
 
 
 def dead_leaves(shape, rng: np.random.Generator, r_min: float = 1.0) -> np.ndarray:
@@ -125,17 +129,21 @@ def dead_leaves(shape, rng: np.random.Generator, r_min: float = 1.0) -> np.ndarr
 
 
 def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator, exposure: float = 1.0) -> ImageScene:
-    """A procedural stand-in for a photograph: a dead-leaves raster or a 1/f^2 random field.
+    """A natural-image scene: a dead-leaves raster, a 1/f^2 random field or a training photograph.
 
     The raster pixel is :data:`RASTER_PX` sensor pixels (log-uniform) and the scene reads it by
     bilinear interpolation, as a photograph stretched over the view is read: coarse rasters give
-    smooth, interpolated content, fine ones sharp natural detail. Contrast and mean level are
-    random; ``exposure`` then scales the grey levels, and what passes full scale clips.
+    smooth, interpolated content, fine ones sharp natural detail. A photograph (one of
+    :data:`TRAIN_PHOTOS`, turned by one of the square's 8 symmetries) gives a crop of its own
+    pixels; where it has too few pixels for the view at the drawn scale, its pixels are read
+    coarser. Contrast and mean level are random; ``exposure`` then scales the grey levels, and
+    what passes full scale clips.
 
     Parameters
     ----------
     name : str
-        ``"dead-leaves"`` (:func:`dead_leaves`) or ``"natural-field"`` (a 1/f^beta field).
+        ``"dead-leaves"`` (:func:`dead_leaves`), ``"natural-field"`` (a 1/f^beta field) or
+        ``"photograph"``.
     spec : SceneSpec
         The view to cover: ``size_mm`` (width, height) in mm and ``pixel_mm``, the sensor
         pixel's footprint in the object plane, mm.
@@ -150,9 +158,18 @@ def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator, exposure
         Of ``spec.size_mm``, its raster (rows, cols) float32 in [0, 1].
     """
     raster_px = float(np.exp(rng.uniform(np.log(RASTER_PX[0]), np.log(RASTER_PX[1]))))
+    if name == "photograph":
+        source = photo(str(rng.choice(TRAIN_PHOTOS)))
+        source = np.rot90(source, int(rng.integers(4)))[:, ::int(rng.choice((-1, 1)))]
+        fits = max(spec.size_mm[0] / source.shape[1], spec.size_mm[1] / source.shape[0]) / spec.pixel_mm
+        raster_px = max(raster_px, fits)
     cols = max(8, int(np.ceil(spec.size_mm[0] / (spec.pixel_mm * raster_px))))
     rows = max(8, int(np.ceil(spec.size_mm[1] / (spec.pixel_mm * raster_px))))
-    if name == "dead-leaves":
+    if name == "photograph":
+        rows, cols = min(rows, source.shape[0]), min(cols, source.shape[1])
+        y0, x0 = (int(rng.integers(0, n - m + 1)) for n, m in zip(source.shape, (rows, cols)))
+        image = np.ascontiguousarray(source[y0:y0 + rows, x0:x0 + cols])
+    elif name == "dead-leaves":
         image = dead_leaves((rows, cols), rng, r_min=float(rng.uniform(0.5, 2.0)))
     else:
         image = texture_image((rows, cols), correlation_px=float(rng.uniform(0.0, 1.0)), rng=rng,
@@ -287,7 +304,7 @@ def simulate_example(h: int, size: int, seed: int, system: FoveaSystem | None = 
     dict
         ``base`` (h size, h size) float32, the classical image; ``truth`` (h size, h size)
         float32; ``noise`` (2, 2) float32, the noise parameters (a, b) of the stack's sensor
-        model (row 0) and measured from its frames (row 1); ``roi`` (4,) and ``scene`` (name).
+        model (row 0) and measured on the classical step's lattice (row 1); ``roi`` (4,) and ``scene`` (name).
     """
     system = system or FoveaSystem()
     draw = draw_example(system.camera, h, size, seed)
@@ -306,9 +323,10 @@ def simulate_example(h: int, size: int, seed: int, system: FoveaSystem | None = 
                                   phase_error_deg=draw.phase_error_deg)
     # The classical step sees what a user's stack says: the planned phases, not the erroneous ones.
     positions = sample_positions(system, plan.phases_deg, plan.reference_index, draw.roi)
-    frames = stack.to_float()
-    base = classical_sr(frames, positions, h, cutoff=optics_cutoff(system), fill_factor=draw.sensor.fill_factor)
-    noise = np.array([noise_params_from_meta(stack.meta), estimate_noise_params(frames.numpy())], np.float32)
+    measured = []  # the noise measured on the classical step's lattice, as the learned method measures it
+    base = classical_sr(stack.to_float(), positions, h, cutoff=optics_cutoff(system),
+                        fill_factor=draw.sensor.fill_factor, noise_params_out=measured)
+    noise = np.array([noise_params_from_meta(stack.meta), measured[0]], np.float32)
     return {
         "base": base.numpy(),
         "truth": np.asarray(truth, np.float32),
@@ -389,8 +407,8 @@ def dihedral(base, truth, k: int):
 def crop_example(example: dict, h: int, patch: int, rng: np.random.Generator, augment: bool = True):
     """A random (patch x patch) crop, transformed, as the network's inputs and the truth.
 
-    The noise map comes from the example's sensor model or from its measured noise, one or the
-    other at random.
+    The noise map comes from the example's sensor model or from the noise measured on its
+    lattice, one or the other at random.
 
     Parameters
     ----------
@@ -447,7 +465,7 @@ def whole_example(example: dict, h: int, measured_noise: bool = False):
     Parameters
     ----------
     measured_noise : bool
-        Use the noise measured from the frames rather than the sensor model's.
+        Use the noise measured on the lattice rather than the sensor model's.
 
     Returns
     -------
