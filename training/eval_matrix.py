@@ -44,13 +44,13 @@ from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
 from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
 from hbis_torch.reconstruct.learned.inputs import sensor_noise_params
 from hbis_torch.reconstruct.learned.method import classical_and_noise
-from hbis_torch.reconstruct.learned.training_data import HELD_OUT_PHOTOS
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
+from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS
 from hbis_torch.simulate.stacks import scene_for_roi
 from hbis_torch.stack_io import Stack
 
-PHOTOS = HELD_OUT_PHOTOS
+PHOTOS = HELD_OUT_PHOTOS  # kept out of every training pool
 
 
 @dataclasses.dataclass(frozen=True)

@@ -5,7 +5,7 @@ stacks. (The learned method's held-out validation is training/eval_matrix.py.)
 Case i of a ROI size is ``scene_cases(size)[i]``, placed at ``roi_for(system, size, i)`` and
 simulated by ``make_stack(system, h, roi, scene, 1000 + i)``. The scenes are procedural
 (:data:`SYNTHETIC_CASES`: the kind the network is trained on, with new seeds) and photographs
-from scikit-image (:data:`PHOTO_CASES`: never seen in training).
+from scikit-image (:data:`PHOTO_CASES`: held out of every training pool).
 """
 
 from __future__ import annotations
@@ -13,10 +13,11 @@ from __future__ import annotations
 from hbis_torch.config import FoveaSystem
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate.catalog import SceneSpec, load_scene
+from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS
 from hbis_torch.simulate.stacks import simulate_stack
 
 SYNTHETIC_CASES = ("words", "texture")
-PHOTO_CASES = ("camera", "astronaut", "brick")
+PHOTO_CASES = HELD_OUT_PHOTOS[:3]  # camera, astronaut, coffee
 
 
 def scene_cases(size) -> list[tuple[str, str]]:

@@ -20,6 +20,8 @@ PHOTOS = (
     "text", "coins", "rocket", "immunohistochemistry", "hubble_deep_field", "clock", "cell",
 )
 """Photographs from skimage.data that ship with scikit-image (no download needed)."""
+HELD_OUT_PHOTOS = ("camera", "astronaut", "coffee", "chelsea", "rocket")
+"""The photographs kept for held-out tests: no training pool uses them (the others may be)."""
 
 
 def to_gray(array) -> np.ndarray:

@@ -15,7 +15,7 @@ scan the training never saw exactly (:func:`draw_example`):
   a tenth of full scale to clipped highlights;
 * the scene: procedural test scenes (words, texture, edges, bars, Siemens stars, gradients),
   procedural *natural-image* rasters (dead leaves and 1/f^2 random fields, :func:`natural_image`)
-  and the photographs of :data:`TRAIN_PHOTOS` (:func:`photo_raster`), from 1/8 to 4 sensor pixels
+  and the photographs of :data:`TRAIN_PHOTOS` (also :func:`natural_image`), from 1/8 to 4 sensor pixels
   per raster pixel. The photographs of :data:`HELD_OUT_PHOTOS` are never used for training: they
   are the held-out test (training/eval_matrix.py).
 
@@ -63,13 +63,12 @@ from hbis_torch.simulate import (
     sample_positions,
     simulate_stack,
 )
-from hbis_torch.simulate.rasters import PHOTOS, photo, texture_image
+from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS, PHOTOS, photo, texture_image
 from hbis_torch.simulate.scenes import ImageScene
 
-HELD_OUT_PHOTOS = ("camera", "astronaut", "coffee", "chelsea", "rocket")
-"""The photographs of the held-out test (training/eval_matrix.py): never in a training pool."""
 TRAIN_PHOTOS = tuple(name for name in PHOTOS if name not in HELD_OUT_PHOTOS)
-"""The other photographs shipped with scikit-image: rasters of the ``"photograph"`` scenes."""
+"""The photographs shipped with scikit-image but for :data:`HELD_OUT_PHOTOS` (training/eval_matrix.py's
+scenes): rasters of the ``"photograph"`` scenes."""
 NATURAL_SCENES = ("dead-leaves", "natural-field", "photograph")
 TRAIN_SCENES = ("words", "texture", "edges", "bars", "siemens-star", "gradient", "slanted-edge") + NATURAL_SCENES
 SCENE_WEIGHTS = (0.15, 0.1, 0.05, 0.05, 0.05, 0.05, 0.05, 0.2, 0.1, 0.2)
