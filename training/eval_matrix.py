@@ -4,9 +4,10 @@
 
 Held out from training on every axis at once:
 
-* **Scenes**: photographs from scikit-image (:data:`PHOTOS`, the training pipeline's
-  ``HELD_OUT_PHOTOS``); the training pool has procedural scenes, procedural natural-image rasters
-  and scikit-image's other photographs (brick, grass, gravel, moon, ...), never these.
+* **Scenes**: photographs from scikit-image (:data:`PHOTOS`,
+  ``hbis_torch.simulate.rasters.HELD_OUT_PHOTOS``); the training pool has procedural scenes,
+  procedural natural-image rasters and scikit-image's other photographs (brick, grass, gravel,
+  moon, ...), never these.
 * **Forward models** the training never used: a Gaussian lens PSF in place of the Airy one, and
   vignetting with fixed-pattern noise (pixel gain and dark offsets, the same in every frame).
 * **Settings outside the training ranges**: F 11 (training: F 1 to 8) and a 300,000 e- full well
