@@ -36,6 +36,7 @@ from hbis_torch.reconstruct.learned.method import classical_and_noise
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "training"))
 from eval_matrix import CONDITIONS, PHOTOS, make_stack  # noqa: E402  (the held-out stacks)
 
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hs", type=int, nargs="+", default=[2, 4], choices=[2, 4, 7])
