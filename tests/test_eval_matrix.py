@@ -18,7 +18,11 @@ def em():
     spec = importlib.util.spec_from_file_location("eval_matrix", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
+    sys.path.insert(0, str(SCRIPT.parent))  # as when run as a script: its sibling independent_render
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(SCRIPT.parent))
     return module
 
 
@@ -44,6 +48,17 @@ def test_the_unseen_forward_models_change_frames_and_truth_as_documented(em):
     gain = em.vignetting(np.array([0.0, 11.5]), np.array([0.0, 11.5]), 24, 24)
     assert gain[0] == pytest.approx(0.7) and gain[1] == pytest.approx(1.0)
     assert vignetted.frames.dtype == sharp.frames.dtype and truth.shape == (48, 48)
+
+
+def test_independent_rows_render_their_own_frames_and_truth_of_the_same_scan(em):
+    """The [independent renderer] rows keep the simulator's stack's metadata (scan, roi, sensor)
+    and replace its frames and truth by training/independent_render.py's."""
+    plain, plain_truth = em.make_stack(condition(em, "reference frame 0"), "camera", 2, 16, seed=1)
+    other, other_truth = em.make_stack(condition(em, "F1.4, 10k e-, ref 0 [independent"), "camera", 2, 16, seed=1)
+    assert other.meta == plain.meta and other.frames.dtype == plain.frames.dtype
+    assert not np.array_equal(other.frames, plain.frames) and not np.array_equal(other_truth, plain_truth)
+    # the same scene through the same optics: close, short of the noise
+    assert np.abs(other_truth - plain_truth).mean() < 0.01
 
 
 def test_cells_outside_the_training_domain_report_both_the_method_and_the_network(em, tmp_path, capsys):

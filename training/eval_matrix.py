@@ -12,6 +12,11 @@ Held out from training on every axis at once:
   vignetting with fixed-pattern noise (pixel gain and dark offsets, the same in every frame).
 * **Settings outside the training ranges**: F 11 (training: F 1 to 8) and a 300,000 e- full well
   (training: 1,000 to 100,000).
+* **A second forward model** (``training/independent_render.py``, rows marked "[independent
+  renderer]"): frames and truth rendered apart from the project's simulator, every pixel of every
+  frame averaging the lens-blurred scene over its own footprint traced at its own phases, the
+  noise drawn with numpy; only the metadata (system, scan, where the scene sits) comes from the
+  simulator's stack.
 * **Captured-like metadata**: the stacks do not carry their noise model (as a stack assembled from
   a camera does not), so the noise is measured (on the classical step's lattice,
   :func:`~hbis_torch.reconstruct.learned.method.classical_and_noise`); one row keeps it, to compare.
@@ -50,6 +55,7 @@ from hbis_torch.simulate import SensorModel, simulate_stack
 from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS
 from hbis_torch.simulate.stacks import scene_for_roi
 from hbis_torch.stack_io import Stack
+from independent_render import render_like  # training/, beside this script
 
 PHOTOS = HELD_OUT_PHOTOS  # kept out of every training pool
 
@@ -70,6 +76,7 @@ class Condition:
     gaussian_psf_px: float = 0.0  # Gaussian lens PSF, sigma in sensor pixels (F 1's Airy on top)
     vignetting: bool = False  # 30 % fall-off across the ROI, 1 % pixel gain and 0.2 % dark offsets
     noise_in_metadata: bool = False
+    independent: bool = False  # frames and truth from training/independent_render.py
 
 
 CONDITIONS = (
@@ -84,6 +91,13 @@ CONDITIONS = (
     Condition("Gaussian PSF 0.7 px [unseen model]", f_number=1.0, gaussian_psf_px=0.7),
     Condition("vignetting + fixed pattern [unseen model]", full_well_e=20_000, vignetting=True),
     Condition("F11, 300k e-, 16 bit [outside ranges]", f_number=11.0, full_well_e=300_000, bit_depth=16),
+    Condition("F1.4, 10k e-, ref 0 [independent renderer]", independent=True),
+    Condition("low noise, no blur (F1, 50k e-) [independent renderer]", f_number=1.0, full_well_e=50_000,
+              independent=True),
+    Condition("low noise, Airy F2.8 (50k e-) [independent renderer]", f_number=2.8, full_well_e=50_000,
+              independent=True),
+    Condition("high noise (2k e-, 8 e- read, 10 bit) [independent renderer]", full_well_e=2_000,
+              read_noise_e=8.0, bit_depth=10, independent=True),
 )
 
 
@@ -106,6 +120,8 @@ def make_stack(cond: Condition, photo: str, h: int, size: int, seed: int):
                                   phase_error_deg=cond.phase_error_deg)
     meta = json.loads(json.dumps(stack.meta))
     frames = stack.frames
+    if cond.independent:  # the simulator's stack gives the metadata only
+        frames, truth = render_like(stack, scene, sensor, seed)
     if cond.vignetting:
         frames, truth = fixed_pattern(stack, truth, np.random.default_rng(seed))
     if not cond.noise_in_metadata:
