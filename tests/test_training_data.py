@@ -176,6 +176,31 @@ def test_natural_images_fill_the_view_in_range_and_clip_when_overexposed(name):
         assert bright.max() == 1.0 and np.mean(bright == 1.0) > np.mean(image == 1.0)
 
 
+def test_natural_rasters_are_read_bilinear_or_bicubic_and_bicubic_keeps_more_detail():
+    """Pool version 5: half the natural scenes read their raster by bicubic interpolation, which
+    attenuates detail near the raster's Nyquist frequency less than bilinear does."""
+    import torch
+
+    from hbis_torch.simulate import SceneSpec
+    from hbis_torch.simulate.scenes import ImageScene
+
+    pixel = FoveaSystem().object_pixel_mm
+    spec = SceneSpec(size_mm=(40 * pixel, 30 * pixel), pixel_mm=pixel, detail_mm=pixel / 16)
+    kinds = [natural_image("dead-leaves", spec, np.random.default_rng(seed)).interpolation for seed in range(16)]
+    assert {"bilinear", "bicubic"} == set(kinds)
+    raster = torch.from_numpy(np.random.default_rng(0).random((32, 32)).astype(np.float32))
+    x = torch.linspace(-0.4, 0.4, 400)
+    reads = {}
+    for kind in ("bilinear", "bicubic"):
+        scene = ImageScene(size_mm=(1.0, 1.0), image=raster, interpolation=kind)
+        reads[kind] = scene.value(x[None, :], torch.zeros(1, 1)).numpy()[0]
+        assert 0 <= reads[kind].min() and reads[kind].max() <= 1
+    # the same raster; bicubic's samples vary more from one to the next (less smoothing)
+    assert np.abs(np.diff(reads["bicubic"])).mean() > 1.05 * np.abs(np.diff(reads["bilinear"])).mean()
+    with pytest.raises(HbisInputError, match="interpolation"):
+        ImageScene(size_mm=(1.0, 1.0), image=raster, interpolation="nearest")
+
+
 def test_no_held_out_photograph_reaches_a_training_scene(monkeypatch):
     from hbis_torch.reconstruct.learned import training_data
     from hbis_torch.simulate import SceneSpec

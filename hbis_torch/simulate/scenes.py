@@ -318,13 +318,15 @@ class GradientScene(Scene):
 class ImageScene(Scene):
     """A raster image (H, W) in [0, 1] spread over ``size_mm``; pixel (i, j) covers its cell.
 
-    Read by bilinear interpolation; outside its extent the image is mirrored. Sampling with a
-    spacing coarser than the raster pixel reads an area-averaged mip level, so fine rasters do
-    not alias.
+    Read by bilinear interpolation, or bicubic (``interpolation="bicubic"``, Keys' cubic as
+    ``grid_sample``'s, clipped to [0, 1]: detail near the raster's Nyquist frequency less
+    attenuated); outside its extent the image is mirrored. Sampling with a spacing coarser than
+    the raster pixel reads an area-averaged mip level, so fine rasters do not alias.
     """
 
     image: Tensor = field(default_factory=lambda: torch.zeros(1, 1))
     name: str = "image"
+    interpolation: str = "bilinear"
 
     def __post_init__(self) -> None:
         img = torch.as_tensor(self.image)
@@ -333,6 +335,8 @@ class ImageScene(Scene):
         if not bool(torch.isfinite(img).all()):
             raise HbisInputError("the scene image contains NaN or infinite values")
         object.__setattr__(self, "image", img.to(torch.float32).clamp(0.0, 1.0))
+        if self.interpolation not in ("bilinear", "bicubic"):
+            raise HbisInputError(f"interpolation must be 'bilinear' or 'bicubic', got {self.interpolation!r}")
         check_size(self.size_mm)
 
     @property
@@ -357,6 +361,8 @@ class ImageScene(Scene):
         gx = (2 / self.size_mm[0]) * x
         gy = (2 / self.size_mm[1]) * y
         grid = torch.stack(torch.broadcast_tensors(gx, gy), -1).reshape(1, 1, -1, 2).to(torch.float32)
-        out = F.grid_sample(self._level(spacing_mm), grid, mode="bilinear",
+        out = F.grid_sample(self._level(spacing_mm), grid, mode=self.interpolation,
                             padding_mode="reflection", align_corners=False)
+        if self.interpolation == "bicubic":  # its overshoot past the raster's range is no light
+            out = out.clamp(0.0, 1.0)
         return out.reshape(shape)

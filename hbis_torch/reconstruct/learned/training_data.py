@@ -16,7 +16,7 @@ scan the training never saw exactly (:func:`draw_example`):
 * the scene: procedural test scenes (words, texture, edges, bars, Siemens stars, gradients),
   procedural *natural-image* rasters (dead leaves and 1/f^2 random fields, :func:`natural_image`)
   and the photographs of :data:`TRAIN_PHOTOS` (also :func:`natural_image`), from 1/8 to 4 sensor pixels
-  per raster pixel. The photographs of :data:`HELD_OUT_PHOTOS` are never used for training: they
+  per raster pixel, read by bilinear or bicubic interpolation. The photographs of :data:`HELD_OUT_PHOTOS` are never used for training: they
   are the held-out test (training/eval_matrix.py).
 
 Each example keeps the classical image, the truth and two noise models: the one the stack's
@@ -84,7 +84,7 @@ RASTER_PX = (1 / 8, 4.0)  # sensor pixels per raster pixel of a natural raster
 PHASE_ERROR_DEG = 0.05  # largest phase error, in half of the examples
 POOL_KEYS = ("base", "truth", "noise", "roi", "scene")  # the entries of a pool example
 # Bumped whenever the pool's contents change, so that cached pools of another kind are not reused.
-POOL_VERSION = 4
+POOL_VERSION = 5
 
 
 def dead_leaves(shape, rng: np.random.Generator, r_min: float = 1.0) -> np.ndarray:
@@ -131,8 +131,11 @@ def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator, exposure
     """A natural-image scene: a dead-leaves raster, a 1/f^2 random field or a training photograph.
 
     The raster pixel is :data:`RASTER_PX` sensor pixels (log-uniform) and the scene reads it by
-    bilinear interpolation, as a photograph stretched over the view is read: coarse rasters give
-    smooth, interpolated content, fine ones sharp natural detail. A photograph (one of
+    bilinear or bicubic interpolation (even odds), as a photograph stretched over the view is
+    read: coarse rasters give smooth, interpolated content, fine ones sharp natural detail. Real
+    scenes have detail beyond any raster's: bilinear reads alone taught the network a scene
+    spectrum that falls off at the raster's Nyquist frequency, and it lost detail on scenes
+    rendered without that fall-off (training/independent_render.py's cubic reads). A photograph (one of
     :data:`TRAIN_PHOTOS`, turned by one of the square's 8 symmetries) gives a crop of its own
     pixels; where it has too few pixels for the view at the drawn scale, its pixels are read
     coarser. Contrast and mean level are random; ``exposure`` then scales the grey levels, and
@@ -176,7 +179,9 @@ def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator, exposure
     contrast, gamma = rng.uniform(0.3, 1.0), float(np.exp(rng.uniform(-0.5, 0.5)))
     image = image**gamma
     image = np.clip(exposure * (rng.uniform(0.0, 1.0 - contrast) + contrast * image), 0.0, 1.0)
-    return ImageScene(size_mm=spec.size_mm, image=torch.from_numpy(image.astype(np.float32)), name=name)
+    interpolation = str(rng.choice(("bilinear", "bicubic")))
+    return ImageScene(size_mm=spec.size_mm, image=torch.from_numpy(image.astype(np.float32)), name=name,
+                      interpolation=interpolation)
 
 
 @dataclass(frozen=True)
