@@ -137,6 +137,28 @@ def test_lattice_noise_measures_white_noise():
     assert lattice_noise(num / den, 0.45) == pytest.approx(0.01, rel=0.1)
 
 
+def test_lattice_noise_of_a_full_frame_lattice_is_measured_on_strips_alike(monkeypatch):
+    """Above STRIPS_FROM nodes the noise is measured on strips of rows (about NOISE_NODES of
+    them): within 2 % of the whole lattice's estimate, on a lattice with a scene and holes."""
+    from hbis_torch.reconstruct.classical import sr
+
+    rng = np.random.default_rng(1)
+    rows, cols = 1500, 1200
+    vv, uu = np.mgrid[0:rows, 0:cols]
+    scene = 0.5 + 0.2 * np.sin(uu / 37.0) * np.cos(vv / 53.0)
+    x = torch.tensor(rng.normal(0, 0.01, (rows, cols)) + scene, dtype=torch.float32)
+    image = torch.tensor(np.asarray(sr.splat(x.reshape(-1).double(), torch.tensor(uu.ravel(), dtype=torch.float64),
+                                             torch.tensor(vv.ravel(), dtype=torch.float64), (rows, cols), 0.45)[0]),
+                         dtype=torch.float32) / sr._peak_weight(0.45)
+    valid = torch.ones(rows, cols, dtype=torch.bool)
+    valid[:40] = False  # a border without samples
+    assert image.numel() > sr.STRIPS_FROM
+    on_strips = lattice_noise(image, 0.45, valid)
+    monkeypatch.setattr(sr, "STRIPS_FROM", image.numel())
+    whole = lattice_noise(image, 0.45, valid)
+    assert on_strips == pytest.approx(whole, rel=0.02) and on_strips == pytest.approx(0.01, rel=0.1)
+
+
 def test_periodic_smooth_decomposition_is_exact_and_periodic():
     img = torch.tensor(natural_scene(64))
     p, s = periodic_smooth(img)
