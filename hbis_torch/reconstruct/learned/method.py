@@ -11,7 +11,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, reconstruct_classical, stack_fill_factor
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, noise_params_from_meta
-from hbis_torch.reconstruct.learned.runtime import LearnedSR, check_model, classical_returned
+from hbis_torch.reconstruct.learned.runtime import LearnedSR, check_model, classical_returned, missing_model
 
 
 def classical_and_noise(stack, registration: str = "optics", positions=None,
@@ -72,7 +72,9 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     ----------
     stack : hbis_torch.stack_io.Stack
     model : path, optional
-        Defaults to the shipped model for the stack's h (:func:`default_model_path`).
+        Defaults to the shipped model for the stack's h (:func:`default_model_path`). Where none
+        is shipped (h other than 2, 4 and 7), the classical image is returned, with a line in
+        ``messages`` saying so.
     positions : array (F, H, W, 2), optional
         Sample positions in ROI-local reference LR pixels; by default the classical method's
         (:func:`~hbis_torch.reconstruct.classical.reconstruct_classical` with ``registration``).
@@ -100,9 +102,14 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     -------
     ndarray, shape (h H, h W), float32 in [0, 1]
     """
-    path, metadata = check_model(model, stack.h)  # before any work; the session opens after the classical step
+    # No shipped network for this h: the classical image, said so, as outside the training domain
+    missing = missing_model(stack.h) if model is None else None
+    if missing is None:
+        path, metadata = check_model(model, stack.h)  # before any work; the session opens after the classical step
     check_ensemble(ensemble)
     image, noise_params = classical_and_noise(stack, registration, positions, messages)
+    if missing is not None:
+        return classical_returned(image, missing, messages, remedy="--model runs a model of your own")
     unhelpful = unhelpful_model(metadata)
     if unhelpful is not None and not extrapolate:  # no session to open
         return classical_returned(image, unhelpful, messages)

@@ -43,14 +43,19 @@ def models_dir() -> Path:
 
 def default_model_path(h: int) -> Path:
     """The shipped model for factor ``h``; HbisInputError if there is none."""
+    missing = missing_model(h)
+    if missing is not None:
+        raise HbisInputError(f"{missing}; pass --model to use another")
+    return models_dir() / f"hbis_sr_h{int(h)}.onnx"
+
+
+def missing_model(h: int) -> str | None:
+    """None if a model for factor ``h`` is shipped, else the line that says there is none."""
     path = models_dir() / f"hbis_sr_h{int(h)}.onnx"
-    if not path.is_file():
-        shipped = sorted(p.name for p in models_dir().glob("hbis_sr_h*.onnx"))
-        raise HbisInputError(
-            f"no learned model for h = {h} at {path} (shipped: {', '.join(shipped) or 'none'}); "
-            "pass --model to use another"
-        )
-    return path
+    if path.is_file():
+        return None
+    shipped = sorted(p.name for p in models_dir().glob("hbis_sr_h*.onnx"))
+    return f"no learned model for h = {h} at {path} (shipped: {', '.join(shipped) or 'none'})"
 
 
 def session_options(threads: int | None = None):
@@ -325,13 +330,13 @@ class LearnedSR:
                              views=True)
 
 
-def classical_returned(image, reason: str, messages: list | None = None) -> np.ndarray:
+def classical_returned(image, reason: str, messages: list | None = None,
+                       remedy: str = "--extrapolate runs the network anyway") -> np.ndarray:
     """The classical image (hH, hW), float32 in [0, 1], where the network is not run, and the line
-    saying ``reason`` appended to ``messages``. A float32 image already in [0, 1] is returned as
-    it is, not copied (a full frame's is 240 MB at h = 7)."""
+    saying ``reason`` (and ``remedy``) appended to ``messages``. A float32 image already in
+    [0, 1] is returned as it is, not copied (a full frame's is 240 MB at h = 7)."""
     if messages is not None:
-        messages.append(f"{reason}: the learned method returns the classical image "
-                        "(--extrapolate runs the network anyway)")
+        messages.append(f"{reason}: the learned method returns the classical image ({remedy})")
     image = np.asarray(image, dtype=np.float32)
     return image if image.size == 0 or (image.min() >= 0 and image.max() <= 1) else np.clip(image, 0.0, 1.0)
 
