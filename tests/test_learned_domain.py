@@ -68,7 +68,10 @@ def test_the_shipped_models_carry_their_domain(h):
     domain = domain_from_metadata(read_model_metadata(default_model_path(h)))
     for key, (lo, hi) in training_domain().items():
         assert domain[key] == pytest.approx([lo, hi])
-    assert json.loads(read_model_metadata(default_model_path(h))["training_config"])["POOL_VERSION"] == td.POOL_VERSION
+    # Pool version 5 differs from 4 only in how natural rasters are read (bilinear or bicubic):
+    # the same lenses and noise, checked above. The h = 7 model stays on version 4
+    # (hbis_torch/models/README.md says why).
+    assert json.loads(read_model_metadata(default_model_path(h))["training_config"])["POOL_VERSION"] in (4, td.POOL_VERSION)
 
 
 def stack_at(f_number: float, full_well: float, h: int = 2, size: int = 20):
