@@ -138,15 +138,18 @@ def test_lattice_noise_measures_white_noise():
 
 
 def test_lattice_noise_of_a_full_frame_lattice_is_measured_on_strips_alike(monkeypatch):
-    """Above STRIPS_FROM nodes the noise is measured on strips of rows (about NOISE_NODES of
-    them): within 2 % of the whole lattice's estimate, on a lattice with a scene and holes."""
+    """Above STRIPS_FROM nodes the noise is measured on tiles spread over the lattice (about
+    NOISE_NODES nodes): within 5 % of the whole lattice's estimate, on a wide lattice with a
+    scene, holes along its top, and noise that differs between its middle and its top and
+    bottom rows (which full-width strips would have read alone)."""
     from hbis_torch.reconstruct.classical import sr
 
     rng = np.random.default_rng(1)
-    rows, cols = 1500, 1200
+    rows, cols = 800, 2400
     vv, uu = np.mgrid[0:rows, 0:cols]
     scene = 0.5 + 0.2 * np.sin(uu / 37.0) * np.cos(vv / 53.0)
-    x = torch.tensor(rng.normal(0, 0.01, (rows, cols)) + scene, dtype=torch.float32)
+    sigma = np.where((vv < 100) | (vv >= rows - 100), 0.02, 0.01)  # noisier top and bottom
+    x = torch.tensor(rng.normal(0, 1, (rows, cols)) * sigma + scene, dtype=torch.float32)
     image = torch.tensor(np.asarray(sr.splat(x.reshape(-1).double(), torch.tensor(uu.ravel(), dtype=torch.float64),
                                              torch.tensor(vv.ravel(), dtype=torch.float64), (rows, cols), 0.45)[0]),
                          dtype=torch.float32) / sr._peak_weight(0.45)
@@ -156,7 +159,7 @@ def test_lattice_noise_of_a_full_frame_lattice_is_measured_on_strips_alike(monke
     on_strips = lattice_noise(image, 0.45, valid)
     monkeypatch.setattr(sr, "STRIPS_FROM", image.numel())
     whole = lattice_noise(image, 0.45, valid)
-    assert on_strips == pytest.approx(whole, rel=0.02) and on_strips == pytest.approx(0.01, rel=0.1)
+    assert on_strips == pytest.approx(whole, rel=0.05) and on_strips == pytest.approx(0.011, rel=0.1)
 
 
 def test_periodic_smooth_decomposition_is_exact_and_periodic():

@@ -272,12 +272,12 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
     valid : Tensor of bool, shape (rows, cols), optional
         Nodes to use (those that received samples).
 
-    A lattice of more than :data:`STRIPS_FROM` nodes is measured on the strips of rows that
-    :func:`lattice_noise_params` uses (about :data:`NOISE_NODES` nodes).
+    A lattice of more than :data:`STRIPS_FROM` nodes is measured on the tiles that
+    :func:`lattice_noise_params` reads (about :data:`NOISE_NODES` nodes spread over it).
     """
     from hbis_torch.registration.noise import immerkaer  # (here: the package imports kornia)
 
-    if image.numel() > STRIPS_FROM:  # a full frame: strips of rows (10 times faster at h = 4)
+    if image.numel() > STRIPS_FROM:  # a full frame: tiles spread over it (10 times faster at h = 4)
         residual, _, where = _noise_strips(image, valid)
         if where is not None and where.sum() >= 16:
             residual = residual[where]
@@ -294,28 +294,38 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
 # Nodes the noise parameters are measured on, at most (evenly spaced strips of rows; the fit
 # takes a couple of hundred thousand of them)
 NOISE_NODES = 400_000
-# Lattices of more nodes than this (a 256 x 316 ROI at h = 4) have their noise level measured on
-# the same strips too, rather than on every other node of the whole image.
+# Lattices of more nodes than this (a 256 x 316 ROI at h = 4) have their noise level and noise
+# model measured on tiles spread over the lattice (not on every other node of the whole image).
 STRIPS_FROM = 4 * NOISE_NODES
 
 
 def _noise_strips(image: Tensor, valid: Tensor | None):
     """Immerkaer's operator's magnitude, the nodes' level and (with ``valid``) whether their 3 x 3
     neighbourhood is complete, flat numpy arrays over the inner nodes of evenly spaced strips of
-    rows that hold about :data:`NOISE_NODES` of them (the whole image if it is smaller); ``where``
-    is None without ``valid`` or with fewer than 16 complete neighbourhoods."""
+    rows that hold about :data:`NOISE_NODES` of them (the whole image if it is smaller). A
+    lattice of more than :data:`STRIPS_FROM` nodes is read in a 7 x 7 grid of tiles of 34 x 258
+    nodes spread over it instead: full-width strips there would be two or three, at the top and
+    bottom. ``where`` is None without ``valid`` or with fewer than 16 complete neighbourhoods."""
     from hbis_torch.registration.noise import immerkaer
 
     rows, cols = image.shape
     strip = min(rows, 34)  # 32 inner rows
-    count = max(1, min(rows // strip, math.ceil(NOISE_NODES / (max(strip - 2, 1) * max(cols - 2, 1)))))
+    if image.numel() > STRIPS_FROM:
+        width = min(cols, 258)
+        side = math.ceil(math.sqrt(NOISE_NODES / ((strip - 2) * (width - 2))))
+        tops = np.linspace(0, rows - strip, min(side, rows // strip)).round().astype(int)
+        lefts = np.linspace(0, cols - width, min(side, cols // width)).round().astype(int)
+        spans = [(r, c, width) for r in tops for c in lefts]
+    else:
+        count = max(1, min(rows // strip, math.ceil(NOISE_NODES / (max(strip - 2, 1) * max(cols - 2, 1)))))
+        spans = [(r, 0, cols) for r in np.linspace(0, rows - strip, count).round().astype(int)]
     residual, level, where = [], [], []
-    for r in np.linspace(0, rows - strip, count).round().astype(int):
-        part = image[r:r + strip]
+    for r, c, width in spans:
+        part = image[r:r + strip, c:c + width]
         residual.append(immerkaer(part).abs_().numpy().ravel())
         level.append(part[1:-1, 1:-1].numpy().ravel())
         if valid is not None:
-            where.append(_complete(valid[r:r + strip]).numpy().ravel())
+            where.append(_complete(valid[r:r + strip, c:c + width]).numpy().ravel())
     where = np.concatenate(where) if valid is not None else None
     if where is not None and where.sum() < 16:  # too few complete neighbourhoods: every node
         where = None
@@ -330,8 +340,9 @@ def lattice_noise_params(image: Tensor, kernel_sigma: float, valid: Tensor | Non
     :func:`~hbis_torch.registration.noise.fit_noise_params`: the variance ``a x + b`` of one
     sample of value x in [0, 1]. A single frame is aliased, and its fine detail passes for noise
     (:func:`~hbis_torch.reconstruct.learned.estimate_noise_params` overstates a low noise level
-    several times on photographs); on the lattice it does not. Measured on strips of rows that
-    hold about :data:`NOISE_NODES` nodes, whatever the image's size.
+    several times on photographs); on the lattice it does not. Measured on strips of rows (tiles
+    on a lattice of more than :data:`STRIPS_FROM` nodes) that hold about :data:`NOISE_NODES`
+    nodes, whatever the image's size (:func:`_noise_strips`).
 
     Parameters
     ----------
