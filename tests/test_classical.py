@@ -137,8 +137,8 @@ def test_lattice_noise_measures_white_noise():
     assert lattice_noise(num / den, 0.45) == pytest.approx(0.01, rel=0.1)
 
 
-def test_lattice_noise_of_a_full_frame_lattice_is_measured_on_strips_alike(monkeypatch):
-    """Above STRIPS_FROM nodes the noise is measured on tiles spread over the lattice (about
+def test_lattice_noise_of_a_full_frame_lattice_is_measured_on_tiles_alike(monkeypatch):
+    """Above TILES_FROM nodes the noise is measured on tiles spread over the lattice (about
     NOISE_NODES nodes): within 5 % of the whole lattice's estimate, on a wide lattice with a
     scene, holes along its top, and noise that differs between its middle and its top and
     bottom rows (which full-width strips would have read alone)."""
@@ -155,11 +155,11 @@ def test_lattice_noise_of_a_full_frame_lattice_is_measured_on_strips_alike(monke
                          dtype=torch.float32) / sr._peak_weight(0.45)
     valid = torch.ones(rows, cols, dtype=torch.bool)
     valid[:40] = False  # a border without samples
-    assert image.numel() > sr.STRIPS_FROM
-    on_strips = lattice_noise(image, 0.45, valid)
-    monkeypatch.setattr(sr, "STRIPS_FROM", image.numel())
+    assert image.numel() > sr.TILES_FROM
+    on_tiles = lattice_noise(image, 0.45, valid)
+    monkeypatch.setattr(sr, "TILES_FROM", image.numel())
     whole = lattice_noise(image, 0.45, valid)
-    assert on_strips == pytest.approx(whole, rel=0.05) and on_strips == pytest.approx(0.011, rel=0.1)
+    assert on_tiles == pytest.approx(whole, rel=0.05) and on_tiles == pytest.approx(0.011, rel=0.1)
 
 
 def test_periodic_smooth_decomposition_is_exact_and_periodic():

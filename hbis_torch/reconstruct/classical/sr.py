@@ -272,13 +272,13 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
     valid : Tensor of bool, shape (rows, cols), optional
         Nodes to use (those that received samples).
 
-    A lattice of more than :data:`STRIPS_FROM` nodes is measured on the tiles that
+    A lattice of more than :data:`TILES_FROM` nodes is measured on the tiles that
     :func:`lattice_noise_params` reads (about :data:`NOISE_NODES` nodes spread over it).
     """
     from hbis_torch.registration.noise import immerkaer  # (here: the package imports kornia)
 
-    if image.numel() > STRIPS_FROM:  # a full frame: tiles spread over it (10 times faster at h = 4)
-        residual, _, where = _noise_strips(image, valid)
+    if image.numel() > TILES_FROM:  # a full frame: tiles spread over it (10 times faster at h = 4)
+        residual, _, where = _noise_sample(image, valid)
         if where is not None and where.sum() >= 16:
             residual = residual[where]
         middle = (residual.size - 1) // 2
@@ -296,21 +296,21 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
 NOISE_NODES = 400_000
 # Lattices of more nodes than this (a 256 x 316 ROI at h = 4) have their noise level and noise
 # model measured on tiles spread over the lattice (not on every other node of the whole image).
-STRIPS_FROM = 4 * NOISE_NODES
+TILES_FROM = 4 * NOISE_NODES
 
 
-def _noise_strips(image: Tensor, valid: Tensor | None):
+def _noise_sample(image: Tensor, valid: Tensor | None):
     """Immerkaer's operator's magnitude, the nodes' level and (with ``valid``) whether their 3 x 3
     neighbourhood is complete, flat numpy arrays over the inner nodes of evenly spaced strips of
     rows that hold about :data:`NOISE_NODES` of them (the whole image if it is smaller). A
-    lattice of more than :data:`STRIPS_FROM` nodes is read in a 7 x 7 grid of tiles of 34 x 258
+    lattice of more than :data:`TILES_FROM` nodes is read in a 7 x 7 grid of tiles of 34 x 258
     nodes spread over it instead: full-width strips there would be two or three, at the top and
     bottom. ``where`` is None without ``valid`` or with fewer than 16 complete neighbourhoods."""
     from hbis_torch.registration.noise import immerkaer
 
     rows, cols = image.shape
     strip = min(rows, 34)  # 32 inner rows
-    if image.numel() > STRIPS_FROM:
+    if image.numel() > TILES_FROM:
         width = min(cols, 258)
         side = math.ceil(math.sqrt(NOISE_NODES / ((strip - 2) * (width - 2))))
         tops = np.linspace(0, rows - strip, min(side, rows // strip)).round().astype(int)
@@ -341,8 +341,8 @@ def lattice_noise_params(image: Tensor, kernel_sigma: float, valid: Tensor | Non
     sample of value x in [0, 1]. A single frame is aliased, and its fine detail passes for noise
     (:func:`~hbis_torch.reconstruct.learned.estimate_noise_params` overstates a low noise level
     several times on photographs); on the lattice it does not. Measured on strips of rows (tiles
-    on a lattice of more than :data:`STRIPS_FROM` nodes) that hold about :data:`NOISE_NODES`
-    nodes, whatever the image's size (:func:`_noise_strips`).
+    on a lattice of more than :data:`TILES_FROM` nodes) that hold about :data:`NOISE_NODES`
+    nodes, whatever the image's size (:func:`_noise_sample`).
 
     Parameters
     ----------
@@ -362,7 +362,7 @@ def lattice_noise_params(image: Tensor, kernel_sigma: float, valid: Tensor | Non
     """
     from hbis_torch.registration.noise import fit_noise_params
 
-    residual, level, where = _noise_strips(image, valid)
+    residual, level, where = _noise_sample(image, valid)
     a, b = fit_noise_params(residual, level, _lattice_gain(kernel_sigma, image.dtype), where)
     scale = max(samples_per_node, 1.0)
     return a * scale, b * scale
