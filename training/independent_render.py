@@ -30,22 +30,13 @@ import scipy.signal
 import scipy.special
 import torch
 
-from hbis_torch.optics import exit_directions, land_on_plane, rays_at
 from hbis_torch.simulate import SensorModel
+from hbis_torch.simulate.geometry import landing_at
 from hbis_torch.stack_io import Stack
 
 # The Airy pattern is cut at this many radii of its first dark ring (it keeps 99 % of the light
 # at 8; the kernel is normalised to sum 1).
 AIRY_RINGS = 8
-
-
-def landing_mm(system, u: np.ndarray, v: np.ndarray, phases_deg) -> np.ndarray:
-    """Object-plane points (mm, (..., 2)) seen by the chief rays at sensor pixel coordinates
-    (u, v) (0-based pixel centres of the full sensor, any equal shapes) at prism phases (phi1,
-    phi2) in degrees: the exact trace."""
-    rays = rays_at(system.camera, torch.from_numpy(u), torch.from_numpy(v))
-    directions = exit_directions(rays, float(phases_deg[0]), float(phases_deg[1]), system.prisms)
-    return land_on_plane(directions, system.object_distance_mm).numpy()
 
 
 def airy_kernel(system, raster_mm: tuple[float, float], supersample: int = 5) -> np.ndarray:
@@ -97,7 +88,8 @@ def area_average(coeffs: np.ndarray, scene, center_mm, system, u: np.ndarray, v:
     total = np.zeros(u.shape)
     for dy in offsets:
         for dx in offsets:
-            mm = landing_mm(system, u + dx, v + dy, phases_deg)
+            mm = landing_at(system, torch.from_numpy(u + dx), torch.from_numpy(v + dy),
+                            float(phases_deg[0]), float(phases_deg[1])).numpy()  # the exact trace, mm
             # scene-local mm -> raster coordinates: pixel (i, j) covers its cell of the extent
             col = ((mm[..., 0] - center_mm[0]) / scene.size_mm[0] + 0.5) * cols - 0.5
             row = ((mm[..., 1] - center_mm[1]) / scene.size_mm[1] + 0.5) * rows - 0.5
