@@ -279,10 +279,9 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
 
     if image.numel() > TILES_FROM:  # a full frame: tiles spread over it (10 times faster at h = 4)
         residual, _, where = _noise_sample(image, valid)
-        if where is not None and where.sum() >= 16:
-            residual = residual[where]
-        middle = (residual.size - 1) // 2
-        return 1.4826 * float(np.partition(residual, middle)[middle]) / _lattice_gain(kernel_sigma, image.dtype)
+        where = np.ones(residual.shape, dtype=bool) if where is None else where
+        return 1.4826 * lower_median(torch.from_numpy(residual), torch.from_numpy(where)) / _lattice_gain(
+            kernel_sigma, image.dtype)
     out = every_other(immerkaer(image).abs_())  # on a large lattice, a quarter of the nodes
     if valid is not None:
         inner = every_other(_complete(valid))
