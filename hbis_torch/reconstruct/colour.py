@@ -112,15 +112,13 @@ def _joint_demosaic_learned(stack, registration: str, messages=None, model=None,
     from hbis_torch.reconstruct.classical.transfer import optics_cutoff
     from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params, noise_params_from_meta
     from hbis_torch.reconstruct.learned.inputs import check_ensemble
-    from hbis_torch.reconstruct.learned.runtime import check_model, classical_returned, missing_model
+    from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, classical_returned, model_to_run
 
-    missing = missing_model(stack.h) if model is None else None
-    if missing is None:
-        path, _ = check_model(model, stack.h)
+    path, _, missing = model_to_run(model, stack.h)
     check_ensemble(ensemble)
     planes = _joint_demosaic_classical(stack, registration, messages=messages)
     if missing is not None:  # as learned_sr: the classical image, said so
-        return classical_returned(planes, missing, messages, remedy="--model runs a model of your own")
+        return classical_returned(planes, missing, messages, remedy=NO_MODEL_REMEDY)
     runner = LearnedSR(model=path, threads=threads, provider=provider)
     noise = noise_params_from_meta(stack.meta)
     if noise is None:  # one colour's pixels: a plain image of one sensor's noise, no mosaic in it

@@ -11,7 +11,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, reconstruct_classical, stack_fill_factor
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, noise_params_from_meta
-from hbis_torch.reconstruct.learned.runtime import LearnedSR, check_model, classical_returned, missing_model
+from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, LearnedSR, classical_returned, model_to_run
 
 
 def classical_and_noise(stack, registration: str = "optics", positions=None,
@@ -102,14 +102,12 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     -------
     ndarray, shape (h H, h W), float32 in [0, 1]
     """
-    # No shipped network for this h: the classical image, said so, as outside the training domain
-    missing = missing_model(stack.h) if model is None else None
-    if missing is None:
-        path, metadata = check_model(model, stack.h)  # before any work; the session opens after the classical step
+    # before any work; the session opens after the classical step
+    path, metadata, missing = model_to_run(model, stack.h)
     check_ensemble(ensemble)
     image, noise_params = classical_and_noise(stack, registration, positions, messages)
-    if missing is not None:
-        return classical_returned(image, missing, messages, remedy="--model runs a model of your own")
+    if missing is not None:  # no shipped network for this h: as outside the training domain
+        return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)
     unhelpful = unhelpful_model(metadata)
     if unhelpful is not None and not extrapolate:  # no session to open
         return classical_returned(image, unhelpful, messages)

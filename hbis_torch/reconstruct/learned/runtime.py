@@ -49,6 +49,21 @@ def default_model_path(h: int) -> Path:
     return models_dir() / f"hbis_sr_h{int(h)}.onnx"
 
 
+# What the line says where no model is shipped for a stack's h and the learned method returns the
+# classical image
+NO_MODEL_REMEDY = "--model runs a model of your own"
+
+
+def model_to_run(model, h: int) -> tuple[Path | None, dict | None, str | None]:
+    """:func:`check_model`'s (path, metadata, None); or (None, None, the line saying so) where no
+    model is named and none is shipped for ``h`` (the learned method then returns the classical
+    image)."""
+    missing = missing_model(h) if model is None else None
+    if missing is not None:
+        return None, None, missing
+    return (*check_model(model, h), None)
+
+
 def missing_model(h: int) -> str | None:
     """None if a model for factor ``h`` is shipped, else the line that says there is none."""
     path = models_dir() / f"hbis_sr_h{int(h)}.onnx"
