@@ -16,8 +16,9 @@ scan the training never saw exactly (:func:`draw_example`):
 * the scene: procedural test scenes (words, texture, edges, bars, Siemens stars, gradients),
   procedural *natural-image* rasters (dead leaves and 1/f^2 random fields, :func:`natural_image`)
   and the photographs of :data:`TRAIN_PHOTOS` (also :func:`natural_image`), from 1/8 to 4 sensor pixels
-  per raster pixel, read by bilinear or bicubic interpolation. The photographs of :data:`HELD_OUT_PHOTOS` are never used for training: they
-  are the held-out test (training/eval_matrix.py).
+  per raster pixel, read by bilinear or bicubic interpolation. The photographs of
+  :data:`HELD_OUT_PHOTOS` are never used for training: they are the held-out test
+  (training/eval_matrix.py).
 
 Each example keeps the classical image, the truth and two noise models: the one the stack's
 sensor model gives and the one measured on the classical step's lattice
@@ -135,8 +136,8 @@ def natural_image(name: str, spec: SceneSpec, rng: np.random.Generator, exposure
     read: coarse rasters give smooth, interpolated content, fine ones sharp natural detail. Real
     scenes have detail beyond any raster's: bilinear reads alone taught the network a scene
     spectrum that falls off at the raster's Nyquist frequency, and it lost detail on scenes
-    rendered without that fall-off (training/independent_render.py's cubic reads). A photograph (one of
-    :data:`TRAIN_PHOTOS`, turned by one of the square's 8 symmetries) gives a crop of its own
+    rendered without that fall-off (training/independent_render.py's cubic reads). A photograph
+    (one of :data:`TRAIN_PHOTOS`, turned by one of the square's 8 symmetries) gives a crop of its own
     pixels; where it has too few pixels for the view at the drawn scale, its pixels are read
     coarser. Contrast and mean level are random; ``exposure`` then scales the grey levels, and
     what passes full scale clips.
