@@ -1,0 +1,38 @@
+"""training/variants_ab.py: variants start as the same function and are scored as the held-out matrix scores."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "training" / "variants_ab.py"
+
+
+def run(*args):
+    return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=300)
+
+
+def test_bad_variants_and_existing_out_are_refused_before_any_work(tmp_path):
+    out = tmp_path / "ab.json"
+    bad = run("--variants", "a:wide:4:0", "--out", str(out))
+    assert bad.returncode == 2 and "name:width:blocks:blur" in bad.stderr and not out.exists()
+    clash = run("--variants", "s:32:4:0", "--out", str(out))
+    assert clash.returncode == 2 and "'s'" in clash.stderr
+    out.write_text("kept")
+    exists = run("--out", str(out))
+    assert exists.returncode == 2 and "exists" in exists.stderr and out.read_text() == "kept"
+
+
+def test_a_tiny_run_scores_every_variant_and_the_shipped_model(tmp_path):
+    out = tmp_path / "ab.json"
+    result = run("--h", "2", "--variants", "a:8:1:0,b:8:1:1", "--pool", "4", "--val", "1", "--cells", "1",
+                 "--steps", "2", "--batch", "2", "--procs", "1", "--out", str(out))
+    assert result.returncode == 0, result.stderr[-2000:]
+    record = json.loads(out.read_text())
+    assert record["steps"] == 2
+    first = record["history"][0]
+    assert first["step"] == 0 and first["a"] == first["b"]  # the blur channel starts at zero weight
+    (cell,) = record["cells"]
+    assert cell["condition"].startswith("F1.4, 10k e-, reference frame 0") and cell["photo"] == "camera"
+    assert cell["s"] > 1.0  # the shipped h = 2 model, as in benchmarks/results/eval_matrix.json
+    assert abs(cell["a"]) < 0.5 and abs(cell["b"]) < 0.5  # two steps: next to the classical image
