@@ -9,7 +9,8 @@ truths. Every measurement runs in a fresh Python process, in turn with the other
 rounds; the tables give medians:
 
 - ``network``: the learned network alone, :meth:`LearnedSR.run_network` on inputs prepared
-  beforehand (the classical image and the noise map; onnxruntime, the shipped provider). Since
+  beforehand (the classical image and the noise map; onnxruntime, the shipped provider), as
+  many times as the learned method runs it by default (its self-ensemble: twice at h = 7). Since
   the network refines the classical image, the learned method's floor is the classical
   method's time plus this.
 - ``learned``, ``classical``: end to end, as ``hbis reconstruct --method M`` does it (default
@@ -55,7 +56,7 @@ from hbis_torch.reconstruct.registry import reconstruct
 t_imports = time.perf_counter()
 result = {}
 if mode == "network":
-    from hbis_torch.reconstruct.learned import LearnedSR, network_inputs
+    from hbis_torch.reconstruct.learned import LearnedSR, default_ensemble, network_inputs, self_ensemble
     from hbis_torch.reconstruct.learned.method import classical_and_noise
     stack = read_stack(stack_path)
     image, noise_params = classical_and_noise(stack, "optics")
@@ -63,8 +64,9 @@ if mode == "network":
     h = stack.h
     del image, stack
     runner = LearnedSR(h=h)  # opened after the classical step, as the learned method does
+    run = self_ensemble(runner.run_network, h, default_ensemble(h))  # as often as the learned method runs it
     t0, c0 = time.perf_counter(), time.process_time()
-    runner.run_network(base, noise)
+    run(base, noise)
     result.update(seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0)
 else:
     import tifffile

@@ -6,7 +6,7 @@ import pytest
 from hbis_torch.cli import main
 from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
-from hbis_torch.reconstruct.learned import learned_sr, self_ensemble
+from hbis_torch.reconstruct.learned import default_ensemble, learned_sr, self_ensemble
 from hbis_torch.stack_io import read_stack
 from hbis_torch.reconstruct.learned.inputs import (ENSEMBLE_ORDER, _transform_image, _transform_phases,
                                                    _untransform_image, check_ensemble, space_to_depth)
@@ -78,6 +78,17 @@ def test_the_average_is_closer_to_the_truth(tmp_path):
     stack = read_stack(stack_path)
     scores = [psnr(learned_sr(stack, ensemble=count), truth) for count in (1, 2, 8)]
     assert scores[0] + 0.05 < scores[1] < scores[2]
+
+
+def test_the_default_is_two_at_h7_and_one_elsewhere(tmp_path):
+    assert [default_ensemble(h) for h in (2, 3, 4, 7)] == [1, 1, 1, 2]
+    assert check_ensemble(None, 7) == 2 and check_ensemble(None, 4) == 1 and check_ensemble(None) == 1
+    for h in (4, 7):
+        stack = read_stack(simulated_stack_file(tmp_path, h, size=12)[0])
+        chosen = learned_sr(stack, registration="optics")
+        np.testing.assert_array_equal(chosen, learned_sr(stack, registration="optics", ensemble=default_ensemble(h)))
+        if h == 7:  # and it is not the single pass
+            assert np.abs(chosen - learned_sr(stack, registration="optics", ensemble=1)).max() > 1e-4
 
 
 def test_cli_ensemble_is_learned_only_and_checked_first(tmp_path, capsys):

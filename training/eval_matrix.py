@@ -48,7 +48,7 @@ from hbis_torch.metrics import psnr
 from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
 from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
-from hbis_torch.reconstruct.learned.inputs import sensor_noise_params
+from hbis_torch.reconstruct.learned.inputs import check_ensemble, sensor_noise_params
 from hbis_torch.reconstruct.learned.method import classical_and_noise
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
@@ -171,8 +171,9 @@ def main(argv=None) -> int:
     parser.add_argument("--models", type=Path, default=None, help="folder of hbis_sr_h{h}.onnx (default: shipped)")
     parser.add_argument("--size", type=int, default=72, help="LR side of each stack (h = 7: 2/3 of it)")
     parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS)
-    parser.add_argument("--ensemble", type=int, default=1, choices=(1, 2, 4, 8),
-                        help="the learned method's geometric self-ensemble (hbis reconstruct --ensemble)")
+    parser.add_argument("--ensemble", type=int, default=None, choices=(1, 2, 4, 8),
+                        help="the learned method's geometric self-ensemble (hbis reconstruct --ensemble; "
+                        "default: the learned method's, 2 at h = 7, else 1)")
     parser.add_argument("--out", type=Path, default=None, help="write every cell as JSON")
     args = parser.parse_args(argv)
     if args.out is not None and args.out.exists():
@@ -191,7 +192,7 @@ def main(argv=None) -> int:
         notes: list[str] = []
         learned_image = runners[h](*args_, messages=notes, ensemble=args.ensemble)
         classical, learned = score(classical_image, truth, h), score(learned_image, truth, h)
-        cell = {"h": h, "condition": CONDITIONS[c].name, "photo": photo, "ensemble": args.ensemble,
+        cell = {"h": h, "condition": CONDITIONS[c].name, "photo": photo, "ensemble": check_ensemble(args.ensemble, h),
                 "classical_db": classical,
                 "learned_db": learned, "delta_db": learned - classical,
                 "classical_returned": notes[0] if notes else None,  # and why
@@ -201,7 +202,8 @@ def main(argv=None) -> int:
         if notes:  # what the network would have done there
             cell["extrapolated_delta_db"] = score(runners[h](*args_, extrapolate=True, ensemble=args.ensemble), truth, h) - classical
         cells.append(cell)
-    print(f"# learned - classical, dB (PSNR vs truth, border {2} LR px), self-ensemble of {args.ensemble}; "
+    ensembles = ", ".join(f"{check_ensemble(args.ensemble, h)} at h = {h}" for h in args.h)
+    print(f"# learned - classical, dB (PSNR vs truth, border {2} LR px), self-ensemble of {ensembles}; "
           f"{time.monotonic() - started:.0f} s")
     for h in args.h:
         rows = [x for x in cells if x["h"] == h]

@@ -8,7 +8,8 @@ the same initial weights (seed 0) and trains for the same wall-clock budget on t
 of the training pool, in turn at each step, so that the variants differ in nothing but the
 variant. Then each is scored as training/eval_matrix.py scores the shipped models: on the
 validation set, and on the held-out matrix (its conditions x its photographs, the learned method's
-path: :func:`~hbis_torch.reconstruct.learned.inputs.super_resolve` with the band limit, and the
+path with one pass of the network, as ``eval_matrix.py --ensemble 1``:
+:func:`~hbis_torch.reconstruct.learned.inputs.super_resolve` with the band limit, and the
 classical image outside the training domain). The shipped model of the same h is scored beside
 them ("s").
 

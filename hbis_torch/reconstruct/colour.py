@@ -106,7 +106,7 @@ def _joint_demosaic_classical(stack, registration: str, messages=None, deblur: b
 
 
 def _joint_demosaic_learned(stack, registration: str, messages=None, model=None, threads=None,
-                            provider: str = "auto", extrapolate: bool = False, ensemble: int = 1) -> np.ndarray:
+                            provider: str = "auto", extrapolate: bool = False, ensemble: int | None = None) -> np.ndarray:
     """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
     refined by the network, with the noise of the sensor model or of one colour's sub-lattice."""
     from hbis_torch.reconstruct.classical.transfer import optics_cutoff
@@ -115,7 +115,7 @@ def _joint_demosaic_learned(stack, registration: str, messages=None, model=None,
     from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, classical_returned, model_to_run
 
     path, _, missing = model_to_run(model, stack.h)
-    check_ensemble(ensemble)
+    ensemble = check_ensemble(ensemble, stack.h)
     planes = _joint_demosaic_classical(stack, registration, messages=messages)
     if missing is not None:  # as learned_sr: the classical image, said so
         return classical_returned(planes, missing, messages, remedy=NO_MODEL_REMEDY)

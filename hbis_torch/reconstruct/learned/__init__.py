@@ -22,7 +22,7 @@ Modules
 :mod:`.inputs`
     Numpy glue around any runner of the network: the noise model
     (:func:`noise_params_from_meta`, :func:`estimate_noise_params`), :func:`network_inputs`,
-    :func:`run_tiled`, :func:`self_ensemble`, :func:`super_resolve`.
+    :func:`run_tiled`, :func:`self_ensemble` (:func:`default_ensemble`), :func:`super_resolve`.
 :mod:`.runtime`
     onnxruntime: model discovery (:func:`models_dir`, :func:`default_model_path`), session
     options and execution providers, :class:`LearnedSR`, model metadata. onnxruntime and onnx
@@ -38,6 +38,7 @@ from __future__ import annotations
 from hbis_torch.reconstruct.learned.inputs import (
     NOISE_SCALE,
     TILE_HALO,
+    default_ensemble,
     estimate_noise_params,
     network_inputs,
     noise_params_from_meta,

@@ -199,6 +199,17 @@ def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 25
 # rot90 k times; k >= 4 is the transpose, then rot90 (k - 4) times.
 ENSEMBLE_ORDER = (0, 4, 2, 6, 1, 5, 3, 7)
 ENSEMBLE_SIZES = (1, 2, 4, 8)
+# The self-ensemble the learned method uses unless told: 2 at h = 7, where the classical step
+# takes most of its time, so that averaging two symmetries costs 9 % more time end to end at
+# 128^2 (benchmarks/bench_ensemble.py) for +0.08 dB on the validation set, never less on any of
+# its stacks (+0.10 dB on the held-out matrix; docs/learned.md); 1 elsewhere (at h = 4 it would
+# cost 14 %, past the margin of the speed goal at 256^2).
+DEFAULT_ENSEMBLE = {7: 2}
+
+
+def default_ensemble(h: int) -> int:
+    """The self-ensemble size the learned method uses at ``h`` unless told (:data:`DEFAULT_ENSEMBLE`)."""
+    return DEFAULT_ENSEMBLE.get(int(h), 1)
 
 
 def _transform_phases(phases: np.ndarray, k: int) -> np.ndarray:
@@ -223,8 +234,11 @@ def _untransform_image(image: np.ndarray, k: int) -> np.ndarray:
     return image.T if k >= 4 else image
 
 
-def check_ensemble(count) -> int:
-    """``count`` if it is a self-ensemble size (:data:`ENSEMBLE_SIZES`), else one clear error."""
+def check_ensemble(count, h: int | None = None) -> int:
+    """``count`` if it is a self-ensemble size (:data:`ENSEMBLE_SIZES`), else one clear error;
+    None is :func:`default_ensemble` of ``h`` (1 without an ``h``)."""
+    if count is None:
+        return default_ensemble(h) if h is not None else 1
     if not isinstance(count, (int, np.integer)) or isinstance(count, bool) or count not in ENSEMBLE_SIZES:
         raise HbisInputError(f"ensemble must be one of {', '.join(map(str, ENSEMBLE_SIZES))}, got {count!r}")
     return int(count)
@@ -334,7 +348,7 @@ def band_limit(correction: np.ndarray, h: int, cutoff: float | None) -> np.ndarr
 
 
 def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
-                  name: str = "the network", cutoff: float | None = None, ensemble: int = 1,
+                  name: str = "the network", cutoff: float | None = None, ensemble: int | None = 1,
                   views: bool = False) -> np.ndarray:
     """Classical image and noise parameters -> refined image, around any runner of the network.
 
@@ -353,8 +367,9 @@ def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
     cutoff : float, optional
         The lens's diffraction cutoff, cycles per LR pixel: the network's correction is limited
         to it (:func:`band_limit`).
-    ensemble : {1, 2, 4, 8}
-        Average the network over this many of the square's symmetries (:func:`self_ensemble`).
+    ensemble : {1, 2, 4, 8} or None
+        Average the network over this many of the square's symmetries (:func:`self_ensemble`);
+        None: :func:`default_ensemble` of ``h``.
     views : bool
         ``run_network`` also takes base as the (h, h, H, W) view of the image
         (:func:`phase_planes`), as :func:`run_tiled` and
@@ -365,7 +380,7 @@ def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
     -------
     ndarray, shape (hH, hW), float32 in [0, 1]
     """
-    run_network = self_ensemble(run_network, h, ensemble, views)  # checks ``ensemble`` before any work
+    run_network = self_ensemble(run_network, h, check_ensemble(ensemble, h), views)  # before any work
     base, noise = network_inputs(image, h, noise_params, copy=not views)
     out = run_network(base, noise)
     del base, noise

@@ -61,7 +61,7 @@ def classical_and_noise(stack, registration: str = "optics", positions=None,
 
 def learned_sr(stack, model=None, positions=None, threads: int | None = None,
                registration: str = "optics", messages: list | None = None,
-               provider: str = "auto", extrapolate: bool = False, ensemble: int = 1) -> np.ndarray:
+               provider: str = "auto", extrapolate: bool = False, ensemble: int | None = None) -> np.ndarray:
     """Super-resolve a stack: the classical image, refined by an ONNX model in onnxruntime.
 
     The learned method takes every stack the classical method takes (any reference frame, any
@@ -93,10 +93,12 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     extrapolate : bool
         Run the network on a stack outside its training domain too (by default such a stack gets
         the classical image).
-    ensemble : {1, 2, 4, 8}
+    ensemble : {1, 2, 4, 8} or None
         Average the network over this many of the square's symmetries (geometric self-ensemble,
         :func:`~hbis_torch.reconstruct.learned.inputs.self_ensemble`): as many times the network's
-        cost, for +0.1 to +0.2 dB on the held-out matrix at 8 (docs/learned.md).
+        cost, for +0.1 to +0.2 dB on the held-out matrix at 8 (docs/learned.md). None: 2 at
+        h = 7, where the classical step takes most of the time, else 1
+        (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`).
 
     Returns
     -------
@@ -104,7 +106,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     """
     # before any work; the session opens after the classical step
     path, metadata, missing = model_to_run(model, stack.h)
-    check_ensemble(ensemble)
+    ensemble = check_ensemble(ensemble, stack.h)
     image, noise_params = classical_and_noise(stack, registration, positions, messages)
     if missing is not None:  # no shipped network for this h: as outside the training domain
         return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)
@@ -125,7 +127,7 @@ def _runner(path: str, mtime_ns: int, threads: int | None, provider: str) -> Lea
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
                         threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
-                        ensemble: int = 1) -> np.ndarray:
+                        ensemble: int | None = None) -> np.ndarray:
     """The ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS` (``hbis reconstruct``).
 
     Unlike :func:`learned_sr`, the registration defaults to ``"auto"``, as for every method of

@@ -308,7 +308,7 @@ class LearnedSR:
             return run_tiled(infer, base, noise, self.h, self.tile, self.halo)
 
     def __call__(self, image, noise_params: tuple[float, float], cutoff: float | None = None, *,
-                 messages: list | None = None, extrapolate: bool = False, ensemble: int = 1) -> np.ndarray:
+                 messages: list | None = None, extrapolate: bool = False, ensemble: int | None = None) -> np.ndarray:
         """Refine a classical image (hH, hW) in [0, 1] of frames of noise variance ``a x + b``.
 
         A stack outside the model's training domain, or any stack for a model that did not beat
@@ -330,9 +330,10 @@ class LearnedSR:
             Receives the line saying why the classical image is returned.
         extrapolate : bool
             Run the network anyway.
-        ensemble : {1, 2, 4, 8}
+        ensemble : {1, 2, 4, 8} or None
             Average the network over this many of the square's symmetries, at as many times its
-            cost (:func:`~hbis_torch.reconstruct.learned.inputs.self_ensemble`).
+            cost (:func:`~hbis_torch.reconstruct.learned.inputs.self_ensemble`); None: 2 at
+            h = 7, else 1 (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`).
 
         Returns
         -------
