@@ -14,8 +14,9 @@ def run(*args):
 
 def test_bad_variants_and_existing_out_are_refused_before_any_work(tmp_path):
     out = tmp_path / "ab.json"
-    bad = run("--variants", "a:wide:4:0", "--out", str(out))
-    assert bad.returncode == 2 and "name:width:blocks:blur" in bad.stderr and not out.exists()
+    for variants in ("a:wide:4:0", "a:32:4", "a:32:4:yes", "a:32:4:0:dense", "a:32:4:0:ir:1"):
+        bad = run("--variants", variants, "--out", str(out))
+        assert bad.returncode == 2 and "name:width:blocks:blur" in bad.stderr and not out.exists(), variants
     clash = run("--variants", "s:32:4:0", "--out", str(out))
     assert clash.returncode == 2 and "'s'" in clash.stderr
     out.write_text("kept")
@@ -25,14 +26,16 @@ def test_bad_variants_and_existing_out_are_refused_before_any_work(tmp_path):
 
 def test_a_tiny_run_scores_every_variant_and_the_shipped_model(tmp_path):
     out = tmp_path / "ab.json"
-    result = run("--h", "2", "--variants", "a:8:1:0,b:8:1:1", "--pool", "4", "--val", "1", "--cells", "1",
+    result = run("--h", "2", "--variants", "a:8:1:0,b:8:1:1,c:8:2:0:ir", "--pool", "4", "--val", "1", "--cells", "1",
                  "--steps", "2", "--batch", "2", "--procs", "1", "--out", str(out))
     assert result.returncode == 0, result.stderr[-2000:]
     record = json.loads(out.read_text())
     assert record["steps"] == 2
     first = record["history"][0]
     assert first["step"] == 0 and first["a"] == first["b"]  # the blur channel starts at zero weight
+    assert first["c"] == first["a"]  # any body: the last convolution starts at zero
+    assert record["macs"]["c"] == 9 * 5 * 8 + 2 * (8 * 32 + 9 * 32 + 32 * 8) + 9 * 8 * 4  # head, 2 blocks, tail
     (cell,) = record["cells"]
     assert cell["condition"].startswith("F1.4, 10k e-, reference frame 0") and cell["photo"] == "camera"
     assert cell["s"] > 1.0  # the shipped h = 2 model, as in benchmarks/results/eval_matrix.json
-    assert abs(cell["a"]) < 0.5 and abs(cell["b"]) < 0.5  # two steps: next to the classical image
+    assert all(abs(cell[k]) < 0.5 for k in "abc")  # two steps: next to the classical image

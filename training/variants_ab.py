@@ -13,10 +13,14 @@ path with one pass of the network, as ``eval_matrix.py --ensemble 1``:
 classical image outside the training domain). The shipped model of the same h is scored beside
 them ("s").
 
-A variant is ``name:width:blocks:blur``: the residual body's width and depth, and whether the
+A variant is ``name:width:blocks:blur[:body]``: the residual body's width and depth, whether the
 network is told the lens's blur width lambda F / p (1 / cutoff, LR pixels) as a second
-conditioning channel beside the noise map (1) or not (0). Its extra input channel starts at zero
-weight, so it starts as the same function as the variant without it.
+conditioning channel beside the noise map (1) or not (0), and the body's blocks: ``plain`` (the
+shipped design, conv 3x3 -> ReLU -> conv 3x3; the default) or ``ir`` (inverted residuals as in
+MobileNetV2: conv 1x1 to 4 x width -> ReLU -> depthwise conv 3x3 -> ReLU -> conv 1x1 back, about
+half a plain block's multiply-adds at equal width). The extra input channel starts at zero weight,
+so a variant told the blur starts as the same function as the variant without it. Each variant's
+multiply-adds per LR pixel are printed and recorded (``macs``).
 
 The pools are simulated by ``--procs`` worker processes (the training pool of train_sr.py's
 shipped runs: 320 stacks, seed 0; validation 16 stacks, seed 1), and the held-out cells are
@@ -74,12 +78,36 @@ def simulate_cell(args):
             "cutoff": optics_cutoff(stack.system), "truth": np.asarray(truth, np.float32)}
 
 
-def make_variant(h: int, width: int, blocks: int, blur: bool) -> torch.nn.Module:
-    """HbisSRNet of seed 0; with ``blur``, its head takes one more input channel (zero weights)."""
+class InvertedResidual(torch.nn.Module):
+    """conv 1x1 to ``expand`` x width -> ReLU -> depthwise 3x3 -> ReLU -> conv 1x1 back, added to the
+    input (MobileNetV2's block without its batch norms). (B, C, H, W) -> (B, C, H, W)."""
+
+    def __init__(self, width: int, expand: int = 4) -> None:
+        super().__init__()
+        inner = expand * width
+        self.body = torch.nn.Sequential(
+            torch.nn.Conv2d(width, inner, 1), torch.nn.ReLU(),
+            torch.nn.Conv2d(inner, inner, 3, padding=1, groups=inner), torch.nn.ReLU(),
+            torch.nn.Conv2d(inner, width, 1))
+
+    def forward(self, x):
+        return x + self.body(x)
+
+
+def macs_per_pixel(model: torch.nn.Module) -> int:
+    """Multiply-adds per LR pixel of the network's convolutions (each weight is used once per pixel)."""
+    return sum(m.weight.numel() for m in model.modules() if isinstance(m, torch.nn.Conv2d))
+
+
+def make_variant(h: int, width: int, blocks: int, blur: bool, body: str = "plain") -> torch.nn.Module:
+    """HbisSRNet of seed 0; with ``blur``, its head takes one more input channel (zero weights);
+    ``body="ir"`` puts inverted residual blocks in its body."""
     from hbis_torch.reconstruct.learned.net import HbisSRNet
 
     torch.manual_seed(0)
     model = HbisSRNet(h, width=width, blocks=blocks)
+    if body == "ir":
+        model.body = torch.nn.Sequential(*[InvertedResidual(width) for _ in range(blocks)])
     if blur:
         head = torch.nn.Conv2d(h * h + 2, width, 3, padding=1)
         with torch.no_grad():
@@ -90,11 +118,24 @@ def make_variant(h: int, width: int, blocks: int, blur: bool) -> torch.nn.Module
     return model
 
 
+def parse_variants(text: str) -> list[tuple[str, int, int, bool, str]] | None:
+    """``name:width:blocks:blur[:body],...`` as (name, width, blocks, blur, body) tuples; None if malformed."""
+    try:
+        variants = [(name, int(width), int(blocks), blur == "1", *(body or ["plain"]))
+                    for name, width, blocks, blur, *body in (v.split(":") for v in text.split(","))]
+    except ValueError:
+        return None
+    blurs = [v.split(":")[3] for v in text.split(",")]
+    if any(len(v) != 5 or v[4] not in ("plain", "ir") for v in variants) or set(blurs) - {"0", "1"}:
+        return None
+    return variants
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--h", type=int, default=4, choices=(2, 4, 7))
-    parser.add_argument("--variants", default="a:32:4:0,b:32:4:1", help="name:width:blocks:blur, comma-separated")
+    parser.add_argument("--variants", default="a:32:4:0,b:32:4:1", help="name:width:blocks:blur[:plain|ir], comma-separated")
     parser.add_argument("--seconds", type=float, default=300.0, help="training budget, wall clock, all variants together")
     parser.add_argument("--steps", type=int, default=None, help="stop after this many steps instead (a reproducible budget)")
     parser.add_argument("--batch", type=int, default=64)
@@ -108,11 +149,10 @@ def main(argv=None) -> int:
     if args.out.exists():
         print(f"variants_ab: {args.out} exists; choose another --out", file=sys.stderr)
         return 2
-    try:
-        variants = [(name, int(width), int(blocks), blur == "1")
-                    for name, width, blocks, blur in (v.split(":") for v in args.variants.split(","))]
-    except ValueError:
-        print(f"variants_ab: --variants must be name:width:blocks:blur,..., got {args.variants!r}", file=sys.stderr)
+    variants = parse_variants(args.variants)
+    if variants is None:
+        print(f"variants_ab: --variants must be name:width:blocks:blur[:plain|ir],..., got {args.variants!r}",
+              file=sys.stderr)
         return 2
     if len({v[0] for v in variants} | {"s"}) != len(variants) + 1:
         print("variants_ab: variant names must differ from each other and from 's' (the shipped model)", file=sys.stderr)
@@ -166,8 +206,8 @@ def main(argv=None) -> int:
         noise = NOISE_SCALE * torch.sqrt(ab[:, 0, None, None, None] * level + ab[:, 1, None, None, None])
         return base, noise, blurs[i][:, None, None, None].expand(-1, 1, PATCH, PATCH), truth[:, None]
 
-    models = {name: make_variant(h, width, blocks, blur).to(dev) for name, width, blocks, blur in variants}
-    told_blur = {name: blur for name, _, _, blur in variants}
+    models = {name: make_variant(h, width, blocks, blur, body).to(dev) for name, width, blocks, blur, body in variants}
+    told_blur = {name: blur for name, _, _, blur, _ in variants}
     optimizers = {k: torch.optim.AdamW(m.parameters(), lr=args.lr, weight_decay=1e-4) for k, m in models.items()}
 
     def forward(k, base, noise, blur):
@@ -245,8 +285,10 @@ def main(argv=None) -> int:
                 row[k] = eval_matrix.score(image, cell["truth"], h) - row["classical_db"]
             results.append(row)
     names = ["s"] + [v[0] for v in variants]
+    macs = {k: macs_per_pixel(m) for k, m in models.items()}
     print(f"\nheld-out, h = {h}: learned - classical, dB, row mean (worst cell); s: the shipped model; "
-          + "; ".join(f"{n}: width {w}, {b} blocks" + (", told the blur" if blur else "") for n, w, b, blur in variants))
+          + "; ".join(f"{n}: width {w}, {b} {body} blocks" + (", told the blur" if blur else "") + f", {macs[n]} MACs/px"
+                      for n, w, b, blur, body in variants))
     for condition in eval_matrix.CONDITIONS:
         rows = [r for r in results if r["condition"] == condition.name]
         if rows:
@@ -256,7 +298,7 @@ def main(argv=None) -> int:
         deltas = np.array([r[k] for r in results])
         print(f"{k}: mean {deltas.mean():+.3f} dB, worst cell {deltas.min():+.2f}, {(deltas < -0.3).sum()} below -0.3")
     record = {"config": {**vars(args), "out": str(args.out), "device": str(dev)}, "steps": step,
-              "classical_val_db": classical_val, "best_val_db": {k: best[k][0] for k in best},
+              "classical_val_db": classical_val, "best_val_db": {k: best[k][0] for k in best}, "macs": macs,
               "history": history, "cells": results}
     args.out.write_text(json.dumps(record, indent=1))
     print(f"total {time.time() - started_all:.0f} s")
