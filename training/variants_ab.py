@@ -120,14 +120,17 @@ def make_variant(h: int, width: int, blocks: int, blur: bool, body: str = "plain
 
 def parse_variants(text: str) -> list[tuple[str, int, int, bool, str]] | None:
     """``name:width:blocks:blur[:body],...`` as (name, width, blocks, blur, body) tuples; None if malformed."""
-    try:
-        variants = [(name, int(width), int(blocks), blur == "1", *(body or ["plain"]))
-                    for name, width, blocks, blur, *body in (v.split(":") for v in text.split(","))]
-    except ValueError:
-        return None
-    blurs = [v.split(":")[3] for v in text.split(",")]
-    if any(len(v) != 5 or v[4] not in ("plain", "ir") for v in variants) or set(blurs) - {"0", "1"}:
-        return None
+    variants = []
+    for spec in text.split(","):
+        fields = spec.split(":")
+        if len(fields) == 4:
+            fields.append("plain")
+        if len(fields) != 5 or fields[3] not in ("0", "1") or fields[4] not in ("plain", "ir"):
+            return None
+        name, width, blocks, blur, body = fields
+        if not (width.isdigit() and blocks.isdigit()):
+            return None
+        variants.append((name, int(width), int(blocks), blur == "1", body))
     return variants
 
 
