@@ -7,8 +7,8 @@ Variants are written as ``training/variants_ab.py`` writes them (``name:width:bl
 the first one the reference; ``a:32:4:0`` is the shipped design). For each, in turn and
 ``--repeats`` rounds after a warm-up, this times on the CPU:
 
-* a training step as ``training/train_sr.py`` takes one: forward, the loss, backward and AdamW on a
-  batch of ``--batch`` crops of 32 x 32 LR pixels, torch with ``--threads`` threads;
+* a training step as ``training/train_sr.py`` takes one (forward, a mean-square loss, backward and
+  AdamW) on a batch of ``--batch`` crops of 32 x 32 LR pixels, torch with ``--threads`` threads;
 * inference as the learned method runs it: the network exported to ONNX by the shipped exporter
   (:func:`~hbis_torch.reconstruct.learned.export.export_model`) and run by
   :meth:`LearnedSR.infer <hbis_torch.reconstruct.learned.LearnedSR.infer>` with each installed
@@ -126,7 +126,8 @@ def main(argv=None) -> int:
         from hbis_torch.io_utils import atomic_write_text
 
         settings = {k: v for k, v in vars(args).items() if k != "json"}
-        atomic_write_text(args.json, json.dumps({"settings": settings, "providers": providers, "rows": rows}, indent=2) + "\n")
+        record = {"settings": settings, "providers": providers, "rows": rows}
+        atomic_write_text(args.json, json.dumps(record, indent=2) + "\n")
     return 0
 
 

@@ -138,7 +138,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--h", type=int, default=4, choices=(2, 4, 7))
-    parser.add_argument("--variants", default="a:32:4:0,b:32:4:1", help="name:width:blocks:blur[:plain|ir], comma-separated")
+    parser.add_argument("--variants", default="a:32:4:0,b:32:4:1",
+                        help="name:width:blocks:blur[:plain|ir], comma-separated")
     parser.add_argument("--seconds", type=float, default=300.0, help="training budget, wall clock, all variants together")
     parser.add_argument("--steps", type=int, default=None, help="stop after this many steps instead (a reproducible budget)")
     parser.add_argument("--batch", type=int, default=64)
@@ -209,7 +210,8 @@ def main(argv=None) -> int:
         noise = NOISE_SCALE * torch.sqrt(ab[:, 0, None, None, None] * level + ab[:, 1, None, None, None])
         return base, noise, blurs[i][:, None, None, None].expand(-1, 1, PATCH, PATCH), truth[:, None]
 
-    models = {name: make_variant(h, width, blocks, blur, body).to(dev) for name, width, blocks, blur, body in variants}
+    models = {name: make_variant(h, width, blocks, blur, body).to(dev)
+              for name, width, blocks, blur, body in variants}
     told_blur = {name: blur for name, _, _, blur, _ in variants}
     optimizers = {k: torch.optim.AdamW(m.parameters(), lr=args.lr, weight_decay=1e-4) for k, m in models.items()}
 
@@ -290,8 +292,8 @@ def main(argv=None) -> int:
     names = ["s"] + [v[0] for v in variants]
     macs = {k: macs_per_pixel(m) for k, m in models.items()}
     print(f"\nheld-out, h = {h}: learned - classical, dB, row mean (worst cell); s: the shipped model; "
-          + "; ".join(f"{n}: width {w}, {b} {body} blocks" + (", told the blur" if blur else "") + f", {macs[n]} MACs/px"
-                      for n, w, b, blur, body in variants))
+          + "; ".join(f"{n}: width {w}, {b} {body} blocks" + (", told the blur" if blur else "")
+                      + f", {macs[n]} MACs/px" for n, w, b, blur, body in variants))
     for condition in eval_matrix.CONDITIONS:
         rows = [r for r in results if r["condition"] == condition.name]
         if rows:
