@@ -34,9 +34,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "training"))
-from variants_ab import macs_per_pixel, make_variant, parse_variants  # noqa: E402
-
-PATCH = 32  # LR side of a training crop, as train_sr.py
+from variants_ab import PATCH, VARIANT_FORMAT, macs_per_pixel, make_variant, parse_variants  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -44,7 +42,7 @@ def main(argv=None) -> int:
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--h", type=int, default=4, choices=(2, 4, 7))
     parser.add_argument("--variants", default="a:32:4:0,m:32:8:0:ir",
-                        help="name:width:blocks:blur[:plain|ir], comma-separated; the first is the reference")
+                        help=f"{VARIANT_FORMAT}, comma-separated; the first is the reference")
     parser.add_argument("--batch", type=int, default=64, help="training crops per step")
     parser.add_argument("--large", type=int, default=500, help="side of the large inference input, LR pixels")
     parser.add_argument("--repeats", type=int, default=5)
@@ -53,7 +51,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     variants = parse_variants(args.variants)
     if variants is None:
-        print(f"bench_variant_cost: --variants must be name:width:blocks:blur[:plain|ir],..., got {args.variants!r}",
+        print(f"bench_variant_cost: --variants must be {VARIANT_FORMAT},..., got {args.variants!r}",
               file=sys.stderr)
         return 2
     if any(blur for _, _, _, blur, _ in variants):

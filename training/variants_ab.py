@@ -46,6 +46,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # eval_matrix, beside this script
 PATCH = 32  # LR side of a training crop, as train_sr.py
+VARIANT_FORMAT = "name:width:blocks:blur[:plain|ir]"  # one variant of --variants (module docstring)
 
 
 def simulate_example(args):
@@ -139,7 +140,7 @@ def main(argv=None) -> int:
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--h", type=int, default=4, choices=(2, 4, 7))
     parser.add_argument("--variants", default="a:32:4:0,b:32:4:1",
-                        help="name:width:blocks:blur[:plain|ir], comma-separated")
+                        help=f"{VARIANT_FORMAT}, comma-separated")
     parser.add_argument("--seconds", type=float, default=300.0, help="training budget, wall clock, all variants together")
     parser.add_argument("--steps", type=int, default=None, help="stop after this many steps instead (a reproducible budget)")
     parser.add_argument("--batch", type=int, default=64)
@@ -155,7 +156,7 @@ def main(argv=None) -> int:
         return 2
     variants = parse_variants(args.variants)
     if variants is None:
-        print(f"variants_ab: --variants must be name:width:blocks:blur[:plain|ir],..., got {args.variants!r}",
+        print(f"variants_ab: --variants must be {VARIANT_FORMAT},..., got {args.variants!r}",
               file=sys.stderr)
         return 2
     if len({v[0] for v in variants} | {"s"}) != len(variants) + 1:
