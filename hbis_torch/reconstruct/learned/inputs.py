@@ -244,7 +244,7 @@ def check_ensemble(count, h: int | None = None) -> int:
     return int(count)
 
 
-def self_ensemble(run_network, h: int, count: int, views: bool = False):
+def self_ensemble(run_network, h: int, count: int | None, views: bool = False):
     """``run_network`` averaged over ``count`` of the square's 8 symmetries (geometric self-ensemble).
 
     The network was trained under all 8 flips and transposes of its crops, so each symmetry gives
@@ -256,8 +256,9 @@ def self_ensemble(run_network, h: int, count: int, views: bool = False):
     run_network : callable
         base (h^2, H, W), noise (1, H, W), float32 -> (hH, hW) float32.
     h : int
-    count : {1, 2, 4, 8}
-        How many symmetries (:data:`ENSEMBLE_ORDER`); 1 returns ``run_network`` itself.
+    count : {1, 2, 4, 8} or None
+        How many symmetries (:data:`ENSEMBLE_ORDER`); 1 returns ``run_network`` itself. None:
+        :func:`default_ensemble` of ``h``.
     views : bool
         ``run_network`` also takes base as a strided (h, h, H, W) view (as :func:`run_tiled`
         does): each symmetry's base is then a view of the input, not a copy.
@@ -267,7 +268,8 @@ def self_ensemble(run_network, h: int, count: int, views: bool = False):
     callable
         With the signature of ``run_network``.
     """
-    if check_ensemble(count) == 1:
+    count = check_ensemble(count, h)
+    if count == 1:
         return run_network
 
     def run(base: np.ndarray, noise: np.ndarray) -> np.ndarray:
@@ -380,7 +382,7 @@ def super_resolve(run_network, image, h: int, noise_params: tuple[float, float],
     -------
     ndarray, shape (hH, hW), float32 in [0, 1]
     """
-    run_network = self_ensemble(run_network, h, check_ensemble(ensemble, h), views)  # before any work
+    run_network = self_ensemble(run_network, h, ensemble, views)  # checks ``ensemble`` before any work
     base, noise = network_inputs(image, h, noise_params, copy=not views)
     out = run_network(base, noise)
     del base, noise
