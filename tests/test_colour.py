@@ -94,13 +94,18 @@ def test_bayer_joint_demosaicking_and_learned_demosaic_first(colour_case, tmp_pa
     learned = reconstruct(raw, "learned", registration="optics")
     assert learned.shape == (64, 64, 3)
     assert psnr(joint[inner], truth[inner]) > baseline + 1.0  # measured: +1.9 dB
-    # the learned method refines the joint demosaicking's planes
+    # the learned method refines the joint demosaicking's planes: the network ran
+    assert np.abs(learned - joint).mean() > 1e-3
     assert psnr(learned[inner], truth[inner]) > psnr(joint[inner], truth[inner]) - 0.3
     # the CLI writes an RGB TIFF
     assert main(["reconstruct", str(tmp_path / "raw.tif"), "--registration", "optics",
                  "--out", str(tmp_path / "sr.tif")]) == 0
     image, meta = read_image(tmp_path / "sr.tif")
     assert image.shape == (64, 64, 3) and meta["format"] == "hbis-sr/1"
+    # --colour does not apply to the joint demosaicking: refused, not ignored
+    assert main(["reconstruct", str(tmp_path / "raw.tif"), "--colour", "luma",
+                 "--out", str(tmp_path / "luma.tif")]) == 2
+    assert not (tmp_path / "luma.tif").exists()
 
 
 @pytest.mark.parametrize("kind", ["rgb", "bayer"])

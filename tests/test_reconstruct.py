@@ -188,6 +188,10 @@ def test_cli_reconstruct_writes_the_image(centre, tmp_path, capsys):
         (["--provider", "cpu"], "--provider is only for --method learned"),
         (["--method", "learned", "--provider", "gpu"], "invalid choice"),
         (["--registration", "magic"], "invalid choice"),
+        # Options belong to their method and stack: none is accepted and then ignored.
+        (["--method", "learned", "--no-deblur"], "--no-deblur is only for --method classical"),
+        (["--colour", "luma"], "applies to colour stacks"),
+        (["--method", "learned", "--colour", "channels"], "applies to colour stacks"),
     ],
 )
 def test_cli_reconstruct_bad_arguments_exit_2(centre, tmp_path, capsys, extra, message):

@@ -15,12 +15,6 @@ from hbis_torch.cli.common import SEED_ARG
 from hbis_torch.cli.cmd_figures import FIGURE_SET_NAMES, figure_set
 
 
-def _methods() -> list[str]:
-    from hbis_torch.reconstruct import METHODS
-
-    return sorted(METHODS)
-
-
 def register(sub) -> None:
     p = sub.add_parser(
         "demo",
@@ -32,10 +26,12 @@ def register(sub) -> None:
         "report.json and report.html into --out.",
     )
     p.add_argument("--out", default="hbis-out", help="output folder (default: ./hbis-out)")
-    p.add_argument("--method", default="learned",
-                   help="super-resolution method, a name hbis reconstruct knows (default: learned, "
+    from hbis_torch.reconstruct.registry import METHODS
+
+    p.add_argument("--method", choices=tuple(METHODS), default="learned",
+                   help="super-resolution method, as hbis reconstruct's (default: learned, "
                    "the shipped ONNX model run in onnxruntime)")
-    p.add_argument("--model", default=None, help="model file for a learned method (optional)")
+    p.add_argument("--model", default=None, help="model file, for a method that takes one (learned; optional)")
     p.add_argument("--h", type=bounded_int(1, 7), default=4, help="resolution improvement factor (default: 4)")
     p.add_argument("--roi", type=bounded_int(16, 960), default=160, help="side of the fovea's ROI in pixels (default: 160)")
     p.add_argument("--seed", type=SEED_ARG, default=3, help="seed of the assembly errors (default: 3)")
@@ -110,8 +106,10 @@ def _run(args):
 
 
 def run(args) -> int:
-    if args.method not in _methods():
-        raise HbisInputError(f"unknown method {args.method!r}; available: {', '.join(_methods())}")
+    from hbis_torch.reconstruct.registry import get_method
+
+    if args.model is not None and "model" not in get_method(args.method).keywords:
+        raise HbisInputError(f"--model is for a method that takes a model file; {args.method} does not")
     if args.model is not None and not Path(args.model).is_file():
         raise HbisInputError(f"{args.model}: no such model file")
     if args.method == "learned" and args.model is None and not args.design_only:

@@ -3,8 +3,10 @@
 Where each part lives
 ---------------------
 :mod:`hbis_torch.reconstruct.registry`
-    :data:`METHODS` (``"classical"``, ``"learned"``: one explicit dict) and :func:`reconstruct`,
-    the dispatcher that ``hbis reconstruct`` and the system pipeline call.
+    :data:`METHODS` (``"classical"``, ``"learned"``), :func:`register` (a method is one module
+    plus one :class:`Method` entry: its name, options, run function and optional raw-Bayer
+    path) and :func:`reconstruct`, the dispatcher that ``hbis reconstruct`` and the system
+    pipeline call.
 :mod:`hbis_torch.reconstruct.positions`
     The one sample-position policy of every method: the optics, corrected by registration where
     the data is trusted (:func:`~hbis_torch.reconstruct.positions.stack_sample_positions`,
@@ -20,20 +22,33 @@ Where each part lives
     Which h a scene needs (:func:`recommend_h`).
 """
 
-from hbis_torch.reconstruct.adaptive_h import HChoice, recommend_h
-from hbis_torch.reconstruct.classical import classical_sr
-from hbis_torch.reconstruct.learned import learned_sr
-from hbis_torch.reconstruct.positions import REGISTRATIONS, optical_sample_positions, stack_sample_positions
-from hbis_torch.reconstruct.registry import METHODS, reconstruct
+import importlib
 
-__all__ = [
-    "HChoice",
-    "METHODS",
-    "REGISTRATIONS",
-    "classical_sr",
-    "learned_sr",
-    "optical_sample_positions",
-    "reconstruct",
-    "recommend_h",
-    "stack_sample_positions",
-]
+# Names handed on from the modules that define them, imported on first use (PEP 562), so that
+# the registry (``hbis reconstruct --help`` reads it) comes without torch.
+_HOMES = {
+    "HChoice": "adaptive_h",
+    "recommend_h": "adaptive_h",
+    "classical_sr": "classical",
+    "learned_sr": "learned",
+    "REGISTRATIONS": "positions",
+    "optical_sample_positions": "positions",
+    "stack_sample_positions": "positions",
+    "METHODS": "registry",
+    "Method": "registry",
+    "Option": "registry",
+    "reconstruct": "registry",
+    "register": "registry",
+}
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_HOMES[name]}"), name)
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -17,14 +17,16 @@ Raw Bayer frames (F, H, W) with a ``cfa`` key: the classical method demosaicks j
 colour sample enters the splatting at its own position (the sample positions of its pixel), with
 per-channel masks as sample weights, as in Wronski et al., SIGGRAPH 2019; each colour plane is
 reconstructed from its own samples only (interpolated, not deblurred: see
-:func:`_joint_demosaic_classical`). The learned method refines each plane of that joint
-demosaicking, as it refines the classical image of a gray stack (:func:`_joint_demosaic_learned`).
+:func:`~hbis_torch.reconstruct.classical.method.reconstruct_classical_raw_bayer`). The learned
+method refines each plane of that joint demosaicking, as it refines the classical image of a gray
+stack (:func:`~hbis_torch.reconstruct.learned.method.reconstruct_learned_raw_bayer`). A method
+declares such a raw path in its registry entry (:class:`hbis_torch.reconstruct.registry.Method`);
+a method without one gets the frames demosaicked first, as RGB.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from hbis_torch.capture.bayer import bayer_masks, demosaic, mosaic
 from hbis_torch.errors import HbisInputError
@@ -67,84 +69,20 @@ def gray_stack(stack, frames):
     return Stack(np.ascontiguousarray(frames), meta)
 
 
-def _joint_demosaic_classical(stack, registration: str, messages=None, deblur: bool = True,
-                              fill_factor: float | None = None, **kw) -> np.ndarray:
-    """Classical SR of raw Bayer frames, each colour from its own samples at their own positions.
-
-    Each plane is the normalized-convolution interpolation of its samples alone; the Wiener step
-    is left out: it assumes a sample at every node of the h-times lattice, while a colour's
-    samples fill only half (G) or a quarter (R, B) of it, in blocks, and deblurring those planes
-    cost 6 to 11 dB (benchmarks/bench_colour.py, docs/capture.md).
-    """
-    if deblur and messages is not None:
-        messages.append("raw Bayer frames: joint demosaicking interpolates each colour without the Wiener "
-                        "deblurring (a colour's samples do not fill the lattice it assumes)")
-    from hbis_torch.reconstruct.classical.method import stack_fill_factor
-    from hbis_torch.reconstruct.classical.sr import classical_sr
-    from hbis_torch.reconstruct.classical.transfer import optics_cutoff
-    from hbis_torch.reconstruct.positions import (
-        check_registration,
-        stack_sample_positions,
-    )
-
-    check_registration(registration)
-    raw = stack.to_float()
-    cfa = stack.meta["cfa"]
-    luma = torch.from_numpy((demosaic(raw.numpy(), cfa) @ LUMA.astype(np.float32)).astype(np.float32))
-    proxy = gray_stack(stack, luma.numpy())  # registration sees a demosaicked luminance, not a mosaic
-    positions, trusted = stack_sample_positions(proxy, registration, exact=True, frames=luma, messages=messages)
-    frame_weight = torch.ones(raw.shape[0], dtype=torch.float64)
-    if registration == "data" and raw.shape[0] > 1:
-        frame_weight = trusted.to(torch.float64)
-    if fill_factor is None:
-        fill_factor = stack_fill_factor(stack)
-    masks = torch.from_numpy(bayer_masks(cfa, *raw.shape[1:])).to(torch.float64)
-    planes = [classical_sr(raw, positions, stack.h, False, weights=frame_weight[:, None, None] * m[None],
-                           cutoff=optics_cutoff(stack.system), fill_factor=fill_factor, **kw).numpy()
-              for m in masks]
-    return np.stack(planes, axis=-1)
-
-
-def _joint_demosaic_learned(stack, registration: str, messages=None, model=None, threads=None,
-                            provider: str = "auto", extrapolate: bool = False, ensemble: int | None = None) -> np.ndarray:
-    """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
-    refined by the network, with the noise of the sensor model or of one colour's sub-lattice."""
-    from hbis_torch.reconstruct.classical.transfer import optics_cutoff
-    from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params, noise_params_from_meta
-    from hbis_torch.reconstruct.learned.inputs import check_ensemble
-    from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, classical_returned, model_to_run
-
-    path, _, missing = model_to_run(model, stack.h)
-    ensemble = check_ensemble(ensemble, stack.h)
-    planes = _joint_demosaic_classical(stack, registration, messages=messages)
-    if missing is not None:  # as learned_sr: the classical image, said so
-        return classical_returned(planes, missing, messages, remedy=NO_MODEL_REMEDY)
-    runner = LearnedSR(model=path, threads=threads, provider=provider)
-    noise = noise_params_from_meta(stack.meta)
-    if noise is None:  # one colour's pixels: a plain image of one sensor's noise, no mosaic in it
-        noise = estimate_noise_params(stack.to_float().numpy()[:, 0::2, 0::2])
-    cutoff = optics_cutoff(stack.system)
-    notes: list[str] = []
-    out = np.stack([runner(np.ascontiguousarray(planes[..., c]), noise, cutoff, messages=notes,
-                           extrapolate=extrapolate, ensemble=ensemble) for c in range(3)], axis=-1)
-    if messages is not None:
-        messages.extend(dict.fromkeys(notes))  # the same line for each plane: once
-    return out
-
-
-def reconstruct_colour(stack, method: str, registration: str = "auto", colour: str | None = None,
+def reconstruct_colour(stack, method, registration: str = "auto", colour: str | None = None,
                        **kw) -> np.ndarray:
     """Super-resolve a colour stack (RGB frames, or raw Bayer frames with a ``cfa`` key).
 
     Parameters
     ----------
     stack : hbis_torch.stack_io.Stack
-    method : str
-        A key of :data:`hbis_torch.reconstruct.registry.METHODS`.
+    method : hbis_torch.reconstruct.registry.Method
+        The method (the registry hands it over).
     registration : {"optics", "data", "auto"}
     colour : {"luma", "channels"} or None
         How RGB goes through the method (module docstring); None: :data:`DEFAULT_MODE`. Raw
-        Bayer frames with the classical method are always demosaicked jointly, per channel.
+        Bayer frames go through the method's own raw path where it has one (joint demosaicking,
+        each colour at full resolution), which takes no ``colour``: one given is refused.
     **kw
         Passed to the method.
 
@@ -152,20 +90,21 @@ def reconstruct_colour(stack, method: str, registration: str = "auto", colour: s
     -------
     np.ndarray, shape (h*H, h*W, 3), float32 in [0, 1]
     """
-    from hbis_torch.reconstruct.registry import METHODS
-
     mode = DEFAULT_MODE if colour is None else colour
     if mode not in COLOUR_MODES:
         raise HbisInputError(f"colour mode must be one of {', '.join(COLOUR_MODES)}, got {colour!r}")
-    run = METHODS[method]
     if stack.meta.get("cfa") is not None:
-        if method == "classical":
-            return np.clip(_joint_demosaic_classical(stack, registration, **kw), 0, 1).astype(np.float32)
-        if method == "learned":
-            return np.clip(_joint_demosaic_learned(stack, registration, **kw), 0, 1).astype(np.float32)
+        raw_bayer = method.raw_bayer_function()
+        if raw_bayer is not None:
+            if colour is not None:
+                raise HbisInputError(f"the colour option (--colour) does not apply to raw Bayer frames with the "
+                                     f"{method.name} method, "
+                                     "which demosaicks them jointly, each colour at full resolution")
+            return np.clip(raw_bayer(stack, registration=registration, **kw), 0, 1).astype(np.float32)
         rgb = demosaic(stack.to_float().numpy(), stack.meta["cfa"])
     else:
         rgb = stack.to_float().numpy()
+    run = method.run_function()
     if mode == "channels":
         planes = [run(gray_stack(stack, rgb[..., c]), registration=registration, **kw) for c in range(3)]
         return np.clip(np.stack(planes, axis=-1), 0, 1).astype(np.float32)

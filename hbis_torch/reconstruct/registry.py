@@ -1,22 +1,136 @@
 """Every reconstruction method by name, and :func:`reconstruct`, which dispatches to them.
 
-The registry is the one place that lists the methods; it imports both methods' entry functions
-and nothing registers itself on import. Importing it does not import onnxruntime or onnx (the
-learned method imports them when it runs).
+A method is one module plus one entry here: a :class:`Method` that names its run function, the
+options it takes (``hbis reconstruct`` builds its flags and ``--help`` from them) and, if it has
+one, its own path for raw Bayer frames. :func:`register` adds an entry; the two built-in methods
+are registered below. Colour stacks go through :mod:`hbis_torch.reconstruct.colour`, which is
+handed the :class:`Method`: no method module imports this one.
+
+Run functions are named as ``"module:function"`` and imported when a stack is reconstructed, so
+importing the registry (as ``hbis reconstruct --help`` does) imports neither torch nor
+onnxruntime.
+
+Examples
+--------
+>>> from hbis_torch.reconstruct.registry import METHODS
+>>> sorted(METHODS)
+['classical', 'learned']
+>>> [option.flag for option in METHODS["classical"].options]
+['--no-deblur']
 """
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
+from pathlib import Path
+from typing import Any, Callable
+
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.reconstruct.classical.method import reconstruct_classical
-from hbis_torch.reconstruct.learned.method import reconstruct_learned
 
-# Reconstruction methods by name: function(stack, registration=..., messages=None, **kw) ->
-# (h*H, h*W) float32 array in [0, 1] ("messages": a list that receives warnings, or None).
-# Another method is added with one entry here.
-METHODS = {"classical": reconstruct_classical, "learned": reconstruct_learned}
+
+@dataclasses.dataclass(frozen=True)
+class Option:
+    """One option of a method: a keyword of its run function and a ``hbis reconstruct`` flag.
+
+    Parameters
+    ----------
+    flag : str
+        The command-line flag, e.g. ``"--no-deblur"``.
+    keyword : str
+        The run function's keyword the flag sets, e.g. ``"deblur"``.
+    help : str
+        One sentence for ``--help``.
+    argparse : dict
+        What ``ArgumentParser.add_argument`` takes besides the flag, the destination, the help
+        and the default (``action``, ``type``, ``choices``, ``metavar``).
+    """
+
+    flag: str
+    keyword: str
+    help: str
+    argparse: dict = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """A reconstruction method: what :func:`reconstruct` and ``hbis reconstruct`` need of it.
+
+    Parameters
+    ----------
+    name : str
+        The ``--method`` name.
+    run : callable or str
+        ``run(stack, registration=..., messages=None, **options)`` -> ndarray (h H, h W), float32
+        in [0, 1], for a grey stack; or ``"module:function"`` naming it (imported on first use).
+    summary : str
+        One line for ``hbis reconstruct --help``.
+    options : tuple of Option
+        The method's own options; any other is refused.
+    raw_bayer : callable or str, optional
+        ``raw_bayer(stack, registration=..., messages=None, **options)`` -> ndarray
+        (h H, h W, 3): the method's own path for raw Bayer frames (joint demosaicking). Without
+        one, raw frames are demosaicked first and go through ``run`` as RGB.
+    threads : bool
+        ``run`` takes ``threads`` (``hbis reconstruct --threads``, which also sets torch's).
+    """
+
+    name: str
+    run: Callable[..., np.ndarray] | str
+    summary: str
+    options: tuple[Option, ...] = ()
+    raw_bayer: Callable[..., np.ndarray] | str | None = None
+    threads: bool = False
+
+    @property
+    def keywords(self) -> frozenset[str]:
+        """The keywords of :attr:`options`."""
+        return frozenset(option.keyword for option in self.options)
+
+    def run_function(self) -> Callable[..., np.ndarray]:
+        """:attr:`run`, imported if named as ``"module:function"``."""
+        return _resolve(self.run)
+
+    def raw_bayer_function(self) -> Callable[..., np.ndarray] | None:
+        """:attr:`raw_bayer`, imported if named as ``"module:function"``; None without one."""
+        return None if self.raw_bayer is None else _resolve(self.raw_bayer)
+
+
+def _resolve(target: Callable[..., Any] | str) -> Callable[..., Any]:
+    if callable(target):
+        return target
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+#: Reconstruction methods by name (:func:`register` adds one).
+METHODS: dict[str, Method] = {}
+
+
+def register(method: Method) -> Method:
+    """Add ``method`` to :data:`METHODS` (a name taken already is refused) and return it.
+
+    A flag that another method declares too must mean the same there (keyword and argparse
+    settings), since ``hbis reconstruct`` has one flag for both.
+    """
+    if method.name in METHODS:
+        raise HbisInputError(f"a reconstruction method named {method.name!r} is registered already")
+    for option in method.options:
+        for other in METHODS.values():
+            for theirs in other.options:
+                if theirs.flag == option.flag and (theirs.keyword, theirs.argparse) != (option.keyword, option.argparse):
+                    raise HbisInputError(f"{option.flag} of method {method.name!r} differs from {other.name!r}'s")
+    METHODS[method.name] = method
+    return method
+
+
+def get_method(name: str) -> Method:
+    """The registered method called ``name``, or one :class:`HbisInputError` line naming those there are."""
+    if name not in METHODS:
+        raise HbisInputError(f"unknown reconstruction method {name!r}; available: {', '.join(METHODS)}")
+    return METHODS[name]
 
 
 def reconstruct(stack, method: str = "classical", registration: str = "auto", **kw) -> np.ndarray:
@@ -37,16 +151,16 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     **kw
         Passed to the method (for classical: ``deblur``, ``messages`` (a list that receives the
         registration's warnings), ``fill_factor``, and :func:`classical_sr`'s keywords; for
-        learned: ``model``, ``messages``, ``threads``, ``provider``). A colour stack (RGB frames
-        or raw Bayer with a ``cfa`` key) goes through :func:`hbis_torch.reconstruct.colour.
-        reconstruct_colour`, which also takes ``colour`` ("luma" or "channels").
+        learned: ``model``, ``messages``, ``threads``, ``provider``, ``extrapolate``,
+        ``ensemble``). A colour stack (RGB frames or raw Bayer with a ``cfa`` key) goes through
+        :func:`hbis_torch.reconstruct.colour.reconstruct_colour`, which also takes ``colour``
+        ("luma" or "channels"); ``colour`` on a grey stack is refused.
 
     Returns
     -------
     np.ndarray, shape (h*H, h*W) (or (h*H, h*W, 3) for a colour stack), float32 in [0, 1]
     """
-    if method not in METHODS:
-        raise HbisInputError(f"unknown reconstruction method {method!r}; available: {', '.join(METHODS)}")
+    entry = get_method(method)
     if registration == "data" and len(stack.frames) > 1:
         ref = stack.frames[stack.reference_index]
         if ref.min() == ref.max():  # nothing to register to: every other frame would be left out
@@ -54,8 +168,44 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
                                  f"{ref.flat[0]}), so no frame can be registered to it: use --registration "
                                  "optics or auto")
     if getattr(stack, "colour", False):  # RGB or raw Bayer frames: every method, through one wrapper
-        from hbis_torch.reconstruct.colour import reconstruct_colour
+        from hbis_torch.reconstruct.colour import reconstruct_colour  # (torch: only when a stack is run)
 
-        return reconstruct_colour(stack, method, registration=registration, **kw)
-    kw.pop("colour", None)
-    return METHODS[method](stack, registration=registration, **kw)
+        return reconstruct_colour(stack, entry, registration=registration, **kw)
+    if kw.pop("colour", None) is not None:
+        raise HbisInputError("the colour option (--colour) applies to colour stacks (RGB or raw Bayer frames); "
+                             "this stack is grey")
+    return entry.run_function()(stack, registration=registration, **kw)
+
+
+register(Method(
+    name="classical",
+    run="hbis_torch.reconstruct.classical.method:reconstruct_classical",
+    raw_bayer="hbis_torch.reconstruct.classical.method:reconstruct_classical_raw_bayer",
+    summary="splat the samples at their positions and deblur with a Wiener filter (docs/classical.md)",
+    options=(
+        Option("--no-deblur", "deblur", "interpolation only, without the Wiener deblurring",
+               {"action": "store_false"}),
+    ),
+))
+
+register(Method(
+    name="learned",
+    run="hbis_torch.reconstruct.learned.method:reconstruct_learned",
+    raw_bayer="hbis_torch.reconstruct.learned.method:reconstruct_learned_raw_bayer",
+    summary="the classical image refined by a small network in onnxruntime (docs/learned.md)",
+    threads=True,
+    options=(
+        Option("--model", "model", "ONNX model file (default: the shipped model for the stack's h)",
+               {"type": Path, "metavar": "M.onnx"}),
+        Option("--provider", "provider", "what runs the model; 'auto' (the default) takes OpenVINO where "
+               "installed (pip install 'hbis-torch[openvino]'), else onnxruntime's CPU kernels",
+               {"choices": ("auto", "openvino", "cpu")}),
+        Option("--extrapolate", "extrapolate", "run the network on a stack outside its training domain too "
+               "(a lens blurrier, or noise far lower or higher, than any it was trained on); by default such "
+               "a stack gets the classical image, with a message", {"action": "store_true"}),
+        Option("--ensemble", "ensemble", "average the network over this many of the square's 8 flips and "
+               "rotations (geometric self-ensemble; default 2 at h = 7, where the classical step takes most "
+               "of the time, else 1): as many times the network's time, for a small gain in PSNR",
+               {"type": int, "choices": (1, 2, 4, 8)}),
+    ),
+))

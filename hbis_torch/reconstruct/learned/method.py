@@ -9,8 +9,9 @@ import numpy as np
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, reconstruct_classical, stack_fill_factor
+from hbis_torch.reconstruct.classical.method import reconstruct_classical_raw_bayer
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
-from hbis_torch.reconstruct.learned.inputs import check_ensemble, noise_params_from_meta
+from hbis_torch.reconstruct.learned.inputs import check_ensemble, estimate_noise_params, noise_params_from_meta
 from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, LearnedSR, classical_returned, model_to_run
 
 
@@ -135,3 +136,30 @@ def reconstruct_learned(stack, registration: str = "auto", *, model=None, messag
     """
     return learned_sr(stack, model=model, threads=threads, registration=registration, messages=messages,
                       provider=provider, extrapolate=extrapolate, ensemble=ensemble)
+
+
+def reconstruct_learned_raw_bayer(stack, registration: str = "auto", *, messages: list | None = None, model=None,
+                                  threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
+                                  ensemble: int | None = None) -> np.ndarray:
+    """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
+    refined by the network, with the noise of the sensor model or of one colour's sub-lattice: the
+    ``raw_bayer`` path of the ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS`.
+    Keywords as for :func:`reconstruct_learned`; returns (h H, h W, 3) float32.
+    """
+
+    path, _, missing = model_to_run(model, stack.h)
+    ensemble = check_ensemble(ensemble, stack.h)
+    planes = reconstruct_classical_raw_bayer(stack, registration, messages=messages)
+    if missing is not None:  # as learned_sr: the classical image, said so
+        return classical_returned(planes, missing, messages, remedy=NO_MODEL_REMEDY)
+    runner = LearnedSR(model=path, threads=threads, provider=provider)
+    noise = noise_params_from_meta(stack.meta)
+    if noise is None:  # one colour's pixels: a plain image of one sensor's noise, no mosaic in it
+        noise = estimate_noise_params(stack.to_float().numpy()[:, 0::2, 0::2])
+    cutoff = optics_cutoff(stack.system)
+    notes: list[str] = []
+    out = np.stack([runner(np.ascontiguousarray(planes[..., c]), noise, cutoff, messages=notes,
+                           extrapolate=extrapolate, ensemble=ensemble) for c in range(3)], axis=-1)
+    if messages is not None:
+        messages.extend(dict.fromkeys(notes))  # the same line for each plane: once
+    return out
