@@ -10,8 +10,8 @@ import torch.nn.functional as F
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.learned import OPENVINO, LearnedSR, available_providers, read_model_metadata
-from hbis_torch.reconstruct.learned.export import CHECK_SIZE, EXPORT_SIZE, OPSET, TOLERANCE, check_parity, export_model
-from hbis_torch.reconstruct.learned.net import HbisSRNet, space_to_depth
+from hbis_torch.training.export import CHECK_SIZE, EXPORT_SIZE, OPSET, TOLERANCE, check_parity, export_model
+from hbis_torch.training.net import HbisSRNet, space_to_depth
 
 
 @pytest.fixture(scope="module")
@@ -159,7 +159,7 @@ def test_corrupt_model_file_is_a_clear_input_error(tmp_path):
 
 
 def test_depth_to_space_is_one_onnx_node_and_only_the_exact_pattern_is_rewritten(exported, tmp_path):
-    from hbis_torch.reconstruct.learned.onnx_rewrite import fuse_depth_to_space
+    from hbis_torch.training.onnx_rewrite import fuse_depth_to_space
 
     model, path = exported
     proto = onnx.load(str(path))
@@ -180,7 +180,7 @@ def test_depth_to_space_is_one_onnx_node_and_only_the_exact_pattern_is_rewritten
 
 
 def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):
-    from hbis_torch.reconstruct.learned.export import export
+    from hbis_torch.training.export import export
 
     torch.manual_seed(1)
     model = HbisSRNet(2, width=8, blocks=1).eval()

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.reconstruct.learned.net import HbisSRNet, count_parameters, depth_to_space, space_to_depth
+from hbis_torch.training.net import HbisSRNet, count_parameters, depth_to_space, space_to_depth
 
 
 @settings(max_examples=25, deadline=None)
