@@ -83,7 +83,7 @@ for arg in sys.argv[1:]:
         raise SystemExit(f"{key} must be {type(globals()[key]).__name__}, got {value!r}")
     globals()[key] = type(globals()[key])(parsed)
 config = {k: globals()[k] for k in config_keys}
-architecture = Architecture(h, width=width, blocks=blocks, kind=kind)  # all the network's size: export, runtime
+architecture = Architecture(h, width=width, blocks=blocks, kind=kind)  # the net; checkpoints, export, runtime read it
 
 # ---------------------------------------------------------------------------- setup
 def git_commit() -> str:
