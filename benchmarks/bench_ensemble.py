@@ -6,8 +6,8 @@
 ``hbis reconstruct --method learned --ensemble N`` averages the network over N of the square's
 8 symmetries (:func:`hbis_torch.reconstruct.learned.self_ensemble`). For each h this simulates
 one stack per scikit-image photograph, the first condition of the held-out matrix
-(``training/eval_matrix.py``: never in training; Airy F 1.4, 10,000 e-, reference frame 0, the
-noise measured on the lattice as for a captured stack), computes the classical image and its
+(:mod:`hbis_torch.training.heldout`, which ``training/eval_matrix.py`` scores: never in
+training; Airy F 1.4, 10,000 e-, reference frame 0, the noise measured on the lattice as for a captured stack), computes the classical image and its
 noise once, then times :class:`~hbis_torch.reconstruct.learned.LearnedSR` (the network, tiled,
 and its glue) at every ensemble size in turn, ``--repeats`` rounds after a warm-up, and scores
 each against the simulator's truth. The end-to-end column adds the classical step's median
@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -32,9 +31,7 @@ from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR
 from hbis_torch.reconstruct.learned.inputs import ENSEMBLE_SIZES
 from hbis_torch.reconstruct.learned.method import classical_and_noise
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "training"))
-from eval_matrix import CONDITIONS, PHOTOS, make_stack  # noqa: E402  (the held-out stacks)
+from hbis_torch.training.heldout import CONDITIONS, PHOTOS, make_stack  # the held-out stacks
 
 
 def main(argv=None) -> int:

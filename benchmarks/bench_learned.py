@@ -54,7 +54,7 @@ from hbis_torch.simulate.cases import make_stack, roi_for, scene_cases
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
 from hbis_torch.reconstruct.learned import (LearnedSR, available_providers, models_dir, noise_params_from_meta,
                                             run_tiled, super_resolve)
-from hbis_torch.reconstruct.learned.net import HbisSRNet
+from hbis_torch.training.net import HbisSRNet, build_net
 
 REPO = Path(__file__).resolve().parents[1]  # the checkout: default output paths
 METHODS = ("bicubic", "classical", "learned-torch", "learned-onnx-cpu", "learned-onnx")
@@ -138,7 +138,7 @@ def load_torch_model(h: int) -> HbisSRNet | None:
     if not path.exists():
         return None
     state = torch.load(path, map_location="cpu", weights_only=False)
-    model = HbisSRNet(**state["model_config"])
+    model = build_net(state["model_config"])
     model.load_state_dict(state["model"])
     return model.eval()
 

@@ -5,7 +5,7 @@ Run from the repository root:
     python3 benchmarks/bench_simulate.py [--items 200] [--out benchmarks/results/bench_simulate.json]
 
 1. Training stacks (64 x 64, h = 4: 16 frames, truth 256 x 256) of the training pipeline
-   (hbis_torch.reconstruct.learned.training_data.simulate_example: its standard mix of scenes
+   (hbis_torch.training.data.simulate_example: its standard mix of scenes
    and exposures, random places on the sensor), pool example i of seed ``--seed``: one process
    with one thread (wall and CPU seconds per stack), then a torch DataLoader with two
    single-threaded workers (stacks per second, wall clock), against the goal of 50 stacks/s on
@@ -30,7 +30,7 @@ from pathlib import Path
 import torch
 
 from hbis_torch.config import FoveaSystem
-from hbis_torch.reconstruct.learned.training_data import example_seed, simulate_example
+from hbis_torch.training.data import example_seed, simulate_example
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import GratingScene, SensorModel, render_scan
 from hbis_torch.simulate.forward import grid_factor

@@ -4,13 +4,14 @@
     python benchmarks/bench_variant_cost.py --h 4 --variants a:32:4:0,c:48:6:0 --repeats 9
 
 Variants are written as ``training/variants_ab.py`` writes them (``name:width:blocks:blur[:body]``,
+:mod:`hbis_torch.training.variants`,
 the first one the reference; ``a:32:4:0`` is the shipped design). For each, in turn and
 ``--repeats`` rounds after a warm-up, this times on the CPU:
 
 * a training step as ``training/train_sr.py`` takes one (forward, a mean-square loss, backward and
   AdamW) on a batch of ``--batch`` crops of 32 x 32 LR pixels, torch with ``--threads`` threads;
 * inference as the learned method runs it: the network exported to ONNX by the shipped exporter
-  (:func:`~hbis_torch.reconstruct.learned.export.export_model`) and run by
+  (:func:`~hbis_torch.training.export.export_model`) and run by
   :meth:`LearnedSR.infer <hbis_torch.reconstruct.learned.LearnedSR.infer>` with each installed
   provider (onnxruntime's CPU kernels, and OpenVINO where installed), on 64 x 64 LR pixels
   (256 x 256 out at h = 4) and on ``--large`` LR pixels.
@@ -33,8 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "training"))
-from variants_ab import PATCH, VARIANT_FORMAT, macs_per_pixel, make_variant, parse_variants  # noqa: E402
+from hbis_torch.training.variants import PATCH, VARIANT_FORMAT, macs_per_pixel, make_variant, parse_variants
 
 
 def main(argv=None) -> int:
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
         return 2
 
     from hbis_torch.reconstruct.learned import LearnedSR
-    from hbis_torch.reconstruct.learned.export import export_model
+    from hbis_torch.training.export import export_model
     from hbis_torch.reconstruct.learned.runtime import available_providers
 
     torch.set_num_threads(args.threads)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from hbis_torch.reconstruct.learned.export import CHECK_SIZE, TOLERANCE, check_parity_all
+from hbis_torch.training.export import CHECK_SIZE, TOLERANCE, check_parity_all
 
 
 def main(argv=None) -> int:

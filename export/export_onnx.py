@@ -7,9 +7,9 @@ The file is self-contained (weights inside, no .data file) and its ``metadata_pr
 what a user of the model needs: ``format``, ``h``, ``frames`` (= h^2), ``normalisation``,
 ``training_commit`` (git HEAD when the checkpoint was trained), ``export_commit``, ``opset``,
 ``parameters``, ``val_psnr_db``, ``training_config`` (JSON) and ``graph_rewrites`` (what
-hbis_torch/reconstruct/learned/onnx_rewrite.py changed in the exporter's graph). After writing,
+hbis_torch/training/onnx_rewrite.py changed in the exporter's graph). After writing,
 the parity of torch and onnxruntime is checked at a size other than the export size
-(export/check_onnx.py). The work is done by hbis_torch.reconstruct.learned.export; this is its
+(export/check_onnx.py). The work is done by hbis_torch.training.export; this is its
 command line.
 """
 
@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from hbis_torch.io_utils import atomic_path
-from hbis_torch.reconstruct.learned.export import OPSET, TOLERANCE, check_parity_all, export, load_checkpoint
+from hbis_torch.training.export import OPSET, TOLERANCE, check_parity_all, export, load_checkpoint
 
 
 def main(argv=None) -> int:

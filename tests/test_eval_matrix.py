@@ -1,14 +1,15 @@
-"""training/eval_matrix.py: the held-out stacks are what their conditions say."""
+"""training/eval_matrix.py and its held-out matrix (hbis_torch.training.heldout): the stacks are
+what their conditions say."""
 
 import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from hbis_torch.reconstruct.learned import noise_params_from_meta
+from hbis_torch.training import heldout
 
 SCRIPT = Path(__file__).resolve().parents[1] / "training" / "eval_matrix.py"
 
@@ -17,44 +18,39 @@ SCRIPT = Path(__file__).resolve().parents[1] / "training" / "eval_matrix.py"
 def em():
     spec = importlib.util.spec_from_file_location("eval_matrix", SCRIPT)
     module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    sys.path.insert(0, str(SCRIPT.parent))  # as when run as a script: its sibling independent_render
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(SCRIPT.parent))
+    spec.loader.exec_module(module)  # it imports only hbis_torch: no path to set
     return module
 
 
 def condition(em, words):
-    return next(c for c in em.CONDITIONS if words in c.name)
+    return next(c for c in heldout.CONDITIONS if words in c.name)
 
 
 def test_captured_like_stacks_carry_no_noise_model_unless_asked(em):
-    plain, _ = em.make_stack(condition(em, "reference frame 0"), "camera", 2, 16, seed=1)
+    plain, _ = heldout.make_stack(condition(em, "reference frame 0"), "camera", 2, 16, seed=1)
     assert plain.reference_index == 0 and noise_params_from_meta(plain.meta) is None
-    told, _ = em.make_stack(condition(em, "noise in the metadata"), "camera", 2, 16, seed=1)
+    told, _ = heldout.make_stack(condition(em, "noise in the metadata"), "camera", 2, 16, seed=1)
     assert noise_params_from_meta(told.meta)[0] == pytest.approx(1 / 10_000)
-    last, _ = em.make_stack(condition(em, "corner"), "camera", 2, 16, seed=1)
+    last, _ = heldout.make_stack(condition(em, "corner"), "camera", 2, 16, seed=1)
     assert last.reference_index == 3 and last.roi[:2] == (8, 8)
 
 
 def test_the_unseen_forward_models_change_frames_and_truth_as_documented(em):
-    sharp, sharp_truth = em.make_stack(condition(em, "no blur"), "camera", 2, 24, seed=1)
-    blurred, blurred_truth = em.make_stack(condition(em, "Gaussian PSF"), "camera", 2, 24, seed=1)
+    sharp, sharp_truth = heldout.make_stack(condition(em, "no blur"), "camera", 2, 24, seed=1)
+    blurred, blurred_truth = heldout.make_stack(condition(em, "Gaussian PSF"), "camera", 2, 24, seed=1)
     detail = lambda img: np.abs(np.diff(np.asarray(img, np.float64), axis=1)).mean()  # noqa: E731
     assert detail(blurred_truth) < 0.8 * detail(sharp_truth)  # the truth carries the lens's blur
-    vignetted, truth = em.make_stack(condition(em, "vignetting"), "camera", 2, 24, seed=1)
-    gain = em.vignetting(np.array([0.0, 11.5]), np.array([0.0, 11.5]), 24, 24)
+    vignetted, truth = heldout.make_stack(condition(em, "vignetting"), "camera", 2, 24, seed=1)
+    gain = heldout.vignetting(np.array([0.0, 11.5]), np.array([0.0, 11.5]), 24, 24)
     assert gain[0] == pytest.approx(0.7) and gain[1] == pytest.approx(1.0)
     assert vignetted.frames.dtype == sharp.frames.dtype and truth.shape == (48, 48)
 
 
 def test_independent_rows_render_their_own_frames_and_truth_of_the_same_scan(em):
     """The [independent renderer] rows keep the simulator's stack's metadata (scan, roi, sensor)
-    and replace its frames and truth by training/independent_render.py's."""
-    plain, plain_truth = em.make_stack(condition(em, "reference frame 0"), "camera", 2, 16, seed=1)
-    other, other_truth = em.make_stack(condition(em, "F1.4, 10k e-, ref 0 [independent"), "camera", 2, 16, seed=1)
+    and replace its frames and truth by hbis_torch.training.independent_render's."""
+    plain, plain_truth = heldout.make_stack(condition(em, "reference frame 0"), "camera", 2, 16, seed=1)
+    other, other_truth = heldout.make_stack(condition(em, "F1.4, 10k e-, ref 0 [independent"), "camera", 2, 16, seed=1)
     assert other.meta == plain.meta and other.frames.dtype == plain.frames.dtype
     assert not np.array_equal(other.frames, plain.frames) and not np.array_equal(other_truth, plain_truth)
     # the same scene through the same optics: close, short of the noise

@@ -10,8 +10,9 @@ import torch.nn.functional as F
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.learned import OPENVINO, LearnedSR, available_providers, read_model_metadata
-from hbis_torch.reconstruct.learned.export import CHECK_SIZE, EXPORT_SIZE, OPSET, TOLERANCE, check_parity, export_model
-from hbis_torch.reconstruct.learned.net import HbisSRNet, space_to_depth
+from hbis_torch.training.export import CHECK_SIZE, EXPORT_SIZE, OPSET, TOLERANCE, check_parity, export_model
+from hbis_torch.reconstruct.learned.architecture import Architecture
+from hbis_torch.training.net import HbisSRNet, build_net, space_to_depth
 
 
 @pytest.fixture(scope="module")
@@ -159,7 +160,7 @@ def test_corrupt_model_file_is_a_clear_input_error(tmp_path):
 
 
 def test_depth_to_space_is_one_onnx_node_and_only_the_exact_pattern_is_rewritten(exported, tmp_path):
-    from hbis_torch.reconstruct.learned.onnx_rewrite import fuse_depth_to_space
+    from hbis_torch.training.onnx_rewrite import fuse_depth_to_space
 
     model, path = exported
     proto = onnx.load(str(path))
@@ -180,7 +181,7 @@ def test_depth_to_space_is_one_onnx_node_and_only_the_exact_pattern_is_rewritten
 
 
 def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):
-    from hbis_torch.reconstruct.learned.export import export
+    from hbis_torch.training.export import export
 
     torch.manual_seed(1)
     model = HbisSRNet(2, width=8, blocks=1).eval()
@@ -227,3 +228,18 @@ def test_the_scripts_export_and_check_from_any_folder(tmp_path):
     result = subprocess.run(check, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "at 9 x 11" in result.stdout and "tolerance 1e-04" in result.stdout
+
+
+def test_the_exported_model_carries_its_architecture_and_the_runtime_sizes_its_halo_from_it(tmp_path):
+    arch = Architecture(2, width=8, blocks=9, kind="ir")
+    torch.manual_seed(0)
+    model = build_net(arch).eval()
+    path = tmp_path / "ir.onnx"
+    metadata = export_model(model, path)
+    assert json.loads(metadata["model_config"]) == {"h": 2, "width": 8, "blocks": 9, "kind": "ir"}
+    runner = LearnedSR(path, provider="cpu")
+    assert runner.architecture == arch and runner.halo == max(16, arch.halo)  # 16: TILE_HALO
+    deep = Architecture(2, width=4, blocks=8)
+    export_model(build_net(deep).eval(), tmp_path / "deep.onnx")
+    assert LearnedSR(tmp_path / "deep.onnx", provider="cpu").halo == deep.halo == 19
+

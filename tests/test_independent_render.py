@@ -1,10 +1,7 @@
-"""training/independent_render.py: a second forward model that agrees with the simulator where
+"""hbis_torch.training.independent_render: a second forward model that agrees with the simulator where
 both are exact, and draws the sensor's noise."""
 
 import dataclasses
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,16 +11,12 @@ from hbis_torch.metrics import psnr
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
 from hbis_torch.simulate.stacks import scene_for_roi
-
-SCRIPT = Path(__file__).resolve().parents[1] / "training" / "independent_render.py"
+from hbis_torch.training import independent_render
 
 
 @pytest.fixture(scope="module")
 def ir():
-    spec = importlib.util.spec_from_file_location("independent_render", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return independent_render
 
 
 def simulated(h, size, f_number, sensor, corner=False):

@@ -7,7 +7,6 @@ import torch
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.learned import (
     NOISE_SCALE,
-    HbisSRNet,
     estimate_noise_params,
     network_inputs,
     noise_params_from_meta,
@@ -15,7 +14,8 @@ from hbis_torch.reconstruct.learned import (
     super_resolve,
 )
 from hbis_torch.reconstruct.learned.inputs import space_to_depth
-from hbis_torch.reconstruct.learned.net import space_to_depth as torch_space_to_depth
+from hbis_torch.training.net import HbisSRNet
+from hbis_torch.training.net import space_to_depth as torch_space_to_depth
 
 
 def test_noise_params_come_from_the_sensor_model_with_the_adc_rounding():

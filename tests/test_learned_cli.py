@@ -45,7 +45,9 @@ def test_reconstruct_learned_writes_the_h_times_image(tmp_path, capsys):
     image = tifffile.imread(out)
     assert image.shape == truth.shape and image.dtype == np.float32
     assert np.isfinite(image).all() and 0 <= image.min() and image.max() <= 1
-    assert psnr(image, truth) > 24  # a real reconstruction, not a blank
+    classical = reconstruct_classical(read_stack(stack_path), "optics")
+    assert np.abs(image - classical).max() > 1e-2  # the network ran (it moves edges by some 0.09 here)
+    assert psnr(image, truth) > psnr(classical, truth) + 1.0  # measured: +1.7 dB (29.6 against 27.9)
 
 
 def test_every_execution_provider_writes_the_same_image(tmp_path, capsys):

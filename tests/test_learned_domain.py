@@ -11,18 +11,18 @@ from hbis_torch.cli import main
 from hbis_torch.config import FoveaSystem
 from hbis_torch.reconstruct.classical import optics_cutoff, reconstruct_classical
 from hbis_torch.reconstruct.learned import LearnedSR, default_model_path, learned_sr, read_model_metadata
-from hbis_torch.reconstruct.learned import training_data as td
 from hbis_torch.reconstruct.learned.domain import (
     MIN_VALIDATION_GAIN_DB,
     domain_from_metadata,
     noise_at_mid_grey,
     outside_domain,
-    training_domain,
     validation_gain,
 )
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SceneSpec, SensorModel, load_scene, simulate_stack
 from hbis_torch.stack_io import write_stack
+from hbis_torch.training import data as td
+from hbis_torch.training.data import training_domain
 
 
 def system_at(f_number: float) -> FoveaSystem:

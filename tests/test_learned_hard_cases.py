@@ -45,10 +45,11 @@ def simulate(scene, sensor=SensorModel()):
     return stack.to_float().numpy(), truth
 
 
-def learned(runner, frames, positions):
-    """The learned method on frames with known positions, its noise measured from them."""
+def learned(runner, frames, positions, messages=None):
+    """The learned method on frames with known positions, its noise measured from them;
+    ``messages`` receives the line saying why the classical image is returned, if it is."""
     image = classical_sr(frames, positions, H, cutoff=optics_cutoff(SYSTEM)).numpy()
-    return runner(image, estimate_noise_params(frames))
+    return runner(image, estimate_noise_params(frames), messages=messages)
 
 
 def classical64(frames, positions):
@@ -63,14 +64,29 @@ def check_output(image, shape):
     assert np.isfinite(image).all() and image.min() >= 0.0 and image.max() <= 1.0
 
 
+def network_ran(image, classical) -> bool:
+    """Whether the network changed the classical image (it moves edges by some 0.05 here; the
+    float32 and float64 classical images differ by less than 1e-5)."""
+    return float(np.abs(image - classical).max()) > 1e-2
+
+
 def test_normal_stack_beats_the_classical_reference(runner, positions):
     frames, truth = simulate(None)
-    image = learned(runner, frames, positions)
+    notes = []
+    image = learned(runner, frames, positions, notes)
+    reference = classical64(frames, positions)
     check_output(image, truth.shape)
-    assert psnr(image, truth) > psnr(classical64(frames, positions), truth)
+    assert notes == [] and network_ran(image, reference)
+    assert psnr(image, truth) > psnr(reference, truth) + 4.0  # measured: +5.3 dB
 
 
-@pytest.mark.parametrize("case", ["saturated", "near-black", "strong-noise"])
+# Gain over the float64 classical reference where the network runs (measured: +3.0 dB, saturated);
+# None where the stack lies outside the model's training domain and the classical image comes back
+# (forced with extrapolate=True, the network loses 3.3 dB on the near-black stack).
+HARD_CASES = {"saturated": 2.0, "near-black": None, "strong-noise": None}
+
+
+@pytest.mark.parametrize("case", list(HARD_CASES))
 def test_hard_stacks_stay_close_to_the_classical_reference(runner, positions, case):
     frames, truth = simulate(None)
     rng = np.random.default_rng(0)
@@ -82,15 +98,21 @@ def test_hard_stacks_stay_close_to_the_classical_reference(runner, positions, ca
         truth = truth * 0.005
     else:  # noise 10 times the simulator's, clipped as a sensor would
         frames = np.clip(frames + rng.normal(0, 0.05, frames.shape), 0, 1).astype(np.float32)
-    image = learned(runner, frames, positions)
+    notes = []
+    image = learned(runner, frames, positions, notes)
     reference = classical64(frames, positions)
     check_output(image, truth.shape)
     scale = max(float(truth.max()), 1e-3)
     # No bias against the float64 reference, relative to the image's own range.
     assert abs(float(image.mean()) - float(reference.mean())) < 0.02 * scale
-    # As close to the truth as the reference is, within 2 dB (relative to the range).
-    rel = lambda img: psnr(img / scale, truth / scale)  # noqa: E731
-    assert rel(image) > rel(reference) - 2.0
+    rel = lambda img: psnr(img / scale, truth / scale)  # noqa: E731 (PSNR relative to the range)
+    floor = HARD_CASES[case]
+    if floor is None:  # outside the training domain: the classical image, and why
+        assert len(notes) == 1 and "noise" in notes[0] and "training range" in notes[0]
+        assert not network_ran(image, reference)
+    else:
+        assert notes == [] and network_ran(image, reference)
+        assert rel(image) > rel(reference) + floor
     if case == "saturated":
         clipped = truth >= 1.0
         assert image[clipped].mean() > 0.97
@@ -103,9 +125,12 @@ def test_flat_stacks_give_flat_images(runner, positions, level):
     else:  # all black / all white: no light, or every pixel clipped
         frames = np.full((H * H, 32, 32), level, np.float32)
         truth = np.full((H * 32, H * 32), level)
-    image = learned(runner, frames, positions)
+    notes = []
+    image = learned(runner, frames, positions, notes)
     reference = classical64(frames, positions)
     check_output(image, truth.shape)
+    # All black or all white: no noise to measure, outside the training domain (the classical image).
+    assert len(notes) == (level != 0.5)
     assert abs(float(image.mean()) - level) < 0.01
     assert abs(float(image.mean()) - float(reference.mean())) < 0.01
     # The network must not invent structure: no more ripple than the noise it was given.
@@ -119,8 +144,10 @@ def test_non_finite_frames_get_one_clear_error(runner, positions):
         learned(runner, bad, positions)
 
 
-@pytest.mark.parametrize("h, reference", [(7, "first"), (7, "last"), (4, "first"), (2, "last")])
-def test_any_reference_frame_at_a_corner_is_served(h, reference):
+# The learned method's gain over the classical image on each (measured: +3.3, +3.3, +4.7, +6.6 dB).
+@pytest.mark.parametrize("h, reference, gain_db", [(7, "first", 2.5), (7, "last", 2.5), (4, "first", 4.0),
+                                                   (2, "last", 5.5)])
+def test_any_reference_frame_at_a_corner_is_served(h, reference, gain_db):
     """The stacks the old network refused or got wrong: the scan's first or last frame as the
     reference, at the sensor's corner where the scan is least regular."""
     plan = plan_scan(SYSTEM, h)
@@ -132,4 +159,5 @@ def test_any_reference_frame_at_a_corner_is_served(h, reference):
     classical = reconstruct(stack, "classical", registration="optics")
     image = reconstruct(stack, "learned", registration="optics")
     check_output(image, truth.shape)
-    assert psnr(image, truth) > psnr(classical, truth) - 0.3
+    assert network_ran(image, classical)
+    assert psnr(image, truth) > psnr(classical, truth) + gain_db

@@ -1,4 +1,5 @@
-"""The SR network: space-to-depth written as reshape/permute, shapes, and its starting point."""
+"""The SR network: space-to-depth written as reshape/permute, shapes, its starting point, and its
+architecture record (what builds it, what sizes the tiles' halo)."""
 
 import pytest
 import torch
@@ -7,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.reconstruct.learned.net import HbisSRNet, count_parameters, depth_to_space, space_to_depth
+from hbis_torch.reconstruct.learned.architecture import Architecture
+from hbis_torch.training.net import HbisSRNet, build_net, count_parameters, depth_to_space, space_to_depth
 
 
 @settings(max_examples=25, deadline=None)
@@ -74,3 +76,34 @@ def test_default_size_is_small_enough_for_two_cpu_cores():
 def test_bad_h_is_rejected(h):
     with pytest.raises(HbisInputError):
         HbisSRNet(h)
+
+
+@pytest.mark.parametrize("kind, blocks", [("plain", 1), ("plain", 3), ("ir", 2)])
+def test_the_halo_covers_the_receptive_field_exactly_plus_one(kind, blocks):
+    """One LR pixel changed moves outputs up to halo - 1 LR pixels away, and no further."""
+    arch = Architecture(2, width=4, blocks=blocks, kind=kind)
+    torch.manual_seed(0)
+    model = build_net(arch).eval()
+    for p in model.parameters():  # the tail starts at zero: give every layer something to pass on
+        torch.nn.init.normal_(p, std=0.3)
+    base, noise = torch.rand(1, 4, 31, 31), torch.rand(1, 1, 31, 31)
+    moved = base.clone()
+    moved[0, :, 15, 15] += 0.5
+    with torch.no_grad():
+        change = (model(moved, noise) - model(base, noise)).abs()[0, 0] > 0
+    rows, cols = torch.nonzero(change, as_tuple=True)
+    reach = int(max((rows // 2 - 15).abs().max(), (cols // 2 - 15).abs().max()))
+    assert reach == arch.halo - 1
+
+
+def test_the_architecture_travels_in_metadata_and_defaults_to_the_shipped_design():
+    ir = Architecture(4, width=16, blocks=6, kind="ir")
+    assert Architecture.from_metadata({"h": "4", **ir.to_metadata()}) == ir
+    assert Architecture.from_dict(ir.as_dict()) == ir
+    # the shipped models' model_config has no kind: the plain design, halo 2 * blocks + 3
+    shipped = Architecture.from_metadata({"h": "4", "model_config": '{"h": 4, "width": 32, "blocks": 4}'})
+    assert shipped == Architecture(4) and shipped.kind == "plain" and shipped.halo == 11
+    assert build_net(shipped.as_dict()).config() == shipped.as_dict()
+    with pytest.raises(ValueError, match="kind"):
+        Architecture(4, kind="dense")
+

@@ -9,7 +9,7 @@ import pytest
 from hbis_torch.config import Camera, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
-from hbis_torch.reconstruct.learned.training_data import (
+from hbis_torch.training.data import (
     BIT_DEPTHS,
     F_NUMBER,
     FULL_WELL_E,
@@ -202,7 +202,7 @@ def test_natural_rasters_are_read_bilinear_or_bicubic_and_bicubic_keeps_more_det
 
 
 def test_no_held_out_photograph_reaches_a_training_scene(monkeypatch):
-    from hbis_torch.reconstruct.learned import training_data
+    from hbis_torch.training import data as training_data
     from hbis_torch.simulate import SceneSpec
     from hbis_torch.simulate.rasters import PHOTOS, photo
 

@@ -1,4 +1,4 @@
-"""Train the SR network (hbis_torch.reconstruct.learned.net), the refiner of the classical image, on simulated scans.
+"""Train the SR network (hbis_torch.training.net), the refiner of the classical image, on simulated scans.
 
 Read it top to bottom: config, setup, data, the loop. One process:
 
@@ -13,7 +13,7 @@ run and starting the same command again resumes from ``out_dir/ckpt.pt``. The ou
 ``out_dir``: ``ckpt.pt`` (latest, for resuming), ``model.pt`` (best validation PSNR),
 ``history.json`` and ``val_psnr.png`` (the validation curve against the classical image it refines).
 The training stacks draw their optics, noise, scan and reference frame at random
-(hbis_torch.reconstruct.learned.training_data); the held-out test on photographs and forward
+(hbis_torch.training.data); the held-out test on photographs and forward
 models the training never used is training/eval_matrix.py.
 """
 
@@ -36,15 +36,16 @@ import torch.nn.functional as F
 from hbis_torch.io_utils import atomic_path, atomic_write_text
 from hbis_torch.metrics import psnr
 from hbis_torch.run_lock import exit_with_parent, lock_dir, remove_temp_files
-from hbis_torch.reconstruct.learned.domain import training_domain
-from hbis_torch.reconstruct.learned.net import HbisSRNet, count_parameters, depth_to_space
-from hbis_torch.reconstruct.learned.training_data import (POOL_VERSION, build_pool, load_pool, make_batch, save_pool,
-                                                        whole_example)
+from hbis_torch.reconstruct.learned.architecture import Architecture
+from hbis_torch.training.data import (POOL_VERSION, build_pool, load_pool, make_batch, save_pool, training_domain,
+                                      whole_example)
+from hbis_torch.training.net import build_net, count_parameters, depth_to_space
 
 # ---------------------------------------------------------------------------- config
 h = 4  # resolution improvement factor; the model takes h*h frames
 width = 32  # feature channels
 blocks = 4  # residual blocks
+kind = "plain"  # the residual blocks: "plain" (the shipped design) or "ir" (inverted residuals)
 patch = 32  # LR patch side of a training example (the output patch is h times larger)
 pool_size = 480  # simulated training stacks (random scenes, optics, noise and scans, see training_data)
 pool_roi = 96  # LR side of each simulated training stack; patches are cropped from them
@@ -82,6 +83,7 @@ for arg in sys.argv[1:]:
         raise SystemExit(f"{key} must be {type(globals()[key]).__name__}, got {value!r}")
     globals()[key] = type(globals()[key])(parsed)
 config = {k: globals()[k] for k in config_keys}
+architecture = Architecture(h, width=width, blocks=blocks, kind=kind)  # the net; checkpoints, export, runtime read it
 
 # ---------------------------------------------------------------------------- setup
 def git_commit() -> str:
@@ -116,7 +118,7 @@ if master:
     for tmp in remove_temp_files(out):
         print(f"removed {tmp.name}, left by a run that was killed")
 
-model = HbisSRNet(h, width=width, blocks=blocks)
+model = build_net(architecture)
 optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
 step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
 ckpt_path = out / "ckpt.pt"
@@ -130,7 +132,7 @@ if resume and ckpt_path.exists():
         print(f"resumed from {ckpt_path} at step {step} ({trained_s / 60:.1f} min trained)")
 net = torch.nn.parallel.DistributedDataParallel(model) if ddp else model
 if master:
-    print(f"HbisSRNet h={h}: {count_parameters(model)} parameters, {world} process(es)")
+    print(f"{architecture}: {count_parameters(model)} parameters, {world} process(es)")
 
 # ---------------------------------------------------------------------------- data
 def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
@@ -187,19 +189,17 @@ def validate() -> tuple[float, float]:
 def save_checkpoint(path: Path, **extra) -> None:
     state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
              "trained_s": trained_s, "history": history, "config": config,
-             "model_config": model.config(), "git_commit": commit, "training_domain": domain, **extra}
+             "model_config": architecture.as_dict(), "git_commit": commit, "training_domain": domain, **extra}
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
 
 
 def plot_history() -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     minutes = [r["trained_s"] / 60 for r in history]
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
     ax.plot(minutes, [r["val_psnr"] for r in history], "o-", ms=3, label="network")
     ax.plot(minutes, [r["base_psnr"] for r in history], "k:", label="classical (the network's input)")
     ax.set_xlabel("training time [min]")
@@ -210,7 +210,6 @@ def plot_history() -> None:
     fig.tight_layout()
     with atomic_path(out / "val_psnr.png") as tmp:
         fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
 
 
 def crop_loss(image, base_image, truth):

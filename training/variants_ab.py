@@ -18,14 +18,17 @@ network is told the lens's blur width lambda F / p (1 / cutoff, LR pixels) as a 
 conditioning channel beside the noise map (1) or not (0), and the body's blocks: ``plain`` (the
 shipped design, conv 3x3 -> ReLU -> conv 3x3; the default) or ``ir`` (inverted residuals as in
 MobileNetV2: conv 1x1 to 4 x width -> ReLU -> depthwise conv 3x3 -> ReLU -> conv 1x1 back, about
-half a plain block's multiply-adds at equal width). The extra input channel starts at zero weight,
+half a plain block's multiply-adds at equal width; the ``kind`` of the network's
+:class:`~hbis_torch.reconstruct.learned.architecture.Architecture`). The extra input channel starts at zero weight,
 so a variant told the blur starts as the same function as the variant without it. Each variant's
 multiply-adds per LR pixel are printed and recorded (``macs``).
 
 The pools are simulated by ``--procs`` worker processes (the training pool of train_sr.py's
 shipped runs: 320 stacks, seed 0; validation 16 stacks, seed 1), and the held-out cells are
 simulated meanwhile; the batches are cut on the device (random crops, the 8 flips/transposes,
-either noise model, as :func:`~hbis_torch.reconstruct.learned.training_data.crop_example`).
+either noise model, as :func:`~hbis_torch.training.data.crop_example`). The variants, their format
+and their builder are :mod:`hbis_torch.training.variants`; the held-out matrix is
+:mod:`hbis_torch.training.heldout`.
 
 Results: docs/learned.md ("What limits the gain"), benchmarks/results/variants_ab_*.json.
 """
@@ -44,18 +47,25 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # eval_matrix, beside this script
-PATCH = 32  # LR side of a training crop, as train_sr.py
-VARIANT_FORMAT = "name:width:blocks:blur[:plain|ir]"  # one variant of --variants (module docstring)
+from hbis_torch.config import FoveaSystem
+from hbis_torch.metrics import psnr
+from hbis_torch.reconstruct.classical import optics_cutoff
+from hbis_torch.reconstruct.learned.domain import outside_domain
+from hbis_torch.reconstruct.learned.inputs import NOISE_SCALE, network_inputs, super_resolve
+from hbis_torch.reconstruct.learned.method import classical_and_noise
+from hbis_torch.training import heldout
+from hbis_torch.training.data import build_pool, draw_example, example_seed, training_domain
+from hbis_torch.training.export import load_checkpoint
+from hbis_torch.training.net import depth_to_space, space_to_depth
+from hbis_torch.training.variants import PATCH, VARIANT_FORMAT, macs_per_pixel, make_variant, parse_variants
+
+SHIPPED = Path(__file__).resolve().parents[1] / "hbis_torch" / "models"  # hbis_sr_h{h}.pt, the "s" row
 
 
 def simulate_example(args):
-    """A pool example (:func:`~hbis_torch.reconstruct.learned.training_data.build_pool`) and its
+    """A pool example (:func:`~hbis_torch.training.data.build_pool`) and its
     lens's blur width ``blur`` (LR px), drawn as the example drew its f-number."""
     torch.set_num_threads(1)
-    from hbis_torch.config import FoveaSystem
-    from hbis_torch.reconstruct.learned.training_data import build_pool, draw_example, example_seed
-
     h, size, seed, index = args
     example = build_pool(h, 0, size, seed, [index])[0]
     camera = FoveaSystem().camera
@@ -68,74 +78,15 @@ def simulate_cell(args):
     """One held-out cell of training/eval_matrix.py: the classical image, the noise measured on
     its lattice, the lens cutoff and the truth."""
     torch.set_num_threads(1)
-    import eval_matrix
-    from hbis_torch.reconstruct.classical import optics_cutoff
-    from hbis_torch.reconstruct.learned.method import classical_and_noise
-
     h, condition, photo, size = args
-    stack, truth = eval_matrix.make_stack(eval_matrix.CONDITIONS[condition], photo, h, size, seed=1000 + condition)
+    stack, truth = heldout.make_stack(heldout.CONDITIONS[condition], photo, h, size, seed=1000 + condition)
     image, params = classical_and_noise(stack, "optics")
     return {"condition": condition, "photo": photo, "image": image, "params": params,
             "cutoff": optics_cutoff(stack.system), "truth": np.asarray(truth, np.float32)}
 
 
-class InvertedResidual(torch.nn.Module):
-    """conv 1x1 to ``expand`` x width -> ReLU -> depthwise 3x3 -> ReLU -> conv 1x1 back, added to the
-    input (MobileNetV2's block without its batch norms). (B, C, H, W) -> (B, C, H, W)."""
-
-    def __init__(self, width: int, expand: int = 4) -> None:
-        super().__init__()
-        inner = expand * width
-        self.body = torch.nn.Sequential(
-            torch.nn.Conv2d(width, inner, 1), torch.nn.ReLU(),
-            torch.nn.Conv2d(inner, inner, 3, padding=1, groups=inner), torch.nn.ReLU(),
-            torch.nn.Conv2d(inner, width, 1))
-
-    def forward(self, x):
-        return x + self.body(x)
-
-
-def macs_per_pixel(model: torch.nn.Module) -> int:
-    """Multiply-adds per LR pixel of the network's convolutions (each weight is used once per pixel)."""
-    return sum(m.weight.numel() for m in model.modules() if isinstance(m, torch.nn.Conv2d))
-
-
-def make_variant(h: int, width: int, blocks: int, blur: bool, body: str = "plain") -> torch.nn.Module:
-    """HbisSRNet of seed 0; with ``blur``, its head takes one more input channel (zero weights);
-    ``body="ir"`` puts inverted residual blocks in its body."""
-    from hbis_torch.reconstruct.learned.net import HbisSRNet
-
-    torch.manual_seed(0)
-    model = HbisSRNet(h, width=width, blocks=blocks)
-    if body == "ir":
-        model.body = torch.nn.Sequential(*[InvertedResidual(width) for _ in range(blocks)])
-    if blur:
-        head = torch.nn.Conv2d(h * h + 2, width, 3, padding=1)
-        with torch.no_grad():
-            head.weight.zero_()
-            head.weight[:, :h * h + 1] = model.head.weight
-            head.bias.copy_(model.head.bias)
-        model.head = head
-    return model
-
-
-def parse_variants(text: str) -> list[tuple[str, int, int, bool, str]] | None:
-    """``name:width:blocks:blur[:body],...`` as (name, width, blocks, blur, body) tuples; None if malformed."""
-    variants = []
-    for spec in text.split(","):
-        fields = spec.split(":")
-        if len(fields) == 4:
-            fields.append("plain")
-        if len(fields) != 5 or fields[3] not in ("0", "1") or fields[4] not in ("plain", "ir"):
-            return None
-        name, width, blocks, blur, body = fields
-        if not (width.isdigit() and blocks.isdigit()):
-            return None
-        variants.append((name, int(width), int(blocks), blur == "1", body))
-    return variants
-
-
-def main(argv=None) -> int:
+def parse_args(argv):
+    """The command line, checked; (args, variants), or (None, None) after saying what is wrong."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--h", type=int, default=4, choices=(2, 4, 7))
@@ -153,50 +104,50 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.out.exists():
         print(f"variants_ab: {args.out} exists; choose another --out", file=sys.stderr)
-        return 2
+        return None, None
     variants = parse_variants(args.variants)
     if variants is None:
         print(f"variants_ab: --variants must be {VARIANT_FORMAT},..., got {args.variants!r}",
               file=sys.stderr)
-        return 2
+        return None, None
     if len({v[0] for v in variants} | {"s"}) != len(variants) + 1:
         print("variants_ab: variant names must differ from each other and from 's' (the shipped model)", file=sys.stderr)
-        return 2
-    import eval_matrix
+        return None, None
+    return args, variants
 
-    h = args.h
-    pool_roi, val_roi, cell_size = (96, 64, 72) if h < 7 else (64, 48, 48)  # train_sr.py's and eval_matrix.py's
-    started_all = time.time()
-    workers = get_context("fork").Pool(args.procs)  # forked before any device is touched
-    jobs = [(h, c, p, cell_size) for c in range(len(eval_matrix.CONDITIONS)) for p in eval_matrix.PHOTOS]
-    train_async = workers.map_async(simulate_example, [(h, pool_roi, 0, i) for i in range(args.pool)], chunksize=4)
-    val_async = workers.map_async(simulate_example, [(h, val_roi, 1, i) for i in range(args.val)], chunksize=1)
-    cells_async = workers.map_async(simulate_cell, jobs[:args.cells], chunksize=1)  # simulated while training
-    train, val = train_async.get(), val_async.get()
-    print(f"pools simulated in {time.time() - started_all:.0f} s", flush=True)
 
-    from hbis_torch.metrics import psnr
-    from hbis_torch.reconstruct.learned.domain import outside_domain, training_domain
-    from hbis_torch.reconstruct.learned.inputs import NOISE_SCALE, network_inputs, super_resolve
-    from hbis_torch.reconstruct.learned.net import HbisSRNet, depth_to_space, space_to_depth
+class Crops:
+    """Random training crops cut on the device from the training pool, as train_sr.py's batches.
 
-    dev = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    torch.backends.cudnn.allow_tf32 = False  # float32 as on the CPU
-    torch.backends.cuda.matmul.allow_tf32 = False
-    images = torch.tensor(np.stack([e["base"] for e in train]), device=dev)  # (N, h S, h S)
-    truths = torch.tensor(np.stack([e["truth"] for e in train]), device=dev)
-    noises = torch.tensor(np.stack([e["noise"] for e in train]), device=dev)  # (N, 2, 2): (a, b) of each noise model
-    blurs = torch.tensor([e["blur"] for e in train], device=dev, dtype=torch.float32)
-    count, side, out_side = images.shape[0], images.shape[1] // h, h * PATCH
-    generator = torch.Generator(device=dev)
-    generator.manual_seed(0)
+    Parameters
+    ----------
+    train : list of dict
+        Pool examples (:func:`simulate_example`).
+    h : int
+    batch : int
+        Crops per batch.
+    dev : torch.device
+    """
 
-    def randint(high):
-        return torch.randint(high, (args.batch,), generator=generator, device=dev)
+    def __init__(self, train: list[dict], h: int, batch: int, dev: torch.device):
+        self.h, self.batch_size, self.dev = h, batch, dev
+        self.images = torch.tensor(np.stack([e["base"] for e in train]), device=dev)  # (N, h S, h S)
+        self.truths = torch.tensor(np.stack([e["truth"] for e in train]), device=dev)
+        self.noises = torch.tensor(np.stack([e["noise"] for e in train]), device=dev)  # (N, 2, 2): (a, b) of each noise model
+        self.blurs = torch.tensor([e["blur"] for e in train], device=dev, dtype=torch.float32)
+        self.count, self.side = self.images.shape[0], self.images.shape[1] // h
+        self.generator = torch.Generator(device=dev)
+        self.generator.manual_seed(0)
 
-    def batch():
+    def randint(self, high):
+        return torch.randint(high, (self.batch_size,), generator=self.generator, device=self.dev)
+
+    def batch(self):
         """base (B, h^2, P, P), noise (B, 1, P, P), blur (B, 1, P, P), truth (B, 1, hP, hP)."""
-        i, y0, x0, k = randint(count), h * randint(side - PATCH + 1), h * randint(side - PATCH + 1), randint(8)
+        h, dev, out_side = self.h, self.dev, self.h * PATCH
+        randint = self.randint
+        i, y0, x0, k = (randint(self.count), h * randint(self.side - PATCH + 1), h * randint(self.side - PATCH + 1),
+                        randint(8))
         transpose, flip_x, flip_y = (k & 4) > 0, (k & 1) > 0, (k & 2) > 0  # as training_data.dihedral
         r = torch.arange(out_side, device=dev)
         rows = torch.where(flip_y[:, None], out_side - 1 - r, r)
@@ -204,30 +155,70 @@ def main(argv=None) -> int:
         t = transpose[:, None, None]
         ys = torch.where(t, y0[:, None, None] + cols[:, None, :], y0[:, None, None] + rows[:, :, None])
         xs = torch.where(t, x0[:, None, None] + rows[:, :, None], x0[:, None, None] + cols[:, None, :])
-        image, truth = images[i[:, None, None], ys, xs], truths[i[:, None, None], ys, xs]
-        ab = noises[i, randint(2)]
+        image, truth = self.images[i[:, None, None], ys, xs], self.truths[i[:, None, None], ys, xs]
+        ab = self.noises[i, randint(2)]
         base = space_to_depth(image[:, None], h)
         level = base.mean(1, keepdim=True).clamp(0, 1)  # as network_inputs
         noise = NOISE_SCALE * torch.sqrt(ab[:, 0, None, None, None] * level + ab[:, 1, None, None, None])
-        return base, noise, blurs[i][:, None, None, None].expand(-1, 1, PATCH, PATCH), truth[:, None]
+        return base, noise, self.blurs[i][:, None, None, None].expand(-1, 1, PATCH, PATCH), truth[:, None]
 
-    models = {name: make_variant(h, width, blocks, blur, body).to(dev)
-              for name, width, blocks, blur, body in variants}
-    told_blur = {name: blur for name, _, _, blur, _ in variants}
-    optimizers = {k: torch.optim.AdamW(m.parameters(), lr=args.lr, weight_decay=1e-4) for k, m in models.items()}
 
-    def forward(k, base, noise, blur):
-        return models[k](base, torch.cat((noise, blur), 1) if told_blur[k] else noise)
+class Variants:
+    """The variants' networks on the device, each told the blur or not.
 
+    Parameters
+    ----------
+    variants : list of (name, width, blocks, blur, body)
+        :func:`~hbis_torch.training.variants.parse_variants`.
+    h : int
+    dev : torch.device
+    """
+
+    def __init__(self, variants, h: int, dev: torch.device):
+        self.models = {name: make_variant(h, width, blocks, blur, body).to(dev)
+                       for name, width, blocks, blur, body in variants}
+        self.told_blur = {name: blur for name, _, _, blur, _ in variants}
+
+    def forward(self, k, base, noise, blur):
+        """Variant ``k`` on (B, h^2, H, W), (B, 1, H, W), (B, 1, H, W) -> (B, 1, hH, hW)."""
+        return self.models[k](base, torch.cat((noise, blur), 1) if self.told_blur[k] else noise)
+
+    def add_shipped(self, h: int, dev: torch.device) -> None:
+        """The shipped model of factor ``h`` as variant "s" (not told the blur)."""
+        shipped, _ = load_checkpoint(SHIPPED / f"hbis_sr_h{h}.pt")
+        self.models["s"] = shipped.to(dev).eval()
+        self.told_blur["s"] = False
+
+
+def validation_set(val: list[dict], h: int, dev: torch.device) -> list[tuple]:
+    """Each validation example whole: (base, noise, blur map, truth) tensors on the device."""
     val_set = []
     for e in val:
         base, noise = (torch.tensor(a[None], device=dev) for a in network_inputs(e["base"], h, e["noise"][0]))
         val_set.append((base, noise, torch.full_like(noise, e["blur"]), torch.tensor(e["truth"][None, None], device=dev)))
+    return val_set
+
+
+def train(variants: Variants, crops: Crops, val_set: list[tuple], args) -> tuple[list[dict], dict, float, int]:
+    """Train every variant on the same batches, in turn at each step, for the budget of ``args``.
+
+    Returns
+    -------
+    history : list of dict
+        Every 1000 steps and at the end: step, seconds, each variant's validation PSNR (dB).
+    best : dict
+        Each variant's best validation PSNR and its weights then (also loaded into the model).
+    classical_val : float
+        The classical image's validation PSNR (dB).
+    steps : int
+    """
+    h, models = crops.h, variants.models
+    optimizers = {k: torch.optim.AdamW(m.parameters(), lr=args.lr, weight_decay=1e-4) for k, m in models.items()}
 
     @torch.no_grad()
     def validate(k):
         models[k].eval()
-        value = float(np.mean([psnr(forward(k, b, n, bl).clamp(0, 1), t) for b, n, bl, t in val_set]))
+        value = float(np.mean([psnr(variants.forward(k, b, n, bl).clamp(0, 1), t) for b, n, bl, t in val_set]))
         models[k].train()
         return value
 
@@ -247,12 +238,12 @@ def main(argv=None) -> int:
         if progress >= 1:
             break
         lr = args.lr * min(1, (step + 1) / 200) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress)))
-        base, noise, blur, truth = batch()
+        base, noise, blur, truth = crops.batch()
         reference = (depth_to_space(base, h) - truth).square().mean(dim=(1, 2, 3))
         for k in models:
             for group in optimizers[k].param_groups:
                 group["lr"] = lr
-            mse = (forward(k, base, noise, blur) - truth).square().mean(dim=(1, 2, 3))
+            mse = (variants.forward(k, base, noise, blur) - truth).square().mean(dim=(1, 2, 3))
             loss = (torch.log(mse + 1e-5) - torch.log(reference + 1e-5)).mean()  # train_sr.py's "db" loss
             optimizers[k].zero_grad(set_to_none=True)
             loss.backward()
@@ -264,38 +255,40 @@ def main(argv=None) -> int:
         models[k].eval()
     print(f"trained {step} steps in {time.time() - started:.0f} s; best val "
           + " ".join(f"{k} {best[k][0]:.3f}" for k in best), flush=True)
-    shipped = HbisSRNet(h)
-    shipped.load_state_dict(torch.load(Path(__file__).resolve().parents[1] / f"hbis_torch/models/hbis_sr_h{h}.pt",
-                                       map_location="cpu")["model"])
-    models["s"] = shipped.to(dev).eval()
-    told_blur["s"] = False
+    return history, best, classical_val, step
 
+
+@torch.no_grad()
+def score_cells(variants: Variants, cells: list[dict], h: int, dev: torch.device) -> list[dict]:
+    """Each held-out cell's classical PSNR and each variant's gain over it (dB), as the learned
+    method computes it (one pass, the band limit; the classical image outside the training domain)."""
     domain, results = training_domain(), []
-    cells = cells_async.get()
-    workers.close()
-    with torch.no_grad():
-        for cell in cells:
-            row = {"h": h, "condition": eval_matrix.CONDITIONS[cell["condition"]].name, "photo": cell["photo"],
-                   "classical_db": eval_matrix.score(cell["image"], cell["truth"], h)}
-            for k in models:
-                if outside_domain(domain, cell["params"], cell["cutoff"]) is not None:  # the classical image
-                    row[k] = 0.0
-                    continue
+    for cell in cells:
+        row = {"h": h, "condition": heldout.CONDITIONS[cell["condition"]].name, "photo": cell["photo"],
+               "classical_db": heldout.score(cell["image"], cell["truth"], h)}
+        for k in variants.models:
+            if outside_domain(domain, cell["params"], cell["cutoff"]) is not None:  # the classical image
+                row[k] = 0.0
+                continue
 
-                def run(base, noise, k=k, blur=1.0 / cell["cutoff"]):
-                    b = torch.tensor(np.ascontiguousarray(base).reshape(1, h * h, *base.shape[-2:]), device=dev)
-                    n = torch.tensor(noise[None], device=dev)
-                    return forward(k, b, n, torch.full_like(n, blur))[0, 0].cpu().numpy()
+            def run(base, noise, k=k, blur=1.0 / cell["cutoff"]):
+                b = torch.tensor(np.ascontiguousarray(base).reshape(1, h * h, *base.shape[-2:]), device=dev)
+                n = torch.tensor(noise[None], device=dev)
+                return variants.forward(k, b, n, torch.full_like(n, blur))[0, 0].cpu().numpy()
 
-                image = super_resolve(run, cell["image"], h, cell["params"], cutoff=cell["cutoff"])
-                row[k] = eval_matrix.score(image, cell["truth"], h) - row["classical_db"]
-            results.append(row)
+            image = super_resolve(run, cell["image"], h, cell["params"], cutoff=cell["cutoff"])
+            row[k] = heldout.score(image, cell["truth"], h) - row["classical_db"]
+        results.append(row)
+    return results
+
+
+def print_table(results: list[dict], variants, macs: dict, h: int) -> None:
+    """Learned minus classical per condition (row mean and worst cell) and over all cells."""
     names = ["s"] + [v[0] for v in variants]
-    macs = {k: macs_per_pixel(m) for k, m in models.items()}
     print(f"\nheld-out, h = {h}: learned - classical, dB, row mean (worst cell); s: the shipped model; "
           + "; ".join(f"{n}: width {w}, {b} {body} blocks" + (", told the blur" if blur else "")
                       + f", {macs[n]} MACs/px" for n, w, b, blur, body in variants))
-    for condition in eval_matrix.CONDITIONS:
+    for condition in heldout.CONDITIONS:
         rows = [r for r in results if r["condition"] == condition.name]
         if rows:
             print(f"{condition.name[:58]:58s} " + "  ".join(
@@ -303,6 +296,36 @@ def main(argv=None) -> int:
     for k in names:
         deltas = np.array([r[k] for r in results])
         print(f"{k}: mean {deltas.mean():+.3f} dB, worst cell {deltas.min():+.2f}, {(deltas < -0.3).sum()} below -0.3")
+
+
+def main(argv=None) -> int:
+    args, variants = parse_args(argv)
+    if args is None:
+        return 2
+    h = args.h
+    pool_roi, val_roi, cell_size = (96, 64, 72) if h < 7 else (64, 48, 48)  # train_sr.py's and eval_matrix.py's
+    started_all = time.time()
+    workers = get_context("fork").Pool(args.procs)  # forked before any device is touched
+    jobs = [(h, c, p, cell_size) for c in range(len(heldout.CONDITIONS)) for p in heldout.PHOTOS]
+    train_async = workers.map_async(simulate_example, [(h, pool_roi, 0, i) for i in range(args.pool)], chunksize=4)
+    val_async = workers.map_async(simulate_example, [(h, val_roi, 1, i) for i in range(args.val)], chunksize=1)
+    cells_async = workers.map_async(simulate_cell, jobs[:args.cells], chunksize=1)  # simulated while training
+    train_pool, val = train_async.get(), val_async.get()
+    print(f"pools simulated in {time.time() - started_all:.0f} s", flush=True)
+
+    dev = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    torch.backends.cudnn.allow_tf32 = False  # float32 as on the CPU
+    torch.backends.cuda.matmul.allow_tf32 = False
+    crops = Crops(train_pool, h, args.batch, dev)
+    nets = Variants(variants, h, dev)
+    history, best, classical_val, step = train(nets, crops, validation_set(val, h, dev), args)
+    nets.add_shipped(h, dev)
+
+    cells = cells_async.get()
+    workers.close()
+    results = score_cells(nets, cells, h, dev)
+    macs = {k: macs_per_pixel(m) for k, m in nets.models.items()}
+    print_table(results, variants, macs, h)
     record = {"config": {**vars(args), "out": str(args.out), "device": str(dev)}, "steps": step,
               "classical_val_db": classical_val, "best_val_db": {k: best[k][0] for k in best}, "macs": macs,
               "history": history, "cells": results}

@@ -16,7 +16,7 @@ Where each part lives
     The classical baseline: scattered-sample interpolation and Wiener deblurring
     (:func:`classical_sr`; the stack-level entry ``classical.method.reconstruct_classical``).
 :mod:`hbis_torch.reconstruct.learned`
-    The learned network (``learned.net``, torch, for training and export) run in onnxruntime
+    The learned network (trained and exported by :mod:`hbis_torch.training`) run in onnxruntime
     (:func:`learned_sr`; the stack-level entry ``learned.method.reconstruct_learned``).
 :mod:`hbis_torch.reconstruct.adaptive_h`
     Which h a scene needs (:func:`recommend_h`).

@@ -6,7 +6,7 @@ Main entry points::
     stack, truth = simulate_stack(scene, system, plan_scan(system, 4), roi=(512, 352, 256, 256))
 
 docs/data.md describes the model and the output-grid convention. The network's training data
-(pools of simulated stacks cut into crops) is hbis_torch.reconstruct.learned.training_data; the
+(pools of simulated stacks cut into crops) is hbis_torch.training.data; the
 benchmark's test stacks are :mod:`hbis_torch.simulate.cases`.
 """
 

@@ -1,6 +1,7 @@
 """Learned multi-frame super-resolution: the network runs in onnxruntime, not torch.
 
-The network (:mod:`hbis_torch.reconstruct.learned.net`) refines the classical reconstruction: it
+The network (:mod:`hbis_torch.training.net`, built and exported on the build side,
+:mod:`hbis_torch.training`) refines the classical reconstruction: it
 sees the classical image cut into the h^2 sub-pixel phases of the LR grid and a per-pixel map of
 the frames' noise level (:func:`network_inputs`), from the stack's sensor model or measured from
 the frames. So it takes any stack the classical method takes (any reference frame, any scan,
@@ -17,8 +18,9 @@ folder; ``model=`` (``hbis reconstruct --model``) names any other file.
 
 Modules
 -------
-:mod:`.net`
-    The network in torch (:class:`HbisSRNet`), for training and export.
+:mod:`.architecture`
+    The network's architecture (:class:`Architecture`: kind, width, blocks, h), read from a
+    model's metadata; it sizes the tiles' halo.
 :mod:`.inputs`
     Numpy glue around any runner of the network: the noise model
     (:func:`noise_params_from_meta`, :func:`estimate_noise_params`), :func:`network_inputs`,
@@ -31,10 +33,16 @@ Modules
     A whole stack: :func:`learned_sr` and :func:`reconstruct_learned` (the ``"learned"`` entry
     of :data:`hbis_torch.reconstruct.METHODS`): the classical image
     (:func:`hbis_torch.reconstruct.classical.reconstruct_classical`), refined.
+:mod:`.domain`
+    A model's training domain and validation gain, read from its metadata, and the check that a
+    stack lies inside it.
+
+Nothing here imports torch's network or the training pipeline (:mod:`hbis_torch.training`).
 """
 
 from __future__ import annotations
 
+from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.reconstruct.learned.inputs import (
     NOISE_SCALE,
     TILE_HALO,
@@ -48,13 +56,6 @@ from hbis_torch.reconstruct.learned.inputs import (
     super_resolve,
 )
 from hbis_torch.reconstruct.learned.method import learned_sr, reconstruct_learned
-from hbis_torch.reconstruct.learned.net import (
-    HbisSRNet,
-    ResidualBlock,
-    count_parameters,
-    depth_to_space,
-    space_to_depth,
-)
 from hbis_torch.reconstruct.learned.runtime import (
     MODEL_FORMAT,
     NORMALISATION,
@@ -73,20 +74,17 @@ from hbis_torch.reconstruct.learned.runtime import (
 )
 
 __all__ = [
-    "HbisSRNet",
+    "Architecture",
     "LearnedSR",
     "MODEL_FORMAT",
     "NOISE_SCALE",
     "NORMALISATION",
     "OPENVINO",
     "PROVIDERS",
-    "ResidualBlock",
     "TILE_HALO",
     "available_providers",
-    "count_parameters",
     "default_model_path",
     "default_threads",
-    "depth_to_space",
     "estimate_noise_params",
     "execution_providers",
     "learned_sr",
@@ -100,6 +98,5 @@ __all__ = [
     "run_tiled",
     "sensor_noise_params",
     "session_options",
-    "space_to_depth",
     "super_resolve",
 ]

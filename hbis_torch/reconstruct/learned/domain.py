@@ -2,7 +2,7 @@
 stack lies inside it.
 
 A network is only known to work where it was trained. The random degradations of the training
-pool (:mod:`hbis_torch.reconstruct.learned.training_data`) span a range of lens cutoffs (F 1 to
+pool (:mod:`hbis_torch.training.data`) span a range of lens cutoffs (F 1 to
 F 8 on the training camera) and of noise levels (full wells of 1,000 to 100,000 e-, read noise of
 1 to 15 e-, 8 to 16 bits). A stack blurrier than the blurriest training lens, or far quieter or
 noisier than any training sensor, is outside: there the network extrapolates, and on such
@@ -12,7 +12,9 @@ returns the classical image and says why (:meth:`LearnedSR.__call__
 <hbis_torch.reconstruct.learned.LearnedSR.__call__>`), unless asked to extrapolate.
 
 A model records its domain in its ``metadata_props`` as ``training_domain`` (JSON, written at
-export from :func:`training_domain`); a model without it is not checked.
+export from :func:`hbis_torch.training.data.training_domain`), and the check reads it from
+there (:func:`domain_from_metadata`): this run-time side never imports the training pipeline. A
+model without it is not checked.
 
 A model is also only as good as its validation says: one that beat the classical image it
 refines by less than :data:`MIN_VALIDATION_GAIN_DB` on its own validation set (``val_psnr_db``
@@ -22,7 +24,6 @@ lacks, and is not used either (:func:`unhelpful_model`).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 
@@ -41,35 +42,6 @@ def noise_at_mid_grey(noise_params: tuple[float, float]) -> float:
     for the noise whether shot or read noise dominates."""
     a, b = noise_params
     return math.sqrt(max(0.5 * float(a) + float(b), 0.0))
-
-
-def training_domain() -> dict:
-    """The domain of the current training pipeline (what :func:`export_model
-    <hbis_torch.reconstruct.learned.export.export_model>` records).
-
-    Returns
-    -------
-    dict
-        ``cutoff_cycles_per_px``: [lowest, highest] lens cutoff, cycles per LR pixel;
-        ``noise_at_mid_grey``: [lowest, highest] frame noise at half of full scale
-        (:func:`noise_at_mid_grey`, full scale 1).
-    """
-    from hbis_torch.config import FoveaSystem
-    from hbis_torch.reconstruct.classical import optics_cutoff
-    from hbis_torch.reconstruct.learned import training_data as td
-    from hbis_torch.reconstruct.learned.inputs import sensor_noise_params
-
-    base = FoveaSystem()
-
-    def cutoff(f_number: float) -> float:
-        return optics_cutoff(dataclasses.replace(base, camera=dataclasses.replace(base.camera, f_number=f_number)))
-
-    def noise(full_well: float, read: float, bits: int) -> float:
-        return noise_at_mid_grey(sensor_noise_params(full_well, read, bits))
-
-    return {"cutoff_cycles_per_px": [cutoff(td.F_NUMBER[1]), cutoff(td.F_NUMBER[0])],
-            "noise_at_mid_grey": [noise(td.FULL_WELL_E[1], td.READ_NOISE_E[0], max(td.BIT_DEPTHS)),
-                                  noise(td.FULL_WELL_E[0], td.READ_NOISE_E[1], min(td.BIT_DEPTHS))]}
 
 
 def domain_from_metadata(metadata: dict) -> dict | None:

@@ -1,6 +1,6 @@
 """The learned method's inputs and glue, in numpy (no torch, no onnxruntime).
 
-The network refines the classical image (see :mod:`hbis_torch.reconstruct.learned.net`), so its
+The network refines the classical image (see :mod:`hbis_torch.training.net`), so its
 inputs are defined by physics, not by the order of the frames: :func:`network_inputs` cuts the
 classical image into the h^2 sub-pixel phases of the LR grid and adds the noise map, whose
 Poisson-Gaussian parameters come from the stack's sensor model (:func:`noise_params_from_meta`)
@@ -24,8 +24,8 @@ from hbis_torch.errors import HbisInputError
 # Least halo (LR pixels) around each tile: more than the network's receptive field radius (12
 # for the shipped models: head + 2 per block + tail), so that tiling does not change the result.
 TILE_HALO = 16
-# Frames' noise levels are scaled by this before the network (see net.NOISE_SCALE; the two are
-# one constant, kept here so that this module needs no torch).
+# Frames' noise levels are scaled by this before the network (its ``noise`` input,
+# hbis_torch.training.net); the training pipeline takes it from here.
 NOISE_SCALE = 10.0
 
 

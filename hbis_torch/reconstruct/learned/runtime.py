@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain, unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import TILE_HALO, run_tiled, super_resolve
 
@@ -256,7 +257,7 @@ class LearnedSR:
     threads : int, optional
         Intra-op threads (default: all CPUs available to the process).
     tile : int
-        Tile size in LR pixels (the halo of :data:`TILE_HALO` pixels comes on top).
+        Tile size in LR pixels (the halo, :attr:`halo` pixels, comes on top).
     provider : {"auto", "openvino", "cpu"}
         What runs the model: OpenVINO or onnxruntime's CPU kernels (:func:`execution_providers`).
 
@@ -267,6 +268,11 @@ class LearnedSR:
         ``"openvino"`` or ``"cpu"``: what took the model.
     metadata : dict
         The model's ``metadata_props`` (h, frames, normalisation, training commit, ...).
+    architecture : Architecture
+        The network's, from ``metadata`` (:mod:`~hbis_torch.reconstruct.learned.architecture`).
+    halo : int
+        Context each tile gets on every side, LR pixels: the network's receptive field, at least
+        :data:`TILE_HALO`.
     """
 
     def __init__(self, model=None, h: int | None = None, threads: int | None = None, tile: int = 256,
@@ -283,9 +289,8 @@ class LearnedSR:
         self.domain = domain_from_metadata(self.metadata)
         self.unhelpful = unhelpful_model(self.metadata)
         self.tile = int(tile)
-        # Receptive field radius: head + 2 per residual block + tail (+ 1).
-        config = json.loads(self.metadata.get("model_config", "{}"))
-        self.halo = max(TILE_HALO, 2 * int(config.get("blocks", 4)) + 3)
+        self.architecture = Architecture.from_metadata(self.metadata)
+        self.halo = max(TILE_HALO, self.architecture.halo)
 
     def infer(self, base: np.ndarray, noise: np.ndarray) -> np.ndarray:
         """One network pass: (1, h^2, H, W), (1, 1, H, W) float32 -> (1, 1, hH, hW)."""

@@ -1,12 +1,14 @@
 """ONNX export of the SR network, and the parity check of torch against onnxruntime.
 
-:func:`export_model` writes a trained :class:`~hbis_torch.reconstruct.learned.HbisSRNet` to ONNX
+:func:`export_model` writes a trained :class:`~hbis_torch.training.net.HbisSRNet` to ONNX
 (opset :data:`OPSET`, dynamic batch, height and width; self-contained: weights inside, no .data
 file), with the exporter's depth-to-space replaced by one ``DepthToSpace`` node
-(:func:`hbis_torch.reconstruct.learned.onnx_rewrite.fuse_depth_to_space`) and ``metadata_props``
+(:func:`hbis_torch.training.onnx_rewrite.fuse_depth_to_space`) and ``metadata_props``
 carrying what a user of the model needs: ``format``, ``h``, ``frames`` (= h^2),
 ``normalisation``, ``training_commit`` (git HEAD when the checkpoint was trained),
-``export_commit``, ``opset``, ``parameters``, ``model_config``, ``val_psnr_db`` and
+``export_commit``, ``opset``, ``parameters``, ``model_config`` (the network's
+:class:`~hbis_torch.reconstruct.learned.architecture.Architecture` as JSON: h, width, blocks,
+kind; the runtime sizes its tiles' halo from it), ``val_psnr_db`` and
 ``val_classical_psnr_db`` (the network's and the classical image's PSNR on the validation set: a
 model that gains less than 0.1 dB is not used,
 :func:`~hbis_torch.reconstruct.learned.domain.unhelpful_model`),
@@ -29,16 +31,10 @@ import numpy as np
 import torch
 
 from hbis_torch.io_utils import atomic_path
-from hbis_torch.reconstruct.learned import (
-    MODEL_FORMAT,
-    NORMALISATION,
-    HbisSRNet,
-    LearnedSR,
-    available_providers,
-    count_parameters,
-)
-from hbis_torch.reconstruct.learned.domain import training_domain
-from hbis_torch.reconstruct.learned.onnx_rewrite import fuse_depth_to_space
+from hbis_torch.reconstruct.learned import MODEL_FORMAT, NORMALISATION, LearnedSR, available_providers
+from hbis_torch.training.data import training_domain
+from hbis_torch.training.net import HbisSRNet, build_net, count_parameters
+from hbis_torch.training.onnx_rewrite import fuse_depth_to_space
 
 OPSET = 18
 EXPORT_SIZE = (32, 40)  # (H, W) of the example inputs traced at export; any size runs after
@@ -65,7 +61,8 @@ def load_checkpoint(path) -> tuple[HbisSRNet, dict]:
     path : str or Path
         A ``model.pt`` / ``ckpt.pt`` written by training/train_sr.py, or a weights file written
         by ``export/export_onnx.py --weights``: a dict with ``model`` (state dict) and
-        ``model_config`` (HbisSRNet's keyword arguments).
+        ``model_config`` (the network's :class:`~hbis_torch.reconstruct.learned.architecture.Architecture`
+        as a dict; one without ``kind`` is the plain kind).
 
     Returns
     -------
@@ -73,7 +70,7 @@ def load_checkpoint(path) -> tuple[HbisSRNet, dict]:
     checkpoint : dict
     """
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    model = HbisSRNet(**ckpt["model_config"])
+    model = build_net(ckpt["model_config"])
     model.load_state_dict(ckpt["model"])
     return model.eval(), ckpt
 
@@ -108,9 +105,9 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     ``info`` is the training checkpoint (or any dict) with ``git_commit``, ``val_psnr``,
     ``history`` or ``val_classical_psnr`` (:func:`classical_val_psnr`), ``step``, ``config`` and
     ``training_domain``; missing entries are recorded as unknown (the
-    domain as the current pipeline's, :func:`~hbis_torch.reconstruct.learned.domain.training_domain`).
+    domain as the current pipeline's, :func:`~hbis_torch.training.data.training_domain`).
     ``rewrite``: replace the exporter's reshape/transpose depth-to-space with ONNX DepthToSpace
-    (:func:`hbis_torch.reconstruct.learned.onnx_rewrite.fuse_depth_to_space`; same outputs,
+    (:func:`hbis_torch.training.onnx_rewrite.fuse_depth_to_space`; same outputs,
     faster in onnxruntime).
 
     Parameters
@@ -152,7 +149,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
         "export_commit": git_head(),
         "opset": str(opset),
         "parameters": str(count_parameters(model)),
-        "model_config": json.dumps(model.config()),
+        **model.architecture.to_metadata(),
         "val_psnr_db": f"{float(info.get('val_psnr', float('nan'))):.3f}",
         "val_classical_psnr_db": f"{classical_val_psnr(info):.3f}",
         "training_steps": str(info.get("step", "unknown")),

@@ -32,6 +32,10 @@ reshape/permute because the dynamo ONNX exporter mistranslates ``pixel_unshuffle
 
 All tensors are float32: the classical image it refines is rounded to float32 too, and the
 correction is small next to it.
+
+Its size and the kind of its residual blocks are one
+:class:`~hbis_torch.reconstruct.learned.architecture.Architecture`; :func:`build_net` is the one
+way the build side (training, export, the variants' A/B) makes the network from it.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from hbis_torch.checks import check_h
+from hbis_torch.reconstruct.learned.architecture import IR_EXPAND, Architecture
 
 
 def space_to_depth(x: Tensor, block: int) -> Tensor:
@@ -94,6 +98,25 @@ class ResidualBlock(nn.Module):
         return x + self.conv2(F.relu(self.conv1(x)))
 
 
+class InvertedResidual(nn.Module):
+    """conv 1x1 to ``expand`` x width -> ReLU -> depthwise 3x3 -> ReLU -> conv 1x1 back, added to the
+    input (MobileNetV2's block without its batch norms). (B, C, H, W) -> (B, C, H, W)."""
+
+    def __init__(self, width: int, expand: int = IR_EXPAND) -> None:
+        super().__init__()
+        inner = expand * width
+        self.body = nn.Sequential(
+            nn.Conv2d(width, inner, 1), nn.ReLU(),
+            nn.Conv2d(inner, inner, 3, padding=1, groups=inner), nn.ReLU(),
+            nn.Conv2d(inner, width, 1))
+
+    def forward(self, x: Tensor) -> Tensor:
+        return x + self.body(x)
+
+
+BLOCKS = {"plain": ResidualBlock, "ir": InvertedResidual}  # by Architecture.kind
+
+
 class HbisSRNet(nn.Module):
     """Refiner of the classical image for one resolution improvement factor ``h``.
 
@@ -105,6 +128,13 @@ class HbisSRNet(nn.Module):
         Feature channels of the residual body.
     blocks : int
         Number of residual blocks.
+    kind : {"plain", "ir"}
+        The residual blocks: :class:`ResidualBlock` or :class:`InvertedResidual`.
+
+    Attributes
+    ----------
+    architecture : Architecture
+        The four arguments, checked (:func:`build_net` builds the network from one).
 
     Notes
     -----
@@ -113,27 +143,44 @@ class HbisSRNet(nn.Module):
     returns the image (B, 1, h H, h W), not clipped (callers clip to [0, 1]).
     """
 
-    def __init__(self, h: int, width: int = 32, blocks: int = 4) -> None:
+    def __init__(self, h: int, width: int = 32, blocks: int = 4, kind: str = "plain") -> None:
         super().__init__()
-        check_h(h, minimum=2)
-        self.h, self.width, self.blocks = int(h), int(width), int(blocks)
+        self.architecture = Architecture(h, width, blocks, kind)
+        self.h, self.width, self.blocks = self.architecture.h, self.architecture.width, self.architecture.blocks
         cells = self.h * self.h
-        self.head = nn.Conv2d(cells + 1, width, 3, padding=1)
-        self.body = nn.Sequential(*[ResidualBlock(width) for _ in range(blocks)])
-        self.tail = nn.Conv2d(width, cells, 3, padding=1)
+        self.head = nn.Conv2d(cells + 1, self.width, 3, padding=1)
+        self.body = nn.Sequential(*[BLOCKS[kind](self.width) for _ in range(self.blocks)])
+        self.tail = nn.Conv2d(self.width, cells, 3, padding=1)
         # Start as the classical image itself: the correction begins at 0.
         nn.init.zeros_(self.tail.weight)
         nn.init.zeros_(self.tail.bias)
 
     def config(self) -> dict:
-        """The constructor arguments, to rebuild the model from a checkpoint."""
-        return {"h": self.h, "width": self.width, "blocks": self.blocks}
+        """The constructor arguments (:meth:`Architecture.as_dict`), to rebuild the model from a checkpoint."""
+        return self.architecture.as_dict()
 
     def forward(self, base: Tensor, noise: Tensor) -> Tensor:
         centred = base - 0.5
         features = self.head(torch.cat((centred, noise), dim=1))
         features = features + self.body(features)
         return depth_to_space(base + self.tail(features), self.h)
+
+
+def build_net(config: Architecture | dict) -> HbisSRNet:
+    """The network of an :class:`Architecture` (or of its :meth:`~Architecture.as_dict`, e.g. a
+    checkpoint's ``model_config``), freshly initialised from torch's global generator.
+
+    Parameters
+    ----------
+    config : Architecture or dict
+
+    Returns
+    -------
+    HbisSRNet
+        In training mode, float32; its last convolution is zero, so it returns the classical image.
+    """
+    arch = config if isinstance(config, Architecture) else Architecture.from_dict(config)
+    return HbisSRNet(arch.h, arch.width, arch.blocks, arch.kind)
 
 
 def count_parameters(model: nn.Module) -> int:

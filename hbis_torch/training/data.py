@@ -2,7 +2,7 @@
 
 A *pool* is a list of simulated stacks (:func:`hbis_torch.simulate.simulate_stack`, the project's
 physical forward model), each reconstructed by the classical method, which is what the network
-refines (:mod:`hbis_torch.reconstruct.learned.net`). Every example draws its own degradations,
+refines (:mod:`hbis_torch.training.net`). Every example draws its own degradations,
 wider than any one sensor, so that the network holds on captured stacks whose optics, sensor and
 scan the training never saw exactly (:func:`draw_example`):
 
@@ -37,7 +37,9 @@ benchmarks/bench_simulate.py use it):
    (:func:`example_seed`), so example i of a pool is the same whichever process builds it;
 2. :func:`save_pool` / :func:`load_pool` cache a pool as one .npz;
 3. :func:`make_batch` cuts a batch of random crops (:func:`crop_example`, :func:`dihedral`) in the
-   network's input layout; :func:`whole_example` gives a whole example as a batch of one.
+   network's input layout; :func:`whole_example` gives a whole example as a batch of one;
+4. :func:`training_domain` is the optics and noise these draws span, which the export records
+   in the model (the runtime's check, :mod:`hbis_torch.reconstruct.learned.domain`, reads it there).
 
 All randomness comes from the seeds and generators passed in: the same seeds give the same pools
 and batches, bit for bit.
@@ -55,7 +57,8 @@ from hbis_torch.config import Camera, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_path
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
-from hbis_torch.reconstruct.learned.inputs import network_inputs, noise_params_from_meta
+from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
+from hbis_torch.reconstruct.learned.inputs import network_inputs, noise_params_from_meta, sensor_noise_params
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import (
     SceneSpec,
@@ -480,3 +483,28 @@ def whole_example(example: dict, h: int, measured_noise: bool = False):
     """
     base, noise = network_inputs(example["base"], h, example["noise"][int(measured_noise)])
     return base[None], noise[None], example["truth"][None, None]
+
+
+def training_domain() -> dict:
+    """The domain of this training pipeline: what :func:`export_model
+    <hbis_torch.training.export.export_model>` records as the model's ``training_domain``.
+
+    Returns
+    -------
+    dict
+        ``cutoff_cycles_per_px``: [lowest, highest] lens cutoff, cycles per LR pixel, over
+        :data:`F_NUMBER` on the default camera; ``noise_at_mid_grey``: [lowest, highest] frame
+        noise at half of full scale (:func:`~hbis_torch.reconstruct.learned.domain.noise_at_mid_grey`,
+        full scale 1), over :data:`FULL_WELL_E`, :data:`READ_NOISE_E` and :data:`BIT_DEPTHS`.
+    """
+    base = FoveaSystem()
+
+    def cutoff(f_number: float) -> float:
+        return optics_cutoff(dataclasses.replace(base, camera=dataclasses.replace(base.camera, f_number=f_number)))
+
+    def noise(full_well: float, read: float, bits: int) -> float:
+        return noise_at_mid_grey(sensor_noise_params(full_well, read, bits))
+
+    return {"cutoff_cycles_per_px": [cutoff(F_NUMBER[1]), cutoff(F_NUMBER[0])],
+            "noise_at_mid_grey": [noise(FULL_WELL_E[1], READ_NOISE_E[0], max(BIT_DEPTHS)),
+                                  noise(FULL_WELL_E[0], READ_NOISE_E[1], min(BIT_DEPTHS))]}

@@ -1,6 +1,6 @@
 """Rewrites of the exported SR graph that onnxruntime runs faster, same function.
 
-The network's depth-to-space (:func:`hbis_torch.reconstruct.learned.net.depth_to_space`) is written as
+The network's depth-to-space (:func:`hbis_torch.training.net.depth_to_space`) is written as
 reshape/permute so that the dynamo exporter handles it; it arrives in the graph as
 ``Reshape (B, C, h, h, H, W) -> Transpose (0, 1, 4, 2, 5, 3) -> Reshape (B, C, hH, hW)``, and
 onnxruntime runs that 6-d Transpose about 4-5 times slower than its ``DepthToSpace`` kernel
@@ -9,7 +9,7 @@ ONNX ``DepthToSpace`` in mode ``"CRD"`` is exactly this rearrangement (input cha
 ``c h^2 + dy h + dx`` goes to output pixel ``(h y + dy, h x + dx)`` of channel c), so
 :func:`fuse_depth_to_space` replaces the three nodes with it. Everything else is left as the
 exporter wrote it. The export checks parity with torch after the rewrite, at a size other than
-the export size (:func:`hbis_torch.reconstruct.learned.export.check_parity`, export/check_onnx.py).
+the export size (:func:`hbis_torch.training.export.check_parity`, export/check_onnx.py).
 """
 
 from __future__ import annotations
