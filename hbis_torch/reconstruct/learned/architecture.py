@@ -15,6 +15,7 @@ import dataclasses
 import json
 
 from hbis_torch.checks import check_h
+from hbis_torch.errors import HbisInputError
 
 # The residual body's blocks: "plain" is the shipped design (conv 3x3 -> ReLU -> conv 3x3);
 # "ir" is MobileNetV2's inverted residual (conv 1x1 to IR_EXPAND x width -> ReLU -> depthwise
@@ -49,9 +50,9 @@ class Architecture:
     def __post_init__(self) -> None:
         check_h(self.h, minimum=2)
         if self.kind not in KINDS:
-            raise ValueError(f"unknown network kind {self.kind!r} (choose from {', '.join(KINDS)})")
+            raise HbisInputError(f"unknown network kind {self.kind!r} (choose from {', '.join(KINDS)})")
         if int(self.width) < 1 or int(self.blocks) < 0:
-            raise ValueError(f"width must be >= 1 and blocks >= 0, got {self.width} and {self.blocks}")
+            raise HbisInputError(f"width must be >= 1 and blocks >= 0, got {self.width} and {self.blocks}")
         for name in ("h", "width", "blocks"):
             object.__setattr__(self, name, int(getattr(self, name)))
 
