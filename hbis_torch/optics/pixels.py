@@ -125,14 +125,14 @@ def landing_map(
 
     Parameters
     ----------
-    phi1_deg, phi2_deg : float or Tensor, shape (*P)
+    phi1_deg, phi2_deg : float or Tensor, shape ``(*P)``
         Prism phases in degrees.
     roi : (u0, v0, width, height) or None
         Pixels to trace (None: the whole sensor).
 
     Returns
     -------
-    Tensor, shape (*P, H, W, 2)
+    Tensor, shape ``(*P, H, W, 2)``
         (x, y) on the plane z = v, in mm. Divide by ``system.object_pixel_mm`` for pixel units.
     """
     rays = pixel_rays(system.camera, roi, dtype, device)
@@ -168,12 +168,12 @@ def landing_map_interpolated(
     dtype=torch.float64,
     device=None,
 ) -> Tensor:
-    """Landing maps from a coarse exact trace and cubic-spline interpolation; (*P, H, W, 2), mm.
+    """Landing maps from a coarse exact trace and cubic-spline interpolation; ``(*P, H, W, 2)``, mm.
 
     The landing map is smooth over the sensor (the pinhole part is linear, which the not-a-knot
     spline reproduces exactly; the prisms add a slowly varying distortion), so nodes every
     ``grid_step`` pixels are enough. The spline is separable: each fine map is two small matrix
-    products. The result is a channel-last view of a (*P, 2, H, W) tensor (no extra copy).
+    products. The result is a channel-last view of a ``(*P, 2, H, W)`` tensor (no extra copy).
     benchmarks/bench_optics.py prints the error against the exact trace (7e-5 pixel in float64,
     3e-4 in float32, for the Table 1 system and the default grid).
     """
