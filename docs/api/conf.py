@@ -38,7 +38,9 @@ exclude_patterns = ["_build"]
 
 autosummary_generate = True
 autosummary_imported_members = False
-autodoc_default_options = {"members": True, "show-inheritance": True}
+# A package's page documents what its own modules define, not the names its __init__ re-exports
+# through __all__ (they are documented on their modules' pages, once).
+autodoc_default_options = {"members": True, "show-inheritance": True, "ignore-module-all": True}
 autodoc_typehints = "none"          # the numpydoc Parameters sections carry the types
 autodoc_member_order = "bysource"
 

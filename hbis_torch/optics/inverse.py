@@ -2,7 +2,7 @@
 
 Three solvers, all vectorised over any number of targets (shape (F, 2), mm on the object plane):
 
-* :func:`paper_inverse` - the paper's closed form (eqs. 5-9). Each prism is a fixed-length
+* :func:`paper_inverse` - the paper's closed form (eqs. 5-9 of [1]_). Each prism is a fixed-length
   vector on the object plane, DV = k1 e(phi1) + k2 e(phi2) with e(phi) = (cos phi, sin phi).
   This is the paper's eq. 5 with the sign flipped: in our frame (docs/design.md section 1) phi1 = phi2
   = phi deviates the axis *toward* (cos phi, sin phi), the paper's frame deviates it away. The

@@ -134,6 +134,25 @@ def landing_map(
     -------
     Tensor, shape ``(*P, H, W, 2)``
         (x, y) on the plane z = v, in mm. Divide by ``system.object_pixel_mm`` for pixel units.
+
+    Examples
+    --------
+    Two phase pairs, an 8 x 4 pixel ROI:
+
+    >>> import torch
+    >>> from hbis_torch import FoveaSystem
+    >>> from hbis_torch.optics.pixels import landing_map
+    >>> system = FoveaSystem()
+    >>> phi1, phi2 = torch.tensor([5.0, 10.0]), torch.tensor([70.0, 75.0])
+    >>> maps = landing_map(system, phi1, phi2, roi=(100, 200, 8, 4))
+    >>> tuple(maps.shape), maps.dtype
+    ((2, 4, 8, 2), torch.float64)
+
+    Neighbouring pixels land about one object pixel (p v / f') apart:
+
+    >>> step = float((maps[0, 0, 1] - maps[0, 0, 0]).norm() / system.object_pixel_mm)
+    >>> 0.9 < step < 1.1
+    True
     """
     rays = pixel_rays(system.camera, roi, dtype, device)
     p1, p2 = _phases(phi1_deg, phi2_deg, dtype, device)

@@ -217,7 +217,21 @@ def risley_normals(phi1_deg, phi2_deg, prisms: Prisms, dtype=torch.float64) -> l
 
 
 def exit_directions(rays: Tensor, phi1_deg, phi2_deg, prisms: Prisms = Prisms()) -> Tensor:
-    """Exit directions ``(*P, *R, 3)``; raises HbisInputError if any ray is totally reflected."""
+    """Exit directions ``(*P, *R, 3)``; raises HbisInputError if any ray is totally reflected.
+
+    Examples
+    --------
+    Phases of shape (2,) and one ray give two unit directions:
+
+    >>> import torch
+    >>> from hbis_torch.optics.risley import exit_directions
+    >>> axis = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    >>> d = exit_directions(axis, torch.tensor([0.0, 90.0]), torch.tensor([0.0, 90.0]))
+    >>> tuple(d.shape)
+    (2, 3)
+    >>> torch.allclose(d.norm(dim=-1), torch.ones(2, dtype=torch.float64))
+    True
+    """
     return trace_risley(rays, phi1_deg, phi2_deg, prisms).require_valid()
 
 
@@ -233,7 +247,20 @@ def deviation_azimuth(directions: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def axis_deviation(phi1_deg, phi2_deg, prisms: Prisms = Prisms(), dtype=torch.float64):
-    """Deviation and azimuth (degrees) of the optical axis (0, 0, 1) at the given phases."""
+    """Deviation and azimuth (degrees) of the optical axis (0, 0, 1) at the given phases.
+
+    Examples
+    --------
+    Aligned prisms deviate the axis most; opposed prisms (180 deg apart) act as a glass slab:
+
+    >>> from hbis_torch.optics.risley import axis_deviation
+    >>> deviation, azimuth = axis_deviation(0.0, 0.0)
+    >>> round(float(deviation), 4), round(float(azimuth), 4)
+    (4.0082, 0.0)
+    >>> deviation, _ = axis_deviation(0.0, 180.0)
+    >>> abs(float(deviation)) < 1e-12
+    True
+    """
     axis = torch.tensor([0.0, 0.0, 1.0], dtype=dtype)
     return deviation_azimuth(exit_directions(axis, phi1_deg, phi2_deg, prisms))
 

@@ -6,8 +6,8 @@ Homographies are (F, 3, 3) float64, frame px -> reference px (see
 per-point quantities are (F, N), in the resampling dtype (float32 or float64); the normal
 equations, parameter steps (F, k) and covariances (F, k, k) are float64, in normalised units.
 
-The fit is the forward-compositional form of the Lucas-Kanade algorithm (the warp is updated as
-H <- H W(dp)), with robust weights, as laid out by Baker and Matthews.
+The fit is the forward-compositional form of the Lucas-Kanade algorithm [1]_ (the warp is
+updated as H <- H W(dp)), with robust weights, as laid out by Baker and Matthews [2]_.
 
 References
 ----------
