@@ -27,7 +27,8 @@ shipped runs: 320 stacks, seed 0; validation 16 stacks, seed 1), and the held-ou
 simulated meanwhile; the batches are cut on the device (random crops, the 8 flips/transposes,
 either noise model, as :func:`~hbis_torch.reconstruct.learned.training_data.crop_example`).
 
-Results: docs/learned.md ("What limits the gain"), benchmarks/results/variants_ab_*.json.
+Results: docs/learned.md ("Limits"), docs/notes/2026-11-learned-history.md ("What limits the
+gain"), benchmarks/results/variants_ab_*.json.
 """
 
 from __future__ import annotations
