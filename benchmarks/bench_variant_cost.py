@@ -18,7 +18,8 @@ the first one the reference; ``a:32:4:0`` is the shipped design). For each, in t
 
 Prints each variant's multiply-adds per LR pixel and the medians, with the ratios to the first
 variant: a design's multiply-adds say little about its time on a CPU, where memory traffic decides.
-``--json`` writes the rows. Results: docs/learned.md ("What limits the gain").
+``--json`` writes the rows. Results: docs/notes/2026-11-learned-history.md ("What limits the gain"),
+benchmarks/results/bench_variant_cost.json.
 """
 
 from __future__ import annotations

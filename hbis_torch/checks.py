@@ -32,6 +32,17 @@ def check_h(h, minimum: int = 1) -> int:
     """A resolution improvement factor: an integer (Python or NumPy) from ``minimum`` to 16.
 
     ``minimum`` is 2 where h = 1 means nothing (the network has no sub-pixel phases to combine).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from hbis_torch.checks import check_h
+    >>> check_h(np.int64(4))
+    4
+    >>> check_h(17)
+    Traceback (most recent call last):
+    ...
+    hbis_torch.errors.HbisInputError: h must be an integer from 1 to 16, got 17
     """
     if isinstance(h, (bool, np.bool_)) or not isinstance(h, (int, np.integer)) or not minimum <= int(h) <= MAX_H:
         raise HbisInputError(f"h must be an integer from {minimum} to {MAX_H}, got {h!r}")
@@ -39,7 +50,22 @@ def check_h(h, minimum: int = 1) -> int:
 
 
 def check_roi(camera: Camera, roi: Roi | None) -> Roi:
-    """Return a validated ``(u0, v0, width, height)`` in pixels; ``None`` gives the whole sensor."""
+    """Return a validated ``(u0, v0, width, height)`` in pixels; ``None`` gives the whole sensor.
+
+    Examples
+    --------
+    >>> from hbis_torch import Camera
+    >>> from hbis_torch.checks import check_roi
+    >>> camera = Camera()
+    >>> check_roi(camera, None)
+    (0, 0, 1280, 960)
+    >>> check_roi(camera, (608, 456, 64, 48))
+    (608, 456, 64, 48)
+    >>> check_roi(camera, (1270, 0, 64, 64))
+    Traceback (most recent call last):
+    ...
+    hbis_torch.errors.HbisInputError: roi (1270, 0, 64, 64) lies outside the ... sensor
+    """
     if roi is None:
         return (0, 0, camera.cols, camera.rows)
     try:

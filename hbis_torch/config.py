@@ -160,7 +160,21 @@ class Prisms:
 
 @dataclass(frozen=True)
 class FoveaSystem:
-    """The fovea of an HBIS: a camera behind a Risley pair, looking at an object plane."""
+    """The fovea of an HBIS: a camera behind a Risley pair, looking at an object plane.
+
+    Examples
+    --------
+    The defaults are the paper's Table 1; fields are changed by keyword (the class is frozen):
+
+    >>> from hbis_torch import Camera, FoveaSystem, Prisms
+    >>> system = FoveaSystem()
+    >>> system.camera.rows, system.camera.cols, system.prisms.wedge_angle_deg
+    (960, 1280, 4.0)
+    >>> system.object_pixel_mm          # p v / f' = 3.75 um x 50 mm / 12 mm
+    0.015625
+    >>> FoveaSystem(camera=Camera(f_number=2.8), object_distance_mm=100.0).object_pixel_mm
+    0.03125
+    """
 
     camera: Camera = field(default_factory=Camera)
     prisms: Prisms = field(default_factory=Prisms)

@@ -137,6 +137,20 @@ def design(
 
     ``h`` (default h_max) sets the foveal ratio. A varphi above its maximum is allowed but
     flagged as ``blind_zone_h/v``: the fovea can then leave a gap beside that periphery camera.
+
+    Examples
+    --------
+    The paper's Table 1 system (the defaults):
+
+    >>> from hbis_torch import FoveaSystem
+    >>> from hbis_torch.design import design
+    >>> report = design(FoveaSystem())
+    >>> round(report.diffraction_ratio, 2), report.h_max
+    (7.98, 7)
+    >>> round(report.max_axis_deviation_deg, 3)
+    4.008
+    >>> design(FoveaSystem(), h=4).foveal_ratio
+    4
     """
     for name, value in (("varphi_h", varphi_h_deg), ("varphi_v", varphi_v_deg)):
         if value is not None and (not math.isfinite(value) or not 0 <= value < 90):

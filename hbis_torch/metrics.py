@@ -20,13 +20,38 @@ def _pair(image, truth) -> tuple[np.ndarray, np.ndarray]:
 
 
 def psnr(image, truth, data_range: float = 1.0) -> float:
-    """Peak signal-to-noise ratio of ``image`` against ``truth``, dB (inf where they are equal)."""
+    """Peak signal-to-noise ratio of ``image`` against ``truth``, dB (inf where they are equal).
+
+    Examples
+    --------
+    An error of 0.01 everywhere, on images in [0, 1], is 40 dB:
+
+    >>> import numpy as np
+    >>> from hbis_torch.metrics import psnr
+    >>> truth = np.zeros((32, 32))
+    >>> round(psnr(truth + 0.01, truth), 6)
+    40.0
+    >>> psnr(truth, truth)
+    inf
+    """
     a, b = _pair(image, truth)
     with np.errstate(divide="ignore"):
         return float(peak_signal_noise_ratio(b, a, data_range=data_range))
 
 
 def ssim(image, truth, data_range: float = 1.0) -> float:
-    """Structural similarity of two (H, W) images (scikit-image's defaults: 7 x 7 windows)."""
+    """Structural similarity of two (H, W) images (scikit-image's defaults: 7 x 7 windows).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from hbis_torch.metrics import ssim
+    >>> truth = np.zeros((32, 32))
+    >>> truth[8:24, 8:24] = 1.0
+    >>> ssim(truth, truth)
+    1.0
+    >>> ssim(0.5 * truth, truth) < 1.0
+    True
+    """
     a, b = _pair(image, truth)
     return float(structural_similarity(b, a, data_range=data_range))

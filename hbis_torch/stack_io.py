@@ -313,6 +313,31 @@ class Stack:
         uint8, uint16 or float32 (in [0, 1]), in scan order; RGB in the last axis.
     meta : dict
         The hbis-stack/1 JSON object, extra keys included.
+
+    Examples
+    --------
+    A 2 x 2 scan's four 12-bit frames, written and read back in a temporary directory:
+
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> from hbis_torch import FoveaSystem
+    >>> from hbis_torch.scan.plan import plan_scan
+    >>> from hbis_torch.stack_io import Stack, make_meta, read_stack, write_stack
+    >>> system = FoveaSystem()
+    >>> plan = plan_scan(system, 2)
+    >>> meta = make_meta(system, 2, (600, 400, 16, 12), plan.phases_deg, bit_depth=12,
+    ...                  reference_index=plan.reference_index)
+    >>> frames = np.arange(4 * 12 * 16, dtype=np.uint16).reshape(4, 12, 16)
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     path = os.path.join(tmp, "stack.tif")
+    ...     write_stack(path, Stack(frames, meta))
+    ...     back = read_stack(path)
+    >>> back.h, back.roi, back.reference_index, back.bit_depth
+    (2, (600, 400, 16, 12), 3, 12)
+    >>> np.array_equal(back.frames, frames)
+    True
+    >>> round(float(back.to_float().max()), 4)       # 767 / (2**12 - 1)
+    0.1873
     """
 
     frames: np.ndarray

@@ -30,7 +30,8 @@ either noise model, as :func:`~hbis_torch.training.data.crop_example`). The vari
 and their builder are :mod:`hbis_torch.training.variants`; the held-out matrix is
 :mod:`hbis_torch.training.heldout`.
 
-Results: docs/learned.md ("What limits the gain"), benchmarks/results/variants_ab_*.json.
+Results: docs/learned.md ("Limits"), docs/notes/2026-11-learned-history.md ("What limits the
+gain"), benchmarks/results/variants_ab_*.json.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Three solvers, all vectorised over any number of targets (shape (F, 2), mm on the object plane):
 
-* :func:`paper_inverse` - the paper's closed form (eqs. 5-9). Each prism is a fixed-length
+* :func:`paper_inverse` - the paper's closed form (eqs. 5-9 of [1]_). Each prism is a fixed-length
   vector on the object plane, DV = k1 e(phi1) + k2 e(phi2) with e(phi) = (cos phi, sin phi).
   This is the paper's eq. 5 with the sign flipped: in our frame (docs/design.md section 1) phi1 = phi2
   = phi deviates the axis *toward* (cos phi, sin phi), the paper's frame deviates it away. The
@@ -20,7 +20,7 @@ Every solver returns, for each target, the one of its two solution branches (del
 that is nearest the given current phases, with each phase moved by a whole turn to lie nearest
 its current value: the shortest rotation. Singular and hard cases:
 
-* opposed prisms, |phi1 - phi2| = 180 deg: the two tilted faces are then parallel (a glass slab)
+* opposed prisms, abs(phi1 - phi2) = 180 deg: the two tilted faces are then parallel (a glass slab)
   and the axis is not deviated at all, so the azimuth of a target at the centre is undefined.
   The solvers keep the common rotation of the current phases there (no 180 deg jump).
 * targets at the rim of the reachable disc (prisms aligned): the two branches merge and the
@@ -29,6 +29,12 @@ its current value: the shortest rotation. Singular and hard cases:
 * targets beyond the maximum deviation raise :class:`~hbis_torch.errors.HbisInputError`, naming
   that maximum; targets past the rim by rounding only (relative 1e-9) are put on the rim.
 * arccos arguments pushed past +-1 by rounding are clamped. No NaN ever leaves this module.
+
+References
+----------
+.. [1] Q. Hao, Z. Wang, J. Cao and F. Zhang, "A Hybrid Bionic Image Sensor Achieving FOV
+   Extension and Foveated Imaging" (the paper this project implements; ``CITATION.cff``):
+   section 2.3 and eqs. 5-9, the Risley pair's forward model and its closed-form inverse.
 
 Angles are in degrees, lengths in mm, all work is float64.
 """
@@ -54,7 +60,7 @@ _AXIS = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
 
 
 def axis_landing(system: FoveaSystem, phi1_deg, phi2_deg) -> Tensor:
-    """Exact landing point of the optical axis on the object plane; shape (*P, 2), mm."""
+    """Exact landing point of the optical axis on the object plane; shape ``(*P, 2)``, mm."""
     p1 = torch.as_tensor(phi1_deg, dtype=torch.float64)
     p2 = torch.as_tensor(phi2_deg, dtype=torch.float64)
     directions = exit_directions(_AXIS, p1[..., None], p2[..., None], system.prisms)[..., 0, :]
@@ -160,8 +166,8 @@ def paper_norms(system: FoveaSystem, initial_phases_deg) -> tuple[float, float]:
     """k1 and k2 (mm) of eq. 8 from the exact landing DV^0 of the axis at the initial phases.
 
     Case 1 (phi1 != phi2): solve DV^0 = k1 e(phi1) + k2 e(phi2) (our sign of eq. 5).
-    Case 2 (phi1 == phi2): k1 = k2 = |DV^0| / 2.
-    The paper leaves out opposed prisms (|phi1 - phi2| = 180 deg), where the 2 x 2 system is
+    Case 2 (phi1 == phi2): k1 = k2 = abs(DV^0) / 2.
+    The paper leaves out opposed prisms (abs(phi1 - phi2) = 180 deg), where the 2 x 2 system is
     singular too; there DV^0 = 0 and we take k1 = k2 = half the largest landing radius (the
     aligned value of case 2 at the same phases).
     """
@@ -203,6 +209,11 @@ def paper_inverse(targets_mm, k1: float, k2: float, current_deg) -> Tensor:
     -------
     Tensor, shape (F, 2)
         [phi1, phi2] per target, degrees.
+
+    References
+    ----------
+    .. [1] Q. Hao, Z. Wang, J. Cao and F. Zhang, "A Hybrid Bionic Image Sensor Achieving FOV
+       Extension and Foveated Imaging" (``CITATION.cff``), eqs. 5-9.
     """
     t = _check_targets(targets_mm)
     current = _check_current(current_deg, t.shape[0])

@@ -11,8 +11,8 @@ face, prism 2 a tilted face then a flat face, with the normals of the paper's eq
 Phases are in degrees, measured from +x toward +y. With phi1 = phi2 = phi the axis ray is
 deviated toward (cos phi, sin phi); this is the paper's frame with the sign of eq. 5 flipped.
 
-Everything broadcasts: rays of shape (*R, 3) and phases of shape (*P) give outputs of shape
-broadcast(*P, *R). For example phases (P, 1, 1) with rays (H, W, 3) trace a whole scan at once.
+Everything broadcasts: rays of shape ``(*R, 3)`` and phases of shape ``(*P)`` give outputs of shape
+``broadcast(*P, *R)``. For example phases (P, 1, 1) with rays (H, W, 3) trace a whole scan at once.
 Works in float32 and float64 on any device; float64 is the reference for analysis (float32 costs
 about 1e-5 pixel on the landing map, see tests/test_optics.py).
 """
@@ -139,9 +139,9 @@ def trace_risley(
 
     Parameters
     ----------
-    rays : Tensor, shape (*R, 3)
+    rays : Tensor, shape ``(*R, 3)``
         Unit incident directions travelling toward +z.
-    phi1_deg, phi2_deg : float or Tensor, shape (*P)
+    phi1_deg, phi2_deg : float or Tensor, shape ``(*P)``
         Prism phases in degrees.
     prisms : Prisms
         Wedge angle and refractive index.
@@ -151,7 +151,7 @@ def trace_risley(
 
     Returns
     -------
-    RisleyTrace with directions of shape broadcast(*P, *R) + (3,).
+    RisleyTrace with directions of shape ``broadcast(*P, *R) + (3,)``.
     """
     rays = _check_rays(rays)
     if bool((rays[..., 2] <= 0).any()):
@@ -217,7 +217,21 @@ def risley_normals(phi1_deg, phi2_deg, prisms: Prisms, dtype=torch.float64) -> l
 
 
 def exit_directions(rays: Tensor, phi1_deg, phi2_deg, prisms: Prisms = Prisms()) -> Tensor:
-    """Exit directions (*P, *R, 3); raises HbisInputError if any ray is totally reflected."""
+    """Exit directions ``(*P, *R, 3)``; raises HbisInputError if any ray is totally reflected.
+
+    Examples
+    --------
+    Phases of shape (2,) and one ray give two unit directions:
+
+    >>> import torch
+    >>> from hbis_torch.optics.risley import exit_directions
+    >>> axis = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    >>> d = exit_directions(axis, torch.tensor([0.0, 90.0]), torch.tensor([0.0, 90.0]))
+    >>> tuple(d.shape)
+    (2, 3)
+    >>> torch.allclose(d.norm(dim=-1), torch.ones(2, dtype=torch.float64))
+    True
+    """
     return trace_risley(rays, phi1_deg, phi2_deg, prisms).require_valid()
 
 
@@ -233,7 +247,20 @@ def deviation_azimuth(directions: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def axis_deviation(phi1_deg, phi2_deg, prisms: Prisms = Prisms(), dtype=torch.float64):
-    """Deviation and azimuth (degrees) of the optical axis (0, 0, 1) at the given phases."""
+    """Deviation and azimuth (degrees) of the optical axis (0, 0, 1) at the given phases.
+
+    Examples
+    --------
+    Aligned prisms deviate the axis most; opposed prisms (180 deg apart) act as a glass slab:
+
+    >>> from hbis_torch.optics.risley import axis_deviation
+    >>> deviation, azimuth = axis_deviation(0.0, 0.0)
+    >>> round(float(deviation), 4), round(float(azimuth), 4)
+    (4.0082, 0.0)
+    >>> deviation, _ = axis_deviation(0.0, 180.0)
+    >>> abs(float(deviation)) < 1e-12
+    True
+    """
     axis = torch.tensor([0.0, 0.0, 1.0], dtype=dtype)
     return deviation_azimuth(exit_directions(axis, phi1_deg, phi2_deg, prisms))
 

@@ -9,13 +9,13 @@ smallest h within ``tolerance_db`` of the best.
 
 Model (frequencies f in cycles per sensor pixel; spectra per unit area of that plane):
 
-* scene: a power law P(f) = s^2 |f|^-beta, fitted to the frame's own spectrum inside the
-  sensor's band (|f| < 1/2), where the frame is the scene through the optics O and the pixel
-  aperture K (so P = (|frame|^2 - noise) / |O K|^2 there, in log-spaced rings);
+* scene: a power law P(f) = s^2 abs(f)^-beta, fitted to the frame's own spectrum inside the
+  sensor's band (abs(f) < 1/2), where the frame is the scene through the optics O and the pixel
+  aperture K (so P = (abs(frame)^2 - noise) / abs(O K)^2 there, in log-spaced rings);
 * optics: the diffraction-limited OTF O(f), zero beyond p / (lambda F) (the "H" of the paper's
   section 2.2); pixel aperture K(f) = sinc(a fx) sinc(a fy), a = sqrt(fill factor);
 * reconstruction at h from h*h frames: the Wiener (MMSE) estimate inside its band
-  |fx|, |fy| < h/2, nothing outside. The noise density depends on what the scan may spend:
+  abs(fx), abs(fy) < h/2, nothing outside. The noise density depends on what the scan may spend:
   with ``budget="total"`` (default) the scan's total exposure is that of the first frame, split
   over h*h frames, so each frame's shot noise grows by h and the density stays sigma^2: a larger
   h buys resolution only. With ``budget="frame"`` every frame gets the first frame's exposure,
@@ -23,10 +23,10 @@ Model (frequencies f in cycles per sensor pixel; spectra per unit area of that p
 * target: what a pitch-p/h_max sensor sees, W(f) = O(f) sinc(a fx / h_max) sinc(a fy / h_max).
 
 The predicted mean squared error of h is the integral over the h_max band of the Wiener
-estimate's error inside h's band, P |W|^2 ((b g - 1)^2 + b^2 g (1 - g)) with the Wiener gain
-g = P |O K|^2 / (P |O K|^2 + n) (n the noise density) and b the bicubic resampling's gain onto
-the h_max grid (for h = 1, which is not deblurred, P |b O K - W|^2 + b^2 n), and outside it
-P |W|^2 + P |O K|^2: the detail h cannot represent, plus what of it the pixel passes and the
+estimate's error inside h's band, P abs(W)^2 ((b g - 1)^2 + b^2 g (1 - g)) with the Wiener gain
+g = P abs(O K)^2 / (P abs(O K)^2 + n) (n the noise density) and b the bicubic resampling's gain onto
+the h_max grid (for h = 1, which is not deblurred, P abs(b O K - W)^2 + b^2 n), and outside it
+P abs(W)^2 + P abs(O K)^2: the detail h cannot represent, plus what of it the pixel passes and the
 lattice aliases into the band. ``benchmarks/bench_adaptive_h.py`` checks the choice against reconstructions of
 simulated stacks at every h.
 """
@@ -60,7 +60,7 @@ class HChoice:
     noise : float
         Noise standard deviation used (frame intensity units, [0, 1]).
     s2, beta : float
-        The fitted scene spectrum s^2 |f|^-beta.
+        The fitted scene spectrum s^2 abs(f)^-beta.
     """
 
     h: int
@@ -109,7 +109,7 @@ def _apertures(fx: Tensor, fy: Tensor, cutoff: float, aperture: float):
 
 def fit_scene_spectrum(image: Tensor, spacing: float, noise_density: float, cutoff: float,
                        aperture: float = 1.0) -> tuple[float, float]:
-    """Fit s^2 |f|^-beta (f in cycles per sensor pixel) to an image of the scene.
+    """Fit s^2 abs(f)^-beta (f in cycles per sensor pixel) to an image of the scene.
 
     Parameters
     ----------
@@ -180,7 +180,7 @@ def predict_psnr(s2: float, beta: float, noise: float, cutoff: float, h_max: int
     Parameters
     ----------
     s2, beta : float
-        Scene spectrum s^2 |f|^-beta, f in cycles per sensor pixel.
+        Scene spectrum s^2 abs(f)^-beta, f in cycles per sensor pixel.
     noise : float
         Noise standard deviation of one sample.
     cutoff : float

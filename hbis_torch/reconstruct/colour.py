@@ -10,8 +10,10 @@ RGB frames (F, H, W, 3) go through a method in one of two ways:
   the time), each at full resolution.
 
 The default (:data:`DEFAULT_MODE`) is ``"channels"``: on three photographs (astronaut, coffee,
-chelsea; h = 4, 64 x 64 px) it scored 0.3 dB (classical) and 1.1 dB (learned) more PSNR than
-``"luma"``, for about twice the time (benchmarks/bench_colour.py, docs/capture.md).
+chelsea; h = 4, 64 x 64 px) it scored 0.66 dB (classical) and 1.56 dB (learned) more PSNR than
+``"luma"`` on average, for three reconstructions instead of one
+(``python3 benchmarks/bench_colour.py --h 4 --size 64``; benchmarks/results/bench_colour.json,
+docs/capture.md).
 
 Raw Bayer frames (F, H, W) with a ``cfa`` key: the classical method demosaicks jointly: every
 colour sample enters the splatting at its own position (the sample positions of its pixel), with
@@ -89,6 +91,17 @@ def reconstruct_colour(stack, method, registration: str = "auto", colour: str | 
     Returns
     -------
     np.ndarray, shape (h*H, h*W, 3), float32 in [0, 1]
+
+    Notes
+    -----
+    Raw Bayer frames are demosaicked jointly with the super-resolution, each colour sample
+    splatted at its own position with a per-channel mask as its weight, after Wronski et al. [1]_.
+
+    References
+    ----------
+    .. [1] B. Wronski, I. Garcia-Dorado, M. Ernst, D. Kelly, M. Krainin, C.-K. Liang, M. Levoy and
+       P. Milanfar, "Handheld multi-frame super-resolution", ACM Transactions on Graphics 38(4)
+       (SIGGRAPH 2019), article 28.
     """
     mode = DEFAULT_MODE if colour is None else colour
     if mode not in COLOUR_MODES:

@@ -5,6 +5,17 @@ Homographies are (F, 3, 3) float64, frame px -> reference px (see
 (N, 2) (u, v) integer px in float64, with the reference's cubic B-spline (:mod:`.bspline`);
 per-point quantities are (F, N), in the resampling dtype (float32 or float64); the normal
 equations, parameter steps (F, k) and covariances (F, k, k) are float64, in normalised units.
+
+The fit is the forward-compositional form of the Lucas-Kanade algorithm [1]_ (the warp is
+updated as H <- H W(dp)), with robust weights, as laid out by Baker and Matthews [2]_.
+
+References
+----------
+.. [1] B. D. Lucas and T. Kanade, "An iterative image registration technique with an application
+   to stereo vision", Proc. 7th International Joint Conference on Artificial Intelligence
+   (IJCAI), 1981, pp. 674-679.
+.. [2] S. Baker and I. Matthews, "Lucas-Kanade 20 years on: a unifying framework",
+   International Journal of Computer Vision 56(3), 2004, pp. 221-255.
 """
 
 from __future__ import annotations

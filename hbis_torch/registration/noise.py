@@ -40,6 +40,11 @@ def immerkaer(frames):
     Returns
     -------
     Tensor or ndarray, shape (..., H - 2, W - 2)
+
+    References
+    ----------
+    .. [1] J. Immerkaer, "Fast noise variance estimation", Computer Vision and Image
+       Understanding 64(2), 1996, pp. 300-302.
     """
     # The operator is [1, -2, 1] along rows times the same along columns: two second differences,
     # each written in place (two input-sized temporaries at most: a full frame's output grid is

@@ -18,6 +18,11 @@ def phase_correlation_shifts(frames: Tensor, reference: Tensor) -> Tensor:
     parabola through its neighbours. Good to a few tenths of a pixel, which is all the
     Lucas-Kanade refinement needs to start from any shift. The sign is the homography's: content
     at u in the frame sits at u + du in the reference.
+
+    References
+    ----------
+    .. [1] C. D. Kuglin and D. C. Hines, "The phase correlation image alignment method",
+       Proc. IEEE International Conference on Cybernetics and Society, 1975, pp. 163-165.
     """
     F, H, W = frames.shape
     win = torch.outer(torch.hann_window(H, periodic=False, dtype=frames.dtype),

@@ -1,6 +1,6 @@
 """Alignment error (AE) of a scan plan, paper section 3.2, as fractions of the step SL.
 
-* Axis AE of frame i: |landing of the optical axis - target DV^i| / SL.
+* Axis AE of frame i: abs(landing of the optical axis - target DV^i) / SL.
 * Pixel AE of frame i at pixel p: how far the scene point that p sees in frame i lies from where
   the plan wants it, relative to the point p itself saw in the reference frame (the frame at the
   initial phases). The plan wants every pixel to move with the axis (the paper's assumption in
@@ -9,9 +9,9 @@
   - ``"sensor"`` (default; reproduces the paper's numbers): the frame-i scene point is carried
     back through the reference frame's optics onto the sensor (exact reverse trace,
     :func:`hbis_torch.optics.sensor_position`), giving the sub-pixel shift of pixel p's sample in
-    the reference image; AE = |shift - offset_i / h pixel| / (1/h pixel). This is the error that
+    the reference image; AE = abs(shift - offset_i / h pixel) / (1/h pixel). This is the error that
     matters for super-resolution: where the sample sits in the pixel grid.
-  - ``"object"``: the shift on the object plane, |L_i(p) - L_ref(p) - SL offset_i| / SL. Off-axis
+  - ``"object"``: the shift on the object plane, abs(L_i(p) - L_ref(p) - SL offset_i) / SL. Off-axis
     pixels see a larger footprint (the plane is oblique to their ray and the prisms magnify),
     so this grows toward the corners even when the sample lands perfectly on the sub-pixel grid.
 
@@ -43,7 +43,7 @@ def _check_phases(phases_deg, frames: int) -> Tensor:
 
 
 def axis_alignment_error(system: FoveaSystem, plan: ScanPlan, phases_deg: Tensor | None = None) -> Tensor:
-    """AE of the optical axis per frame, |landing - target| / SL; shape (F,), float64.
+    """AE of the optical axis per frame, abs(landing - target) / SL; shape (F,), float64.
 
     ``phases_deg`` (F, 2) replaces the plan's phases (e.g. quantised, or read back from motors).
     """

@@ -109,7 +109,7 @@ def required_steps_per_deg(
     for every frame, whatever the rounding.
 
     Rounding moves each phase by at most half a step, 1 / (2 s) degrees, so the landing moves by
-    at most max(|J1 + J2|, |J1 - J2|) / (2 s) (J = :func:`landing_jacobian`; the worst corner of
+    at most max(abs(J1 + J2), abs(J1 - J2)) / (2 s) (J = :func:`landing_jacobian`; the worst corner of
     the rounding box; second-order terms are below 1e-9 SL at these step sizes). Added to the
     plan's own AE this must stay under the bound, frame by frame.
 

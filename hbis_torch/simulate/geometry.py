@@ -35,8 +35,8 @@ Roi = tuple[int, int, int, int]
 def landing_at(system: FoveaSystem, u: Tensor, v: Tensor, phi1_deg, phi2_deg) -> Tensor:
     """Exact landing points (mm) of the chief rays at fractional pixel positions.
 
-    ``u``, ``v`` broadcast to (*R); phases broadcast to (*P) with trailing singleton dims for R.
-    Returns (*P, *R, 2) in mm.
+    ``u``, ``v`` broadcast to ``(*R)``; phases broadcast to ``(*P)`` with trailing singleton dims for R.
+    Returns ``(*P, *R, 2)`` in mm.
     """
     rays = rays_at(system.camera, u, v)
     directions = exit_directions(rays, phi1_deg, phi2_deg, system.prisms)

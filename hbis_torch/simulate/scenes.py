@@ -46,7 +46,7 @@ def check_size(size_mm) -> Size:
 
 
 def box_interval(t: Tensor, half, width) -> Tensor:
-    """The indicator of |t| <= half averaged over a window of ``width`` centred on t (exact).
+    """The indicator of abs(t) <= half averaged over a window of ``width`` centred on t (exact).
 
     ``half`` is a number or a tensor like ``t``; ``width`` None or 0 gives the indicator itself.
     The average is the length of [t - width/2, t + width/2] inside [-half, half], over width,
@@ -68,7 +68,7 @@ def square_edge_coverage(t: Tensor, angle_rad, side: float | None) -> Tensor:
     the cell centre's signed distance to the edge.
 
     Exact: the step is averaged by the two boxes the square projects to along the normal, of
-    widths side |cos| and side |sin|, whose convolution is a trapezoid with a piecewise quadratic
+    widths side abs(cos) and side abs(sin), whose convolution is a trapezoid with a piecewise quadratic
     integral.
     """
     if not side:
@@ -86,7 +86,7 @@ def square_edge_coverage(t: Tensor, angle_rad, side: float | None) -> Tensor:
 
 def soft_step(t: Tensor, angle_rad, side: float | None) -> Tensor:
     """:func:`square_edge_coverage`, computed only where the cell can straddle the edge
-    (|t| < side; elsewhere the hard step is exact): the same values, much less work."""
+    (abs(t) < side; elsewhere the hard step is exact): the same values, much less work."""
     hard = (t >= 0).to(t.dtype)
     if not side:
         return hard

@@ -207,7 +207,7 @@ def export(checkpoint, out_path, opset: int = OPSET) -> dict:
 
 
 def check_parity(onnx_path, checkpoint, size=CHECK_SIZE, seed: int = 1, provider: str = "auto") -> float:
-    """Max |torch - onnxruntime| of the raw network outputs on random inputs of ``size``.
+    """Max abs(torch - onnxruntime) of the raw network outputs on random inputs of ``size``.
 
     ``checkpoint`` is a model.pt path or the HbisSRNet itself; ``provider`` the onnxruntime
     execution provider (:func:`hbis_torch.reconstruct.learned.execution_providers`).

@@ -12,7 +12,7 @@ Van Gool and Timofte, CVPR 2020, with one unfolded step): it removes the Wiener 
 and ringing and restores what a linear filter cannot, told how noisy the frames are by a
 per-pixel noise map (as in FFDNet).
 
-It works on the low-resolution grid, where it is h^2 times cheaper than on the output grid:
+It works on the low-resolution grid, where it is h^2 times cheaper than on the output grid::
 
     base  (B, h^2, H, W) -- the classical image, space-to-depth by h, minus 0.5
     noise (B, 1, H, W)   -- per LR pixel, the frames' noise standard deviation (frames in

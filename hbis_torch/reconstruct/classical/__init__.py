@@ -16,7 +16,7 @@ the optics, from the registration, or both), then:
    ideal sensor of pitch p/h sees (the project's ground truth): the same optics and an aperture
    of one HR pixel. The output is the minimum-mean-square-error linear estimate of that image
    (:func:`wiener_deblur`), which also accounts for the scene energy that aliases onto the
-   lattice. **Prior:** the scene is Gaussian with a power-law spectrum s^2 / |f|^beta (natural
+   lattice. **Prior:** the scene is Gaussian with a power-law spectrum s^2 / abs(f)^beta (natural
    images: beta about 2, i.e. independent Gaussian gradients), s^2 and beta fitted to the data
    within the sensor's own band; the noise is white, its level measured on the HR lattice
    (:func:`lattice_noise`). The FFT's periodic borders are handled by Moisan's periodic + smooth

@@ -55,6 +55,17 @@ def splat(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: f
     -------
     numerator, denominator : Tensor, shape (rows, cols)
         sum of w g v and sum of w g over the samples near each node.
+
+    Notes
+    -----
+    The image is ``numerator / denominator``: normalized convolution [1]_ with a Gaussian
+    applicability function, the per-sample weights as the certainty.
+
+    References
+    ----------
+    .. [1] H. Knutsson and C.-F. Westin, "Normalized and differential convolution: methods for
+       interpolation and filtering of incomplete and uncertain data", Proc. IEEE Conference on
+       Computer Vision and Pattern Recognition (CVPR), 1993, pp. 515-523.
     """
     rows, cols = shape
     xi, yi = torch.round(x), torch.round(y)

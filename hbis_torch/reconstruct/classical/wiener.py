@@ -54,11 +54,11 @@ def wiener_deblur(
         K(f) = optics(f) box(h a, f) exp(2 pi i f . offset),   W(f) = optics(f) box(a, f)
         image(f) = sum_k S(f + k) K(f + k) + N(f),                  N white, std ``noise``
 
-    (a = ``aperture``), where k runs over the integer aliases (|k| <= ``aliases`` per axis). **Prior:** the scene's
-    power spectrum is s^2 / |f|^2 (independent Gaussian gradients, the 1/f^2 law of natural
-    images). The MMSE filter is then, per frequency,
+    (a = ``aperture``), where k runs over the integer aliases (abs(k) <= ``aliases`` per axis).
+    **Prior:** the scene's power spectrum is s^2 / abs(f)^2 (independent Gaussian gradients, the
+    1/f^2 law of natural images). The MMSE filter is then, per frequency::
 
-        sum_k P(f+k) W(f+k) conj(K(f+k)) / (sum_k P(f+k) |K(f+k)|^2 + noise^2),
+        sum_k P(f+k) W(f+k) conj(K(f+k)) / (sum_k P(f+k) abs(K(f+k))^2 + noise^2),
 
     which also treats the energy that aliases into f as noise rather than as signal to sharpen.
     s^2 is fitted to the image's own spectrum (less the noise) over the band the kernel passes.
@@ -94,6 +94,13 @@ def wiener_deblur(
     Returns
     -------
     Tensor, shape (rows, cols), in ``image``'s dtype
+
+    References
+    ----------
+    .. [1] N. Wiener, *Extrapolation, Interpolation, and Smoothing of Stationary Time Series*,
+       MIT Press, 1949 (the minimum-mean-square-error linear filter).
+    .. [2] L. Moisan, "Periodic plus smooth image decomposition", Journal of Mathematical Imaging
+       and Vision 39(2), 2011, pp. 161-179 (:func:`periodic_smooth`).
     """
     # The FFT sees the image as periodic; its borders' jumps would ring through the whole image
     # at the frequencies the pixel aperture nearly erases. Deblur only the periodic part and
@@ -159,13 +166,13 @@ def _irfft2_in_place(spectrum: Tensor, shape: tuple[int, int], out: Tensor | Non
 def _alias_kernel(fx: Tensor, fy: Tensor, h: int, aperture: float, cutoff: float | None,
                   offset: tuple[float, float], eps2: float, kx: int, ky: int,
                   pick: tuple[Tensor, Tensor] | None = None):
-    """|K|, W, the lattice phase and |f + k|^2 of alias (kx, ky): on the whole spectrum's
+    """abs(K), W, the lattice phase and abs(f + k)^2 of alias (kx, ky): on the whole spectrum's
     grid, or at the (row, column) pairs ``pick`` (then without the phase). The separable
     factors are computed along each axis once.
 
     ``fx`` (1, cols) and ``fy`` (rows, 1) are the half spectrum's frequencies in cycles per HR
     px; ``h``, ``aperture``, ``cutoff`` and ``offset`` are :func:`wiener_deblur`'s, and ``eps2``
-    (cycles^2 per HR px^2) keeps |f + k|^2 above 0. :func:`wiener_deblur` binds all but
+    (cycles^2 per HR px^2) keeps abs(f + k)^2 above 0. :func:`wiener_deblur` binds all but
     (kx, ky, pick) with :func:`functools.partial`.
     """
     gx, gy = fx + kx, fy + ky  # (1, cols), (rows, 1)
@@ -199,14 +206,14 @@ class _Model(NamedTuple):
     eps2: float
 
     def band(self, k: int, f: Tensor) -> Tensor:
-        """Indices along one axis where alias k can pass the optics (|f + k| below the cutoff,
+        """Indices along one axis where alias k can pass the optics (abs(f + k) below the cutoff,
         in cycles per HR px): elsewhere its every term is 0."""
         if self.cutoff is None:
             return torch.arange(len(f))
         return torch.nonzero((f + k).abs() < self.cutoff / self.h)[:, 0]
 
     def terms(self, kx: int, ky: int, rows: Tensor, cols: Tensor, s2: float, beta: float):
-        """The prior P = s2 |f + k|^-beta, |K| and W of alias (kx, ky) at rows x cols."""
+        """The prior P = s2 abs(f + k)^-beta, abs(K) and W of alias (kx, ky) at rows x cols."""
         gx, gy = self.fx[cols][None, :] + kx, self.fy[rows][:, None] + ky
         r2 = gx * gx + gy * gy + self.eps2
         optics = (torch.ones_like(r2) if self.cutoff is None
@@ -231,7 +238,7 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
     Parameters
     ----------
     measured : Tensor, shape (rows, cols // 2 + 1), real
-        The image's power at those frequencies: |Z|^2 / (number of pixels) of the periodic
+        The image's power at those frequencies: abs(Z)^2 / (number of pixels) of the periodic
         part's rfft2 Z (the splat's transfer divided out), averaged over 3 x 3 frequencies.
     model : _Model
         The image model on those frequencies, ``fy`` (rows,), ``fx`` (cols // 2 + 1,) (its
@@ -239,7 +246,7 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
     shifts : list of (kx, ky)
         The aliases, (0, 0) included.
     s2, beta : float
-        The scene prior s^2 / |f|^beta (:func:`fit_spectrum`).
+        The scene prior s^2 / abs(f)^beta (:func:`fit_spectrum`).
     noise2 : float
         Noise power per node (intensity^2).
     strength : float
@@ -340,15 +347,15 @@ def _cubic_taps(shift: float, n: int) -> tuple[list[float], Tensor]:
 
 
 def fit_spectrum(power: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: float) -> tuple[float, float]:
-    """Fit the scene prior s^2 / |f|^beta to an image's power spectrum, the noise being known.
+    """Fit the scene prior s^2 / abs(f)^beta to an image's power spectrum, the noise being known.
 
-    ``power`` (rows, cols // 2 + 1) is |Z(f)|^2 / n of the (splat-corrected) image's rfft2 Z
+    ``power`` (rows, cols // 2 + 1) is abs(Z(f))^2 / n of the (splat-corrected) image's rfft2 Z
     over its n pixels. The model of its expectation is s^2 S_beta(f) + sigma^2
-    with S_beta(f) = sum_k |K(f+k)|^2 / |f+k|^beta over the aliases k in ``shifts`` ((kx, ky)
-    pairs); ``kernel(kx, ky, (rows, cols))`` gives (|K|, W, phase, |f+k|^2) of alias k at
+    with S_beta(f) = sum_k abs(K(f+k))^2 / abs(f+k)^beta over the aliases k in ``shifts`` ((kx, ky)
+    pairs); ``kernel(kx, ky, (rows, cols))`` gives (abs(K), W, phase, abs(f+k)^2) of alias k at
     those entries of the spectrum.
     In log-spaced frequency rings where the image stands clear of the noise (twice its power)
-    and the kernel passes the scene (|K|^2 above 1e-4 of its largest ring value),
+    and the kernel passes the scene (abs(K)^2 above 1e-4 of its largest ring value),
     log(power - sigma^2) - log S_beta is fitted by a constant (log s^2); the beta of a grid over
     [1.5, 4] (steps of 0.25) with the smallest scatter is kept.
 
@@ -417,6 +424,11 @@ def periodic_smooth(image: Tensor, in_place: bool = False) -> tuple[Tensor, Tens
     image = p + s with p periodic (no jump between opposite borders) and s smooth (its
     Laplacian vanishes inside; it carries the border jumps). Shapes (rows, cols); ``in_place``
     writes p over ``image``.
+
+    References
+    ----------
+    .. [1] L. Moisan, "Periodic plus smooth image decomposition", Journal of Mathematical Imaging
+       and Vision 39(2), 2011, pp. 161-179.
     """
     M, N = image.shape
     v = torch.zeros_like(image)

@@ -6,8 +6,8 @@ pool (:mod:`hbis_torch.training.data`) span a range of lens cutoffs (F 1 to
 F 8 on the training camera) and of noise levels (full wells of 1,000 to 100,000 e-, read noise of
 1 to 15 e-, 8 to 16 bits). A stack blurrier than the blurriest training lens, or far quieter or
 noisier than any training sensor, is outside: there the network extrapolates, and on such
-stacks it was measured to lose to the classical image it refines (docs/learned.md, "Held-out
-validation"). The learned method then
+stacks it was measured to lose to the classical image it refines (docs/learned.md, "The checks
+before the network runs"). The learned method then
 returns the classical image and says why (:meth:`LearnedSR.__call__
 <hbis_torch.reconstruct.learned.LearnedSR.__call__>`), unless asked to extrapolate.
 

@@ -249,7 +249,7 @@ def self_ensemble(run_network, h: int, count: int | None, views: bool = False):
 
     The network was trained under all 8 flips and transposes of its crops, so each symmetry gives
     an equally good estimate whose errors are partly independent; their mean is better than any
-    one (docs/learned.md, "Held-out validation"), at ``count`` times the network's cost.
+    one (``training/eval_matrix.py --ensemble N`` measures it), at ``count`` times the network's cost.
 
     Parameters
     ----------

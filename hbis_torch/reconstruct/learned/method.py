@@ -97,7 +97,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     ensemble : {1, 2, 4, 8} or None
         Average the network over this many of the square's symmetries (geometric self-ensemble,
         :func:`~hbis_torch.reconstruct.learned.inputs.self_ensemble`): as many times the network's
-        cost, for +0.1 to +0.2 dB on the held-out matrix at 8 (docs/learned.md). None: 2 at
+        cost (``training/eval_matrix.py --ensemble N`` measures the gain). None: 2 at
         h = 7, where the classical step takes most of the time, else 1
         (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`).
 

@@ -115,11 +115,11 @@ def execution_providers(provider: str = "auto", threads: int | None = None) -> l
     it does not touch the ``onnxruntime`` module, :class:`_OpenVINOSession`), else through
     onnxruntime's OpenVINO execution provider where the installed onnxruntime is Intel's
     ``onnxruntime-openvino`` build (what this function returns then). OpenVINO compiles the whole
-    graph with the ReLUs and residual additions fused into the convolutions and ran the shipped
-    models 1.4-1.6x faster than eager torch here, where onnxruntime's own CPU kernels were
-    1.1-1.3x faster (docs/learned.md). Precision is pinned to FP32, so that a CPU with bf16 or
-    fp16 units does not lower it. ``"cpu"``: onnxruntime's own kernels. ``"auto"``: OpenVINO
-    where installed, else the CPU kernels.
+    graph with the ReLUs and residual additions fused into the convolutions; against
+    onnxruntime's own CPU kernels it ran the h = 4 model at about the same speed here
+    (``benchmarks/bench_providers.py``, benchmarks/results/bench_providers.txt). Precision is
+    pinned to FP32, so that a CPU with bf16 or fp16 units does not lower it. ``"cpu"``:
+    onnxruntime's own kernels. ``"auto"``: OpenVINO where installed, else the CPU kernels.
     """
     import onnxruntime as ort
 

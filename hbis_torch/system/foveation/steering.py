@@ -29,7 +29,7 @@ from hbis_torch.optics.inverse import axis_landing, exact_inverse, max_landing_r
 from hbis_torch.scan import plan_scan
 from hbis_torch.scan.pointing import point_axis
 
-#: Default phase-difference window (deg): keeps clear of phi1 = phi2 and of |phi1 - phi2| = 180.
+#: Default phase-difference window (deg): keeps clear of phi1 = phi2 and of abs(phi1 - phi2) = 180.
 PHASE_DIFFERENCE_DEG = (30.0, 150.0)
 #: Azimuth (deg) used when an object sits right on the original axis: that of phases (5, 70).
 DEFAULT_AZIMUTH_DEG = 37.5
@@ -134,7 +134,7 @@ def in_scan_field(system: FoveaSystem, object_mm, roi_size=128, phase_difference
 
 
 def parked_phases_near(phases_deg) -> tuple[float, float]:
-    """The opposed phase pair (|phi1 - phi2| = 180: the axis undeviated) nearest ``phases_deg``:
+    """The opposed phase pair (abs(phi1 - phi2) = 180: the axis undeviated) nearest ``phases_deg``:
     both prisms turn by the same amount in opposite directions."""
     p1, p2 = (float(p) for p in phases_deg)
     delta = _wrap(p1 - p2)
