@@ -195,12 +195,10 @@ def markdown(result: dict, hs, load: tuple) -> str:
 
 
 def plot(result: dict, hs, path: Path) -> None:
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig = Figure(figsize=(6, 4))
+    ax = fig.subplots()
     for mode, marker in (("learned", "o"), ("classical", "s")):
         for h in hs:
             m = result["summary"][f"{mode} h{h} full"]
@@ -213,7 +211,6 @@ def plot(result: dict, hs, path: Path) -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def main(argv=None) -> int:

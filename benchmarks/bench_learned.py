@@ -255,14 +255,12 @@ def wide_table(table) -> str:
 
 def pareto_plot(table, path):
     """Time (log) against PSNR; colour = method, marker = ROI size, fill = h."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
     kinds = sorted({r["kind"] for r in table})
-    fig, axes = plt.subplots(1, len(kinds), figsize=(6 * len(kinds), 4.8), squeeze=False)
+    fig = Figure(figsize=(6 * len(kinds), 4.8))
+    axes = fig.subplots(1, len(kinds), squeeze=False)
     colours = {"bicubic": "tab:gray", "classical": "tab:blue", "learned-torch": "tab:orange",
                "learned-onnx-cpu": "tab:purple", "learned-onnx": "tab:red"}
     colours = {m: c for m, c in colours.items() if any(r["method"] == m for r in table)}
@@ -287,7 +285,6 @@ def pareto_plot(table, path):
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)
     Path(path).chmod(0o644)
-    plt.close(fig)
 
 
 def hard_cases() -> str:

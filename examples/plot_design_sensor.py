@@ -20,11 +20,8 @@ import argparse
 import tempfile
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")  # no display needed
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from hbis_torch import FoveaSystem
 from hbis_torch.design import design, limit_sweep
@@ -54,7 +51,8 @@ def main() -> None:
     print(f"FER_h reaches 2 (the inflection) at a wedge angle of {flat[0]:.1f} deg" if len(flat)
           else "FER_h stays above 2 over the sweep")
 
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig = Figure(figsize=(5, 3.5))
+    ax = fig.subplots()
     ax.plot(angles, sweep["fer_h"], label="FER$_h$")
     ax.plot(angles, sweep["fer_v"], label="FER$_v$")
     ax.axvline(system.prisms.wedge_angle_deg, color="grey", ls=":", label="Table 1")
@@ -64,7 +62,6 @@ def main() -> None:
     fig.tight_layout()
     path = out / "fer_vs_wedge_angle.png"
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     print(f"wrote {path}")
 
 

@@ -11,12 +11,10 @@ import math
 
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from hbis_torch.config import Camera
 from hbis_torch.errors import HbisInputError
 
-if TYPE_CHECKING:  # torch is imported where a check needs it: the CLI's --help loads no torch
+if TYPE_CHECKING:  # numpy and torch are imported where a check needs them: the CLI's --help loads neither
     from torch import Tensor
 
 Roi = tuple[int, int, int, int]
@@ -44,6 +42,8 @@ def check_h(h, minimum: int = 1) -> int:
     ...
     hbis_torch.errors.HbisInputError: h must be an integer from 1 to 16, got 17
     """
+    import numpy as np
+
     if isinstance(h, (bool, np.bool_)) or not isinstance(h, (int, np.integer)) or not minimum <= int(h) <= MAX_H:
         raise HbisInputError(f"h must be an integer from {minimum} to {MAX_H}, got {h!r}")
     return int(h)
@@ -113,6 +113,7 @@ def check_phase_pair(phases_deg) -> tuple[float, float]:
 def as_float64_tensor(x, name: str) -> Tensor:
     """An array-like of real, finite numbers as a float64 tensor (NumPy arrays are not copied
     before the cast)."""
+    import numpy as np
     import torch
 
     if isinstance(x, np.ndarray):

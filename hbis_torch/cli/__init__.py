@@ -5,8 +5,9 @@ Conventions (docs/design.md, "CLI contract"): exit codes 0 success, 2 bad argume
 input (one line on stderr), 1 anything else; ``--version``; ``-v``/``-q`` set the level of the
 ``hbis_torch`` loggers (the library logs, this module configures) and ``-q`` hides the progress
 bars; a closed pipe ends the command quietly. A ``cmd_`` module imports only light modules at
-the top and its heavy ones (torch, matplotlib) inside the function that runs it, so that
-``hbis --help`` and each ``--help`` start fast (``benchmarks/bench_cli_start.py``).
+the top and its heavy ones (torch, matplotlib, pyserial) inside the function that runs it, so that
+``hbis --help`` and each ``--help`` start fast (``benchmarks/bench_cli_start.py``;
+``tests/test_architecture.py`` checks what they load).
 """
 
 from __future__ import annotations

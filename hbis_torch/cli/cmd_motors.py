@@ -8,14 +8,17 @@ import math
 import shlex
 import subprocess
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.hardware.grbl import GrblController, GrblTimeouts
-from hbis_torch.hardware.grbl_protocol import nearest_step_phase
-from hbis_torch.hardware.simulator import add_simulator_args, serve_until_done, simulator_from_args
 from hbis_torch.io_utils import atomic_write_text, check_distinct_paths, check_output_path
 from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli.common import H_ARG, PHASE_DEG, add_system_args, system_from_args
+
+if TYPE_CHECKING:  # the driver (pyserial) and the simulator are imported by the actions that use them
+    from hbis_torch.hardware.grbl import GrblController
+
+SUMMARY = "drive the prism motors through a GRBL 1.1 controller: status, home, goto, scan, simulate"
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:
@@ -29,9 +32,11 @@ def _pair(text: str, what: str) -> tuple[float, float]:
 
 
 def register(sub) -> None:
+    from hbis_torch.hardware.simulator_args import add_simulator_args
+
     p = sub.add_parser(
         "motors",
-        help="drive the prism motors through a GRBL 1.1 controller: status, home, goto, scan, simulate",
+        help=SUMMARY,
         description="Prism 1 on GRBL's X axis, prism 2 on Y, degrees as GRBL units ($100/$101 = steps "
         "per degree after the belt ratio). --port takes any pyserial URL: /dev/ttyUSB0, COM3, "
         "socket://host:port, spy:///dev/ttyUSB0?file=log.txt. Try it without hardware: run "
@@ -111,6 +116,8 @@ def register(sub) -> None:
 
 
 def _controller(args) -> GrblController:
+    from hbis_torch.hardware.grbl import GrblController, GrblTimeouts
+
     if not args.port:
         raise HbisInputError("--port is required: the controller's pyserial URL, e.g. /dev/ttyUSB0 "
                              "(or run 'hbis motors simulate' and use the port it prints)")
@@ -206,6 +213,8 @@ def _capture_command(template: str, timeout_s: float):
 
 
 def run_scan_cmd(args) -> int:
+    from hbis_torch.hardware.grbl_protocol import nearest_step_phase
+
     requested = _pair(args.phases_deg, "--phases-deg")
     if not args.dry_run:
         check_output_path(args.journal, "--journal")
@@ -342,4 +351,6 @@ def _assemble(args, plan, initial, result, roi, camera) -> None:
 
 
 def run_simulate(args) -> int:
+    from hbis_torch.hardware.simulator import serve_until_done, simulator_from_args
+
     return serve_until_done(simulator_from_args(args))

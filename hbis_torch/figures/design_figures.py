@@ -5,18 +5,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import torch
+from matplotlib.figure import Figure
+from tqdm import tqdm
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-from tqdm import tqdm  # noqa: E402
-
-from hbis_torch.system.array.geometry import array_rotations  # noqa: E402
-from hbis_torch.config import FoveaSystem  # noqa: E402
-from hbis_torch.design import bsr, half_fov_deg, limit_sweep, with_prisms  # noqa: E402
-from hbis_torch.optics.risley import exit_directions  # noqa: E402
+from hbis_torch.system.array.geometry import array_rotations
+from hbis_torch.config import FoveaSystem
+from hbis_torch.design import bsr, half_fov_deg, limit_sweep, with_prisms
+from hbis_torch.optics.risley import exit_directions
 
 ALPHAS = np.arange(1.0, 15.01, 0.25)
 INDICES = np.arange(1.3, 3.001, 0.025)
@@ -43,7 +40,8 @@ def figure_4(system: FoveaSystem, sweeps: dict, path: Path) -> Path:
     FER = FOV / (2 theta) in each direction, so the two are one curve: it is drawn once (red,
     the FOV on the left axis) and the right axis reads the same curve in FER."""
     theta = dict(zip("hv", half_fov_deg(system.camera)))
-    fig, axes = plt.subplots(2, 2, figsize=(11, 8))
+    fig = Figure(figsize=(11, 8))
+    axes = fig.subplots(2, 2)
     panels = [("alpha", "v", "(a) vertical, n = 1.5"), ("alpha", "h", "(b) horizontal, n = 1.5"),
               ("n", "v", "(c) vertical, a = 4 deg"), ("n", "h", "(d) horizontal, a = 4 deg")]
     for ax, (key, d, title) in zip(axes.flat, panels):
@@ -64,13 +62,13 @@ def figure_4(system: FoveaSystem, sweeps: dict, path: Path) -> Path:
     fig.suptitle("Fig. 4: whole FOV and FOV extension ratio")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
 def figure_6(sweeps: dict, path: Path, h_values=range(2, 8)) -> Path:
     """BSR (at the FER upper limits) against alpha and n, one curve per h."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig = Figure(figsize=(11, 4.2))
+    axes = fig.subplots(1, 2)
     for ax, key, label in ((axes[0], "alpha", "wedge angle a [deg] (n = 1.5)"),
                            (axes[1], "n", "refractive index n (a = 4 deg)")):
         x, s = sweeps[key]
@@ -86,7 +84,6 @@ def figure_6(sweeps: dict, path: Path, h_values=range(2, 8)) -> Path:
     fig.suptitle("Fig. 6: bandwidth saving ratio")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -110,7 +107,8 @@ def _to_angles(d: torch.Tensor) -> np.ndarray:
 
 def figure_10(system: FoveaSystem, path: Path, cases=((18.4, 12.9, 4.0), (11.3, 8.5, 11.0))) -> Path:
     """FOV of the eight periphery cameras and the scan field of the fovea, per design case."""
-    fig, axes = plt.subplots(1, len(cases), figsize=(6.2 * len(cases), 5))
+    fig = Figure(figsize=(6.2 * len(cases), 5))
+    axes = fig.subplots(1, len(cases))
     rays = _border_rays(system)
     for ax, (vh, vv, alpha), tag in zip(np.atleast_1d(axes), cases, "abcdef"):
         s = with_prisms(system, wedge_angle_deg=alpha)
@@ -141,7 +139,6 @@ def figure_10(system: FoveaSystem, path: Path, cases=((18.4, 12.9, 4.0), (11.3, 
     fig.suptitle("Fig. 10: FOV of the periphery cameras and the fovea's scan field")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 

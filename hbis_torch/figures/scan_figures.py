@@ -7,17 +7,14 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+from tqdm import tqdm
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from tqdm import tqdm  # noqa: E402
-
-from hbis_torch.config import FoveaSystem  # noqa: E402
-from hbis_torch.errors import HbisInputError  # noqa: E402
-from hbis_torch.io_utils import atomic_path  # noqa: E402
-from hbis_torch.scan import axis_alignment_error, pixel_alignment_error, plan_scan, scan_offsets  # noqa: E402
+from hbis_torch.config import FoveaSystem
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import atomic_path
+from hbis_torch.scan import axis_alignment_error, pixel_alignment_error, plan_scan, scan_offsets
 
 EXAMPLES = ((5.0, 70.0), (45.0, 130.0), (80.0, 20.0))
 PHI1_CURVES = (5.0, 45.0, 80.0)
@@ -43,13 +40,13 @@ def _gaps(values) -> np.ndarray:
 def _save(fig, path: Path) -> Path:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
     return path
 
 
 def figure_3(path: Path) -> Path:
     """Scan patterns for h = 5 (odd) and h = 4 (even): points numbered in scan order."""
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.8))
+    fig = Figure(figsize=(10, 4.8))
+    axes = fig.subplots(1, 2)
     for ax, h, tag in zip(axes, (5, 4), "ab"):
         offsets, ref = scan_offsets(h)
         xy = offsets.numpy()
@@ -75,7 +72,8 @@ def figure_5(system: FoveaSystem, path: Path, h: int = 7, progress: bool = True)
     phi2 = np.arange(0.0, 360.0, 1.0)
     bar = tqdm(total=len(PHI1_CURVES) * len(phi2) + 2 * len(EXAMPLES) * (len(ALPHAS) + len(INDICES)),
                desc="Fig. 5 scans", disable=not progress)
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.6))
+    fig = Figure(figsize=(16, 4.6))
+    axes = fig.subplots(1, 3)
     exact_worst = 0.0
 
     ax = axes[0]
@@ -127,7 +125,8 @@ def figure_5(system: FoveaSystem, path: Path, h: int = 7, progress: bool = True)
 
 def figure_pixel_map(system: FoveaSystem, path: Path, h: int = 7, stride: int = 8) -> Path:
     """Each pixel's largest AE over the scan (sensor convention), for the three examples."""
-    fig, axes = plt.subplots(1, len(EXAMPLES), figsize=(16, 4.2))
+    fig = Figure(figsize=(16, 4.2))
+    axes = fig.subplots(1, len(EXAMPLES))
     for ax, initial in zip(axes, EXAMPLES):
         plan = plan_scan(system, h, initial, method="paper")
         result = pixel_alignment_error(system, plan, stride=stride)

@@ -4,9 +4,10 @@ Prism 1 turns on GRBL's X axis and prism 2 on Y, with degrees as GRBL units. See
 ``docs/hardware.md`` for wiring, settings and fault behaviour.
 """
 
+import importlib
+
 from hbis_torch.errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
                                GrblProtocolError, GrblTimeout, ScanInterrupted)
-from hbis_torch.hardware.grbl import GrblController, GrblTimeouts, open_grbl
 from hbis_torch.hardware.grbl_codes import alarm_meaning, error_meaning
 from hbis_torch.hardware.grbl_protocol import GrblStatus, parse_status, unwrap_near
 
@@ -17,10 +18,17 @@ __all__ = [
 ]
 
 
-def __getattr__(name):
-    # Imported on first use, so that ``python -m hbis_torch.hardware.simulator`` runs cleanly.
-    if name == "GrblSimulator":
-        from hbis_torch.hardware.simulator import GrblSimulator
+# Names imported on first use, from the module that defines them: the driver needs pyserial, and
+# the simulator must not be imported before ``python -m hbis_torch.hardware.simulator`` runs it.
+# The package's light modules (``hbis motors --help`` needs the simulator's options) load neither.
+_LAZY = {"GrblController": "grbl", "GrblTimeouts": "grbl", "open_grbl": "grbl", "GrblSimulator": "simulator"}
 
-        return GrblSimulator
+
+def __getattr__(name):
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

@@ -8,16 +8,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.patches import Polygon, Rectangle
+from PIL import Image
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.patches import Polygon, Rectangle  # noqa: E402
-from PIL import Image  # noqa: E402
-
-from hbis_torch.io_utils import atomic_path  # noqa: E402
-from hbis_torch.system.array.cameras import CAMERA_NAMES  # noqa: E402
+from hbis_torch.io_utils import atomic_path
+from hbis_torch.system.array.cameras import CAMERA_NAMES
 
 #: The paper's Fig. 8a marks these four cameras' fields with coloured dashed outlines.
 OUTLINE_COLOURS = {"C12": "tab:red", "C21": "tab:green", "C23": "tab:blue", "C32": "tab:orange"}
@@ -36,13 +33,13 @@ def save_figure(fig, path, dpi: int = 110) -> Path:
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight")
-    plt.close(fig)
     return path
 
 
 def plot_views(views, path, title: str) -> Path:
     """The nine views in their array positions."""
-    fig, axes = plt.subplots(3, 3, figsize=(10, 7.6))
+    fig = Figure(figsize=(10, 7.6))
+    axes = fig.subplots(3, 3)
     for ax, view, name in zip(axes.flat, views, CAMERA_NAMES):
         ax.imshow(np.asarray(view), cmap="gray", vmin=0, vmax=1)
         ax.set_title(name + (" (fovea, parked)" if name == "C22" else ""), fontsize=9)
@@ -55,7 +52,8 @@ def plot_panorama(image, outlines, path, title: str, rectangle=None, inlay_outli
     """The stitched panorama with the side cameras' outlines (dashed, as Fig. 8a), the
     largest covered rectangle (dotted) and the fovea's inlay (solid)."""
     image = np.asarray(image)
-    fig, ax = plt.subplots(figsize=(11, 11 * image.shape[0] / image.shape[1] + 0.6))
+    fig = Figure(figsize=(11, 11 * image.shape[0] / image.shape[1] + 0.6))
+    ax = fig.subplots()
     ax.imshow(image, cmap="gray", vmin=0, vmax=1)
     for name, corners in zip(CAMERA_NAMES, np.asarray(outlines)):
         colour = OUTLINE_COLOURS.get(name)
@@ -88,7 +86,7 @@ def plot_sr_pairs(sr, sub_image, h: int, path, title: str, boxes=None, truth=Non
                  (sr.shape[1] // 8, sr.shape[0] // 8, side, side),
                  (sr.shape[1] * 5 // 8, sr.shape[0] * 5 // 8, side, side)]
     columns = 3 if truth is not None else 2
-    fig = plt.figure(figsize=(4.2 + 2.2 * columns, 6.6))
+    fig = Figure(figsize=(4.2 + 2.2 * columns, 6.6))
     grid = fig.add_gridspec(len(boxes), 1 + columns, width_ratios=[len(boxes)] + [1] * columns)
     ax = fig.add_subplot(grid[:, 0])
     ax.imshow(sr, cmap="gray", vmin=0, vmax=1)
@@ -110,7 +108,8 @@ def plot_sr_pairs(sr, sub_image, h: int, path, title: str, boxes=None, truth=Non
 
 def plot_timeline(events, path, truth_x=None, title: str = "two-stage operation") -> Path:
     """Stage against simulated time, the events marked, and the object's x (truth and track)."""
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(11, 5.6), sharex=True, height_ratios=[1, 2])
+    fig = Figure(figsize=(11, 5.6))
+    ax1, ax2 = fig.subplots(2, 1, sharex=True, height_ratios=[1, 2])
     t = [e.t_s for e in events]
     ax1.step(t, [e.stage for e in events], where="post", color="black")
     ax1.set_yticks([1, 2], ["stage one", "stage two"])
