@@ -13,6 +13,7 @@ from torch import Tensor
 
 from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import NodePositions, interpolate_positions
 from hbis_torch.reconstruct.classical.splat import (
     circular_sums,
     every_other,
@@ -24,7 +25,6 @@ from hbis_torch.reconstruct.classical.splat import (
     typical_weight,
 )
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
-from hbis_torch.simulate.geometry import NodePositions, interpolate_positions
 
 # Samples per batch in lattice_image (whole frames, or rows of one frame where a frame has more):
 # its temporaries (some 150 bytes a sample) stay near 150 MB whatever the stack's size.
