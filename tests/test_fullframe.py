@@ -12,7 +12,7 @@ import torch
 from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
-from hbis_torch.optics import sensor_position
+from hbis_torch.optics import interpolate_positions, landing_at, node_positions, sensor_position
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, wiener_deblur
 from hbis_torch.reconstruct.classical import shift_image
 from hbis_torch.reconstruct.classical import sr as classical_sr_module
@@ -20,7 +20,6 @@ from hbis_torch.reconstruct.classical.splat import _blur_at, _gaussian_blur, fil
 from hbis_torch.reconstruct.positions import stack_sample_nodes, stack_sample_positions
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate.cases import make_stack
-from hbis_torch.simulate.geometry import interpolate_positions, landing_at, node_positions
 
 SYSTEM = FoveaSystem()
 

@@ -11,7 +11,7 @@ from hbis_torch.reconstruct.classical import optics_cutoff, reconstruct_classica
 from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params, learned_sr, noise_params_from_meta
 from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
 from hbis_torch.reconstruct.learned.method import classical_and_noise
-from hbis_torch.registration.noise import fit_noise_params
+from hbis_torch.sensor.noise import fit_noise_params
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
 from hbis_torch.simulate.stacks import scene_for_roi

@@ -16,7 +16,7 @@ from hbis_torch.registration import (
     register_stack,
 )
 from hbis_torch.registration.bspline import _spline_fetch
-from hbis_torch.registration.noise import _mean_and_spread
+from hbis_torch.sensor.noise import mean_and_spread
 
 H_FACTOR = 4  # frames are box averages of h x h photo pixels
 
@@ -208,7 +208,7 @@ def test_prefilter_with_a_sampled_kernel_is_mirrored_convolution():
 def test_mean_and_spread_survive_a_nearly_flat_frame():
     x = torch.rand(3, 40, 50)
     x[1] = 0.6 + 1e-5 * torch.randn(40, 50)  # spread far below the mean: the one-pass form cancels
-    mean, spread = _mean_and_spread(x)
+    mean, spread = mean_and_spread(x)
     torch.testing.assert_close(mean, x.double().mean((-2, -1)).float())
     torch.testing.assert_close(spread, x.double().std((-2, -1), correction=0).float(), rtol=1e-3, atol=0)
 

@@ -10,10 +10,9 @@ import torch
 
 from hbis_torch.config import Camera, FoveaSystem
 from hbis_torch.errors import HbisInputError
-from hbis_torch.optics import landing_map, sensor_position
+from hbis_torch.optics import landing_at, landing_map, landing_on_grid, sensor_position
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, airy_otf, airy_psf, expose, lens_otf, sample_positions
-from hbis_torch.simulate.geometry import landing_at, landing_on_grid
 from hbis_torch.simulate.psf import blur_transfer, defocus_waves
 from hbis_torch.simulate.sensor import normalise
 

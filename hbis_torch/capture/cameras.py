@@ -42,7 +42,7 @@ class OpenCVCamera:
         self._capture = None
 
     def __enter__(self) -> Self:
-        from hbis_torch.capture.frames import import_cv2
+        from hbis_torch.optional import import_cv2
 
         cv2 = import_cv2("--camera opencv:...")
         api = cv2.CAP_GSTREAMER if isinstance(self.source, str) and "!" in self.source else cv2.CAP_ANY

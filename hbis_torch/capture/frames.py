@@ -17,20 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.optional import import_cv2
 
 VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv"})
 TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
 FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
-
-
-def import_cv2(what: str):
-    """OpenCV, or one clear HbisInputError saying how to install it (the optional extra)."""
-    try:
-        import cv2
-    except ImportError:
-        raise HbisInputError(f"{what} needs OpenCV: pip install 'hbis-torch[camera]' "
-                             "(or opencv-python-headless)") from None
-    return cv2
 
 
 def _as_frame(array: np.ndarray, where: str) -> np.ndarray:

@@ -43,7 +43,7 @@ def calibration_from_arrays(matrix, distortion, image_size=None, where: str = "c
 
 def read_opencv_calibration(path) -> LensCalibration:
     """Read the YAML, XML or JSON that ``cv2.FileStorage`` wrote for a calibrated camera."""
-    from hbis_torch.capture.frames import import_cv2
+    from hbis_torch.optional import import_cv2
 
     path = Path(path)
     if not path.is_file():

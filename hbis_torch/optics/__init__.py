@@ -1,4 +1,5 @@
-"""Exact vector ray tracing through the Risley pair, and per-pixel landing maps."""
+"""Exact vector ray tracing through the Risley pair, per-pixel landing maps, and the sample
+positions of a scan's frames on the reference frame's grid."""
 
 from hbis_torch.optics.pixels import (
     landing_map,
@@ -30,6 +31,14 @@ from hbis_torch.optics.inverse import (  # noqa: E402 - after the forward model 
     paper_norms,
     paraxial_inverse,
 )
+from hbis_torch.optics.sample_positions import (
+    NodePositions,
+    interpolate_positions,
+    landing_at,
+    landing_on_grid,
+    node_positions,
+    sample_positions,
+)
 
 __all__ = [
     "axis_landing",
@@ -39,13 +48,18 @@ __all__ = [
     "paper_inverse",
     "paper_norms",
     "paraxial_inverse",
+    "NodePositions",
     "RisleyTrace",
     "axis_deviation",
     "deviation_azimuth",
     "exit_directions",
+    "interpolate_positions",
     "land_on_plane",
+    "landing_at",
     "landing_map",
     "landing_map_interpolated",
+    "landing_on_grid",
+    "node_positions",
     "pinhole_landing",
     "pixel_coordinates",
     "pixel_rays",
@@ -53,6 +67,7 @@ __all__ = [
     "sensor_position",
     "refract",
     "risley_normals",
+    "sample_positions",
     "trace_back",
     "trace_faces",
     "trace_risley",

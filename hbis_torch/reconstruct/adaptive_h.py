@@ -42,6 +42,7 @@ from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical import diffraction_otf, optics_cutoff
+from hbis_torch.sensor.noise import noise_sigma
 
 __all__ = ["BUDGETS", "HChoice", "predict_psnr", "recommend_h", "fit_scene_spectrum"]
 
@@ -296,8 +297,6 @@ def recommend_h(frames, system, positions=None, h_max: int | None = None, tolera
         s2, beta = fit_scene_spectrum(image, 1.0 / h0, sample_noise ** 2 / h0 ** 2, cutoff, aperture)
     else:
         if noise is None:
-            from hbis_torch.registration import noise_sigma
-
             noise = float(noise_sigma(first[None])[0])
         s2, beta = fit_scene_spectrum(first, 1.0, max(noise, 1e-4) ** 2, cutoff, aperture)
     noise = max(noise, 1e-4)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hbis_torch.capture.bayer import bayer_masks, demosaic, mosaic
+from hbis_torch.sensor.cfa import bayer_masks, demosaic, mosaic
 from hbis_torch.errors import HbisInputError
 
 __all__ = ["COLOUR_MODES", "DEFAULT_MODE", "bayer_masks", "demosaic", "mosaic", "reconstruct_colour"]

@@ -4,7 +4,7 @@
 
 1. *The optics.* Sample (u, v) of frame k sees the object point its chief ray lands on at the
    frame's phases; the reference frame would image that point at
-   ``sensor_position(system, point, phi_ref)``. :func:`hbis_torch.simulate.sample_positions`
+   ``sensor_position(system, point, phi_ref)``. :func:`hbis_torch.optics.sample_positions`
    computes this (docs/design.md, section 1), either tracing every pixel (``exact=True``, the
    contract's definition) or tracing nodes 32 px apart and interpolating with cubic splines
    (``exact=False``, the default of both methods: < 1e-6 px from the exact trace, and a
@@ -44,6 +44,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import interpolate_positions, node_positions, sample_positions
 
 # Where the samples' positions come from (see the module docstring).
 REGISTRATIONS = ("optics", "data", "auto")
@@ -61,7 +62,7 @@ def check_registration(registration: str) -> str:
 
 
 def optical_positions(stack, exact: bool = False) -> Tensor:
-    """Where the optics put every sample of a stack: :func:`hbis_torch.simulate.sample_positions`.
+    """Where the optics put every sample of a stack: :func:`hbis_torch.optics.sample_positions`.
 
     Parameters
     ----------
@@ -76,8 +77,6 @@ def optical_positions(stack, exact: bool = False) -> Tensor:
     Tensor, shape (F, H, W, 2), float64
         (u, v) in the reference frame's ROI-local LR pixel coordinates.
     """
-    from hbis_torch.simulate import sample_positions
-
     system, phases, ref, roi = stack.system, stack.phases_deg, stack.reference_index, stack.roi
     if not exact:
         return sample_positions(system, phases, ref, roi)
@@ -143,8 +142,6 @@ def stack_sample_positions(stack, registration: str = "auto", *, exact: bool = F
     """
     check_registration(registration)
     if not exact:
-        from hbis_torch.simulate.geometry import interpolate_positions
-
         nodes, trusted = stack_sample_nodes(stack, registration, frames=frames, messages=messages)
         return interpolate_positions(nodes), trusted
     positions = optical_positions(stack, exact)
@@ -190,13 +187,11 @@ def stack_sample_nodes(stack, registration: str = "auto", *, frames: Tensor | No
 
     Returns
     -------
-    nodes : hbis_torch.simulate.geometry.NodePositions
+    nodes : hbis_torch.optics.NodePositions
         ``values`` (F, n_v, n_u, 2), float64: (u, v) in the reference frame's ROI-local LR
         pixel coordinates of the samples at the nodes, corrected where trusted.
     trusted : Tensor, shape (F,), bool
     """
-    from hbis_torch.simulate.geometry import interpolate_positions, node_positions
-
     check_registration(registration)
     nodes = node_positions(stack.system, stack.phases_deg, stack.reference_index, stack.roi)
     count = nodes.values.shape[0]

@@ -25,10 +25,11 @@ no convergence, or (given a prediction) a frame that sits where another frame of
 be (frames out of order).
 
 The package holds one idea per module: :mod:`.homography` (homographies and the motion models'
-parameters), :mod:`.bspline` (prefiltering and cubic B-spline resampling), :mod:`.noise`
-(per-frame statistics), :mod:`.phase_correlation` (the coarse start), :mod:`.lucas_kanade` (the
-fitter), :mod:`.model_choice`, :mod:`.assess` (confidence and messages) and :mod:`.stack`
-(:func:`register_stack` and its :class:`Registration`).
+parameters), :mod:`.bspline` (prefiltering and cubic B-spline resampling),
+:mod:`.phase_correlation` (the coarse start), :mod:`.lucas_kanade` (the fitter),
+:mod:`.model_choice`, :mod:`.assess` (confidence and messages) and :mod:`.stack`
+(:func:`register_stack` and its :class:`Registration`). The per-frame statistics (mean, spread,
+noise level) are :mod:`hbis_torch.sensor.noise`'s.
 """
 
 from hbis_torch.registration.assess import (
@@ -47,9 +48,9 @@ from hbis_torch.registration.homography import (
     lk_motion_difference,
 )
 from hbis_torch.registration.lucas_kanade import COARSE_POINTS
-from hbis_torch.registration.noise import noise_sigma
 from hbis_torch.registration.phase_correlation import phase_correlation_shifts
 from hbis_torch.registration.stack import Registration, register_stack
+from hbis_torch.sensor.noise import noise_sigma
 
 __all__ = [
     "COARSE_POINTS",

@@ -34,11 +34,11 @@ from hbis_torch.registration.lucas_kanade import (
     _strongest_points,
 )
 from hbis_torch.registration.model_choice import _choose_model
-from hbis_torch.registration.noise import _mean_and_spread, noise_sigma
 from hbis_torch.registration.phase_correlation import (
     _translation,
     phase_correlation_shifts,
 )
+from hbis_torch.sensor.noise import mean_and_spread, noise_sigma
 
 
 @dataclass
@@ -257,7 +257,7 @@ def _normalisation(frames: Tensor, ref: int) -> tuple[Tensor, Tensor, Tensor, Te
     Returns each frame's mean and spread (F,) (the spread at least a tiny floor), which frames
     are flat (F,) bool, and the normalised reference frame (H, W).
     """
-    mean, spread = _mean_and_spread(frames)
+    mean, spread = mean_and_spread(frames)
     tiny = 1e-6 * max(1.0, float(mean.abs().max()))
     flat = spread < tiny
     spread = spread.clamp_min(tiny)

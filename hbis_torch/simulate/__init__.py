@@ -10,6 +10,7 @@ docs/data.md describes the model and the output-grid convention. The network's t
 benchmark's test stacks are :mod:`hbis_torch.simulate.cases`.
 """
 
+from hbis_torch.optics import landing_on_grid, sample_positions  # public here too, for the simulator's users
 from hbis_torch.simulate.catalog import (
     BUILTIN_SCENES,
     PROCEDURAL,
@@ -17,7 +18,6 @@ from hbis_torch.simulate.catalog import (
     load_scene,
 )
 from hbis_torch.simulate.forward import RenderedScan, render_scan
-from hbis_torch.simulate.geometry import landing_on_grid, sample_positions
 from hbis_torch.simulate.psf import airy_otf, airy_psf, blur_transfer, lens_otf
 from hbis_torch.simulate.rasters import PHOTOS
 from hbis_torch.simulate.scenes import (

@@ -9,6 +9,7 @@ import torch
 from hbis_torch.checks import check_roi
 from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
+from hbis_torch.sensor.cfa import mosaic
 from hbis_torch.simulate.catalog import SceneSpec
 from hbis_torch.simulate.forward import grid_factor
 from hbis_torch.simulate.rasters import cover_size
@@ -40,8 +41,6 @@ def simulate_colour_stack(rgb, system: FoveaSystem, plan, roi=None, sensor: Sens
         Frames (F, H, W, 3), or (F, H, W) raw Bayer with ``cfa``.
     truth : np.ndarray, shape (h*H, h*W, 3), float32 in [0, 1]
     """
-    from hbis_torch.capture.bayer import mosaic
-
     sensor = SensorModel() if sensor is None else sensor
     image = np.asarray(rgb)
     if image.dtype == np.uint8:

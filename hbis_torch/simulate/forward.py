@@ -49,7 +49,7 @@ from torch import Tensor
 from hbis_torch.checks import check_h, check_phases, check_roi
 from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
-from hbis_torch.simulate.geometry import landing_at, landing_on_grid, sample_positions
+from hbis_torch.optics import landing_at, landing_on_grid, sample_positions
 from hbis_torch.simulate.psf import blur_transfer, dct_frequencies, defocus_waves
 from hbis_torch.simulate.scenes import Scene
 from hbis_torch.simulate.sensor import SensorModel

@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.config import FoveaSystem
-from hbis_torch.simulate.geometry import landing_at
+from hbis_torch.optics import landing_at
 from hbis_torch.simulate.psf import defocus_waves, lens_otf, pixel_transfer
 from hbis_torch.simulate.scenes import GratingScene
 from hbis_torch.simulate.sensor import SensorModel

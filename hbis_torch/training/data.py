@@ -56,6 +56,7 @@ import torch
 from hbis_torch.config import Camera, FoveaSystem
 from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_path
+from hbis_torch.optics import sample_positions
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
 from hbis_torch.reconstruct.learned.domain import noise_at_mid_grey
 from hbis_torch.reconstruct.learned.inputs import network_inputs, noise_params_from_meta, sensor_noise_params
@@ -64,7 +65,6 @@ from hbis_torch.simulate import (
     SceneSpec,
     SensorModel,
     load_scene,
-    sample_positions,
     simulate_stack,
 )
 from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS, PHOTOS, photo, texture_image

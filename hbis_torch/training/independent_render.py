@@ -30,8 +30,8 @@ import scipy.signal
 import scipy.special
 import torch
 
+from hbis_torch.optics import landing_at
 from hbis_torch.simulate import SensorModel
-from hbis_torch.simulate.geometry import landing_at
 from hbis_torch.stack_io import Stack
 
 # The Airy pattern is cut at this many radii of its first dark ring (it keeps 99 % of the light

@@ -13,6 +13,7 @@ from torch import Tensor
 
 from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
+from hbis_torch.optics import NodePositions, interpolate_positions
 from hbis_torch.reconstruct.classical.splat import (
     circular_sums,
     every_other,
@@ -24,7 +25,7 @@ from hbis_torch.reconstruct.classical.splat import (
     typical_weight,
 )
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
-from hbis_torch.simulate.geometry import NodePositions, interpolate_positions
+from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 
 # Samples per batch in lattice_image (whole frames, or rows of one frame where a frame has more):
 # its temporaries (some 150 bytes a sample) stay near 150 MB whatever the stack's size.
@@ -275,8 +276,6 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
     A lattice of more than :data:`TILES_FROM` nodes is measured on the tiles that
     :func:`lattice_noise_params` reads (about :data:`NOISE_NODES` nodes spread over it).
     """
-    from hbis_torch.registration.noise import immerkaer  # (here: the package imports kornia)
-
     if image.numel() > TILES_FROM:  # a full frame: tiles spread over it (10 times faster at h = 4)
         residual, _, where = _noise_sample(image, valid)
         where = np.ones(residual.shape, dtype=bool) if where is None else where
@@ -305,8 +304,6 @@ def _noise_sample(image: Tensor, valid: Tensor | None):
     lattice of more than :data:`TILES_FROM` nodes is read in a 7 x 7 grid of tiles of 34 x 258
     nodes spread over it instead: full-width strips there would be two or three, at the top and
     bottom. ``where`` is None without ``valid`` or with fewer than 16 complete neighbourhoods."""
-    from hbis_torch.registration.noise import immerkaer
-
     rows, cols = image.shape
     strip = min(rows, 34)  # 32 inner rows
     if image.numel() > TILES_FROM:
@@ -336,7 +333,7 @@ def lattice_noise_params(image: Tensor, kernel_sigma: float, valid: Tensor | Non
     """Poisson-Gaussian noise parameters of the frames, measured on their lattice.
 
     :func:`lattice_noise`'s operator, binned by the nodes' level and fitted by
-    :func:`~hbis_torch.registration.noise.fit_noise_params`: the variance ``a x + b`` of one
+    :func:`~hbis_torch.sensor.noise.fit_noise_params`: the variance ``a x + b`` of one
     sample of value x in [0, 1]. A single frame is aliased, and its fine detail passes for noise
     (:func:`~hbis_torch.reconstruct.learned.estimate_noise_params` overstates a low noise level
     several times on photographs); on the lattice it does not. Measured on strips of rows (tiles
@@ -359,8 +356,6 @@ def lattice_noise_params(image: Tensor, kernel_sigma: float, valid: Tensor | Non
     -------
     (a, b) : (float, float)
     """
-    from hbis_torch.registration.noise import fit_noise_params
-
     residual, level, where = _noise_sample(image, valid)
     a, b = fit_noise_params(residual, level, _lattice_gain(kernel_sigma, image.dtype), where)
     scale = max(samples_per_node, 1.0)

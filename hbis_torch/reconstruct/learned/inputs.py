@@ -20,6 +20,7 @@ import math
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 
 # Least halo (LR pixels) around each tile: more than the network's receptive field radius (12
 # for the shipped models: head + 2 per block + tail), so that tiling does not change the result.
@@ -78,9 +79,9 @@ def sensor_noise_params(full_well_e: float, read_noise_e: float, bit_depth: int 
 def estimate_noise_params(frames) -> tuple[float, float]:
     """Poisson-Gaussian noise parameters (a, b) measured from the frames themselves.
 
-    Immerkaer's operator (:func:`hbis_torch.registration.noise.immerkaer`, which cancels smooth
+    Immerkaer's operator (:func:`hbis_torch.sensor.noise.immerkaer`, which cancels smooth
     content; on white noise of level s its output has level 6 s) is taken at every pixel and
-    fitted by :func:`~hbis_torch.registration.noise.fit_noise_params`. A single frame is
+    fitted by :func:`~hbis_torch.sensor.noise.fit_noise_params`. A single frame is
     aliased, and its fine detail counts as noise: on photographs this overstates a low noise
     level several times (docs/learned.md). The learned method measures the noise on the
     classical method's lattice instead
@@ -97,8 +98,6 @@ def estimate_noise_params(frames) -> tuple[float, float]:
     -------
     (a, b) : (float, float)
     """
-    from hbis_torch.registration.noise import fit_noise_params, immerkaer  # (here: this module stays torch-free)
-
     frames = np.asarray(frames, dtype=np.float32)
     if frames.ndim != 3 or min(frames.shape[1:]) < 3:
         raise HbisInputError(f"frames must have shape (F, H >= 3, W >= 3), got {frames.shape}")

@@ -11,7 +11,7 @@ import torch
 from torch import Tensor
 
 
-def _mean_and_spread(frames: Tensor) -> tuple[Tensor, Tensor]:
+def mean_and_spread(frames: Tensor) -> tuple[Tensor, Tensor]:
     """Per-frame mean and standard deviation (population) of (F, H, W), each (F,).
 
     One pass for the sum of squares (a dot product); frames whose variance is small next to

@@ -27,7 +27,8 @@ from torch import Tensor
 from hbis_torch.checks import check_phases, check_roi
 from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
-from hbis_torch.optics import exit_directions, land_on_plane, rays_at, sensor_position
+from hbis_torch.optics.pixels import rays_at, sensor_position
+from hbis_torch.optics.risley import exit_directions, land_on_plane
 
 Roi = tuple[int, int, int, int]
 

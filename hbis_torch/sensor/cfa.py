@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from hbis_torch.optional import import_cv2
+
 
 def bayer_masks(cfa: str, height: int, width: int) -> np.ndarray:
     """(3, H, W) bool: which pixels carry R, G and B under the pattern ``cfa`` (e.g. "RGGB")."""
@@ -29,8 +31,6 @@ _OPENCV_CODES = {"RGGB": "COLOR_BayerRGGB2RGB_EA", "BGGR": "COLOR_BayerBGGR2RGB_
 
 def demosaic(raw: np.ndarray, cfa: str) -> np.ndarray:
     """Raw Bayer frames (F, H, W) float in [0, 1] -> RGB (F, H, W, 3) float32, OpenCV edge-aware."""
-    from hbis_torch.capture.frames import import_cv2
-
     cv2 = import_cv2("demosaicking Bayer frames")
     code = getattr(cv2, _OPENCV_CODES[cfa])
     scaled = np.round(np.clip(raw, 0.0, 1.0) * 65535).astype(np.uint16)
