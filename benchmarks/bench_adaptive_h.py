@@ -1,4 +1,4 @@
-"""Scene-adaptive h: hbis_torch.reconstruct.adaptive_h.recommend_h against every fixed h.
+"""Scene-adaptive h: hbis_torch.reconstruct.classical.adaptive_h.recommend_h against every fixed h.
 
 For each scene and sensor, a stack is simulated and reconstructed (classical, optics positions)
 at every h = 1..h_max; each reconstruction is resampled (bicubic) onto the h_max grid and scored
@@ -32,7 +32,7 @@ from hbis_torch.design import design
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
 from hbis_torch.simulate.stacks import scene_for_roi
-from hbis_torch.reconstruct.adaptive_h import recommend_h
+from hbis_torch.reconstruct.classical.adaptive_h import recommend_h
 from hbis_torch.reconstruct import optical_sample_positions, reconstruct
 
 SENSORS = {

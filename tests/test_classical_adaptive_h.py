@@ -11,7 +11,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate import SensorModel, simulate_stack
 from hbis_torch.simulate.stacks import scene_for_roi
-from hbis_torch.reconstruct.adaptive_h import cubic_transfer, predict_psnr, recommend_h
+from hbis_torch.reconstruct.classical.adaptive_h import cubic_transfer, predict_psnr, recommend_h
 from hbis_torch.reconstruct.classical import optical_sample_positions, optics_cutoff
 
 SYSTEM = FoveaSystem()

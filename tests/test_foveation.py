@@ -9,7 +9,7 @@ import torch
 from hbis_torch.system.array.cameras import CameraArray
 from hbis_torch.system.composite.composite import Inlay, composite
 from hbis_torch.system.foveation.detect import motion_blobs
-from hbis_torch.system.array.device import SimulatedHBIS
+from hbis_torch.system.device import SimulatedHBIS
 from hbis_torch.system.foveation.loop import LoopConfig, TwoStageLoop
 from hbis_torch.system.array.render import ArrayRenderer
 from hbis_torch.system.array.scenario import default_path, default_scene

@@ -31,7 +31,7 @@ from hbis_torch.optics.inverse import (  # noqa: E402 - after the forward model 
     paper_norms,
     paraxial_inverse,
 )
-from hbis_torch.optics.sample_positions import (
+from hbis_torch.optics.sample_geometry import (
     NodePositions,
     interpolate_positions,
     landing_at,

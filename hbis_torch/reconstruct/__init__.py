@@ -18,7 +18,7 @@ Where each part lives
 :mod:`hbis_torch.reconstruct.learned`
     The learned network (trained and exported by :mod:`hbis_torch.training`) run in onnxruntime
     (:func:`learned_sr`; the stack-level entry ``learned.method.reconstruct_learned``).
-:mod:`hbis_torch.reconstruct.adaptive_h`
+:mod:`hbis_torch.reconstruct.classical.adaptive_h`
     Which h a scene needs (:func:`recommend_h`).
 """
 
@@ -27,8 +27,8 @@ import importlib
 # Names handed on from the modules that define them, imported on first use (PEP 562), so that
 # the registry (``hbis reconstruct --help`` reads it) comes without torch.
 _HOMES = {
-    "HChoice": "adaptive_h",
-    "recommend_h": "adaptive_h",
+    "HChoice": "classical.adaptive_h",
+    "recommend_h": "classical.adaptive_h",
     "classical_sr": "classical",
     "learned_sr": "learned",
     "REGISTRATIONS": "positions",

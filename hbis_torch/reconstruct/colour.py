@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hbis_torch.sensor.cfa import bayer_masks, demosaic, mosaic
 from hbis_torch.errors import HbisInputError
+from hbis_torch.sensor.cfa import bayer_masks, demosaic, mosaic
 
 __all__ = ["COLOUR_MODES", "DEFAULT_MODE", "bayer_masks", "demosaic", "mosaic", "reconstruct_colour"]
 

@@ -30,7 +30,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
 from hbis_torch.simulate import SensorModel
 from hbis_torch.system.array.cameras import CAMERA_NAMES, CameraArray
-from hbis_torch.system.array.device import SimulatedHBIS
+from hbis_torch.system.device import SimulatedHBIS
 from hbis_torch.system.array.render import ArrayRenderer
 from hbis_torch.system.array.scenario import default_scene
 from hbis_torch.system.array.scene import Trajectory

@@ -8,12 +8,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hbis_torch.capture.bayer import bayer_masks, demosaic
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.classical.sr import classical_sr
 from hbis_torch.reconstruct.classical.transfer import optics_cutoff
 from hbis_torch.reconstruct.colour import LUMA, gray_stack
 from hbis_torch.reconstruct.positions import check_registration, stack_sample_nodes, stack_sample_positions
+from hbis_torch.sensor import bayer_masks, demosaic
 
 
 def _stack_frames(stack) -> Tensor:

@@ -1,4 +1,4 @@
-"""The learned method's inputs and glue, in numpy (no torch, no onnxruntime).
+"""The learned method's inputs and glue around any runner of the network, on numpy arrays.
 
 The network refines the classical image (see :mod:`hbis_torch.training.net`), so its
 inputs are defined by physics, not by the order of the frames: :func:`network_inputs` cuts the
