@@ -16,7 +16,7 @@ Methods, all on the same simulated stacks (hbis_torch.simulate, 12-bit sensor, e
   shipped provider is another one).
 
 Every method gets the same frames and the same sample positions (from the tracer, via
-:func:`hbis_torch.simulate.sample_positions`; their cost is reported on its own line, it is shared
+:func:`hbis_torch.optics.sample_positions`; their cost is reported on its own line, it is shared
 by classical and learned). Times are wall-clock medians of
 ``--repeats`` runs after one warm-up, with 2 threads for torch and onnxruntime alike, glibc's
 allocator kept from returning memory (:func:`steady_malloc`: eager torch's best, steady times;
@@ -49,7 +49,8 @@ from hbis_torch.config import FoveaSystem
 from hbis_torch.io_utils import atomic_path, atomic_write_text
 from hbis_torch.metrics import psnr
 from hbis_torch.scan import plan_scan
-from hbis_torch.simulate import sample_positions, simulate_stack
+from hbis_torch.optics import sample_positions
+from hbis_torch.simulate import simulate_stack
 from hbis_torch.simulate.cases import make_stack, roi_for, scene_cases
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff
 from hbis_torch.reconstruct.learned import (LearnedSR, available_providers, models_dir, noise_params_from_meta,
