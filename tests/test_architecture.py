@@ -293,3 +293,14 @@ def test_no_long_functions():
 def test_no_matplotlib_backend_switch():
     calls = [_where(path, call) for path in _python_files() for call in _calls_matplotlib_use(_parse(path))]
     assert not calls, "matplotlib.use called (draw on matplotlib.figure.Figure instead) at " + ", ".join(calls)
+
+
+def test_the_learned_method_at_run_time_imports_nothing_of_its_build_side():
+    # Running a model (hbis reconstruct --method learned, the registry's raw-Bayer path too)
+    # reaches neither the network in torch nor the training pipeline, even inside functions.
+    graph = _import_graph()
+    starts = ("hbis_torch.cli.cmd_reconstruct", "hbis_torch.reconstruct.registry",
+              "hbis_torch.reconstruct.learned.method")
+    reached = set().union(*(_reachable(graph, start) for start in starts))
+    assert "hbis_torch.reconstruct.learned.runtime" in reached
+    assert sorted(m for m in reached if m.startswith("hbis_torch.training")) == []
