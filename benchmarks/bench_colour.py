@@ -50,7 +50,7 @@ def main() -> None:
         raw = Stack(mosaic(stack.frames, "RGGB").astype(stack.frames.dtype), {**stack.meta, "cfa": "RGGB"})
         t = truth[b:-b, b:-b]
         cases = [("rgb", m, c) for m in ("classical", "learned") for c in ("luma", "channels")]
-        cases += [("bayer", m, "luma") for m in ("classical", "learned")]
+        cases += [("bayer", m, None) for m in ("classical", "learned")]  # joint demosaicking takes no mode
         for kind, method, mode in cases:
             src = stack if kind == "rgb" else raw
             start = time.process_time()

@@ -149,7 +149,7 @@ class Crops:
         randint = self.randint
         i, y0, x0, k = (randint(self.count), h * randint(self.side - PATCH + 1), h * randint(self.side - PATCH + 1),
                         randint(8))
-        transpose, flip_x, flip_y = (k & 4) > 0, (k & 1) > 0, (k & 2) > 0  # as training_data.dihedral
+        transpose, flip_x, flip_y = (k & 4) > 0, (k & 1) > 0, (k & 2) > 0  # as hbis_torch.training.data.dihedral
         r = torch.arange(out_side, device=dev)
         rows = torch.where(flip_y[:, None], out_side - 1 - r, r)
         cols = torch.where(flip_x[:, None], out_side - 1 - r, r)
