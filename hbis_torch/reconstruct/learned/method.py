@@ -146,13 +146,12 @@ def reconstruct_learned_raw_bayer(stack, registration: str = "auto", *, messages
     ``raw_bayer`` path of the ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS`.
     Keywords as for :func:`reconstruct_learned`; returns (h H, h W, 3) float32.
     """
-
     path, _, missing = model_to_run(model, stack.h)
     ensemble = check_ensemble(ensemble, stack.h)
     planes = reconstruct_classical_raw_bayer(stack, registration, messages=messages)
     if missing is not None:  # as learned_sr: the classical image, said so
         return classical_returned(planes, missing, messages, remedy=NO_MODEL_REMEDY)
-    runner = LearnedSR(model=path, threads=threads, provider=provider)
+    runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider)
     noise = noise_params_from_meta(stack.meta)
     if noise is None:  # one colour's pixels: a plain image of one sensor's noise, no mosaic in it
         noise = estimate_noise_params(stack.to_float().numpy()[:, 0::2, 0::2])
