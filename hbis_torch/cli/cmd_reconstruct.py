@@ -84,36 +84,33 @@ def run(args) -> int:
     return 0
 
 
+def _options_by_flag(methods) -> dict:
+    """Every method option by flag: (the :class:`hbis_torch.reconstruct.registry.Option`, the
+    names of the methods that take it)."""
+    by_flag: dict = {}
+    for name, method in methods.items():
+        for option in method.options:
+            by_flag.setdefault(option.flag, (option, []))[1].append(name)
+    return by_flag
+
+
 def _add_method_options(parser, methods) -> None:
-    """One flag per method option (:class:`hbis_torch.reconstruct.registry.Option`), its help
-    prefixed by the methods that take it; unset flags leave no attribute (``SUPPRESS``), so that
-    :func:`method_keywords` sees which were given."""
+    """One flag per method option, its help prefixed by the methods that take it; unset flags
+    leave no attribute (``SUPPRESS``), so that :func:`method_keywords` sees which were given."""
     import argparse
 
     group = parser.add_argument_group("options of one method")
-    added: dict[str, list[str]] = {}
-    declared = {}
-    for name, method in methods.items():
-        for option in method.options:
-            added.setdefault(option.flag, []).append(name)
-            declared.setdefault(option.flag, option)
-    for flag, option in declared.items():
+    for flag, (option, takers) in _options_by_flag(methods).items():
         group.add_argument(flag, dest=option.keyword, default=argparse.SUPPRESS,
-                           help=f"{', '.join(added[flag])}: {option.help}", **option.argparse)
+                           help=f"{', '.join(takers)}: {option.help}", **option.argparse)
 
 
 def method_keywords(args, method, methods) -> dict:
     """The method options given on the command line, as the run function's keywords; an option
     of another method is refused with one line, before any work."""
-    kw = {}
-    for other in methods.values():
-        for option in other.options:
-            if hasattr(args, option.keyword) and option.keyword not in method.keywords:
-                takers = [name for name, m in methods.items() if option.flag in {o.flag for o in m.options}]
-                raise HbisInputError(f"{option.flag} is only for --method {' or '.join(takers)}; "
-                                     f"the {method.name} method does not take it")
-    for option in method.options:
-        if hasattr(args, option.keyword):
-            kw[option.keyword] = getattr(args, option.keyword)
-    return kw
-
+    for flag, (option, takers) in _options_by_flag(methods).items():
+        if hasattr(args, option.keyword) and option.keyword not in method.keywords:
+            raise HbisInputError(f"{flag} is only for --method {' or '.join(takers)}; "
+                                 f"the {method.name} method does not take it")
+    return {option.keyword: getattr(args, option.keyword) for option in method.options
+            if hasattr(args, option.keyword)}
