@@ -27,6 +27,11 @@ data lies) before decoding anything: at most 256 pages (h = 16), one shape and o
 inside the file, and no more than ``HBIS_MAX_STACK_MB`` MiB once decoded (default 1024, an
 environment variable the user can raise; :mod:`hbis_torch.tiff_io`). A hostile file is refused in
 one line, quickly.
+A *burst* stack (``"kind": "burst"``) holds frames of a hand-held or otherwise freely moving camera
+instead of a Risley scan: no optics, no phases; instead each frame's measured motion to the
+reference (``motions``, F x 3 x 3 homographies frame px -> reference px), a registration
+``confidence``, the ``motion_models`` picked and the ``gain_offset`` that matches its brightness
+to the reference's; ``h`` is the output scale S (:func:`make_burst_meta`, :func:`_check_burst_meta`).
 docs/stack-format.md describes the format for outside tools.
 """
 
@@ -53,6 +58,11 @@ CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 _CAMERA_KEYS = ("pixel_pitch_um", "rows", "cols", "focal_length_mm", "f_number")
 _PRISM_KEYS = ("wedge_angle_deg", "refractive_index")
 _TOP_KEYS = ("format", "h", "camera", "prisms", "object_distance_mm", "roi", "phases_deg")
+KINDS = ("hbis", "burst")
+"""What a stack holds: an HBIS (Risley) scan, the default, or a burst of freely moving frames."""
+_BURST_KEYS = ("format", "kind", "h", "roi", "motions", "confidence", "motion_models", "gain_offset")
+BURST_MODELS = ("identity", "translation", "similarity", "affine", "homography")
+"""Motion models a burst frame may record, simplest first."""
 
 #: Most pages a stack file may hold: h x h frames with h <= MAX_H.
 MAX_PAGES = MAX_H * MAX_H
@@ -181,6 +191,12 @@ def _check_meta(meta, where: str) -> None:
     """Check the JSON object alone (keys, types, values); frames are checked separately."""
     if not isinstance(meta, dict):
         raise StackFormatError(f"{where}: the description is not a JSON object")
+    kind = meta.get("kind", "hbis")
+    if kind not in KINDS:
+        raise StackFormatError(f"{where}: kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    if kind == "burst":
+        _check_burst_meta(meta, where)
+        return
     missing = [k for k in _TOP_KEYS if k not in meta]
     if missing:
         raise StackFormatError(f"{where}: missing key(s) {', '.join(missing)} in the stack JSON")
@@ -233,6 +249,64 @@ def _check_meta(meta, where: str) -> None:
         raise StackFormatError(f"{where}: black_level must be a non-negative number, got {black!r}")
 
 
+def _check_burst_meta(meta: dict, where: str) -> None:
+    """The JSON of a burst stack: its keys, types and values (one entry per frame is checked
+    against the frames in :func:`validate_stack`)."""
+    missing = [k for k in _BURST_KEYS if k not in meta]
+    if missing:
+        raise StackFormatError(f"{where}: missing key(s) {', '.join(missing)} in the burst stack JSON")
+    if meta["format"] != FORMAT:
+        raise StackFormatError(f"{where}: format is {meta['format']!r}, expected {FORMAT!r}")
+    if not _is_int(meta["h"]) or not 1 <= meta["h"] <= MAX_H:
+        raise StackFormatError(f"{where}: h (the burst's scale) must be an integer from 1 to {MAX_H}, "
+                               f"got {meta['h']!r}")
+    if "scale" in meta and meta["scale"] != meta["h"]:
+        raise StackFormatError(f"{where}: scale {meta['scale']!r} differs from h {meta['h']!r}")
+    roi = meta["roi"]
+    if not isinstance(roi, (list, tuple)) or len(roi) != 4 or not all(_is_int(r) for r in roi) \
+            or min(roi) < 0:
+        raise StackFormatError(f"{where}: roi must be four integers [u0, v0, width, height] >= 0, got {roi!r}")
+    count = _per_frame_count(meta, where)
+    try:
+        motions = np.asarray(meta["motions"], dtype=np.float64)
+        gain_offset = np.asarray(meta["gain_offset"], dtype=np.float64)
+        confidence = np.asarray(meta["confidence"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise StackFormatError(f"{where}: motions, gain_offset and confidence must hold numbers only") from None
+    if motions.shape != (count, 3, 3) or not np.isfinite(motions).all():
+        raise StackFormatError(f"{where}: motions must be one finite 3 x 3 homography per frame, got shape "
+                               f"{motions.shape}")
+    if (np.abs(motions[:, 2, 2]) < 1e-12).any() or (np.abs(np.linalg.det(motions)) < 1e-12).any():
+        raise StackFormatError(f"{where}: motions holds a singular homography")
+    if gain_offset.shape != (count, 2) or not np.isfinite(gain_offset).all() or (gain_offset[:, 0] <= 0).any():
+        raise StackFormatError(f"{where}: gain_offset must be one finite [gain > 0, offset] per frame")
+    if confidence.shape != (count,) or not np.isfinite(confidence).all() \
+            or (confidence < 0).any() or (confidence > 1).any():
+        raise StackFormatError(f"{where}: confidence must be one number in [0, 1] per frame")
+    models = meta["motion_models"]
+    if not all(m in BURST_MODELS for m in models):
+        raise StackFormatError(f"{where}: motion_models must each be one of {', '.join(BURST_MODELS)}")
+    ref = meta.get("reference_index", 0)
+    if not _is_int(ref) or not 0 <= ref < count:
+        raise StackFormatError(f"{where}: reference_index {ref!r} is not a frame index (0..{count - 1})")
+    bd = meta.get("bit_depth")
+    if bd is not None and (not _is_int(bd) or not 1 <= bd <= 16):
+        raise StackFormatError(f"{where}: bit_depth must be an integer from 1 to 16, got {bd!r}")
+    black = meta.get("black_level", 0)
+    if not _is_number(black) or not math.isfinite(black) or black < 0:
+        raise StackFormatError(f"{where}: black_level must be a non-negative number, got {black!r}")
+
+
+def _per_frame_count(meta: dict, where: str) -> int:
+    """The number of frames a burst's per-frame lists agree on."""
+    lengths = {k: len(meta[k]) if isinstance(meta[k], (list, tuple)) else -1
+               for k in ("motions", "confidence", "motion_models", "gain_offset")}
+    if len(set(lengths.values())) != 1 or min(lengths.values()) < 1:
+        raise StackFormatError(f"{where}: motions, confidence, motion_models and gain_offset must be lists of "
+                               f"one entry per frame, got lengths {lengths}")
+    return lengths["motions"]
+
+
 def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None:
     """Raise StackFormatError unless ``frames`` and ``meta`` form a valid hbis-stack/1 stack.
 
@@ -261,19 +335,13 @@ def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None
         raise StackFormatError(
             f"{where}: frame dtype {frames.dtype} is not one of uint8, uint16, float32"
         )
-    n_frames, n_phases = frames.shape[0], len(meta["phases_deg"])
-    if n_frames != n_phases:
-        raise StackFormatError(
-            f"{where}: {n_frames} frame(s) but {n_phases} entries in phases_deg (one per frame)"
-        )
-    system = _system_from_meta(meta, where)
+    if meta.get("kind", "hbis") == "burst":
+        if frames.shape[0] != len(meta["motions"]):
+            raise StackFormatError(f"{where}: {frames.shape[0]} frame(s) but {len(meta['motions'])} entries in "
+                                   "motions (one per frame)")
+    else:
+        _check_scan_geometry(frames, meta, where)
     u0, v0, width, height = meta["roi"]
-    cam = system.camera
-    if width < 1 or height < 1 or u0 < 0 or v0 < 0 or u0 + width > cam.cols or v0 + height > cam.rows:
-        raise StackFormatError(
-            f"{where}: roi {list(meta['roi'])} lies outside the {cam.rows} x {cam.cols} "
-            "(rows x cols) sensor"
-        )
     if (height, width) != frames.shape[1:3]:
         raise StackFormatError(
             f"{where}: roi is {width} x {height} (width x height) but the frames are "
@@ -301,6 +369,59 @@ def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None
     black = meta.get("black_level", 0)
     if black >= white:
         raise StackFormatError(f"{where}: black_level {black} is not below the white level {white}")
+
+
+def _check_scan_geometry(frames: np.ndarray, meta: dict, where: str) -> None:
+    """An HBIS scan's frames against its phases and its sensor."""
+    n_frames, n_phases = frames.shape[0], len(meta["phases_deg"])
+    if n_frames != n_phases:
+        raise StackFormatError(
+            f"{where}: {n_frames} frame(s) but {n_phases} entries in phases_deg (one per frame)"
+        )
+    system = _system_from_meta(meta, where)
+    u0, v0, width, height = meta["roi"]
+    cam = system.camera
+    if width < 1 or height < 1 or u0 < 0 or v0 < 0 or u0 + width > cam.cols or v0 + height > cam.rows:
+        raise StackFormatError(
+            f"{where}: roi {list(meta['roi'])} lies outside the {cam.rows} x {cam.cols} "
+            "(rows x cols) sensor"
+        )
+
+
+def make_burst_meta(h: int, roi, motions, confidence, motion_models, gain_offset,
+                    reference_index: int = 0, bit_depth: int | None = None, **extra) -> dict:
+    """Build the JSON object of a burst stack (``"kind": "burst"``).
+
+    Parameters
+    ----------
+    h : int
+        Output scale S: the reconstruction is the reference frame's grid refined S times.
+    roi : (u0, v0, width, height)
+        Where the frames were cut from the captured ones ((0, 0, W, H) when not cut).
+    motions : array-like, shape (F, 3, 3)
+        Homography of each frame: frame pixel (u, v) -> reference pixel, LR px, pixel centres
+        at integers (:mod:`hbis_torch.reconstruct.positions`); the identity for the reference.
+    confidence : array-like, shape (F,)
+        Registration confidence in [0, 1] (0: the motion is not to be trusted).
+    motion_models : sequence of str, length F
+        The model each motion was fitted with (:data:`BURST_MODELS`).
+    gain_offset : array-like, shape (F, 2)
+        (g, o) per frame: ``g * frame + o`` matches the reference's brightness (values in [0, 1]).
+    reference_index : int
+    bit_depth : int or None
+    **extra
+        Further keys, kept as they are.
+    """
+    meta = {"format": FORMAT, "kind": "burst", "h": int(h), "scale": int(h), "roi": [int(r) for r in roi],
+            "reference_index": int(reference_index),
+            "motions": np.asarray(motions, dtype=np.float64).reshape(-1, 3, 3).tolist(),
+            "confidence": [float(c) for c in np.asarray(confidence, dtype=np.float64).reshape(-1)],
+            "motion_models": [str(m) for m in motion_models],
+            "gain_offset": np.asarray(gain_offset, dtype=np.float64).reshape(-1, 2).tolist()}
+    if bit_depth is not None:
+        meta["bit_depth"] = int(bit_depth)
+    meta.update(_jsonable(extra))
+    return meta
 
 
 @dataclass
@@ -350,7 +471,36 @@ class Stack:
 
     @property
     def h(self) -> int:
+        """Refinement factor of the output grid (a scan's h, a burst's scale S)."""
         return int(self.meta["h"])
+
+    @property
+    def kind(self) -> str:
+        """``"hbis"`` (a Risley scan; the default when the file has no ``kind``) or ``"burst"``."""
+        return str(self.meta.get("kind", "hbis"))
+
+    @property
+    def motions(self) -> np.ndarray:
+        """A burst's (F, 3, 3) float64 homographies, frame px -> reference px."""
+        self._burst_only("motions")
+        return np.asarray(self.meta["motions"], dtype=np.float64).reshape(-1, 3, 3)
+
+    @property
+    def confidence(self) -> np.ndarray:
+        """A burst's (F,) float64 registration confidence in [0, 1]."""
+        self._burst_only("confidence")
+        return np.asarray(self.meta["confidence"], dtype=np.float64).reshape(-1)
+
+    @property
+    def gain_offset(self) -> np.ndarray:
+        """A burst's (F, 2) float64 (gain, offset): ``gain * frame + offset`` matches the reference."""
+        self._burst_only("gain_offset")
+        return np.asarray(self.meta["gain_offset"], dtype=np.float64).reshape(-1, 2)
+
+    def _burst_only(self, what: str) -> None:
+        if self.kind != "burst":
+            raise HbisInputError(f"{what} belongs to burst stacks; this stack is an HBIS scan (its motion is "
+                                 "the optics')")
 
     @property
     def roi(self) -> tuple[int, int, int, int]:
@@ -359,7 +509,9 @@ class Stack:
 
     @property
     def phases_deg(self) -> np.ndarray:
-        """(F, 2) float64 prism phases (phi1, phi2) in degrees."""
+        """(F, 2) float64 prism phases (phi1, phi2) in degrees (HBIS scans only)."""
+        if self.kind == "burst":
+            raise HbisInputError("a burst stack has no prism phases (its motion is in motions)")
         return np.asarray(self.meta["phases_deg"], dtype=np.float64).reshape(-1, 2)
 
     @property
@@ -383,6 +535,8 @@ class Stack:
 
     @property
     def system(self) -> FoveaSystem:
+        if self.kind == "burst" and "camera" not in self.meta:
+            raise HbisInputError("a burst stack records no optics (camera, prisms)")
         return _system_from_meta(self.meta, "stack")
 
     @property
@@ -427,7 +581,7 @@ def read_stack(path) -> Stack:
         raise StackFormatError(str(exc)) from None
     validate_stack(frames, meta, str(path))
     h = meta["h"]
-    if len(frames) != h * h:  # a file is one whole scan (in memory, part of one may be a Stack)
+    if meta.get("kind", "hbis") == "hbis" and len(frames) != h * h:  # a file is one whole scan (in memory, part of one may be a Stack)
         raise StackFormatError(f"{path}: {len(frames)} frame(s), but a scan with h = {h} has h x h = {h * h}")
     return Stack(frames, meta)
 
@@ -451,7 +605,7 @@ def write_stack(path, stack: Stack) -> None:
         raise StackFormatError(f"{path}: the stack's JSON cannot be written ({exc})") from None
     try:
         pixel_um = object_pixel_um(_system_from_meta(meta, str(path)))
-    except HbisInputError:
+    except (HbisInputError, KeyError):  # a burst records no optics
         pixel_um = None
     with atomic_path(path) as tmp:
         write_tiff(tmp, frames, description, pixel_um)

@@ -28,6 +28,11 @@
      without a message.
    * learned: as the classical method, since it refines the classical image.
 
+Burst stacks (``stack.kind == "burst"``) have no optics: their positions are the measured
+``motions`` (homographies frame px -> reference px, found by ``hbis assemble --burst``) applied
+to every pixel (:func:`burst_positions`), and the frames with a confidence of at least
+:data:`BURST_MIN_CONFIDENCE` are the trusted ones; ``registration`` does not apply to them.
+
 Defaults. :func:`hbis_torch.reconstruct.reconstruct`, ``hbis reconstruct --registration`` and both
 methods' registry entries default to ``"auto"``: a captured stack's phases are only what the
 motors were asked for, and "auto" corrects them where the data allows without dropping frames.
@@ -52,6 +57,39 @@ REGISTRATIONS = ("optics", "data", "auto")
 # The exact tracer keeps some 200 bytes of temporaries per sample: larger stacks (a full frame
 # at h = 4 and above) are traced a few frames per call, so that memory stays near 1 GB.
 EXACT_SAMPLES_PER_CALL = 1 << 22
+
+
+# A burst frame whose registration confidence is below this is not trusted.
+BURST_MIN_CONFIDENCE = 0.5
+
+
+def burst_positions(stack) -> tuple[Tensor, Tensor]:
+    """Where every sample of a burst stack lies on the reference frame's grid.
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+        A burst (``stack.kind == "burst"``).
+
+    Returns
+    -------
+    positions : Tensor, shape (F, H, W, 2), float64
+        (u, v) of every sample in the reference frame's LR pixel coordinates: the frame's
+        homography (``stack.motions``) applied to its pixel centres.
+    trusted : Tensor, shape (F,), bool
+        Frames whose confidence is at least :data:`BURST_MIN_CONFIDENCE` (the reference always).
+    """
+    from hbis_torch.registration import apply_homography
+
+    motions = torch.from_numpy(stack.motions)
+    count, height, width = stack.frames.shape[:3]
+    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
+                          indexing="ij")
+    grid = torch.stack((u, v), -1).reshape(1, -1, 2).expand(count, -1, -1)
+    positions = apply_homography(motions, grid).reshape(count, height, width, 2)
+    trusted = torch.from_numpy(stack.confidence >= BURST_MIN_CONFIDENCE)
+    trusted[stack.reference_index] = True
+    return positions, trusted
 
 
 def check_registration(registration: str) -> str:
@@ -141,6 +179,8 @@ def stack_sample_positions(stack, registration: str = "auto", *, exact: bool = F
         one-frame stacks).
     """
     check_registration(registration)
+    if getattr(stack, "kind", "hbis") == "burst":
+        return burst_positions(stack)
     if not exact:
         nodes, trusted = stack_sample_nodes(stack, registration, frames=frames, messages=messages)
         return interpolate_positions(nodes), trusted
