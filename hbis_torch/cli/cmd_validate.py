@@ -73,26 +73,22 @@ def method_names(given) -> list[str]:
 
 
 def run(args) -> int:
-    from hbis_torch.validate.cross import resolve_methods
-    from hbis_torch.validate.forward import DEFAULT_BLUR_PX
-    from hbis_torch.validate.score import DEFAULT_BORDER_PX
-
-    names = resolve_methods(method_names(args.method))
+    names = method_names(args.method)  # before reading the stack
     from hbis_torch.progress import progress
     from hbis_torch.stack_io import read_stack
-    from hbis_torch.validate.cross import cross_validate
+    from hbis_torch.validate.cross import DEFAULT_HOLDOUT, cross_validate
+    from hbis_torch.validate.forward import DEFAULT_BLUR_PX
     from hbis_torch.validate.frames import holdout_frames
+    from hbis_torch.validate.score import DEFAULT_BORDER_PX
 
     stack = read_stack(args.stack)
     count = len(stack.frames)
-    if args.holdout is not None:  # before any work
-        holdout_frames(count, stack.reference_index, args.holdout)
-    elif count < 2:
-        holdout_frames(count, stack.reference_index, 1)
-    runs = len([n for n in names]) * min(args.holdout or 3, count - 1)
+    holdout = min(DEFAULT_HOLDOUT, max(1, count - 1)) if args.holdout is None else args.holdout
+    holdout_frames(count, stack.reference_index, holdout)  # a bad count is refused before any work
+    runs = len(names) * holdout
     messages: list[str] = []
     with progress(total=runs, desc="validate", unit="run") as bar:
-        result = cross_validate(stack, names, args.holdout, registration=args.registration,
+        result = cross_validate(stack, names, holdout, registration=args.registration,
                                 border_px=DEFAULT_BORDER_PX if args.border is None else args.border,
                                 blur_px=DEFAULT_BLUR_PX if args.blur is None else args.blur,
                                 messages=messages, on_step=bar.update)
