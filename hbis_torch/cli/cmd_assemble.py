@@ -7,6 +7,7 @@ from pathlib import Path
 
 from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli.common import add_system_args, add_system_file_args, system_for
+from hbis_torch.errors import HbisInputError
 
 CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 
@@ -32,20 +33,34 @@ def add_calibration_args(parser) -> None:
 def register(sub) -> None:
     p = sub.add_parser(
         "assemble",
-        help="build an hbis-stack/1 file from captured frames and the phases file of 'hbis motors scan --out'",
+        help="build an hbis-stack/1 file from captured frames and the phases file of 'hbis motors scan --out', "
+        "or (--burst) from a burst of frames with unknown motion",
         description="Assemble the frames of one captured scan (in scan order) and the phases file that "
         "'hbis motors scan --out' wrote into an hbis-stack/1 TIFF: the read-back phases become the "
         "stack's phases_deg and the scan's reference_index is kept. FRAME is several image files, "
         "one pattern with {index} (e.g. 'cap_{index:03d}.png', replaced by 0..h*h-1), one multi-page "
-        "TIFF, or one video file (OpenCV). Everything is checked before anything is written.",
-        epilog="example: hbis assemble --phases phases.json --roi 608,456,64,48 --bit-depth 12 "
-        "--out stack.tif 'frames/cap_{index:03d}.tif'",
+        "TIFF, or one video file. Everything is checked before anything is written. With --burst, no phases: "
+        "the frames are a burst from a freely moving camera (any number >= 2); each frame's motion to the "
+        "reference is measured (phase correlation or matched features, then Lucas-Kanade, the simplest motion "
+        "model that explains it, frame by frame), with its brightness (gain, offset) and a confidence; frames that "
+        "cannot be registered (another scene, no texture) are named and marked untrusted.",
+        epilog="examples: hbis assemble --phases phases.json --roi 608,456,64,48 --bit-depth 12 "
+        "--out stack.tif 'frames/cap_{index:03d}.tif'; hbis assemble --burst --scale 3 --out burst.tif clip.avi",
     )
     p.add_argument("frames", nargs="+", metavar="FRAME", help="frames in scan order (files, {index} pattern, TIFF, video)")
-    p.add_argument("--phases", required=True, help="the phases file of 'hbis motors scan --out'")
+    p.add_argument("--phases", help="the phases file of 'hbis motors scan --out' (required unless --burst)")
+    b = p.add_argument_group("bursts (frames with unknown motion, no phases)")
+    b.add_argument("--burst", action="store_true", help="the frames are a burst: measure each frame's motion")
+    b.add_argument("--scale", type=bounded_int(1, 16), help="with --burst: the output scale S (the reconstruction "
+                   "refines the reference frame's grid S times; required)")
+    b.add_argument("--reference", type=bounded_int(0, 255), default=0,
+                   help="with --burst: the frame whose grid the output refines (default 0)")
+    b.add_argument("--motion", choices=("auto", "translation", "similarity", "affine", "homography"), default="auto",
+                   help="with --burst: the motion model; 'auto' (default) picks, frame by frame, the simplest model "
+                   "whose residual is at the noise level")
     p.add_argument("--out", required=True, type=Path, help="output stack (hbis-stack/1 TIFF)")
     p.add_argument("--roi", type=_roi, help="where the frames sit on the sensor, U0,V0,WIDTH,HEIGHT (default: "
-                   "the whole sensor); full-sensor frames are cut to it")
+                   "the whole sensor); full-sensor frames are cut to it; with --burst: the part of the frames to keep")
     p.add_argument("--bit-depth", type=bounded_int(1, 16), help="significant bits of integer frames (default: 8 or 16 from the dtype)")
     p.add_argument("--black-level", type=bounded_float(0.0, 65535.0), help="digital number of black (default 0)")
     p.add_argument("--cfa", type=str.upper, choices=CFA_PATTERNS,
@@ -66,6 +81,14 @@ def run(args) -> int:
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import write_stack
 
+    if args.burst:
+        return run_burst(args)
+    if args.phases is None:
+        raise HbisInputError("--phases is required (the phases file of 'hbis motors scan --out'), "
+                         "unless the frames are a burst (--burst --scale S)")
+    for flag, given in (("--scale", args.scale), ("--reference", args.reference), ("--motion", args.motion != "auto")):
+        if given:
+            raise HbisInputError(f"{flag} is for bursts: give --burst as well")
     check_output_path(args.out)
     inputs = {"--phases": args.phases, "--dark": args.dark, "--flat": args.flat, "--bad-pixels": args.bad_pixels,
               "--system": getattr(args, "system", None), "--calibration": getattr(args, "calibration", None)}
@@ -82,4 +105,41 @@ def run(args) -> int:
     print(f"wrote {args.out}: {f.shape[0]} frames of {f.shape[2]} x {f.shape[1]} ({f.dtype}"
           f"{', RGB' if f.ndim == 4 else ''}), h = {stack.h}, roi {list(stack.roi)}, reference frame "
           f"{stack.reference_index}{', calibrated' if calibration else ''}")
+    return 0
+
+
+def run_burst(args) -> int:
+    """``hbis assemble --burst``: frames with unknown motion -> a burst stack."""
+    import sys
+
+    from hbis_torch.capture import read_frames
+    from hbis_torch.capture.burst import assemble_burst
+    from hbis_torch.io_utils import check_distinct_paths, check_output_path
+    from hbis_torch.stack_io import write_stack
+
+    if args.scale is None:
+        raise HbisInputError("--burst needs --scale S (the output scale: 2, 3, 4, ...)")
+    refused = [flag for flag, value in (("--phases", args.phases), ("--cfa", args.cfa), ("--dark", args.dark),
+                                        ("--flat", args.flat), ("--bad-pixels", args.bad_pixels),
+                                        ("--black-level", args.black_level),
+                                        ("--system", getattr(args, "system", None)),
+                                        ("--calibration", getattr(args, "calibration", None))) if value is not None]
+    if refused:
+        raise HbisInputError(f"{', '.join(refused)} do(es) not apply to a burst (--burst)")
+    check_output_path(args.out)
+    check_distinct_paths({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()},
+                         {"--out": args.out})
+    frames, names = read_frames(args.frames)
+    stack, messages = assemble_burst(frames, args.scale, args.reference, args.motion, roi=args.roi,
+                                     bit_depth=args.bit_depth, names=names)
+    write_stack(args.out, stack)
+    for line in messages:
+        print(f"hbis assemble: {line}", file=sys.stderr)
+    models = stack.meta["motion_models"]
+    counts = ", ".join(f"{models.count(m)} {m}" for m in dict.fromkeys(models))
+    trusted = int((stack.confidence >= 0.5).sum())
+    f = stack.frames
+    print(f"wrote {args.out}: burst of {f.shape[0]} frames of {f.shape[2]} x {f.shape[1]} ({f.dtype}"
+          f"{', RGB' if f.ndim == 4 else ''}), scale {stack.h}, reference frame {stack.reference_index}, "
+          f"{trusted} frame(s) trusted; motion models: {counts}")
     return 0

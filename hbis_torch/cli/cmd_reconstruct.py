@@ -79,7 +79,8 @@ def run(args) -> int:
     meta = {"format": "hbis-sr/1", "source": args.stack.name, "method": args.method,
             "registration": args.registration, "h": stack.h, "roi": list(stack.roi),
             "reference_index": stack.reference_index}
-    write_image(args.out, image, meta, pixel_size_um=object_pixel_um(stack.system, stack.h))
+    pixel_um = None if stack.kind == "burst" else object_pixel_um(stack.system, stack.h)  # a burst has no optics
+    write_image(args.out, image, meta, pixel_size_um=pixel_um)
     print(f"wrote {args.out} ({image.shape[0]} x {image.shape[1]} px, float32{', RGB' if image.ndim == 3 else ''})")
     return 0
 

@@ -76,6 +76,11 @@ class Method:
         one, raw frames are demosaicked first and go through ``run`` as RGB.
     threads : bool
         ``run`` takes ``threads`` (``hbis reconstruct --threads``, which also sets torch's).
+    burst : callable or str, optional
+        ``burst(stack, frames, positions, weights, messages=None, **options)`` -> ndarray
+        (S H, S W): the method on a burst stack's grey (or one colour's) frames (F, H, W), given
+        each sample's position (F, H, W, 2) and robustness weight (F, H, W)
+        (:mod:`hbis_torch.reconstruct.burst` works them out). Without one, burst stacks are refused.
     """
 
     name: str
@@ -84,6 +89,7 @@ class Method:
     options: tuple[Option, ...] = ()
     raw_bayer: Callable[..., np.ndarray] | str | None = None
     threads: bool = False
+    burst: Callable[..., np.ndarray] | str | None = None
 
     @property
     def keywords(self) -> frozenset[str]:
@@ -97,6 +103,10 @@ class Method:
     def raw_bayer_function(self) -> Callable[..., np.ndarray] | None:
         """:attr:`raw_bayer`, imported if named as ``"module:function"``; None without one."""
         return None if self.raw_bayer is None else _resolve(self.raw_bayer)
+
+    def burst_function(self) -> Callable[..., np.ndarray] | None:
+        """:attr:`burst`, imported if named as ``"module:function"``; None without one."""
+        return None if self.burst is None else _resolve(self.burst)
 
 
 def _resolve(target: Callable[..., Any] | str) -> Callable[..., Any]:
@@ -155,13 +165,19 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
         learned: ``model``, ``messages``, ``threads``, ``provider``, ``extrapolate``,
         ``ensemble``). A colour stack (RGB frames or raw Bayer with a ``cfa`` key) goes through
         :func:`hbis_torch.reconstruct.colour.reconstruct_colour`, which also takes ``colour``
-        ("luma" or "channels"); ``colour`` on a grey stack is refused.
+        ("luma" or "channels"); ``colour`` on a grey stack is refused. A burst stack
+        (``stack.kind == "burst"``) goes through
+        :func:`hbis_torch.reconstruct.burst.reconstruct_burst` and the method's ``burst`` path.
 
     Returns
     -------
     np.ndarray, shape (h*H, h*W) (or (h*H, h*W, 3) for a colour stack), float32 in [0, 1]
     """
     entry = get_method(method)
+    if getattr(stack, "kind", "hbis") == "burst":  # measured motion instead of optics: one path, every method
+        from hbis_torch.reconstruct.burst import reconstruct_burst
+
+        return reconstruct_burst(stack, entry, registration=registration, **kw)
     if registration == "data" and len(stack.frames) > 1:
         ref = stack.frames[stack.reference_index]
         if ref.min() == ref.max():  # nothing to register to: every other frame would be left out
@@ -182,6 +198,7 @@ register(Method(
     name="classical",
     run="hbis_torch.reconstruct.classical.method:reconstruct_classical",
     raw_bayer="hbis_torch.reconstruct.classical.method:reconstruct_classical_raw_bayer",
+    burst="hbis_torch.reconstruct.burst:classical_burst",
     summary="splat the samples at their positions and deblur with a Wiener filter (docs/classical.md)",
     options=(
         Option("--no-deblur", "deblur", "interpolation only, without the Wiener deblurring",
@@ -193,6 +210,7 @@ register(Method(
     name="learned",
     run="hbis_torch.reconstruct.learned.method:reconstruct_learned",
     raw_bayer="hbis_torch.reconstruct.learned.method:reconstruct_learned_raw_bayer",
+    burst="hbis_torch.reconstruct.burst:learned_burst",
     summary="the classical image refined by a small network in onnxruntime (docs/learned.md)",
     threads=True,
     options=(

@@ -39,6 +39,7 @@ from hbis_torch.registration.assess import (
 )
 from hbis_torch.registration.bspline import bspline_sample, gaussian_kernel, prefilter
 from hbis_torch.registration.homography import (
+    ALL_MODELS,
     MODELS,
     N_PARAMS,
     apply_homography,
@@ -53,6 +54,7 @@ from hbis_torch.registration.stack import Registration, register_stack
 from hbis_torch.sensor.noise import noise_sigma
 
 __all__ = [
+    "ALL_MODELS",
     "COARSE_POINTS",
     "MIN_CORRELATION",
     "MODELS",

@@ -8,7 +8,8 @@ The motion models (:data:`MODELS`) are parametrised as small warps ``W(p)`` (ide
 in *normalised* coordinates: centred on the frame and scaled so that its half-size is about 1
 (:func:`_normaliser`), so that every parameter moves the frame by a comparable amount. Their
 parameter vectors have :data:`N_PARAMS` entries: translation (tx, ty), similarity (tx, ty,
-scale, rotation), homography (the 8 free entries of the matrix).
+scale, rotation), affine (tx, ty and the 2 x 2 linear part's four increments; burst stacks'
+ladder, :data:`ALL_MODELS`), homography (the 8 free entries of the matrix).
 """
 
 from __future__ import annotations
@@ -22,7 +23,9 @@ from torch import Tensor
 from hbis_torch.errors import HbisInputError
 
 MODELS = ("translation", "similarity", "homography")
-N_PARAMS = {"translation": 2, "similarity": 4, "homography": 8}
+#: Every model the fitter knows, simplest first (the ladder a burst's per-frame choice climbs).
+ALL_MODELS = ("translation", "similarity", "affine", "homography")
+N_PARAMS = {"translation": 2, "similarity": 4, "affine": 6, "homography": 8}
 
 
 def apply_homography(homographies: Tensor, points: Tensor) -> Tensor:
@@ -174,12 +177,13 @@ def _params_to_matrix(p: Tensor, model: str) -> Tensor:
         m[:, 0, 0] += p[:, 2]
         m[:, 1, 1] += p[:, 2]
         m[:, 0, 1], m[:, 1, 0] = -p[:, 3], p[:, 3]
-    elif model == "homography":
+    elif model in ("affine", "homography"):
         m[:, 0, 0] += p[:, 2]
         m[:, 0, 1] += p[:, 3]
         m[:, 1, 0] += p[:, 4]
         m[:, 1, 1] += p[:, 5]
-        m[:, 2, 0], m[:, 2, 1] = p[:, 6], p[:, 7]
+        if model == "homography":
+            m[:, 2, 0], m[:, 2, 1] = p[:, 6], p[:, 7]
     return m
 
 
@@ -190,12 +194,14 @@ def _embedding(model: str) -> Tensor:
     if model == "similarity":
         e[2, 2] = e[5, 2] = 1.0  # scale: (x, y)
         e[3, 3], e[4, 3] = -1.0, 1.0  # rotation: (-y, x)
+    elif model == "affine":
+        e = torch.eye(8, 6, dtype=torch.float64)
     elif model == "homography":
         e = torch.eye(8, dtype=torch.float64)
     return e
 
 
-_EMBEDDING = {m: _embedding(m) for m in MODELS}
+_EMBEDDING = {m: _embedding(m) for m in ALL_MODELS}
 
 
 def _warp_jacobian(x: Tensor, y: Tensor, model: str) -> tuple[list[Tensor], list[Tensor]]:
@@ -205,6 +211,9 @@ def _warp_jacobian(x: Tensor, y: Tensor, model: str) -> tuple[list[Tensor], list
     if model == "similarity":
         jx += [x, -y]
         jy += [y, x]
+    elif model == "affine":
+        jx += [x, y, zero, zero]
+        jy += [zero, zero, x, y]
     elif model == "homography":
         jx += [x, y, zero, zero, -x * x, -x * y]
         jy += [zero, zero, x, y, -x * y, -y * y]

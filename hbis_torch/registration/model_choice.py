@@ -31,18 +31,20 @@ def _penalty(fit: _Fit, k_extra: int, corr_area: float, use: Tensor) -> float:
 
 
 def _choose_model(lk: _LucasKanade, fit: _Fit, chosen: str, keep: Tensor | None, corr_area: float, use: Tensor,
-                  iterations: int, tolerance_px: float, motion_tolerance_px: float) -> tuple[str, _Fit]:
+                  iterations: int, tolerance_px: float, motion_tolerance_px: float,
+                  ladder: tuple[str, ...] = MODELS) -> tuple[str, _Fit]:
     """The simplest model that explains the residual, starting from ``fit`` of model ``chosen``.
 
     Each richer model in turn is fitted (from the current fit, on the points in ``keep`` (F, N)
     bool, if given) only when the score test says it would pay and move some pixel by more than
     ``motion_tolerance_px``, and kept only if the full fit confirms both over the frames in
-    ``use`` (F,) bool.
+    ``use`` (F,) bool. ``ladder``: the models to climb, simplest first (a scan's :data:`MODELS`,
+    or a burst's :data:`~hbis_torch.registration.homography.ALL_MODELS` with the affine step).
 
     Returns (the model kept, its fit).
     """
     H, W = lk.H, lk.W
-    for richer in MODELS[1:]:
+    for richer in ladder[ladder.index(chosen) + 1:]:
         extra = N_PARAMS[richer] - N_PARAMS[chosen]
         gain, moved = lk.score_test(fit, richer, chosen, corr_area, use)
         if gain <= _penalty(fit, extra, corr_area, use) or moved <= motion_tolerance_px:

@@ -26,7 +26,7 @@ from hbis_torch.registration.assess import (
     _precision_px,
 )
 from hbis_torch.registration.bspline import _reference_splines, gaussian_kernel
-from hbis_torch.registration.homography import MODELS, apply_homography
+from hbis_torch.registration.homography import ALL_MODELS, MODELS, apply_homography
 from hbis_torch.registration.lucas_kanade import (
     _Fit,
     _LucasKanade,
@@ -147,6 +147,7 @@ def register_stack(
     motion_tolerance_px: float = 0.01,
     min_confidence: float = 0.5,
     dtype=torch.float32,
+    ladder: tuple[str, ...] = MODELS,
 ) -> Registration:
     """Estimate each frame's motion relative to the reference frame.
 
@@ -184,6 +185,9 @@ def register_stack(
     dtype : torch.dtype
         Precision of the resampling (float32 by default; the normal equations are always solved
         in float64). float32 agrees with float64 to well below 1e-3 px (tests check it).
+    ladder : tuple of str
+        The models ``auto`` climbs, simplest first: :data:`MODELS`, or
+        :data:`~hbis_torch.registration.homography.ALL_MODELS` (with ``affine``, for bursts).
 
     Returns
     -------
@@ -209,7 +213,7 @@ def register_stack(
     use[ref] = False
     if model == "auto" and bool(use.any()):
         chosen, fit = _choose_model(lk, fit, chosen, keep, corr_area, use, iterations, tolerance_px,
-                                    motion_tolerance_px)
+                                    motion_tolerance_px, ladder)
 
     fit.mismatch_fraction = mismatch
     precision, confidence, messages = _confidence(fit, chosen, flat, noise, ref, (H, W), blur_sigma, corr_area,
@@ -238,8 +242,8 @@ def _check_arguments(frames, reference_index, prediction, model: str, blur_sigma
     if not 0 <= ref < F:
         raise HbisInputError(f"reference_index must lie in [0, {F - 1}], got {ref}")
     prediction = _check_prediction(prediction, F)
-    if model != "auto" and model not in MODELS:
-        raise HbisInputError(f"model must be 'auto' or one of {MODELS}, got {model!r}")
+    if model != "auto" and model not in ALL_MODELS:
+        raise HbisInputError(f"model must be 'auto' or one of {ALL_MODELS}, got {model!r}")
     if not (math.isfinite(blur_sigma) and 0 <= blur_sigma <= 5):
         raise HbisInputError(f"blur_sigma must be a number in [0, 5] px, got {blur_sigma!r}")
     if not 0 < keep_fraction <= 1:

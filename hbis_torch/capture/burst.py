@@ -1,0 +1,336 @@
+"""Captured frames of a freely moving camera (a burst) -> one ``hbis-stack/1`` burst stack.
+
+Each frame's motion to the reference is measured from the data (no optics, no phases):
+
+1. *coarse*: phase correlation (inside :func:`~hbis_torch.registration.register_stack`); where
+   that leaves the frame unregistered, ORB features matched to the reference and a RANSAC fit
+   (OpenCV) give a second start, for motion beyond the correlation's reach;
+2. *fine*: the project's Lucas-Kanade (:func:`~hbis_torch.registration.register_stack`), frame
+   by frame against the reference, so that the motion model is chosen per frame: the simplest of
+   translation, similarity, affine, homography whose residual is at the noise level
+   (:mod:`hbis_torch.registration.model_choice`'s BIC ladder); a frame identical to the
+   reference gets ``identity``;
+3. *brightness*: the frame, warped onto the reference grid by Kornia, is matched to the
+   reference by a robust least-squares gain and offset (saturated pixels and outliers left out);
+4. *trust*: the registration's confidence; a frame that does not match the reference (another
+   scene) or cannot be registered gets confidence 0 and is named in the messages.
+
+Frames are (F, H, W) or (F, H, W, 3) of any stored dtype; motions are (F, 3, 3) float64
+homographies frame px -> reference px; confidence (F,) in [0, 1]; gain_offset (F, 2) such that
+``g * frame + o`` (values in [0, 1]) matches the reference.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.positions import BURST_MIN_CONFIDENCE
+from hbis_torch.stack_io import Stack, make_burst_meta, validate_stack
+
+#: ``--motion`` choices: ``auto`` climbs translation -> similarity -> affine -> homography per frame.
+MOTIONS = ("auto", "translation", "similarity", "affine", "homography")
+MAX_BURST_FRAMES = 256
+# Below this confidence another start is tried; frames left below BURST_MIN_CONFIDENCE are rejected.
+RETRY_CONFIDENCE = 0.6
+BURST_PRECISION_PX = 0.15
+MATCH_RESIDUAL_ONE, MATCH_RESIDUAL_ZERO = 0.3, 0.6
+# Pixels this close to the white or black level count as saturated (left out of the gain fit).
+SATURATION_MARGIN = 2.0 / 255.0
+
+
+@dataclass
+class BurstMotion:
+    """Each frame's measured motion to the reference (:func:`register_burst`).
+
+    Attributes
+    ----------
+    motions : np.ndarray, shape (F, 3, 3), float64
+        Frame px -> reference px.
+    confidence : np.ndarray, shape (F,), float64 in [0, 1]
+    models : list of str
+        The model of each motion (``identity`` for the reference and exact copies of it).
+    gain_offset : np.ndarray, shape (F, 2), float64
+    messages : list of str
+        One line per frame that was rejected or needed a second start, naming it.
+    """
+
+    motions: np.ndarray
+    confidence: np.ndarray
+    models: list
+    gain_offset: np.ndarray
+    messages: list = field(default_factory=list)
+
+
+def luminance(frames: np.ndarray) -> torch.Tensor:
+    """(F, H, W) float32 in [0, 1] from stored frames (F, H, W) or (F, H, W, 3) (BT.601 luma)."""
+    frames = np.asarray(frames)
+    if frames.dtype == np.uint8 or frames.dtype == np.uint16:
+        x = frames.astype(np.float32) / float(np.iinfo(frames.dtype).max)
+    else:
+        x = frames.astype(np.float32)
+    if x.ndim == 4:
+        x = x @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
+    return torch.from_numpy(np.ascontiguousarray(x))
+
+
+def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
+                   names: list | None = None) -> BurstMotion:
+    """Measure every frame's motion, model, brightness and confidence relative to the reference.
+
+    Frames are registered outward from the reference, each against the reference itself; the
+    fit starts from phase correlation, and where that leaves the frame untrusted, from its
+    neighbour's motion (a burst drifts smoothly) and then from matched features.
+
+    Parameters
+    ----------
+    grey : Tensor, shape (F, H, W), float32 in [0, 1]
+        The frames' luminance (:func:`luminance`).
+    reference : int
+        Index of the reference frame.
+    motion : str
+        One of :data:`MOTIONS`: ``auto`` picks each frame's model from its data; any other
+        fits that model to every frame.
+    names : list of str, optional
+        Where each frame came from, for the messages.
+
+    Returns
+    -------
+    BurstMotion
+    """
+    F = grey.shape[0]
+    names = names or [f"frame {k}" for k in range(F)]
+    motions = np.repeat(np.eye(3)[None], F, 0)
+    confidence, models = np.ones(F), ["identity"] * F
+    gain_offset = np.tile([1.0, 0.0], (F, 1))
+    messages: list[str] = []
+    ref = grey[reference]
+    from hbis_torch.progress import progress
+
+    order = [list(range(reference + 1, F)), list(range(reference - 1, -1, -1))]
+    bar = progress(desc="registering the burst", total=F - 1, unit="frame")
+    for direction in order:
+        neighbour = np.eye(3)
+        for k in direction:
+            bar.update()
+            if torch.equal(grey[k], ref):
+                continue
+            reg, how = _register_pair(ref, grey[k], motion, neighbour)
+            conf = burst_confidence(reg)
+            models[k] = reg.model
+            if conf < BURST_MIN_CONFIDENCE:
+                why = "; ".join(m.replace("frame 1", "it") for m in reg.messages
+                                if "not registered" not in m) or "its motion is not measurable"
+                messages.append(f"frame {k} ({names[k]}) rejected (registration confidence {conf:.2f}{how}): {why}")
+                confidence[k] = 0.0
+                continue
+            motions[k], confidence[k] = reg.homographies[1].numpy(), conf
+            neighbour = motions[k]
+            gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k])
+    bar.close()
+    return BurstMotion(motions, confidence, models, gain_offset, messages)
+
+
+def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbour: np.ndarray):
+    """The best registration of ``frame`` to ``ref`` from up to three starts (phase correlation,
+    the neighbour's motion, matched features), trying the next only while the last is untrusted.
+
+    Returns (the :class:`~hbis_torch.registration.Registration` of the pair, a note on the start
+    used, "" for phase correlation).
+    """
+    from hbis_torch.registration import ALL_MODELS, register_stack
+
+    pair = torch.stack((ref, frame))
+    best, note = register_stack(pair, 0, model=motion, ladder=ALL_MODELS), ""
+    starts = (("the neighbouring frame's motion", lambda: neighbour if not np.allclose(neighbour, np.eye(3)) else None),
+              ("matched features", lambda: feature_start(ref.numpy(), frame.numpy())))
+    for name, start in starts:
+        if burst_confidence(best) >= RETRY_CONFIDENCE:
+            break
+        guess = start()
+        if guess is None:
+            continue
+        again = register_stack(pair, 0, prediction=np.stack((np.eye(3), guess)), model=motion, ladder=ALL_MODELS)
+        if burst_confidence(again) > burst_confidence(best):
+            best, note = again, f", started from {name}"
+    return best, note
+
+
+def burst_confidence(reg) -> float:
+    """Confidence in [0, 1] of the second frame of a registered pair, for a burst.
+
+    The scan registration's own confidence asks for 0.05 px (the Risley scan's sub-pixel steps
+    are that fine); a burst's random sub-pixel offsets gain from samples good to a tenth of a pixel
+    or so. So: ``exp(-(precision / 0.15 px)^2)``, times how well the aligned frames match:
+    1 up to a residual of 0.3 frame standard deviations, 0 at 0.6 (another scene leaves about 0.7,
+    i.e. a correlation of 0.75; noise and aliasing on the shared sequences leave 0.05 to 0.2).
+    """
+    precision = float(reg.precision_px[1])
+    residual = float(reg.residual[1])
+    if not (np.isfinite(precision) and np.isfinite(residual)) or not bool(torch.isfinite(reg.homographies).all()):
+        return 0.0
+    match = float(np.clip((MATCH_RESIDUAL_ZERO - residual) / (MATCH_RESIDUAL_ZERO - MATCH_RESIDUAL_ONE), 0, 1))
+    return float(np.exp(-(precision / BURST_PRECISION_PX) ** 2)) * match
+
+
+def feature_start(reference: np.ndarray, frame: np.ndarray) -> np.ndarray | None:
+    """A homography frame px -> reference px from ORB features and RANSAC (OpenCV), for motion
+    beyond phase correlation's reach; None where too few features match.
+
+    Parameters
+    ----------
+    reference, frame : np.ndarray, shape (H, W), float32 in [0, 1]
+    """
+    try:
+        import cv2
+    except ImportError:  # the optional extra: the coarse start stays phase correlation
+        return None
+    scale = 4 if max(reference.shape) < 256 else 1  # ORB needs some 30 px around a keypoint
+    def prepare(image):
+        big = cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
+        return np.clip(big * 255, 0, 255).astype(np.uint8)
+    orb = cv2.ORB_create(nfeatures=1000, edgeThreshold=15, patchSize=15)
+    kr, dr = orb.detectAndCompute(prepare(reference), None)
+    kf, df = orb.detectAndCompute(prepare(frame), None)
+    if dr is None or df is None or len(kr) < 8 or len(kf) < 8:
+        return None
+    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(df, dr)
+    if len(matches) < 8:
+        return None
+    src = np.float32([kf[m.queryIdx].pt for m in matches])
+    dst = np.float32([kr[m.trainIdx].pt for m in matches])
+    matrix, inliers = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0 * scale)
+    if matrix is None or int(inliers.sum()) < 6:
+        return None
+    # OpenCV's pixel centres are at integers too; undo the enlargement: (x + 0.5) * s - 0.5.
+    up = np.array([[scale, 0, (scale - 1) / 2], [0, scale, (scale - 1) / 2], [0, 0, 1.0]])
+    return np.linalg.inv(up) @ np.vstack((matrix, [0, 0, 1])) @ up
+
+
+def warp_to_reference(frame: torch.Tensor, motion: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """Frame (H, W) resampled onto the reference grid through its homography (Kornia, bilinear).
+
+    Returns the warped frame (H, W) and where it is valid (H, W) bool (inside the frame).
+    """
+    import kornia
+
+    H, W = frame.shape
+    M = torch.as_tensor(motion, dtype=torch.float32)[None]
+    image = torch.stack((frame, torch.ones_like(frame)))[None].float()
+    out = kornia.geometry.transform.warp_perspective(image, M, (H, W), mode="bilinear", padding_mode="zeros",
+                                                     align_corners=True)[0]
+    return out[0], out[1] > 0.999
+
+
+def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.ndarray) -> tuple[float, float]:
+    """(g, o) with ``g * frame + o`` matching the reference where both see the same scene.
+
+    A least-squares line through the warped frame's and the reference's pixels (both blurred a
+    little against aliasing), refitted once without the pixels more than 3 robust sigmas off
+    (a moving object) and without saturated pixels. A fit that is not sensible (g outside
+    [0.5, 2]) is refused in favour of (1, 0).
+    """
+    import kornia
+
+    warped, valid = warp_to_reference(frame, motion)
+    blur = kornia.filters.gaussian_blur2d(torch.stack((warped, reference))[:, None], (5, 5), (1.0, 1.0),
+                                          border_type="replicate")[:, 0]
+    x, y = blur[0][valid].double(), blur[1][valid].double()
+    lo, hi = SATURATION_MARGIN, 1.0 - SATURATION_MARGIN
+    use = (x > lo) & (x < hi) & (y > lo) & (y < hi)
+    gain, offset = 1.0, 0.0
+    for _ in range(2):
+        if int(use.sum()) < 16 or float(x[use].std()) < 1e-4:
+            return 1.0, 0.0
+        A = torch.stack((x[use], torch.ones_like(x[use])), -1)
+        gain, offset = torch.linalg.lstsq(A, y[use][:, None]).solution[:, 0].tolist()
+        r = y - (gain * x + offset)
+        spread = 1.4826 * float(r[use].abs().median()) + 1e-6
+        use = use & (r.abs() < 3 * spread)
+    if not 0.5 <= gain <= 2.0:
+        return 1.0, 0.0
+    return gain, offset
+
+
+def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: str = "auto", roi=None,
+                   bit_depth: int | None = None, names: list | None = None) -> tuple[Stack, list]:
+    """Build and validate a burst stack from captured frames.
+
+    Parameters
+    ----------
+    frames : np.ndarray, shape (F, H, W) or (F, H, W, 3)
+        uint8, uint16 or float32 (in [0, 1]), in capture order; F >= 2.
+    scale : int
+        Output scale S (1..16): the reconstruction refines the reference grid S times.
+    reference : int
+        The frame whose grid the output refines.
+    motion : str
+        One of :data:`MOTIONS`.
+    roi : (u0, v0, width, height) or None
+        Cut the frames to this rectangle first (None: whole frames).
+    bit_depth : int or None
+        Significant bits of integer frames (default: the dtype's).
+    names : list of str, optional
+        Where each frame came from (for messages).
+
+    Returns
+    -------
+    stack : Stack
+    messages : list of str
+    """
+    frames, roi = check_burst_input(frames, scale, reference, motion, roi, bit_depth)
+    grey = luminance(frames)
+    if bit_depth is not None and frames.dtype != np.float32:
+        grey = grey * ((2 ** (frames.dtype.itemsize * 8) - 1) / (2 ** bit_depth - 1))
+    found = register_burst(grey, reference, motion, names)
+    messages = list(found.messages)
+    if all(m == "identity" for m in found.models):
+        messages.append(f"all {len(frames)} frames are identical to the reference: the burst holds no new samples "
+                        "(its reconstruction is the single-frame estimate)")
+    meta = make_burst_meta(scale, roi, found.motions, found.confidence, found.models, found.gain_offset,
+                           reference_index=reference, bit_depth=bit_depth)
+    frames = np.ascontiguousarray(frames)
+    validate_stack(frames, meta, "assembled burst")
+    return Stack(frames, meta), messages
+
+
+def check_burst_input(frames, scale, reference, motion, roi, bit_depth) -> tuple[np.ndarray, tuple]:
+    """Every check of :func:`assemble_burst`'s arguments, before any work: the frames (cut to
+    ``roi``) and the roi."""
+    from hbis_torch.checks import MAX_H
+
+    frames = np.asarray(frames)
+    if frames.ndim not in (3, 4) or (frames.ndim == 4 and frames.shape[-1] != 3):
+        raise HbisInputError(f"burst frames must have shape (F, H, W) or (F, H, W, 3), got {frames.shape}")
+    if not 2 <= len(frames) <= MAX_BURST_FRAMES:
+        raise HbisInputError(f"a burst needs 2 to {MAX_BURST_FRAMES} frames, got {len(frames)}")
+    if isinstance(scale, bool) or not isinstance(scale, (int, np.integer)) or not 1 <= scale <= MAX_H:
+        raise HbisInputError(f"--scale must be an integer from 1 to {MAX_H}, got {scale!r}")
+    if isinstance(reference, bool) or not isinstance(reference, (int, np.integer)) \
+            or not 0 <= reference < len(frames):
+        raise HbisInputError(f"--reference {reference!r} is not a frame index (0..{len(frames) - 1})")
+    if motion not in MOTIONS:
+        raise HbisInputError(f"--motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
+    height, width = frames.shape[1:3]
+    if roi is None:
+        roi = (0, 0, width, height)
+    u0, v0, w, h = (int(r) for r in roi)
+    if w < 1 or h < 1 or u0 < 0 or v0 < 0 or u0 + w > width or v0 + h > height:
+        raise HbisInputError(f"--roi {list(roi)} lies outside the {width} x {height} frames")
+    frames = frames[:, v0:v0 + h, u0:u0 + w]
+    if min(h, w) < 24:
+        raise HbisInputError(f"burst frames of {w} x {h} px are too small to register (at least 24 x 24)")
+    if frames.dtype not in (np.uint8, np.uint16, np.float32):
+        raise HbisInputError(f"frame dtype {frames.dtype} is not one of uint8, uint16, float32")
+    if frames.dtype == np.float32 and (not np.isfinite(frames).all() or frames.min() < 0 or frames.max() > 1):
+        raise HbisInputError("float32 frames must be finite and lie in [0, 1]")
+    if bit_depth is not None:
+        container = 32 if frames.dtype == np.float32 else frames.dtype.itemsize * 8
+        if frames.dtype == np.float32 or not 1 <= int(bit_depth) <= container:
+            raise HbisInputError(f"bit depth {bit_depth} does not fit {frames.dtype} frames")
+        if int(frames.max()) > 2 ** int(bit_depth) - 1:
+            raise HbisInputError(f"pixel values reach {int(frames.max())}, more than {bit_depth} bits hold")
+    return frames, (u0, v0, w, h)

@@ -1,0 +1,286 @@
+"""Burst stacks through every reconstruction method: positions, robustness and the fallback.
+
+A burst stack (``stack.kind == "burst"``, ``hbis assemble --burst``) carries each frame's motion;
+:func:`reconstruct_burst` (what :func:`hbis_torch.reconstruct.reconstruct` calls for one) does
+what every method needs, then hands the samples to the method's own burst path (the ``burst``
+function of its :class:`~hbis_torch.reconstruct.registry.Method`):
+
+1. *brightness*: each frame's ``gain_offset`` is applied (``g * frame + o``);
+2. *positions*: the motions on the pixel grid
+   (:func:`~hbis_torch.reconstruct.positions.burst_positions`); untrusted frames get weight 0;
+3. *robustness* (:func:`robustness_weights`): a sample the motion does not explain (a moving
+   object, an occlusion, a brightness jump) is down-weighted, pixel by pixel: the frame and the
+   reference, both blurred against aliasing, are compared at the sample's position, and the
+   difference is weighed against what noise and the local contrast allow, as in the robustness
+   map of Wronski et al. (2019); rejections are grown by a pixel (a minimum filter), so the
+   edges of a moving object are not smeared either;
+4. *fallback*: where the other frames leave (almost) nothing, the output is the single-frame
+   estimate (the reference enlarged, cubic spline), blended by the other frames' coverage; a
+   burst whose frames are all copies of the reference gets the single-frame estimate, and says so.
+
+Colour bursts are registered once (on the luminance) and go through the method per channel
+(``colour="channels"``, the default) or as luminance plus interpolated chroma (``"luma"``), as
+colour scans do (:mod:`hbis_torch.reconstruct.colour`).
+
+Frames are (F, H, W) float32 in [0, 1] (or (F, H, W, 3)); positions (F, H, W, 2) float64 in the
+reference's LR px; weights (F, H, W) float64 in [0, 1]; outputs (S H, S W) (or (S H, S W, 3)).
+
+References
+----------
+.. [1] B. Wronski et al., "Handheld multi-frame super-resolution", ACM Transactions on Graphics
+   38(4), SIGGRAPH 2019 (the robustness map).
+.. [2] S. Farsiu, M. D. Robinson, M. Elad and P. Milanfar, "Fast and robust multiframe super
+   resolution", IEEE Transactions on Image Processing 13(10), 2004 (robust, L1, shift-and-add).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from hbis_torch.errors import HbisInputError
+
+# Robustness: a sample keeps weight exp(-(d / tau)^2), d the blurred difference to the reference
+# at its position, tau = NOISE_TOLERANCE x the difference's noise + CONTRAST_TOLERANCE x the local
+# contrast (standard deviation of the blurred reference over 3 x 3 px).
+COMPARE_BLUR_PX = 1.0
+NOISE_TOLERANCE = 3.0
+CONTRAST_TOLERANCE = 0.5
+# Where the other frames' samples in a reference pixel weigh less than this, the output leans on
+# the single-frame estimate (fully where they weigh nothing).
+FULL_COVERAGE = 2.0
+
+
+def corrected_frames(stack) -> Tensor:
+    """The stack's frames with each frame's gain and offset applied, float32 in [0, 1]."""
+    frames = stack.to_float()
+    go = torch.from_numpy(stack.gain_offset.astype(np.float32))
+    shape = (-1,) + (1,) * (frames.ndim - 1)
+    return (frames * go[:, 0].reshape(shape) + go[:, 1].reshape(shape)).clamp_(0, 1)
+
+
+def _luma(frames: Tensor) -> Tensor:
+    if frames.ndim == 4:
+        return frames @ torch.tensor([0.299, 0.587, 0.114], dtype=frames.dtype)
+    return frames
+
+
+def _blur(images: Tensor) -> Tensor:
+    import kornia
+
+    return kornia.filters.gaussian_blur2d(images[:, None], (5, 5), (COMPARE_BLUR_PX, COMPARE_BLUR_PX),
+                                          border_type="replicate")[:, 0]
+
+
+def _sample(image: Tensor, positions: Tensor) -> Tensor:
+    """Bilinear values of ``image`` (H, W) at ``positions`` (F, H, W, 2) (u, v), border-clamped."""
+    H, W = image.shape
+    grid = torch.stack((2 * positions[..., 0] / max(W - 1, 1) - 1, 2 * positions[..., 1] / max(H - 1, 1) - 1), -1)
+    F = positions.shape[0]
+    return torch.nn.functional.grid_sample(image[None, None].expand(F, 1, H, W).to(torch.float32),
+                                           grid.to(torch.float32), mode="bilinear", padding_mode="border",
+                                           align_corners=True)[:, 0]
+
+
+def robustness_weights(grey: Tensor, positions: Tensor, trusted: Tensor, reference: int) -> Tensor:
+    """Per-sample weights in [0, 1]: 1 where the motion explains the sample, towards 0 where not.
+
+    Parameters
+    ----------
+    grey : Tensor, shape (F, H, W), float32
+        Brightness-corrected luminance of the frames.
+    positions : Tensor, shape (F, H, W, 2), float64
+        Where each sample lies on the reference grid.
+    trusted : Tensor, shape (F,), bool
+        Frames whose motion is trusted (the others get 0).
+    reference : int
+
+    Returns
+    -------
+    Tensor, shape (F, H, W), float64
+        1 for the reference's samples; 0 for samples outside the reference frame.
+    """
+    from hbis_torch.sensor.noise import noise_sigma
+
+    F, H, W = grey.shape
+    blurred = _blur(grey)
+    ref = blurred[reference]
+    at_ref = _sample(ref, positions)
+    local = torch.nn.functional.avg_pool2d(torch.stack((ref, ref * ref))[:, None], 3, 1, 1,
+                                           count_include_pad=False)[:, 0]
+    contrast = _sample((local[1] - local[0] ** 2).clamp_min(0).sqrt(), positions)
+    # Noise of a difference of two frames blurred by a Gaussian of s px: sqrt(2) / (2 sqrt(pi) s).
+    noise = float(noise_sigma(grey[reference][None])[0]) * 2 ** 0.5 / (2 * np.pi ** 0.5 * COMPARE_BLUR_PX)
+    tau = NOISE_TOLERANCE * max(noise, 1e-4) + CONTRAST_TOLERANCE * contrast
+    weight = torch.exp(-((blurred - at_ref) / tau) ** 2)
+    weight = -torch.nn.functional.max_pool2d(-weight[:, None], 3, 1, 1)[:, 0]  # grow each rejection a pixel
+    u, v = positions[..., 0], positions[..., 1]
+    inside = (u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= H - 0.5)
+    weight = weight.double() * inside * trusted[:, None, None]
+    weight[reference] = 1.0
+    return weight
+
+
+def coverage(positions: Tensor, weights: Tensor, reference: int) -> np.ndarray:
+    """How much the frames other than the reference put into each reference pixel: the sum of
+    their samples' weights over the pixel each lands in, (H, W) float64."""
+    F, H, W = weights.shape
+    others = torch.arange(F) != reference
+    u = positions[others][..., 0].round().long().reshape(-1)
+    v = positions[others][..., 1].round().long().reshape(-1)
+    w = weights[others].reshape(-1)
+    keep = (u >= 0) & (u < W) & (v >= 0) & (v < H) & (w > 0)
+    total = torch.zeros(H * W, dtype=torch.float64).index_add_(0, (v * W + u)[keep], w[keep])
+    return total.reshape(H, W).numpy()
+
+
+def single_frame(frame: np.ndarray, scale: int) -> np.ndarray:
+    """The single-frame estimate: ``frame`` (H, W[, 3]) enlarged ``scale`` times (cubic spline,
+    on the output grid of docs/design.md section 1), float32 in [0, 1]."""
+    from hbis_torch.reconstruct.colour import upsample
+
+    frame = np.asarray(frame, dtype=np.float64)
+    out = upsample(frame[..., None] if frame.ndim == 2 else frame, scale)
+    return np.clip(out[..., 0] if frame.ndim == 2 else out, 0, 1).astype(np.float32)
+
+
+def reconstruct_burst(stack, method, registration: str = "auto", messages: list | None = None,
+                      colour: str | None = None, **kw) -> np.ndarray:
+    """Super-resolve a burst stack with a registered method (module docstring).
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+        A burst stack.
+    method : hbis_torch.reconstruct.registry.Method
+        Its ``burst`` function gets the corrected frames, positions and weights.
+    registration : {"auto", "data"}
+        A burst's motion was measured when it was assembled; ``"optics"`` is refused (a burst
+        has no optics).
+    messages : list, optional
+        Receives the lines about rejected samples, the fallback and the method's own.
+    colour : {"luma", "channels"} or None
+        For RGB bursts (default ``"channels"``); refused on grey ones.
+    **kw
+        The method's options.
+
+    Returns
+    -------
+    np.ndarray, shape (S H, S W) or (S H, S W, 3), float32 in [0, 1]
+    """
+    from hbis_torch.reconstruct.colour import COLOUR_MODES, DEFAULT_MODE
+    from hbis_torch.reconstruct.positions import burst_positions
+
+    if registration == "optics":
+        raise HbisInputError("a burst stack has no optics: its motion was measured by 'hbis assemble --burst' "
+                             "(use --registration auto)")
+    rgb = stack.frames.ndim == 4
+    if colour is not None and (not rgb or colour not in COLOUR_MODES):
+        raise HbisInputError(f"the colour option (--colour) takes {' or '.join(COLOUR_MODES)} on RGB bursts; "
+                             f"got {colour!r} for a {'colour' if rgb else 'grey'} burst")
+    run = method.burst_function()
+    if run is None:
+        raise HbisInputError(f"the {method.name} method does not take burst stacks")
+    frames = corrected_frames(stack)
+    grey, ref, scale = _luma(frames), stack.reference_index, stack.h
+    fallback = single_frame(frames[ref].numpy(), scale)
+    notes = messages if messages is not None else []
+    if all(torch.equal(frames[k], frames[ref]) for k in range(len(frames))):
+        notes.append(f"all {len(frames)} frames are identical: no new samples, so the output is the single-frame "
+                     "estimate (the reference frame enlarged, cubic spline)")
+        return fallback
+    positions, trusted = burst_positions(stack)
+    weights = robustness_weights(grey, positions, trusted, ref)
+    cover = coverage(positions, weights, ref)
+    if float(cover.max()) == 0.0:
+        notes.append("no frame but the reference could be used (none registered, or none agrees with it): the output "
+                     "is the single-frame estimate (the reference frame enlarged, cubic spline)")
+        return fallback
+    _report_weights(weights, trusted, ref, notes)
+    said: list[str] = []  # the method's lines, once each (a colour burst runs it per channel)
+    if not rgb:
+        image = run(stack, frames, positions, weights, messages=said, **kw)
+    elif (colour or DEFAULT_MODE) == "channels":
+        image = np.stack([run(stack, frames[..., c], positions, weights, messages=said, **kw) for c in range(3)],
+                         axis=-1)
+    else:
+        image = _luma_and_chroma(run, stack, frames, positions, weights, said, kw)
+    notes.extend(dict.fromkeys(said))
+    alpha = _blend_weight(cover, scale)
+    if alpha.ndim < np.ndim(image):
+        alpha = alpha[..., None]
+    out = alpha * np.asarray(image, dtype=np.float32) + (1 - alpha) * fallback
+    if not np.isfinite(out).all():
+        raise RuntimeError("the burst reconstruction produced non-finite values; please report the stack")
+    return np.clip(out, 0, 1).astype(np.float32)
+
+
+def _luma_and_chroma(run, stack, frames, positions, weights, messages, kw) -> np.ndarray:
+    from hbis_torch.reconstruct.colour import rgb_to_ycbcr, upsample, ycbcr_to_rgb
+
+    ycc = rgb_to_ycbcr(frames.numpy().astype(np.float64))
+    y = run(stack, torch.from_numpy(ycc[..., 0].astype(np.float32)), positions, weights, messages=messages, **kw)
+    chroma = upsample(ycc[stack.reference_index, ..., 1:], stack.h)
+    return ycbcr_to_rgb(np.concatenate((np.asarray(y, dtype=np.float64)[..., None], chroma), axis=-1))
+
+
+def _blend_weight(cover: np.ndarray, scale: int) -> np.ndarray:
+    """The method's share of the output (S H, S W) float32: 1 where the other frames put at least
+    :data:`FULL_COVERAGE` into a reference pixel, falling linearly to 0 where they put nothing."""
+    from scipy.ndimage import zoom
+
+    alpha = np.clip(cover / FULL_COVERAGE, 0, 1)
+    return np.clip(zoom(alpha, scale, order=1, mode="nearest", grid_mode=True), 0, 1).astype(np.float32)
+
+
+def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: list) -> None:
+    """Lines naming untrusted frames and frames whose samples were mostly down-weighted."""
+    left_out = [k for k in range(len(trusted)) if not bool(trusted[k])]
+    if left_out:
+        notes.append(f"left out {len(left_out)} frame(s) whose motion is not trusted: {left_out}")
+    mean = weights.mean((1, 2))
+    low = [k for k in range(len(mean)) if k != reference and bool(trusted[k]) and float(mean[k]) < 0.5]
+    if low:
+        notes.append(f"frame(s) {low}: most samples down-weighted (the motion does not explain them: a moving "
+                     "object, an occlusion or a brightness change)")
+
+
+def classical_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
+                    deblur: bool = True, **kw) -> np.ndarray:
+    """The classical method's burst path: splat with the robustness weights, then the Wiener
+    deblurring of the pixel area (no optics recorded: no optical cutoff).
+
+    Returns (S H, S W) float32 in [0, 1]."""
+    from hbis_torch.reconstruct.classical import classical_sr
+
+    return classical_sr(frames, positions, stack.h, deblur, weights=weights, cutoff=None, **kw).numpy()
+
+
+def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
+                  model=None, threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
+                  ensemble: int | None = None) -> np.ndarray:
+    """The learned method's burst path: the classical burst image and its lattice noise, refined
+    by the network for the burst's scale; where no model is shipped for it, the classical image,
+    with a message (:func:`~hbis_torch.reconstruct.learned.runtime.classical_returned`).
+
+    Returns (S H, S W) float32 in [0, 1]."""
+    from hbis_torch.reconstruct.classical import classical_sr
+    from hbis_torch.reconstruct.learned.domain import unhelpful_model
+    from hbis_torch.reconstruct.learned.inputs import check_ensemble, noise_params_from_meta
+    from hbis_torch.reconstruct.learned.method import _runner
+    from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, classical_returned, model_to_run
+
+    path, metadata, missing = model_to_run(model, stack.h)
+    ensemble = check_ensemble(ensemble, stack.h)
+    measured: list = []
+    image = classical_sr(frames, positions, stack.h, True, weights=weights, cutoff=None,
+                         noise_params_out=measured).numpy()
+    if missing is not None:
+        return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)
+    unhelpful = unhelpful_model(metadata)
+    if unhelpful is not None and not extrapolate:
+        return classical_returned(image, unhelpful, messages)
+    noise = noise_params_from_meta(stack.meta) or measured[0]
+    runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider)
+    return runner(image, noise, None, messages=messages, extrapolate=extrapolate, ensemble=ensemble)
