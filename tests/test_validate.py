@@ -288,3 +288,16 @@ def test_on_a_simulated_burst_both_methods_beat_the_single_frame_as_in_truth():
     for method in ("classical", "learned"):
         assert true_psnr(reconstruct(stack, method), burst.truth, 2) > baseline + 1.0
         assert result.gain(method) > 1.0, {m: s.mean_psnr for m, s in result.methods.items()}
+
+
+def test_raw_bayer_stacks_are_scored_on_the_mosaic_and_untrusted_frames_are_not_held_out():
+    pytest.importorskip("cv2")  # demosaicking, for the registration's grey frames and the baseline
+    from hbis_torch.sensor.cfa import mosaic
+
+    stack, _ = _translation_burst([(0, 0), (0.5, 0.25), (0.25, 0.5), (0.75, 0.75), (0.5, 0.5)], size=24)
+    rgb = np.stack((stack.frames, 0.9 * stack.frames, 0.6 * stack.frames), axis=-1)
+    meta = {**stack.meta, "cfa": "RGGB", "confidence": [1.0, 1.0, 0.0, 1.0, 1.0]}
+    raw = Stack(mosaic(rgb, "RGGB").astype(np.float32), meta).validate()
+    result = cross_validate(raw, ("single-frame",), holdout=2)
+    assert result.scored_on == "mosaic" and 2 not in result.held_out
+    assert np.isfinite(result.methods["single-frame"].mean_psnr) and result.methods["single-frame"].mean_psnr > 20
