@@ -1,0 +1,270 @@
+"""Observation-space cross-validation (hbis_torch.validate, ``hbis validate``): frame subsets, the
+forward model, and that its ranking of methods agrees with the ground truth's on simulated stacks."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hbis_torch import FoveaSystem
+from hbis_torch.cli import main
+from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct import reconstruct
+from hbis_torch.reconstruct.positions import stack_sample_positions
+from hbis_torch.reconstruct.registry import METHODS, Method
+from hbis_torch.simulate.cases import make_stack, roi_for
+from hbis_torch.stack_io import Stack, make_burst_meta, write_stack
+from hbis_torch.training.heldout import score as true_psnr
+from hbis_torch.validate import (
+    cross_validate,
+    fit_and_score,
+    holdout_frames,
+    pixel_kernel,
+    predict_frame,
+    select_frames,
+    single_frame,
+)
+from hbis_torch.validate.score import inside
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+SYSTEM = FoveaSystem()
+
+
+def _scan(h, scene="words", size=48, seed=1000):
+    return make_stack(SYSTEM, h, roi_for(SYSTEM, size, 0), scene, seed)
+
+
+# --- frame subsets --------------------------------------------------------------------------
+
+def test_select_frames_cuts_every_per_frame_field_of_a_scan_and_keeps_the_reference():
+    stack, _ = _scan(2, size=16)
+    ref = stack.reference_index
+    part = select_frames(stack, [0])
+    kept = sorted({0, ref})
+    assert len(part.frames) == len(kept) and part.reference_index == kept.index(ref)
+    np.testing.assert_array_equal(part.frames, stack.frames[kept])
+    np.testing.assert_array_equal(part.phases_deg, stack.phases_deg[kept])
+    assert len(stack.frames) == 4 and stack.reference_index == ref  # the original is untouched
+    # the subset's positions are the whole stack's, for the frames kept
+    whole, _ = stack_sample_positions(stack, "optics")
+    some, _ = stack_sample_positions(part, "optics")
+    np.testing.assert_allclose(some.numpy(), whole.numpy()[kept], atol=1e-9)
+    with pytest.raises(HbisInputError, match="not one of the stack's 4 frames"):
+        select_frames(stack, [4])
+
+
+def _translation_burst(shifts, scale=2, size=40, seed=0, factor=8):
+    """A burst of a random smooth scene, frame k shifted by ``shifts[k]`` LR pixels (multiples of
+    1 / factor): (stack, truth on the reference grid refined ``scale`` times)."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(seed)
+    pad = 4
+    side = (size + 2 * pad) * factor
+    scene = gaussian_filter(rng.random((side, side)), 0.4 * factor)
+    scene = (scene - scene.min()) / (scene.max() - scene.min())
+    frames = []
+    for dx, dy in shifts:  # frame pixel (u, v) sees reference position (u + dx, v + dy)
+        ox, oy = int(round((pad + dx) * factor)), int(round((pad + dy) * factor))
+        crop = scene[oy:oy + size * factor, ox:ox + size * factor]
+        frames.append(crop.reshape(size, factor, size, factor).mean(axis=(1, 3)))
+    crop = scene[pad * factor:(pad + size) * factor, pad * factor:(pad + size) * factor]
+    b = factor // scale
+    truth = crop.reshape(size * scale, b, size * scale, b).mean(axis=(1, 3))
+    noisy = np.clip(np.asarray(frames) + rng.normal(0, 0.004, (len(frames), size, size)), 0, 1)
+    motions = np.repeat(np.eye(3)[None], len(shifts), 0)
+    motions[:, :2, 2] = shifts
+    meta = make_burst_meta(scale, (0, 0, size, size), motions, [1.0] * len(shifts),
+                           ["identity"] + ["translation"] * (len(shifts) - 1), [[1.0, 0.0]] * len(shifts))
+    return Stack(noisy.astype(np.float32), meta).validate(), truth.astype(np.float32)
+
+
+def test_select_frames_cuts_a_bursts_motions_and_the_rest():
+    stack, _ = _translation_burst([(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5)])
+    stack.meta["reference_index"] = 2
+    part = select_frames(stack, [0, 3])
+    assert part.kind == "burst" and part.reference_index == 1 and len(part.frames) == 3
+    np.testing.assert_array_equal(part.motions, stack.motions[[0, 2, 3]])
+    assert part.meta["motion_models"] == [stack.meta["motion_models"][k] for k in (0, 2, 3)]
+    assert len(part.confidence) == len(part.gain_offset) == 3
+
+
+def test_holdout_frames_are_spread_and_never_the_reference():
+    assert holdout_frames(16, 10, 3) == [2, 7, 13]
+    assert holdout_frames(30, 0, 3) == [5, 15, 25]
+    assert holdout_frames(4, 3, 3) == [0, 1, 2]
+    assert 5 not in holdout_frames(8, 5, 7)
+    # untrusted frames only when the trusted ones are too few
+    assert 2 not in holdout_frames(8, 0, 3, trusted=[True, True, False, True, True, True, True, True])
+    for bad in (0, 16):
+        with pytest.raises(HbisInputError, match="holdout must be from 1 to 15"):
+            holdout_frames(16, 10, bad)
+
+
+# --- the forward model ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("h, fill, weights", [
+    (2, 1.0, [0.25, 0.5, 0.25]),  # an even box ends half-way through an HR pixel
+    (3, 1.0, [1 / 3, 1 / 3, 1 / 3]),
+    (4, 0.25, [0.25, 0.5, 0.25]),  # a quarter of the area: half the side
+])
+def test_pixel_kernel_is_the_pixels_box_integrated_over_hr_pixels(h, fill, weights):
+    k = pixel_kernel(h, fill, 0.0)
+    np.testing.assert_allclose(k[k > 0], weights, atol=1e-12)
+    blurred = pixel_kernel(h, fill, 0.3)
+    assert blurred.sum() == pytest.approx(1.0) and np.allclose(blurred, blurred[::-1])
+    n = np.arange(len(blurred)) - len(blurred) // 2
+    m = np.arange(len(k)) - len(k) // 2
+    # a Gaussian of 0.3 LR pixels adds its variance (0.3 h)^2 HR pixels^2 to the box's, and its
+    # integration over HR pixels 1/12
+    assert (blurred * n**2).sum() == pytest.approx((k * m**2).sum() + (0.3 * h) ** 2 + 1 / 12, rel=0.01)
+
+
+def test_the_truth_predicts_every_frame_and_a_wrong_motion_does_not():
+    stack, truth = _scan(4)
+    positions, _ = stack_sample_positions(stack, "optics")
+    frames = stack.to_float().numpy()
+    mask = inside(positions[0], 48, 48)
+    for k in (0, 5, 10, 15):
+        good = fit_and_score(predict_frame(truth, positions[k], 4), frames[k], mask)
+        assert good.psnr > 32
+        wrong = fit_and_score(predict_frame(truth, positions[k].numpy() + (0.5, 0.25), 4), frames[k], mask)
+        assert wrong.psnr < good.psnr - 10
+    # without blur, the truth predicts the noise-free frame up to noise: the model is the simulator's
+    exact = fit_and_score(predict_frame(truth, positions[5], 4, blur_px=0.0), frames[5], mask)
+    assert exact.psnr > 38 and exact.gain == pytest.approx(1.0, abs=0.02)
+
+
+def test_the_prediction_in_float32_agrees_with_a_float64_block_mean():
+    rng = np.random.default_rng(1)
+    from scipy.ndimage import gaussian_filter
+
+    hr = gaussian_filter(rng.random((64, 64)), 3.0)
+    h = 4
+    reference = hr.reshape(16, h, 16, h).mean(axis=(1, 3))  # what the reference pixels integrate
+    v, u = np.mgrid[0:16, 0:16].astype(float)
+    predicted = predict_frame(hr, np.stack((u, v), -1), h, blur_px=0.0)
+    assert np.abs(predicted - reference)[2:-2, 2:-2].max() < 1e-2 * np.ptp(hr)
+
+
+def test_gain_and_offset_are_fitted_and_too_few_samples_are_refused():
+    x = np.linspace(0, 1, 100).reshape(10, 10)
+    fit = fit_and_score(x, 0.5 * x + 0.2, np.ones_like(x, bool))
+    assert (fit.gain, fit.offset) == pytest.approx((0.5, 0.2)) and fit.psnr > 200
+    with pytest.raises(HbisInputError, match="too few to score"):
+        fit_and_score(x, x, np.zeros_like(x, bool))
+
+
+# --- the ranking agrees with the truth's ----------------------------------------------------
+
+@pytest.mark.parametrize("h, scene", [(2, "words"), (2, "camera"), (4, "words"), (4, "camera")])
+def test_validate_ranks_methods_as_the_ground_truth_does(h, scene):
+    stack, truth = _scan(h, scene)
+    result = cross_validate(stack, registration="optics")
+    ref = stack.to_float().numpy()[stack.reference_index]
+    truth_psnr = {"single-frame": true_psnr(single_frame(ref, h), truth, h)}
+    for method in ("classical", "learned"):
+        truth_psnr[method] = true_psnr(reconstruct(stack, method, registration="optics"), truth, h)
+    by_validate = sorted(result.methods, key=lambda m: result.methods[m].mean_psnr)
+    by_truth = sorted(truth_psnr, key=truth_psnr.get)
+    assert by_truth == ["single-frame", "classical", "learned"]  # the cells are chosen where it is clear
+    assert by_validate == by_truth, ({m: s.mean_psnr for m, s in result.methods.items()}, truth_psnr)
+    assert len(result.held_out) == 3 and stack.reference_index not in result.held_out
+
+
+# --- bursts -----------------------------------------------------------------------------------
+
+def _shift_and_add(stack, registration="auto", messages=None):
+    """A test method: every sample added to its nearest output pixel, averaged; pixels no sample
+    reached take the single-frame image's value."""
+    positions, _ = stack_sample_positions(stack, registration)
+    h, (rows, cols) = stack.h, stack.frames.shape[1:3]
+    q = positions.numpy().reshape(-1, 2)
+    col = np.clip(np.round(h * (q[:, 0] + 0.5) - 0.5), 0, h * cols - 1).astype(int)
+    row = np.clip(np.round(h * (q[:, 1] + 0.5) - 0.5), 0, h * rows - 1).astype(int)
+    index = row * h * cols + col
+    total = np.bincount(index, stack.to_float().numpy().reshape(-1), minlength=h * h * rows * cols)
+    count = np.bincount(index, minlength=h * h * rows * cols)
+    fill = single_frame(stack.to_float().numpy()[stack.reference_index], h).reshape(-1)
+    return np.where(count > 0, total / np.maximum(count, 1), fill).reshape(h * rows, h * cols).astype(np.float32)
+
+
+@pytest.fixture
+def shift_and_add(monkeypatch):
+    monkeypatch.setitem(METHODS, "shift-and-add", Method("shift-and-add", _shift_and_add, "test: nearest-pixel shift and add"))
+    return "shift-and-add"
+
+
+def test_a_registered_method_is_validated_on_a_burst_and_beats_the_single_frame(shift_and_add):
+    shifts = [(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25), (1.125, -0.5), (-0.375, 0.625)]
+    stack, truth = _translation_burst(shifts)
+    result = cross_validate(stack, ("bicubic", shift_and_add), holdout=3)
+    assert result.held_out == [2, 4, 6] and result.scored_on == "grey"
+    assert result.gain(shift_and_add) > 1.0
+    ref = stack.to_float().numpy()[0]
+    assert true_psnr(_shift_and_add(stack), truth, 2) > true_psnr(single_frame(ref, 2), truth, 2) + 1.0
+    # the same frames with wrong motions: the held-out frames' predictions miss
+    wrong = Stack(stack.frames, {**stack.meta, "motions": np.repeat(np.eye(3)[None], 8, 0).tolist()})
+    assert cross_validate(wrong, (shift_and_add,), holdout=3).methods[shift_and_add].mean_psnr \
+        < result.methods[shift_and_add].mean_psnr - 3
+
+
+def test_colour_stacks_are_scored_on_luma(shift_and_add):
+    stack, _ = _translation_burst([(0, 0), (0.5, 0.25), (0.25, 0.5)], size=24)
+    rgb = np.stack((stack.frames, 0.8 * stack.frames, 0.5 * stack.frames), axis=-1).astype(np.float32)
+    result = cross_validate(Stack(rgb, stack.meta), ("single-frame",), holdout=2)
+    grey = cross_validate(stack, ("single-frame",), holdout=2)
+    assert result.scored_on == "luma" and np.isfinite(result.methods["single-frame"].mean_psnr)
+    # luma is c = 0.299 + 0.8 x 0.587 + 0.5 x 0.114 times the grey frames here: the gain fit absorbs
+    # c, and the residual shrinks by c, so the PSNR rises by -20 log10 c
+    c = 0.299 + 0.8 * 0.587 + 0.5 * 0.114
+    assert result.methods["single-frame"].mean_psnr == pytest.approx(
+        grey.methods["single-frame"].mean_psnr - 20 * np.log10(c), abs=0.02)
+
+
+# --- the command ------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def stack_file(tmp_path_factory):
+    stack, _ = _scan(2, size=24)
+    path = tmp_path_factory.mktemp("validate") / "s.tif"
+    write_stack(path, stack)
+    return path
+
+
+def test_cli_prints_a_table_and_json(stack_file, capsys):
+    assert main(["validate", str(stack_file), "--method", "bicubic,classical", "--registration", "optics"]) == 0
+    out = capsys.readouterr().out
+    assert "single-frame" in out and "classical" in out and "held out one at a time: 0, 1, 2" in out
+    assert main(["validate", str(stack_file), "--method", "single-frame", "--method", "classical",
+                 "--holdout", "2", "--json", "--registration", "optics"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["held_out"] == [0, 2] and list(report["methods"]) == ["single-frame", "classical"]
+    assert all(np.isfinite(m["mean_psnr_db"]) and len(m["psnr_db"]) == 2 for m in report["methods"].values())
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--method", "magic"], "unknown method 'magic'"),
+    (["--method", "classical,"], "empty name"),
+    (["--holdout", "4"], "holdout must be from 1 to 3"),
+    (["--blur", "-1"], "--blur"),
+])
+def test_cli_refuses_bad_input_in_one_line_before_work(stack_file, capsys, argv, message):
+    with pytest.raises(SystemExit) if argv[0] == "--blur" else _no_exit():
+        code = main(["validate", str(stack_file), *argv])
+        assert code == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_cli_refuses_a_missing_file(tmp_path, capsys):
+    assert main(["validate", str(tmp_path / "none.tif")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+class _no_exit:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
