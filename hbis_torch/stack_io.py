@@ -61,6 +61,8 @@ _TOP_KEYS = ("format", "h", "camera", "prisms", "object_distance_mm", "roi", "ph
 KINDS = ("hbis", "burst")
 """What a stack holds: an HBIS (Risley) scan, the default, or a burst of freely moving frames."""
 _BURST_KEYS = ("format", "kind", "h", "roi", "motions", "confidence", "motion_models", "gain_offset")
+BURST_MIN_CONFIDENCE = 0.5
+"""A burst frame whose registration confidence is below this is not trusted (left out)."""
 BURST_MODELS = ("identity", "translation", "similarity", "affine", "homography")
 """Motion models a burst frame may record, simplest first."""
 

@@ -223,7 +223,7 @@ def test_mean_and_spread_survive_a_nearly_flat_frame():
         (dict(reference_index=1.5), "integer"),
         (dict(prediction=np.zeros((3, 3))), "prediction must have shape"),
         (dict(prediction=np.zeros((2, 3, 3))), "singular"),
-        (dict(model="affine"), "model must be"),
+        (dict(model="spline"), "model must be"),
         (dict(blur_sigma=-1.0), "blur_sigma"),
         (dict(keep_fraction=0.0), "keep_fraction"),
         (dict(max_points=10), "max_points"),

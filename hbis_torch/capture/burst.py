@@ -28,8 +28,7 @@ import numpy as np
 import torch
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.reconstruct.positions import BURST_MIN_CONFIDENCE
-from hbis_torch.stack_io import Stack, make_burst_meta, validate_stack
+from hbis_torch.stack_io import BURST_MIN_CONFIDENCE, Stack, make_burst_meta, validate_stack
 
 #: ``--motion`` choices: ``auto`` climbs translation -> similarity -> affine -> homography per frame.
 MOTIONS = ("auto", "translation", "similarity", "affine", "homography")
@@ -38,6 +37,7 @@ MAX_BURST_FRAMES = 256
 RETRY_CONFIDENCE = 0.6
 BURST_PRECISION_PX = 0.15
 MATCH_RESIDUAL_ONE, MATCH_RESIDUAL_ZERO = 0.3, 0.6
+FULL_OVERLAP = 0.5
 # Pixels this close to the white or black level count as saturated (left out of the gain fit).
 SATURATION_MARGIN = 2.0 / 255.0
 
@@ -119,7 +119,7 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
             if torch.equal(grey[k], ref):
                 continue
             reg, how = _register_pair(ref, grey[k], motion, neighbour)
-            conf = burst_confidence(reg)
+            conf = burst_confidence(reg, tuple(grey.shape[1:]))
             models[k] = reg.model
             if conf < BURST_MIN_CONFIDENCE:
                 why = "; ".join(m.replace("frame 1", "it") for m in reg.messages
@@ -144,36 +144,56 @@ def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbou
     from hbis_torch.registration import ALL_MODELS, register_stack
 
     pair = torch.stack((ref, frame))
+    shape = tuple(ref.shape)
     best, note = register_stack(pair, 0, model=motion, ladder=ALL_MODELS), ""
     starts = (("the neighbouring frame's motion", lambda: neighbour if not np.allclose(neighbour, np.eye(3)) else None),
               ("matched features", lambda: feature_start(ref.numpy(), frame.numpy())))
     for name, start in starts:
-        if burst_confidence(best) >= RETRY_CONFIDENCE:
+        if burst_confidence(best, shape) >= RETRY_CONFIDENCE:
             break
         guess = start()
         if guess is None:
             continue
         again = register_stack(pair, 0, prediction=np.stack((np.eye(3), guess)), model=motion, ladder=ALL_MODELS)
-        if burst_confidence(again) > burst_confidence(best):
+        if burst_confidence(again, shape) > burst_confidence(best, shape):
             best, note = again, f", started from {name}"
     return best, note
 
 
-def burst_confidence(reg) -> float:
-    """Confidence in [0, 1] of the second frame of a registered pair, for a burst.
+def overlap(motion: np.ndarray, shape) -> float:
+    """Share of the reference frame (H, W) that a frame moved by ``motion`` (frame px ->
+    reference px) covers, on a grid of every fourth pixel."""
+    H, W = shape
+    v, u = np.mgrid[0:H:4, 0:W:4].astype(np.float64)
+    try:
+        x, y, w = np.linalg.inv(motion) @ np.stack((u.ravel(), v.ravel(), np.ones(u.size)))
+    except np.linalg.LinAlgError:
+        return 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fu, fv = x / w, y / w
+    return float(np.mean((fu >= -0.5) & (fu <= W - 0.5) & (fv >= -0.5) & (fv <= H - 0.5)))
+
+
+def burst_confidence(reg, shape) -> float:
+    """Confidence in [0, 1] of the second frame of a registered pair (frames of ``shape``
+    (H, W)), for a burst.
 
     The scan registration's own confidence asks for 0.05 px (the Risley scan's sub-pixel steps
     are that fine); a burst's random sub-pixel offsets gain from samples good to a tenth of a pixel
     or so. So: ``exp(-(precision / 0.15 px)^2)``, times how well the aligned frames match:
     1 up to a residual of 0.3 frame standard deviations, 0 at 0.6 (another scene leaves about 0.7,
-    i.e. a correlation of 0.75; noise and aliasing on the shared sequences leave 0.05 to 0.2).
+    i.e. a correlation of 0.75; noise and aliasing on the shared sequences leave 0.05 to 0.2);
+    and by how much of the reference the frame covers (:func:`overlap`): 1 from
+    :data:`FULL_OVERLAP` up, 0 at none (the fit compares only the points both frames see, so a
+    motion wrong by a whole frame can look precise on the few it keeps).
     """
     precision = float(reg.precision_px[1])
     residual = float(reg.residual[1])
     if not (np.isfinite(precision) and np.isfinite(residual)) or not bool(torch.isfinite(reg.homographies).all()):
         return 0.0
     match = float(np.clip((MATCH_RESIDUAL_ZERO - residual) / (MATCH_RESIDUAL_ZERO - MATCH_RESIDUAL_ONE), 0, 1))
-    return float(np.exp(-(precision / BURST_PRECISION_PX) ** 2)) * match
+    covered = min(1.0, overlap(reg.homographies[1].numpy(), shape) / FULL_OVERLAP)
+    return float(np.exp(-(precision / BURST_PRECISION_PX) ** 2)) * match * covered
 
 
 def feature_start(reference: np.ndarray, frame: np.ndarray) -> np.ndarray | None:
@@ -207,7 +227,15 @@ def feature_start(reference: np.ndarray, frame: np.ndarray) -> np.ndarray | None
         return None
     # OpenCV's pixel centres are at integers too; undo the enlargement: (x + 0.5) * s - 0.5.
     up = np.array([[scale, 0, (scale - 1) / 2], [0, scale, (scale - 1) / 2], [0, 0, 1.0]])
-    return np.linalg.inv(up) @ np.vstack((matrix, [0, 0, 1])) @ up
+    start = np.linalg.inv(up) @ np.vstack((matrix, [0, 0, 1])) @ up
+    zoom, angle = np.hypot(start[0, 0], start[1, 0]), np.degrees(np.arctan2(start[1, 0], start[0, 0]))
+    if abs(zoom - 1) < 0.03 and abs(angle) < 2:  # what features say of so small a turn is mostly their noise:
+        H, W = reference.shape              # start from their shift at the centre, and let the fit decide
+        centre = np.array([(W - 1) / 2, (H - 1) / 2, 1.0])
+        moved = start @ centre
+        start = np.eye(3)
+        start[:2, 2] = moved[:2] / moved[2] - centre[:2]
+    return start
 
 
 def warp_to_reference(frame: torch.Tensor, motion: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:

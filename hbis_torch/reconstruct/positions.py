@@ -50,6 +50,7 @@ from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import interpolate_positions, node_positions, sample_positions
+from hbis_torch.stack_io import BURST_MIN_CONFIDENCE
 
 # Where the samples' positions come from (see the module docstring).
 REGISTRATIONS = ("optics", "data", "auto")
@@ -59,8 +60,6 @@ REGISTRATIONS = ("optics", "data", "auto")
 EXACT_SAMPLES_PER_CALL = 1 << 22
 
 
-# A burst frame whose registration confidence is below this is not trusted.
-BURST_MIN_CONFIDENCE = 0.5
 
 
 def burst_positions(stack) -> tuple[Tensor, Tensor]:

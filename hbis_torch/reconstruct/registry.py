@@ -198,7 +198,7 @@ register(Method(
     name="classical",
     run="hbis_torch.reconstruct.classical.method:reconstruct_classical",
     raw_bayer="hbis_torch.reconstruct.classical.method:reconstruct_classical_raw_bayer",
-    burst="hbis_torch.reconstruct.burst:classical_burst",
+    burst="hbis_torch.reconstruct.classical.burst:classical_burst",
     summary="splat the samples at their positions and deblur with a Wiener filter (docs/classical.md)",
     options=(
         Option("--no-deblur", "deblur", "interpolation only, without the Wiener deblurring",
@@ -210,7 +210,7 @@ register(Method(
     name="learned",
     run="hbis_torch.reconstruct.learned.method:reconstruct_learned",
     raw_bayer="hbis_torch.reconstruct.learned.method:reconstruct_learned_raw_bayer",
-    burst="hbis_torch.reconstruct.burst:learned_burst",
+    burst="hbis_torch.reconstruct.learned.burst:learned_burst",
     summary="the classical image refined by a small network in onnxruntime (docs/learned.md)",
     threads=True,
     options=(
