@@ -174,24 +174,36 @@ def test_validate_ranks_methods_as_the_ground_truth_does(h, scene):
 
 # --- bursts -----------------------------------------------------------------------------------
 
-def _shift_and_add(stack, registration="auto", messages=None):
-    """A test method: every sample added to its nearest output pixel, averaged; pixels no sample
+def _splat(frames, positions, h: int, reference: int, weights=None) -> np.ndarray:
+    """Every sample added to its nearest output pixel (with its weight), averaged; pixels no sample
     reached take the single-frame image's value."""
-    positions, _ = stack_sample_positions(stack, registration)
-    h, (rows, cols) = stack.h, stack.frames.shape[1:3]
-    q = positions.numpy().reshape(-1, 2)
+    frames, q = np.asarray(frames, dtype=np.float64), np.asarray(positions).reshape(-1, 2)
+    rows, cols = frames.shape[1:3]
+    w = np.ones(frames.size) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
     col = np.clip(np.round(h * (q[:, 0] + 0.5) - 0.5), 0, h * cols - 1).astype(int)
     row = np.clip(np.round(h * (q[:, 1] + 0.5) - 0.5), 0, h * rows - 1).astype(int)
     index = row * h * cols + col
-    total = np.bincount(index, stack.to_float().numpy().reshape(-1), minlength=h * h * rows * cols)
-    count = np.bincount(index, minlength=h * h * rows * cols)
-    fill = single_frame(stack.to_float().numpy()[stack.reference_index], h).reshape(-1)
-    return np.where(count > 0, total / np.maximum(count, 1), fill).reshape(h * rows, h * cols).astype(np.float32)
+    total = np.bincount(index, w * frames.reshape(-1), minlength=h * h * rows * cols)
+    count = np.bincount(index, w, minlength=h * h * rows * cols)
+    fill = single_frame(frames[reference], h).reshape(-1)
+    return np.where(count > 0, total / np.maximum(count, 1e-12), fill).reshape(h * rows, h * cols).astype(np.float32)
+
+
+def _shift_and_add(stack, registration="auto", messages=None):
+    """A test method on a scan: nearest-pixel shift and add."""
+    positions, _ = stack_sample_positions(stack, registration)
+    return _splat(stack.to_float().numpy(), positions.numpy(), stack.h, stack.reference_index)
+
+
+def _shift_and_add_burst(stack, frames, positions, weights, messages=None):
+    """The same on a burst, with the burst path's positions and robustness weights."""
+    return _splat(frames.numpy(), positions.numpy(), stack.h, stack.reference_index, weights.numpy())
 
 
 @pytest.fixture
 def shift_and_add(monkeypatch):
-    monkeypatch.setitem(METHODS, "shift-and-add", Method("shift-and-add", _shift_and_add, "test: nearest-pixel shift and add"))
+    monkeypatch.setitem(METHODS, "shift-and-add", Method("shift-and-add", _shift_and_add, "test: nearest-pixel shift and add",
+                                                          burst=_shift_and_add_burst))
     return "shift-and-add"
 
 
@@ -202,7 +214,7 @@ def test_a_registered_method_is_validated_on_a_burst_and_beats_the_single_frame(
     assert result.held_out == [2, 4, 6] and result.scored_on == "grey"
     assert result.gain(shift_and_add) > 1.0
     ref = stack.to_float().numpy()[0]
-    assert true_psnr(_shift_and_add(stack), truth, 2) > true_psnr(single_frame(ref, 2), truth, 2) + 1.0
+    assert true_psnr(reconstruct(stack, shift_and_add), truth, 2) > true_psnr(single_frame(ref, 2), truth, 2) + 1.0
     # the same frames with wrong motions: the held-out frames' predictions miss
     wrong = Stack(stack.frames, {**stack.meta, "motions": np.repeat(np.eye(3)[None], 8, 0).tolist()})
     assert cross_validate(wrong, (shift_and_add,), holdout=3).methods[shift_and_add].mean_psnr \
