@@ -313,3 +313,11 @@ def test_raw_bayer_stacks_are_scored_on_the_mosaic_and_untrusted_frames_are_not_
     result = cross_validate(raw, ("single-frame",), holdout=2)
     assert result.scored_on == "mosaic" and 2 not in result.held_out
     assert np.isfinite(result.methods["single-frame"].mean_psnr) and result.methods["single-frame"].mean_psnr > 20
+
+
+def test_a_held_out_frame_whose_motion_is_not_trusted_is_said_so():
+    stack, _ = _translation_burst([(0, 0), (0.5, 0.25), (0.25, 0.5)], size=24)
+    stack.meta["confidence"] = [1.0, 0.0, 1.0]
+    messages = []
+    result = cross_validate(stack, ("single-frame",), holdout=2, messages=messages)
+    assert result.held_out == [1, 2] and len(messages) == 1 and "held-out frame(s) [1]" in messages[0]

@@ -236,6 +236,10 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     observed, gray, reference = _observed_and_gray(stack)
     positions, trusted = _positions(stack, gray, registration, messages if messages is not None else [])
     held = holdout_frames(count, stack.reference_index, holdout, trusted)
+    doubtful = [k for k in held if not trusted[k]]
+    if doubtful and messages is not None:
+        messages.append(f"held-out frame(s) {doubtful}: their motion is not trusted (too few trusted frames to hold "
+                        "out instead), so their predictions, and scores, are doubtful for every method")
     score = _Scorer(stack, observed, positions, border_px, blur_px)
     results = {}
     for name in names:
