@@ -216,7 +216,9 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     method_options : dict, optional
         Per method name, keywords for :func:`hbis_torch.reconstruct.reconstruct`.
     messages : list, optional
-        Receives the registration's warnings about the whole stack.
+        Receives the registration's warnings about the whole stack, and a line naming held-out
+        frames whose motion is not trusted (the methods' own lines are in each
+        :attr:`MethodScores.messages`).
     on_step : callable, optional
         Called with no argument after each reconstruction (a progress bar's ``update``).
 
