@@ -60,17 +60,15 @@ def run_sequence(path: Path, scale: int, holdout: int, figures: Path | None) -> 
 def picture(stack, name: str, scale: int, figures: Path) -> str:
     """The reference enlarged beside the classical and learned reconstructions from every frame,
     with a crop of each below; returns the picture's file name."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     ref = stack.to_float().numpy()[stack.reference_index]
     images = {"reference, enlarged (cubic)": single_frame(ref, scale),
               "classical": reconstruct(stack, "classical"), "learned": reconstruct(stack, "learned")}
     H, W = images["classical"].shape[:2]
     crop = (slice(H // 4, H // 4 + H // 3), slice(W // 4, W // 4 + W // 3))
-    fig, axes = plt.subplots(2, 3, figsize=(9, 6 * H / W + 0.6))
+    fig = Figure(figsize=(9, 6 * H / W + 0.6))
+    axes = fig.subplots(2, 3)
     for col, (title, image) in enumerate(images.items()):
         cmap = None if image.ndim == 3 else "gray"
         axes[0, col].imshow(np.clip(image, 0, 1), cmap=cmap, vmin=0, vmax=1, interpolation="nearest")
@@ -83,7 +81,6 @@ def picture(stack, name: str, scale: int, figures: Path) -> str:
     figures.mkdir(parents=True, exist_ok=True)
     out = f"real-bursts-{name}-s{scale}.png"
     fig.savefig(figures / out, dpi=80)
-    plt.close(fig)
     return out
 
 

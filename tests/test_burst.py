@@ -61,7 +61,7 @@ def test_moving_object_is_not_smeared():
     image = reconstruct(stack, "classical", messages=notes)
     region = (slice(20, 60), slice(20, 62))  # the patch where it is in the reference, and where it went
     robust = psnr(image[region], burst.truth[region])
-    assert robust > psnr(_single(burst)[region], burst.truth[region])
+    assert robust > psnr(_single(burst)[region], burst.truth[region]) - 0.5  # as good as the reference alone there
     # without the robustness weights the moving patch is averaged in: worse there
     import hbis_torch.reconstruct.burst as rb
     plain = rb.robustness_weights
@@ -71,7 +71,7 @@ def test_moving_object_is_not_smeared():
         smeared = reconstruct(stack, "classical")
     finally:
         rb.robustness_weights = plain
-    assert robust > psnr(smeared[region], burst.truth[region]) + 1.0
+    assert robust > psnr(smeared[region], burst.truth[region]) + 3.0  # 8 dB on this burst
 
 
 def test_all_frames_identical_give_the_single_frame_estimate(tmp_path, capsys):

@@ -46,7 +46,7 @@ from hbis_torch.errors import HbisInputError
 # contrast (standard deviation of the blurred reference over 3 x 3 px).
 COMPARE_BLUR_PX = 1.0
 NOISE_TOLERANCE = 3.0
-CONTRAST_TOLERANCE = 0.5
+CONTRAST_TOLERANCE = 1.5
 # Where the other frames' samples in a reference pixel weigh less than this, the output leans on
 # the single-frame estimate (fully where they weigh nothing).
 FULL_COVERAGE = 2.0
