@@ -37,7 +37,7 @@ def register(sub) -> None:
         "'hbis motors scan --out' wrote into an hbis-stack/1 TIFF: the read-back phases become the "
         "stack's phases_deg and the scan's reference_index is kept. FRAME is several image files, "
         "one pattern with {index} (e.g. 'cap_{index:03d}.png', replaced by 0..h*h-1), one multi-page "
-        "TIFF, or one video file (OpenCV). Everything is checked before anything is written.",
+        "TIFF, or one video file (PyAV). Every frame's size is checked from its header before any is decoded. Everything is checked before anything is written.",
         epilog="example: hbis assemble --phases phases.json --roi 608,456,64,48 --bit-depth 12 "
         "--out stack.tif 'frames/cap_{index:03d}.tif'",
     )
@@ -59,10 +59,12 @@ def register(sub) -> None:
 def run(args) -> int:
     from hbis_torch.capture import (
         assemble_stack,
+        frames_roi,
         load_calibration,
         read_frames,
         read_phases,
     )
+    from hbis_torch.capture.frames import probe_frames
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import write_stack
 
@@ -74,6 +76,8 @@ def run(args) -> int:
     system = system_for(args)
     scan = read_phases(args.phases)
     calibration = load_calibration(args.dark, args.flat, args.bad_pixels)
+    declared, _, _ = probe_frames(args.frames, count=scan.frames)  # headers only: size refused before decoding
+    frames_roi(system, declared.shape, args.roi)
     frames, _ = read_frames(args.frames, count=scan.frames)
     stack = assemble_stack(frames, scan, system, roi=args.roi, bit_depth=args.bit_depth,
                            black_level=args.black_level, calibration=calibration, cfa=args.cfa)
