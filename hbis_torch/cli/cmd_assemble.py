@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
+from hbis_torch.budget import add_force_arg
 from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli.common import add_system_args, add_system_file_args, system_for
 
@@ -53,6 +55,7 @@ def register(sub) -> None:
     add_calibration_args(p)
     add_system_args(p)
     add_system_file_args(p)
+    add_force_arg(p)
     p.set_defaults(func=run)
 
 
@@ -78,6 +81,11 @@ def run(args) -> int:
     calibration = load_calibration(args.dark, args.flat, args.bad_pixels)
     declared, _, _ = probe_frames(args.frames, count=scan.frames)  # headers only: size refused before decoding
     frames_roi(system, declared.shape, args.roi)
+    from hbis_torch.budget import check_budget, estimate_assemble
+
+    count = declared.count or scan.frames
+    check_budget(estimate_assemble(count * declared.frame_bytes, count * math.prod(declared.shape),
+                                   bool(calibration)), args.force)
     frames, _ = read_frames(args.frames, count=scan.frames)
     stack = assemble_stack(frames, scan, system, roi=args.roi, bit_depth=args.bit_depth,
                            black_level=args.black_level, calibration=calibration, cfa=args.cfa)
