@@ -512,3 +512,45 @@ def test_a_frame_of_the_wrong_size_for_the_sensor_is_refused_before_decoding(cap
     before_kb, after_kb = (int(v) for v in proc.stdout.split())
     assert (after_kb - before_kb) * 1024 < MEMORY
     assert not (tmp_path / "o.tif").exists()
+
+
+# --------------------------------------------------------------------------- calibration files, large jobs
+
+
+@pytest.mark.parametrize("name", ["two numbers for 3 x 3", "3e8 x 3e8 declared (XML)", "NaN in K", "not YAML at all",
+                                  "image size 1e12", "a map without data"])
+def test_hostile_calibration_is_refused_by_assemble(name, capsys, tmp_path):
+    pytest.importorskip("cv2")
+    from test_capture_calibration_files import BROKEN
+
+    text, fragment = BROKEN[name]
+    cal = tmp_path / ("cal.xml" if text.startswith("<?xml") else "cal.yml")
+    cal.write_text(text)
+    frame = tmp_path / "f.tif"
+    tifffile.imwrite(frame, _frames(1)[0])
+    line = refused(["assemble", "--phases", tmp_path / "none.json", "--calibration", cal, "--out", tmp_path / "o.tif",
+                    frame], capsys, tmp_path, [cal, frame])
+    assert fragment in line and str(cal) in line
+
+
+def test_a_stereo_calibration_without_a_camera_chosen_is_refused(capsys, tmp_path):
+    cv2 = pytest.importorskip("cv2")
+    cal = tmp_path / "intrinsics.yml"
+    fs = cv2.FileStorage(str(cal), cv2.FILE_STORAGE_WRITE)
+    for name, value in (("M1", np.eye(3) * 500 + [[0, 0, 300], [0, 0, 200], [0, 0, -499]]), ("D1", np.zeros((1, 5)))):
+        fs.write(name, value)
+    fs.release()
+    line = refused(["assemble", "--phases", tmp_path / "none.json", "--calibration", cal, "--out", tmp_path / "o.tif",
+                    tmp_path / "f.tif"], capsys, tmp_path, [cal])
+    assert "choose one with FILE:M1" in line
+
+
+def test_a_legal_job_too_large_for_the_machine_is_refused_at_once(capsys, tmp_path, monkeypatch):
+    """`hbis simulate --h 16 --roi full` is legal; on a machine with 8 GiB free it is refused from
+    its estimate, in one line, before any work (it once ran past 60 s at 1.9 GB)."""
+    from hbis_torch import budget
+
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 8 * 2**30)
+    line = refused(["simulate", "--scene", "flat", "--h", "16", "--roi", "full", "--out", tmp_path / "s.tif"],
+                   capsys, tmp_path)
+    assert "give --force" in line and "GiB" in line

@@ -173,3 +173,25 @@ def test_simulator_command_line_serves_a_port_and_stops_by_itself(capsys):
         if proc.poll() is None:
             proc.terminate()
             proc.wait(timeout=10)
+
+
+def test_a_silent_controller_exits_3_a_refused_line_2(sim, capsys):
+    """Exit codes a script can act on: 3 when the bench failed (retry after fixing it), 2 when the
+    command was wrong."""
+    sim.inject("silent")
+    assert motors(sim.port, "goto", "5", "70") == 3
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("hbis motors: error: ") and "Traceback" not in err
+
+
+def test_a_feed_hold_exits_3_naming_cycle_start(sim, capsys):
+    sim.inject("hold")
+    assert motors(sim.port, "goto", "90", "90") == 3
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "feed hold (Hold:0)" in err and "cycle start (~)" in err
+
+
+def test_help_documents_exit_code_3(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert "3 a device failed" in " ".join(capsys.readouterr().out.split())
