@@ -42,3 +42,22 @@ def test_a_job_over_the_budget_is_refused_unless_forced(command, tmp_path, capsy
     with caplog.at_level(logging.INFO, logger="hbis_torch"):
         assert main([*argv, "--force", "-v"]) == 0
     assert "estimated peak memory" in caplog.text and "running anyway (--force)" in caplog.text and out.exists()
+
+
+def test_assemble_is_estimated_from_the_frame_headers(tmp_path, capsys, monkeypatch):
+    import numpy as np
+    import tifffile
+    from test_capture_assemble import write_phases
+
+    write_phases(tmp_path / "phases.json")
+    paths = []
+    for k, frame in enumerate(np.zeros((4, 20, 24), np.uint16)):
+        paths.append(str(tmp_path / f"f{k}.tif"))
+        tifffile.imwrite(paths[-1], frame)
+    argv = ["assemble", "--phases", str(tmp_path / "phases.json"), "--roi", "600,450,24,20",
+            "--out", str(tmp_path / "s.tif"), *paths]
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 2**20)
+    assert main(argv) == 2
+    assert "assembling 0 MiB of frames would need about" in capsys.readouterr().err
+    assert not (tmp_path / "s.tif").exists()
+    assert main([*argv, "--force"]) == 0 and (tmp_path / "s.tif").exists()
