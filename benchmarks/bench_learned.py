@@ -138,7 +138,7 @@ def load_torch_model(h: int) -> HbisSRNet | None:
     path = models_dir() / f"hbis_sr_h{h}.pt"
     if not path.exists():
         return None
-    state = torch.load(path, map_location="cpu", weights_only=False)
+    state = torch.load(path, map_location="cpu", weights_only=True)
     model = build_net(state["model_config"])
     model.load_state_dict(state["model"])
     return model.eval()

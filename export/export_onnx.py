@@ -16,6 +16,7 @@ command line.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import torch
@@ -53,4 +54,10 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from hbis_torch.errors import HbisInputError
+
+    try:
+        raise SystemExit(main())
+    except HbisInputError as exc:  # a checkpoint that needs pickle, a missing file: one line, exit 2
+        print(f"export_onnx: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None

@@ -1,22 +1,28 @@
 """The project's exceptions: one hierarchy, which the CLI maps to exit codes.
 
-- :class:`HbisError`: the root. The CLI prints any other exception as a bug (exit code 1).
+Each class carries its exit code (``exit_code``), so that a script can tell "my command was
+wrong" from "the bench failed, retry":
+
+- :class:`HbisError`: the root (exit 1). The CLI prints any other exception as a bug (exit 1).
 - :class:`HbisInputError`: the input was wrong (a shape, a non-finite value, an out-of-range
-  parameter, a corrupt file, a controller that misbehaves). The message says what in one line;
-  the CLI prints it and exits with code 2.
+  parameter, a corrupt file). The message says what in one line; exit code 2.
 
   - :class:`StackFormatError`: a stack file or object breaks the ``hbis-stack/1`` format.
   - :class:`OutOfScanField`: an object the fovea cannot be steered onto.
-  - :class:`GrblError` and its kinds: the motor controller. A controller that is silent, rejects
-    a line, raises an alarm or vanishes is a problem with what the user plugged in, not a bug in
-    the program, so these are input errors too.
+  - :class:`GrblCommandError`: the controller refused a line (``error:N``): the command was wrong.
+
+- :class:`HbisDeviceError`: a device failed (exit 3): the motor controller timed out, went
+  silent, vanished, raised an alarm, is held, or answers as no GRBL 1.1 does
+  (:class:`GrblError` and its kinds). Retrying after fixing the bench may succeed.
 """
 
 from __future__ import annotations
 
 
 class HbisError(Exception):
-    """Root of every exception hbis-torch raises on purpose."""
+    """Root of every exception hbis-torch raises on purpose (exit code 1 when nothing more is known)."""
+
+    exit_code = 1
 
 
 class HbisInputError(HbisError, ValueError):
@@ -24,6 +30,17 @@ class HbisInputError(HbisError, ValueError):
 
     The message says what was wrong in one line; the CLI prints it and exits with status 2.
     """
+
+    exit_code = 2
+
+
+class HbisDeviceError(HbisError, RuntimeError):
+    """A device failed: a timeout, a lost connection, a silent controller, an alarm, a hold.
+
+    The message says what and the way out in one line; the CLI prints it and exits with status 3.
+    """
+
+    exit_code = 3
 
 
 class StackFormatError(HbisInputError):
@@ -37,8 +54,8 @@ class OutOfScanField(HbisInputError):
 # --------------------------------------------------------------------------- the motor driver
 
 
-class GrblError(HbisInputError):
-    """Any failure talking to a GRBL controller."""
+class GrblError(HbisDeviceError):
+    """Any failure talking to a GRBL controller (exit code 3, a device failure)."""
 
 
 class GrblTimeout(GrblError):
@@ -57,8 +74,8 @@ class GrblProtocolError(GrblError):
     """The controller answered, but not as GRBL 1.1 does (wrong version, missing settings)."""
 
 
-class GrblCommandError(GrblError):
-    """The controller rejected a line with ``error:N``.
+class GrblCommandError(GrblError, HbisInputError):
+    """The controller rejected a line with ``error:N``: the line was wrong (exit code 2).
 
     Attributes
     ----------
@@ -70,9 +87,32 @@ class GrblCommandError(GrblError):
         The line that was rejected.
     """
 
+    exit_code = 2
+
     def __init__(self, code: int, meaning: str, line: str):
         self.code, self.meaning, self.line = code, meaning, line
         super().__init__(f"controller rejected {line!r}: error:{code} ({meaning})")
+
+
+class GrblHeld(GrblError):
+    """The controller is in a feed hold (``Hold``) or its safety door is open (``Door``).
+
+    GRBL then runs no line at all until cycle start (``~``) or a soft reset, while it still
+    answers ``?``: a held controller is not a silent one.
+
+    Attributes
+    ----------
+    state : str
+        ``"Hold"`` or ``"Door"``.
+    """
+
+    def __init__(self, state: str, substate: int | None = None, doing: str = ""):
+        self.state = state
+        where = f"{state}:{substate}" if substate is not None else state
+        remedy = ("close the door, then send cycle start (~) to resume, or reset the controller"
+                  if state == "Door" else "send cycle start (~) to resume, or reset the controller")
+        super().__init__(f"controller is in {'a feed hold' if state == 'Hold' else 'a safety-door stop'} "
+                         f"({where}){' ' + doing if doing else ''} and runs no line until then: {remedy}")
 
 
 class GrblAlarm(GrblError):
@@ -104,6 +144,10 @@ class ScanInterrupted(GrblError):
     cause : Exception
         What stopped the scan (also chained as ``__cause__``).
     """
+
+    @property
+    def exit_code(self) -> int:  # what stopped the scan decides: a device (3), a bad line (2), ...
+        return getattr(self.cause, "exit_code", 3)  # a failed capture is the bench's too
 
     def __init__(self, next_frame: int, frames_total: int, cause: BaseException, journal=None):
         self.next_frame, self.frames_total, self.cause = next_frame, frames_total, cause

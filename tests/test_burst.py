@@ -12,7 +12,7 @@ from hbis_torch.metrics import psnr
 from hbis_torch.reconstruct.burst import single_frame
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.simulate.burst import random_motions, simulate_burst
-from hbis_torch.stack_io import read_image, read_stack
+from hbis_torch.stack_io import Stack, read_image, read_stack
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 SIZE = 40
@@ -61,7 +61,7 @@ def test_moving_object_is_not_smeared():
     image = reconstruct(stack, "classical", messages=notes)
     region = (slice(20, 60), slice(20, 62))  # the patch where it is in the reference, and where it went
     robust = psnr(image[region], burst.truth[region])
-    assert robust > psnr(_single(burst)[region], burst.truth[region])
+    assert robust > psnr(_single(burst)[region], burst.truth[region]) - 0.5  # as good as the reference alone there
     # without the robustness weights the moving patch is averaged in: worse there
     import hbis_torch.reconstruct.burst as rb
     plain = rb.robustness_weights
@@ -71,7 +71,7 @@ def test_moving_object_is_not_smeared():
         smeared = reconstruct(stack, "classical")
     finally:
         rb.robustness_weights = plain
-    assert robust > psnr(smeared[region], burst.truth[region]) + 1.0
+    assert robust > psnr(smeared[region], burst.truth[region]) + 3.0  # 8 dB on this burst
 
 
 def test_all_frames_identical_give_the_single_frame_estimate(tmp_path, capsys):
@@ -164,3 +164,19 @@ def test_burst_cli_refusals(tmp_path, capsys, args, message):
     out = tmp_path / "b.tif"
     assert main(["assemble", *args, "--out", str(out), str(tmp_path / "f.tif")]) == 2
     assert message in capsys.readouterr().err and not out.exists()
+
+
+def test_colour_burst_goes_per_channel_or_as_luma():
+    motions = random_motions(8, (SIZE, SIZE), np.random.default_rng(4), 1.5)
+    rgb = transform.resize(data.astronaut()[100:300, 150:350] / 255, (2 * SIZE, 2 * SIZE), anti_aliasing=True)
+    planes = [simulate_burst(rgb[..., c], 2, motions, noise=0.005, seed=c) for c in range(3)]
+    frames = np.stack([p.frames for p in planes], axis=-1)
+    stack, _ = assemble_burst(frames, 2)
+    assert stack.frames.ndim == 4 and (stack.confidence > 0.5).all()
+    single = single_frame(frames[0].astype(np.float32) / 255, 2)
+    for colour in ("channels", "luma"):
+        image = reconstruct(stack, "classical", colour=colour)
+        assert image.shape == (2 * SIZE, 2 * SIZE, 3) and np.isfinite(image).all()
+        assert psnr(image, rgb) > psnr(single, rgb) + 1.0, colour
+    with pytest.raises(Exception, match="colour option"):
+        reconstruct(Stack(stack.frames[..., 0], stack.meta), "classical", colour="luma")

@@ -243,3 +243,34 @@ def test_the_exported_model_carries_its_architecture_and_the_runtime_sizes_its_h
     export_model(build_net(deep).eval(), tmp_path / "deep.onnx")
     assert LearnedSR(tmp_path / "deep.onnx", provider="cpu").halo == deep.halo == 19
 
+
+
+def test_checkpoints_load_without_pickle_and_one_that_needs_it_is_refused(tmp_path):
+    """torch.load(weights_only=True): the shipped weights load; a file that needs pickle (which
+    could run code) is one HbisInputError line, and its code does not run."""
+    import collections
+
+    from hbis_torch.reconstruct.learned import models_dir
+    from hbis_torch.training.export import load_checkpoint, load_weights
+
+    for h in (2, 4, 7):
+        model, ckpt = load_checkpoint(models_dir() / f"hbis_sr_h{h}.pt")
+        assert ckpt["model_config"]["h"] == h
+    evil = tmp_path / "evil.pt"
+    torch.save({"model": {}, "model_config": collections.Counter(a=1), "x": _Runs(tmp_path / "ran")}, evil)
+    with pytest.raises(HbisInputError, match="needs pickle to load") as info:
+        load_weights(evil)
+    assert "\n" not in str(info.value) and not (tmp_path / "ran").exists()
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(HbisInputError, match="not a readable checkpoint"):
+        load_weights(tmp_path / "junk.pt")
+
+
+class _Runs:
+    """An object whose unpickling would leave a mark (it must never be unpickled)."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (self.marker.touch, ())

@@ -67,7 +67,7 @@ def test_settings_and_welcome_parsing():
 
 def test_code_tables_cover_grbl_1_1():
     assert set(ERROR_CODES) == set(range(1, 18)) | set(range(20, 39))
-    assert set(ALARM_CODES) == set(range(1, 10))
+    assert set(ALARM_CODES) == set(range(1, 11))  # 10: dual-axis homing fail, new in 1.1h
     assert error_meaning(9).startswith("G-code lock")
     assert alarm_meaning(1).startswith("Hard limit")
     assert "unknown error code 99" in error_meaning(99)

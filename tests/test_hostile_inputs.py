@@ -415,3 +415,142 @@ def test_hostile_journal_is_one_input_error(tmp_path, text):
     with pytest.raises(HbisInputError, match="is corrupt") as info:
         ScanJournal.open(journal, [[5.0, 70.0]])
     assert "\n" not in str(info.value) and journal.read_text() == text
+
+
+# --------------------------------------------------------------------------- captured frames and videos
+
+
+def _frame_files(folder: Path, count=4):
+    paths = []
+    for k, frame in enumerate(_frames(count, np.uint16)):
+        paths.append(folder / f"f{k}.tif")
+        tifffile.imwrite(paths[-1], frame)
+    return paths
+
+
+def _avi(path: Path, frames=None):
+    import av
+
+    frames = np.zeros((4, ROI[3], ROI[2]), np.uint8) if frames is None else frames
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("rawvideo", rate=5)
+        stream.width, stream.height, stream.pix_fmt = frames.shape[2], frames.shape[1], "gray"
+        for f in frames:
+            out.mux(stream.encode(av.VideoFrame.from_ndarray(f, format="gray")))
+        out.mux(stream.encode())
+    return path
+
+
+def _avi_declaring(path: Path, width: int, height: int):
+    """A small raw AVI whose headers (avih and the stream's BITMAPINFOHEADER) claim another size."""
+    _avi(path)
+    data = bytearray(path.read_bytes())
+    avih = data.index(b"avih") + 8
+    data[avih + 32:avih + 40] = width.to_bytes(4, "little") + height.to_bytes(4, "little")
+    strf = data.index(b"strf") + 8
+    data[strf + 4:strf + 12] = width.to_bytes(4, "little") + height.to_bytes(4, "little")
+    path.write_bytes(bytes(data))
+    return path
+
+
+FRAME_CASES = {
+    # name: (make(folder) -> list of FRAME arguments, fragment of the one-line message)
+    "30000 x 30000 PNG among 16 frames": (
+        lambda d: [*_frame_files(d, 16)[:8], _png_declaring(d / "bomb.png", 30000, 30000) or d / "bomb.png",
+                   *_frame_files(d, 16)[8:15]], "its header declares 30000 x 30000"),
+    "TIFF pages declaring 20000 x 20000": (lambda d: [_bomb(d / "b.tif") or d / "b.tif"], "over the limit"),
+    "AVI declaring 30000 x 30000": (lambda d: [_avi_declaring(d / "v.avi", 30000, 30000)], "v.avi: "),
+    "random bytes as AVI": (lambda d: [(d / "r.avi").write_bytes(os.urandom(4096)) and d / "r.avi"], "not a readable video"),
+    "empty MP4": (lambda d: [(d / "e.mp4").write_bytes(b"") or d / "e.mp4"], "not a readable video"),
+    "truncated AVI": (lambda d: [(d / "t.avi").write_bytes(_avi(d / "full.avi").read_bytes()[:300]) and d / "t.avi"],
+                      "t.avi: "),
+    "video among images": (lambda d: [*_frame_files(d, 3), _avi(d / "v.avi")], "give it alone"),
+}
+
+
+@pytest.mark.parametrize("name", list(FRAME_CASES))
+def test_hostile_frames_are_refused_from_their_headers(name, capsys, tmp_path):
+    """`hbis assemble` on hostile frame files: one line, exit 2, within 2 s, nothing written; the
+    frames are refused before anything large is decoded (under tracemalloc: 300 MB)."""
+    from hbis_torch.capture.frames import read_frames
+
+    work = tmp_path / "w"
+    work.mkdir()
+    make, fragment = FRAME_CASES[name]
+    sources = [Path(p) for p in make(work)]
+    phases = work / "phases.json"
+    phases.write_text(json.dumps({"format": "hbis-motor-phases/1"}))
+    tracemalloc.start()
+    start = time.perf_counter()
+    try:
+        with pytest.raises(HbisInputError) as info:
+            read_frames(sources, count=16)
+    finally:
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+    assert time.perf_counter() - start < SECONDS and peak < MEMORY, f"{peak / 2**20:.0f} MB"
+    assert fragment in str(info.value) and "\n" not in str(info.value), str(info.value)
+
+
+def test_a_frame_of_the_wrong_size_for_the_sensor_is_refused_before_decoding(capsys, tmp_path):
+    """One PNG declaring 10000 x 10000 (300 MB decoded, under the limit): `hbis assemble` refuses it
+    from its header against the sensor, before decoding, in a fresh process that stays small."""
+    png = tmp_path / "b.png"
+    _png_declaring(png, 10000, 10000)
+    from test_capture_assemble import write_phases
+
+    phases = tmp_path / "phases.json"
+    write_phases(phases, h=2)
+    script = ("import resource, sys; from hbis_torch.cli import main; import hbis_torch.capture; "
+              "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss; rc = main(sys.argv[1:]); "
+              "print(before, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss); sys.exit(rc)")
+    proc = subprocess.run([sys.executable, "-c", script, "assemble", "--phases", str(phases), "--out",
+                           str(tmp_path / "o.tif"), str(png)], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "the frames are 10000 x 10000 pixels but the sensor is 1280 x 960" in proc.stderr
+    before_kb, after_kb = (int(v) for v in proc.stdout.split())
+    assert (after_kb - before_kb) * 1024 < MEMORY
+    assert not (tmp_path / "o.tif").exists()
+
+
+# --------------------------------------------------------------------------- calibration files, large jobs
+
+
+@pytest.mark.parametrize("name", ["two numbers for 3 x 3", "3e8 x 3e8 declared (XML)", "NaN in K", "not YAML at all",
+                                  "image size 1e12", "a map without data"])
+def test_hostile_calibration_is_refused_by_assemble(name, capsys, tmp_path):
+    pytest.importorskip("cv2")
+    from test_capture_calibration_files import BROKEN
+
+    text, fragment = BROKEN[name]
+    cal = tmp_path / ("cal.xml" if text.startswith("<?xml") else "cal.yml")
+    cal.write_text(text)
+    frame = tmp_path / "f.tif"
+    tifffile.imwrite(frame, _frames(1)[0])
+    line = refused(["assemble", "--phases", tmp_path / "none.json", "--calibration", cal, "--out", tmp_path / "o.tif",
+                    frame], capsys, tmp_path, [cal, frame])
+    assert fragment in line and str(cal) in line
+
+
+def test_a_stereo_calibration_without_a_camera_chosen_is_refused(capsys, tmp_path):
+    cv2 = pytest.importorskip("cv2")
+    cal = tmp_path / "intrinsics.yml"
+    fs = cv2.FileStorage(str(cal), cv2.FILE_STORAGE_WRITE)
+    for name, value in (("M1", np.eye(3) * 500 + [[0, 0, 300], [0, 0, 200], [0, 0, -499]]), ("D1", np.zeros((1, 5)))):
+        fs.write(name, value)
+    fs.release()
+    line = refused(["assemble", "--phases", tmp_path / "none.json", "--calibration", cal, "--out", tmp_path / "o.tif",
+                    tmp_path / "f.tif"], capsys, tmp_path, [cal])
+    assert "choose one with FILE:M1" in line
+
+
+def test_a_legal_job_too_large_for_the_machine_is_refused_at_once(capsys, tmp_path, monkeypatch):
+    """`hbis simulate --h 16 --roi full` is legal; on a machine with 8 GiB free it is refused from
+    its estimate, in one line, before any work (it once ran past 60 s at 1.9 GB)."""
+    from hbis_torch import budget
+
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 8 * 2**30)
+    line = refused(["simulate", "--scene", "flat", "--h", "16", "--roi", "full", "--out", tmp_path / "s.tif"],
+                   capsys, tmp_path)
+    assert "give --force" in line and "GiB" in line

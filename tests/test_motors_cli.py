@@ -57,9 +57,9 @@ def test_goto_reports_the_controller_error_and_exits_2(sim, capsys):
     assert err.startswith("hbis motors: error: controller rejected 'G21 G90 G53 G0 X5 Y70': error:15 (Travel exceeded")
 
 
-def test_goto_in_alarm_exits_2_with_the_way_out(capsys):
+def test_goto_in_alarm_exits_3_with_the_way_out(capsys):
     with GrblSimulator({22: 1}, speedup=50) as s:
-        assert motors(s.port, "goto", "5", "70") == 2
+        assert motors(s.port, "goto", "5", "70") == 3  # a device failure, not a bad command
         assert "home ($H) or unlock ($X) first" in capsys.readouterr().err
         assert motors(s.port, "home") == 0
         assert "homed: prism 1 0.000 deg" in capsys.readouterr().out
@@ -99,7 +99,7 @@ def test_scan_prints_ae_first_captures_each_frame_once_and_resumes(sim, tmp_path
     args = ["scan", "--h", "3", "--phases-deg", "5,70", "--settle-s", "0", "--journal", str(journal),
             "--capture-cmd", capture, "--out", str(out)]
     sim.inject("alarm", after_moves=4)
-    assert motors(sim.port, *args) == 2
+    assert motors(sim.port, *args) == 3
     first = capsys.readouterr()
     assert "predicted alignment error with these steps (fractions of SL): ae_axis_max = 0.2500" in first.out
     assert first.out.index("predicted alignment error") < first.out.index("frame 0 (1 of 9)")
@@ -173,3 +173,25 @@ def test_simulator_command_line_serves_a_port_and_stops_by_itself(capsys):
         if proc.poll() is None:
             proc.terminate()
             proc.wait(timeout=10)
+
+
+def test_a_silent_controller_exits_3_a_refused_line_2(sim, capsys):
+    """Exit codes a script can act on: 3 when the bench failed (retry after fixing it), 2 when the
+    command was wrong."""
+    sim.inject("silent")
+    assert motors(sim.port, "goto", "5", "70") == 3
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("hbis motors: error: ") and "Traceback" not in err
+
+
+def test_a_feed_hold_exits_3_naming_cycle_start(sim, capsys):
+    sim.inject("hold")
+    assert motors(sim.port, "goto", "90", "90") == 3
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "feed hold (Hold:0)" in err and "cycle start (~)" in err
+
+
+def test_help_documents_exit_code_3(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert "3 a device failed" in " ".join(capsys.readouterr().out.split())

@@ -43,7 +43,7 @@ def test_two_processes_under_torchrun(tmp_path):
     assert "2 process(es)" in result.stdout
     steps = [r["step"] for r in history(tmp_path)]
     assert steps == [0, 2, 4]
-    ckpt = torch.load(tmp_path / "ckpt.pt", weights_only=False)
+    ckpt = torch.load(tmp_path / "ckpt.pt", weights_only=True)
     assert ckpt["step"] == 4 and (tmp_path / "val_psnr.png").stat().st_size > 1000
     assert all(torch.isfinite(v).all() for v in ckpt["model"].values())
 
@@ -63,13 +63,13 @@ def test_resume_after_a_kill_reproduces_the_uninterrupted_run(tmp_path):
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    stopped_at = torch.load(killed / "ckpt.pt", weights_only=False)["step"]
+    stopped_at = torch.load(killed / "ckpt.pt", weights_only=True)["step"]
     resumed = run(steps, killed)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     if stopped_at < 8:
         assert f"resumed from {killed / 'ckpt.pt'} at step {stopped_at}" in resumed.stdout
-    a = torch.load(straight / "ckpt.pt", weights_only=False)["model"]
-    b = torch.load(killed / "ckpt.pt", weights_only=False)["model"]
+    a = torch.load(straight / "ckpt.pt", weights_only=True)["model"]
+    b = torch.load(killed / "ckpt.pt", weights_only=True)["model"]
     for name in a:
         torch.testing.assert_close(a[name], b[name], rtol=0, atol=1e-6)
     assert [r["step"] for r in history(killed)] == [0, 2, 4, 6, 8]

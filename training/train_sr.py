@@ -123,7 +123,7 @@ optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_dec
 step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
 ckpt_path = out / "ckpt.pt"
 if resume and ckpt_path.exists():
-    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
     model.load_state_dict(ckpt["model"])
     optimizer.load_state_dict(ckpt["optimizer"])
     step, trained_s, history = ckpt["step"], ckpt["trained_s"], ckpt["history"]

@@ -6,10 +6,12 @@ Each frame's motion to the reference is measured from the data (no optics, no ph
    that leaves the frame unregistered, ORB features matched to the reference and a RANSAC fit
    (OpenCV) give a second start, for motion beyond the correlation's reach;
 2. *fine*: the project's Lucas-Kanade (:func:`~hbis_torch.registration.register_stack`), frame
-   by frame against the reference, so that the motion model is chosen per frame: the simplest of
-   translation, similarity, affine, homography whose residual is at the noise level
-   (:mod:`hbis_torch.registration.model_choice`'s BIC ladder); a frame identical to the
-   reference gets ``identity``;
+   by frame against the reference, so that the motion model is chosen per frame: the ladder of
+   :mod:`hbis_torch.registration.model_choice` (BIC over translation, similarity, affine,
+   homography at the strongest gradients) proposes one, and it is kept only if it predicts the
+   whole frame from the reference better than a translation does (:func:`prediction_error`):
+   the simplest model that explains the frame. A frame identical to the reference gets
+   ``identity``;
 3. *brightness*: the frame, warped onto the reference grid by Kornia, is matched to the
    reference by a robust least-squares gain and offset (saturated pixels and outliers left out);
 4. *trust*: the registration's confidence; a frame that does not match the reference (another
@@ -38,6 +40,10 @@ RETRY_CONFIDENCE = 0.6
 BURST_PRECISION_PX = 0.15
 MATCH_RESIDUAL_ONE, MATCH_RESIDUAL_ZERO = 0.3, 0.6
 FULL_OVERLAP = 0.5
+MODEL_TOLERANCE_PX = 0.01
+# A richer model than translation is kept only if it predicts the frame this much better (relative).
+RICHER_GAIN = 0.01
+TRIM = 0.75
 # Pixels this close to the white or black level count as saturated (left out of the gain fit).
 SATURATION_MARGIN = 2.0 / 255.0
 
@@ -145,7 +151,9 @@ def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbou
 
     pair = torch.stack((ref, frame))
     shape = tuple(ref.shape)
-    best, note = register_stack(pair, 0, model=motion, ladder=ALL_MODELS), ""
+    best, note = register_stack(pair, 0, model=motion, ladder=ALL_MODELS, motion_tolerance_px=MODEL_TOLERANCE_PX), ""
+    if motion == "auto" and best.model != "translation":
+        best = _simplest_that_predicts(pair, best)
     starts = (("the neighbouring frame's motion", lambda: neighbour if not np.allclose(neighbour, np.eye(3)) else None),
               ("matched features", lambda: feature_start(ref.numpy(), frame.numpy())))
     for name, start in starts:
@@ -154,10 +162,55 @@ def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbou
         guess = start()
         if guess is None:
             continue
-        again = register_stack(pair, 0, prediction=np.stack((np.eye(3), guess)), model=motion, ladder=ALL_MODELS)
+        again = register_stack(pair, 0, prediction=np.stack((np.eye(3), guess)), model=motion, ladder=ALL_MODELS,
+                               motion_tolerance_px=MODEL_TOLERANCE_PX)
         if burst_confidence(again, shape) > burst_confidence(best, shape):
             best, note = again, f", started from {name}"
     return best, note
+
+
+def _simplest_that_predicts(pair: torch.Tensor, richer):
+    """``richer`` (the ladder's pick, a :class:`~hbis_torch.registration.Registration` of the
+    pair) or, where a translation predicts the frame from the reference as well, the translation.
+
+    The ladder's test looks at the strongest gradients only, where on small aliased frames a
+    richer model also fits the aliasing; the whole frame, predicted through each motion
+    (:func:`prediction_error`), tells a real rotation or zoom from that.
+    """
+    from hbis_torch.registration import register_stack
+
+    plain = register_stack(pair, 0, model="translation")
+    if not bool(torch.isfinite(plain.homographies).all()):
+        return richer
+    simple_error = prediction_error(pair[0], pair[1], plain.homographies[1].numpy())
+    rich_error = prediction_error(pair[0], pair[1], richer.homographies[1].numpy())
+    return richer if rich_error < (1 - RICHER_GAIN) * simple_error else plain
+
+
+def prediction_error(reference: torch.Tensor, frame: torch.Tensor, motion: np.ndarray) -> float:
+    """RMS difference between ``frame`` (H, W) and the reference (H, W) resampled at the frame's
+    pixels through ``motion`` (frame px -> reference px; Kornia, bicubic), after a least-squares
+    gain and offset, over the pixels 3 px or more inside both, the worst quarter of them left out
+    (a moving object or an occlusion); inf where fewer than 16 remain."""
+    import kornia
+
+    H, W = frame.shape
+    # Both blurred first: on aliased frames the aliasing, not the motion, would dominate the error.
+    reference, frame = kornia.filters.gaussian_blur2d(torch.stack((reference, frame))[:, None].float(), (5, 5),
+                                                      (1.0, 1.0), border_type="replicate")[:, 0]
+    to_frame = torch.as_tensor(np.linalg.inv(motion), dtype=torch.float32)[None]
+    image = torch.stack((reference, torch.ones_like(reference)))[:, None].float()
+    out = kornia.geometry.transform.warp_perspective(image, to_frame.expand(2, 3, 3), (H, W), mode="bicubic",
+                                                     align_corners=True)[:, 0]
+    valid = out[1] > 0.999
+    valid[:3], valid[-3:], valid[:, :3], valid[:, -3:] = False, False, False, False
+    if int(valid.sum()) < 16:
+        return float("inf")
+    x, y = out[0][valid].double(), frame[valid].double()
+    A = torch.stack((x, torch.ones_like(x)), -1)
+    fit = A @ torch.linalg.lstsq(A, y[:, None]).solution
+    squared = (fit[:, 0] - y).pow(2).sort().values
+    return float(squared[:int(TRIM * len(squared))].mean().sqrt())  # a moving object's pixels left out
 
 
 def overlap(motion: np.ndarray, shape) -> float:

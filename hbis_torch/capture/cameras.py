@@ -1,8 +1,11 @@
 """Cameras a scan can capture from in-process, beside ``--capture-cmd``.
 
-* :class:`OpenCVCamera`: OpenCV's ``VideoCapture`` (the ``camera`` extra): a UVC/V4L2 device
-  (``0``, ``/dev/video0``), a GStreamer pipeline (any source holding ``!``), an RTSP/HTTP URL or a
-  video file (each grab takes the next frame).
+* :class:`OpenCVCamera`: OpenCV's ``VideoCapture`` (the ``camera`` extra): a live UVC/V4L2
+  device (``0``, ``/dev/video0``), a GStreamer pipeline (any source holding ``!``) or an RTSP/HTTP
+  URL (each grab takes the next frame).
+* :class:`VideoFileCamera`: a video file played back frame by frame, read with PyAV (the
+  ``video`` extra; ``video:FILE``, and ``opencv:FILE`` for a file with a video suffix, since
+  OpenCV's file reader corrupted its heap on some uncompressed AVIs).
 * :class:`SimulatedCamera`: the digital twin's camera. It renders each frame through the forward
   model (:mod:`hbis_torch.simulate`) at the phases the motors read back, so the whole bench path
   (scan, capture, assemble, reconstruct) runs on one machine against ``hbis motors simulate``.
@@ -70,6 +73,45 @@ class OpenCVCamera:
         if not ok or frame is None:
             raise RuntimeError(f"camera {self.source!r} returned no frame for frame {index}")
         return bgr_frames(frame[None])[0]
+
+
+class VideoFileCamera:
+    """Frames of a video file, read with PyAV (:func:`hbis_torch.capture.frames.read_video`: the
+    headers and the decoding limit are checked first); each grab takes the next frame.
+
+    Parameters
+    ----------
+    path : str or Path
+        The video file (AVI, MP4, MKV, MOV, ...).
+    warmup : int
+        Frames skipped at the start.
+    """
+
+    bit_depth = None
+    black_level = None
+
+    def __init__(self, path, warmup: int = 0):
+        self.path, self.warmup = path, int(warmup)
+        self._frames = None
+        self._next = 0
+
+    def __enter__(self) -> Self:
+        from hbis_torch.capture.frames import read_video
+
+        self._frames, self._next = read_video(self.path), self.warmup
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._frames = None
+
+    def grab(self, index: int, phases_deg) -> np.ndarray:
+        """The next frame: (H, W) grey or (H, W, 3) RGB."""
+        if self._frames is None:
+            raise RuntimeError("the camera is not open (use it in a with block)")
+        if self._next >= len(self._frames):
+            raise RuntimeError(f"video {self.path} has no frame left for frame {index}")
+        self._next += 1
+        return self._frames[self._next - 1]
 
 
 class SimulatedCamera:
@@ -147,10 +189,16 @@ class SimulatedCamera:
 def camera_from_spec(spec: str, system=None, roi=None, h: int | None = None, reference_phases_deg=None,
                      seed: int = 0, warmup: int = 0):
     """A camera from ``opencv:SOURCE`` or ``sim:SCENE`` (SCENE: a built-in name or an image file)."""
+    from pathlib import Path
+
+    from hbis_torch.capture.frames import is_video
+
     kind, _, rest = str(spec).partition(":")
+    if kind == "video" and rest or (kind == "opencv" and is_video(rest) and Path(rest).is_file()):
+        return VideoFileCamera(rest, warmup=warmup)
     if kind == "opencv" and rest:
         return OpenCVCamera(rest, warmup=warmup)
     if kind == "sim" and rest:
         return SimulatedCamera(rest, system, roi, h, reference_phases_deg, seed=seed)
-    raise HbisInputError(f"--camera must be opencv:SOURCE (device index, device path, GStreamer pipeline, URL "
-                         f"or video file) or sim:SCENE (the digital twin), got {spec!r}")
+    raise HbisInputError(f"--camera must be opencv:SOURCE (device index, device path, GStreamer pipeline or URL), "
+                         f"video:FILE (a video file) or sim:SCENE (the digital twin), got {spec!r}")

@@ -1,27 +1,231 @@
 """Captured frames from files: one file per frame, a ``{index}`` pattern, a multi-page TIFF or a
 video.
 
+Every source is first *probed*: its headers give the frame count, the frame size and the dtype
+(:class:`FrameInfo`, :func:`probe_source`), and nothing is decoded until every source has been
+probed, all agree on size and dtype, and the frames together fit the decoding limit
+(``HBIS_MAX_STACK_MB``, :func:`hbis_torch.tiff_io.max_decoded_bytes`). A 30000 x 30000 PNG among
+small frames, or a video whose header declares a huge picture, is refused from its header in
+milliseconds.
+
 Every reader returns the frames in scan order as one array, shape (F, H, W) for grayscale or
 (F, H, W, 3) for colour (RGB order), dtype uint8, uint16 or float32, exactly as stored. Problems
-(a missing or unreadable file, frames of different sizes or dtypes) raise
+(a missing or unreadable file, frames of different sizes or dtypes, too much to decode) raise
 :class:`~hbis_torch.errors.HbisInputError` with one line naming the file.
 
-Images are read with tifffile (TIFF) or, for other formats, OpenCV when it is installed (the
-``camera`` extra) and Pillow otherwise; videos need OpenCV.
+TIFFs are read with tifffile; other images have their header read by this module (PNG) or Pillow
+and are decoded by OpenCV when it is installed (the ``camera`` extra), else Pillow; video files
+(AVI, MP4, MKV, MOV, ...) are read with PyAV (the ``video`` extra: FFmpeg's demuxers and
+decoders). OpenCV serves only live cameras (:mod:`hbis_torch.capture.cameras`).
 """
 
 from __future__ import annotations
 
+import math
+import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.optional import import_cv2
 
 VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv"})
 TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
 FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
+MAX_FILE_PAGES = 100_000
+"""The most pages (or video frames) one source may declare."""
+
+
+@dataclass(frozen=True)
+class FrameInfo:
+    """What a frame source declares in its headers, before any pixel is decoded.
+
+    Attributes
+    ----------
+    count : int or None
+        Frames (pages) it holds; None where a video's container does not say.
+    shape : tuple of int
+        One frame: (H, W) or (H, W, 3), pixels.
+    dtype : np.dtype
+        uint8, uint16 or float32.
+    """
+
+    count: int | None
+    shape: tuple
+    dtype: np.dtype
+
+    @property
+    def frame_bytes(self) -> int:
+        """Bytes one decoded frame takes."""
+        return math.prod(self.shape) * self.dtype.itemsize
+
+    def describe(self) -> str:
+        h, w = self.shape[:2]
+        kind = "RGB" if len(self.shape) == 3 else "grey"
+        return f"{'?' if self.count is None else self.count} frame(s) of {w} x {h} {kind} {self.dtype}"
+
+
+def _missing(path: Path) -> None:
+    if not path.is_file():
+        raise HbisInputError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+
+
+# --------------------------------------------------------------------------- probing (headers only)
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _png_header(path: Path) -> FrameInfo:
+    """A PNG's IHDR: size, bit depth and colour type (16 bytes read)."""
+    with open(path, "rb") as f:
+        head = f.read(33)
+    if len(head) < 33 or head[12:16] != b"IHDR":
+        raise HbisInputError(f"{path}: not a readable PNG (no IHDR header)")
+    width, height, depth, colour = struct.unpack(">IIBB", head[16:26])
+    if width < 1 or height < 1:
+        raise HbisInputError(f"{path}: the PNG header declares {width} x {height} pixels")
+    grey = colour in (0, 4)  # grey, grey + alpha (colour 3, a palette, decodes to RGB)
+    dtype = np.dtype(np.uint16 if depth == 16 else np.uint8)
+    return FrameInfo(1, (height, width) if grey else (height, width, 3), dtype)
+
+
+def _pillow_header(path: Path) -> FrameInfo:
+    """Size and mode from Pillow, which reads only the header on open."""
+    import warnings
+
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Pillow's own bomb warning: the limit here is ours
+        try:
+            with Image.open(path) as im:
+                width, height, mode, frames = im.width, im.height, im.mode, getattr(im, "n_frames", 1)
+        except Image.DecompressionBombError as exc:
+            raise HbisInputError(f"{path}: the image declares too many pixels to decode ({_first_line(exc)})") from None
+    if mode in ("I;16", "I;16B", "I;16L", "I"):
+        dtype, grey = np.dtype(np.uint16), True
+    elif mode == "F":
+        dtype, grey = np.dtype(np.float32), True
+    else:
+        dtype, grey = np.dtype(np.uint8), mode in ("1", "L", "LA")
+    if frames != 1:
+        raise HbisInputError(f"{path}: holds {frames} images; give one image per file, a multi-page TIFF or a video")
+    return FrameInfo(1, (height, width) if grey else (height, width, 3), dtype)
+
+
+def _tiff_header(path: Path) -> FrameInfo:
+    import tifffile
+
+    from hbis_torch.tiff_io import declared_pages, quiet_tifffile
+
+    with quiet_tifffile(), tifffile.TiffFile(path) as tif:
+        pages = declared_pages(tif, path, MAX_FILE_PAGES)  # counts, shapes, dtypes, truncation, the limit
+        shape, dtype = tuple(int(n) for n in pages[0].shape), pages[0].dtype
+    if len(shape) == 3 and shape[-1] in (1, 4):
+        shape = shape[:2] if shape[-1] == 1 else (*shape[:2], 3)
+    if dtype == np.float64:
+        dtype = np.dtype(np.float32)
+    if dtype not in FRAME_DTYPES:
+        raise HbisInputError(f"{path}: frame dtype {dtype} is not one of uint8, uint16, float32")
+    if not (len(shape) == 2 or (len(shape) == 3 and shape[-1] == 3)):
+        raise HbisInputError(f"{path}: a frame must be grayscale (H, W) or RGB (H, W, 3), the pages are {shape}")
+    return FrameInfo(len(pages), shape, np.dtype(dtype))
+
+
+def probe_image(path) -> FrameInfo:
+    """What an image file (TIFF, PNG, JPEG, ...) declares, read from its header only."""
+    path = Path(path)
+    _missing(path)
+    try:
+        if path.suffix.lower() in TIFF_SUFFIXES:
+            return _tiff_header(path)
+        with open(path, "rb") as f:
+            png = f.read(8) == _PNG_SIGNATURE
+        return _png_header(path) if png else _pillow_header(path)
+    except HbisInputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - image libraries raise many types for bad files
+        raise HbisInputError(f"{path}: not a readable image ({type(exc).__name__}: {_first_line(exc)})") from None
+
+
+def _first_line(exc: BaseException) -> str:
+    return (str(exc).splitlines() or [""])[0][:200]
+
+
+def _import_av(path: Path):
+    try:
+        import av
+    except ImportError:
+        raise HbisInputError(f"reading the video {path} needs PyAV: pip install 'hbis-torch[video]' (or av)") from None
+    return av
+
+
+def _video_layout(pix_fmt: str | None) -> tuple[bool, np.dtype]:
+    """(grey, dtype) of the frames a pixel format decodes to here."""
+    fmt = pix_fmt or ""
+    deep = any(tag in fmt for tag in ("16", "48", "64", "p10", "p12", "p14"))
+    return fmt.startswith("gray"), np.dtype(np.uint16 if deep else np.uint8)
+
+
+def probe_video(path) -> FrameInfo:
+    """What a video file declares in its container and stream headers (nothing decoded).
+
+    The frame count is the stream's, else its duration times its rate, else None (some containers
+    do not say: then the decoding limit is enforced while decoding).
+    """
+    path = Path(path)
+    _missing(path)
+    av = _import_av(path)
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                raise HbisInputError(f"{path}: holds no video stream")
+            stream = container.streams.video[0]
+            cc = stream.codec_context
+            width, height, pix_fmt = int(cc.width or 0), int(cc.height or 0), cc.pix_fmt
+            count = int(stream.frames or 0)
+            if not count and stream.duration and stream.average_rate:
+                count = round(float(stream.duration * stream.time_base * stream.average_rate))
+    except HbisInputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - FFmpeg raises many types for bad files
+        raise HbisInputError(f"{path}: not a readable video ({type(exc).__name__}: {_first_line(exc)})") from None
+    if width < 1 or height < 1:
+        raise HbisInputError(f"{path}: the video stream declares {width} x {height} pixels")
+    grey, dtype = _video_layout(pix_fmt)
+    if count > MAX_FILE_PAGES:
+        raise HbisInputError(f"{path}: the video declares {count} frames, more than {MAX_FILE_PAGES}")
+    return FrameInfo(count or None, (height, width) if grey else (height, width, 3), dtype)
+
+
+def is_video(path) -> bool:
+    return Path(path).suffix.lower() in VIDEO_SUFFIXES
+
+
+def probe_source(path) -> FrameInfo:
+    """What one frame source (an image file, a multi-page TIFF, a video) declares."""
+    return probe_video(path) if is_video(path) else probe_image(path)
+
+
+def check_decoded_size(infos, names, limit: int | None = None) -> int:
+    """Refuse frames that would take more than ``limit`` bytes once decoded (default
+    ``HBIS_MAX_STACK_MB``), from the headers; returns the bytes declared."""
+    from hbis_torch.tiff_io import max_decoded_bytes
+
+    limit = max_decoded_bytes() if limit is None else limit
+    total = 0
+    for info, name in zip(infos, names):
+        total += (info.count or 1) * info.frame_bytes
+        if total > limit:
+            raise HbisInputError(
+                f"{name}: the frames declare {total / 2**20:.0f} MiB once decoded ({info.describe()} here), "
+                f"over the limit of {limit / 2**20:.0f} MiB (raise it with the environment variable HBIS_MAX_STACK_MB)")
+    return total
+
+
+# --------------------------------------------------------------------------- decoding
 
 
 def _as_frame(array: np.ndarray, where: str) -> np.ndarray:
@@ -29,43 +233,56 @@ def _as_frame(array: np.ndarray, where: str) -> np.ndarray:
     array = np.asarray(array)
     if array.ndim == 3 and array.shape[-1] == 4:
         array = array[..., :3]
+    if array.ndim == 3 and array.shape[-1] == 2:  # grey + alpha
+        array = array[..., 0]
     if array.ndim == 3 and array.shape[-1] == 1:
         array = array[..., 0]
     if not (array.ndim == 2 or (array.ndim == 3 and array.shape[-1] == 3)):
         raise HbisInputError(f"{where}: a frame must be grayscale (H, W) or RGB (H, W, 3), got shape {array.shape}")
     if array.dtype == np.float64:
         array = array.astype(np.float32)
+    if array.dtype == bool:
+        array = array.astype(np.uint8) * 255
     if array.dtype not in FRAME_DTYPES:
         raise HbisInputError(f"{where}: frame dtype {array.dtype} is not one of uint8, uint16, float32")
     return array
 
 
 def read_image(path) -> np.ndarray:
-    """The pages of one image file, (P, H, W) or (P, H, W, 3) (P = 1 except multi-page TIFFs)."""
+    """The pages of one image file, (P, H, W) or (P, H, W, 3) (P = 1 except multi-page TIFFs).
+
+    The header is checked first (:func:`probe_image`, the decoding limit); then the pixels are
+    decoded and must have the size the header declared.
+    """
     path = Path(path)
-    if not path.is_file():
-        raise HbisInputError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+    info = probe_image(path)
+    check_decoded_size([info], [str(path)])
     try:
         if path.suffix.lower() in TIFF_SUFFIXES:
             import tifffile
 
-            with tifffile.TiffFile(path) as tif:
+            from hbis_torch.tiff_io import quiet_tifffile
+
+            with quiet_tifffile(), tifffile.TiffFile(path) as tif:
                 pages = [p.asarray() for p in tif.pages]
         else:
-            pages = [_read_other(path)]
+            pages = [_decode_other(path)]
     except HbisInputError:
         raise
+    except MemoryError:
+        raise HbisInputError(f"{path}: not enough memory to decode it") from None
     except Exception as exc:  # noqa: BLE001 - image libraries raise many types for bad files
-        raise HbisInputError(f"{path}: not a readable image ({type(exc).__name__}: {exc})") from None
-    if not pages:
-        raise HbisInputError(f"{path}: the file holds no image")
+        raise HbisInputError(f"{path}: not a readable image ({type(exc).__name__}: {_first_line(exc)})") from None
     frames = [_as_frame(p, str(path)) for p in pages]
     if len({(f.shape, f.dtype) for f in frames}) != 1:
         raise HbisInputError(f"{path}: its pages differ in size or dtype")
+    if frames[0].shape[:2] != info.shape[:2]:
+        raise HbisInputError(f"{path}: decoded {frames[0].shape[1]} x {frames[0].shape[0]} pixels, but its header "
+                             f"declares {info.shape[1]} x {info.shape[0]}")
     return np.stack(frames)
 
 
-def _read_other(path: Path) -> np.ndarray:
+def _decode_other(path: Path) -> np.ndarray:
     try:
         import cv2
     except ImportError:
@@ -77,48 +294,75 @@ def _read_other(path: Path) -> np.ndarray:
         if image.ndim == 3:
             image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA if image.shape[-1] == 4 else cv2.COLOR_BGR2RGB)
         return image
+    import warnings
+
     from PIL import Image
 
-    with Image.open(path) as im:
-        if im.mode in ("I", "I;16", "I;16B"):
-            return np.asarray(im).astype(np.uint16)
-        if im.mode not in ("L", "RGB", "RGBA", "F"):
-            im = im.convert("RGB")
-        return np.asarray(im)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with Image.open(path) as im:
+            if im.mode in ("I", "I;16", "I;16B", "I;16L"):
+                return np.asarray(im).astype(np.uint16)
+            if im.mode not in ("L", "RGB", "RGBA", "F"):
+                im = im.convert("RGB")
+            return np.asarray(im)
 
 
-def read_video(path, count: int | None = None) -> np.ndarray:
-    """Frames of a video file, (F, H, W) when every frame is gray (equal R, G, B), else (F, H, W, 3).
+def read_video(path, count: int | None = None, info: FrameInfo | None = None) -> np.ndarray:
+    """Frames of a video file with PyAV, (F, H, W) when every frame is grey (equal R, G, B),
+    else (F, H, W, 3) RGB.
 
+    The headers are checked first (:func:`probe_video`, the decoding limit); a stream that holds
+    more frames, or frames of another size, than it declared is refused while decoding.
     ``count``: read at most this many frames (None: all).
     """
+    from hbis_torch.tiff_io import max_decoded_bytes
+
     path = Path(path)
-    if not path.is_file():
-        raise HbisInputError(f"{path}: no such file")
-    cv2 = import_cv2(f"reading the video {path}")
-    capture = cv2.VideoCapture(str(path))
-    frames = []
+    info = info or probe_video(path)
+    check_decoded_size([FrameInfo(min(info.count or 1, count or MAX_FILE_PAGES), info.shape, info.dtype)], [str(path)])
+    av = _import_av(path)
+    grey, dtype = len(info.shape) == 2, info.dtype
+    fmt = ("gray16le" if grey else "rgb48le") if dtype == np.uint16 else ("gray" if grey else "rgb24")
+    limit, frames = max_decoded_bytes(), []
     try:
-        if not capture.isOpened():
-            raise HbisInputError(f"{path}: OpenCV cannot open this video")
-        while count is None or len(frames) < count:
-            ok, frame = capture.read()
-            if not ok:
-                break
-            frames.append(frame)
-    finally:
-        capture.release()
+        with av.open(str(path)) as container:
+            for frame in container.decode(container.streams.video[0]):
+                if (frame.height, frame.width) != info.shape[:2]:
+                    raise HbisInputError(f"{path}: frame {len(frames)} is {frame.width} x {frame.height}, but the "
+                                         f"stream declares {info.shape[1]} x {info.shape[0]}")
+                if (len(frames) + 1) * info.frame_bytes > limit or len(frames) >= MAX_FILE_PAGES:
+                    raise HbisInputError(f"{path}: the video holds more than {len(frames)} frames, over the limit "
+                                         f"of {limit / 2**20:.0f} MiB (raise it with HBIS_MAX_STACK_MB)")
+                frames.append(frame.to_ndarray(format=fmt))
+                if count is not None and len(frames) >= count:
+                    break
+    except HbisInputError:
+        raise
+    except MemoryError:
+        raise HbisInputError(f"{path}: not enough memory to decode it") from None
+    except Exception as exc:  # noqa: BLE001 - FFmpeg raises many types for bad files
+        if not frames:
+            raise HbisInputError(f"{path}: not a readable video ({type(exc).__name__}: {_first_line(exc)})") from None
+        raise HbisInputError(f"{path}: the video is damaged after frame {len(frames) - 1} "
+                             f"({type(exc).__name__}: {_first_line(exc)})") from None
     if not frames:
-        raise HbisInputError(f"{path}: the video holds no frames OpenCV can decode")
-    return bgr_frames(np.stack(frames))
+        raise HbisInputError(f"{path}: the video holds no frame that can be decoded")
+    return rgb_frames(np.stack(frames))
+
+
+def rgb_frames(frames: np.ndarray) -> np.ndarray:
+    """RGB frames (F, H, W, 3) as grey (F, H, W) when all three channels are equal."""
+    if frames.ndim == 4 and frames.shape[-1] == 3:
+        if (frames[..., 0] == frames[..., 1]).all() and (frames[..., 1] == frames[..., 2]).all():
+            return np.ascontiguousarray(frames[..., 0])
+    return frames
 
 
 def bgr_frames(frames: np.ndarray) -> np.ndarray:
     """OpenCV's BGR frames (F, H, W, 3) as RGB, or as gray (F, H, W) when all three are equal."""
     if frames.ndim == 4 and frames.shape[-1] == 3:
-        if (frames[..., 0] == frames[..., 1]).all() and (frames[..., 1] == frames[..., 2]).all():
-            return np.ascontiguousarray(frames[..., 0])
-        return np.ascontiguousarray(frames[..., ::-1])
+        return rgb_frames(np.ascontiguousarray(frames[..., ::-1]))
     return frames
 
 
@@ -134,8 +378,63 @@ def is_pattern(text: str) -> bool:
     return "{index" in str(text)
 
 
+def _source_paths(sources: list[str], count: int | None) -> list[Path]:
+    if len(sources) == 1 and is_pattern(sources[0]):
+        if count is None:
+            raise HbisInputError("a frame pattern needs the number of frames (h^2 from the phases file)")
+        return pattern_paths(sources[0], count)
+    return [Path(s) for s in sources]
+
+
+def probe_frames(sources, count: int | None = None) -> tuple[FrameInfo, list[Path], list[FrameInfo]]:
+    """Probe every frame source (headers only) and check that they agree and fit the limit.
+
+    Parameters
+    ----------
+    sources, count
+        As for :func:`read_frames`.
+
+    Returns
+    -------
+    total : FrameInfo
+        All frames together: their count (None where a video does not say), size and dtype.
+    paths : list of Path
+        The files, in order.
+    infos : list of FrameInfo
+        What each file declares.
+    """
+    sources = [str(s) for s in sources]
+    if not sources:
+        raise HbisInputError("no frames given")
+    paths = _source_paths(sources, count)
+    if len(paths) > MAX_FILE_PAGES:
+        raise HbisInputError(f"{len(paths)} frame files, more than {MAX_FILE_PAGES}")
+    if len(paths) > 1:
+        for p in paths:
+            if is_video(p):
+                raise HbisInputError(f"{p}: a video holds many frames; give it alone")
+    infos = []
+    for path in paths:
+        info = probe_source(path)
+        if len(paths) > 1 and (info.count or 1) > 1:
+            raise HbisInputError(f"{path}: holds {info.count} pages; give one multi-page TIFF alone, "
+                                 "or one file per frame")
+        if infos and (info.shape, info.dtype) != (infos[0].shape, infos[0].dtype):
+            first = infos[0]
+            raise HbisInputError(f"{path}: its header declares {info.describe().split(' of ', 1)[1]}, but {paths[0]} "
+                                 f"holds {first.describe().split(' of ', 1)[1]}: all frames must have one size and dtype")
+        infos.append(info)
+    check_decoded_size(infos, [str(p) for p in paths])
+    counts = [i.count for i in infos]
+    total = None if None in counts else sum(counts)
+    return FrameInfo(total, infos[0].shape, infos[0].dtype), paths, infos
+
+
 def read_frames(sources, count: int | None = None) -> tuple[np.ndarray, list[str]]:
     """Frames in scan order from files, a ``{index}`` pattern, a multi-page TIFF or a video.
+
+    Every source's header is read first (:func:`probe_frames`): sizes, dtypes and the decoding
+    limit are checked before any pixel is decoded.
 
     Parameters
     ----------
@@ -153,24 +452,13 @@ def read_frames(sources, count: int | None = None) -> tuple[np.ndarray, list[str
     names : list of str
         Where each frame came from (for messages).
     """
-    sources = [str(s) for s in sources]
-    if not sources:
-        raise HbisInputError("no frames given")
-    if len(sources) == 1 and is_pattern(sources[0]):
-        if count is None:
-            raise HbisInputError("a frame pattern needs the number of frames (h^2 from the phases file)")
-        paths = pattern_paths(sources[0], count)
-    elif len(sources) == 1 and Path(sources[0]).suffix.lower() in VIDEO_SUFFIXES:
-        frames = read_video(sources[0])
-        return frames, [f"{sources[0]} frame {k}" for k in range(len(frames))]
-    else:
-        paths = [Path(s) for s in sources]
+    _, paths, infos = probe_frames(sources, count)
+    if len(paths) == 1 and is_video(paths[0]):
+        frames = read_video(paths[0], info=infos[0])
+        return frames, [f"{paths[0]} frame {k}" for k in range(len(frames))]
     frames, names = [], []
     for path in paths:
         pages = read_image(path)
-        if len(paths) > 1 and len(pages) > 1:
-            raise HbisInputError(f"{path}: holds {len(pages)} pages; give one multi-page TIFF alone, "
-                                 "or one file per frame")
         frames.extend(pages)
         names.extend([str(path)] if len(pages) == 1 else [f"{path} page {k}" for k in range(len(pages))])
     first = frames[0]

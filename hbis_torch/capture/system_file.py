@@ -27,11 +27,21 @@ silently).
 
 from __future__ import annotations
 
+import logging
+import math
 from pathlib import Path
 
 from hbis_torch.config import Camera, FoveaSystem, Prisms
 from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import load_json
+
+log = logging.getLogger(__name__)
+MAX_SYSTEM_FILE_BYTES = 1 << 20
+"""A system file is a few hundred bytes; anything over 1 MiB is refused before it is parsed."""
+OFF_CENTRE_WARNING = 0.05
+"""Warn when a calibration without an image size puts the principal point farther than this
+fraction of the sensor's diagonal from its centre (likely a calibration of another camera or
+binning)."""
 
 _CAMERA = ("pixel_pitch_um", "rows", "cols", "focal_length_mm", "f_number", "wavelength_nm")
 _PRISMS = ("wedge_angle_deg", "refractive_index")
@@ -39,6 +49,9 @@ _PRISMS = ("wedge_angle_deg", "refractive_index")
 
 def _load_mapping(path: Path) -> dict:
     try:
+        if path.stat().st_size > MAX_SYSTEM_FILE_BYTES:
+            raise HbisInputError(f"{path}: {path.stat().st_size} bytes, more than a system file holds "
+                                 f"({MAX_SYSTEM_FILE_BYTES} at most)")
         text = path.read_bytes()
     except FileNotFoundError:
         raise HbisInputError(f"{path}: no such file") from None
@@ -97,13 +110,25 @@ def with_lens(system: FoveaSystem, calibration, where: str) -> FoveaSystem:
     """``system`` with its camera's lens calibration replaced (checked against the sensor size)."""
     from dataclasses import replace
 
+    cam = system.camera
     if calibration is not None and calibration.image_size is not None:
         cols, rows = calibration.image_size
-        cam = system.camera
         if (rows, cols) != (cam.rows, cam.cols):
             raise HbisInputError(f"{where}: the calibration is for a {cols} x {rows} sensor but the camera has "
                                  f"{cam.cols} x {cam.rows} pixels: a calibration of another camera or binning")
+    elif calibration is not None:
+        off = principal_point_offset(calibration, cam.cols, cam.rows)
+        if off > OFF_CENTRE_WARNING * math.hypot(cam.cols, cam.rows):
+            log.warning("%s: the calibration records no image size and its principal point (%.1f, %.1f) lies "
+                        "%.0f px from the centre of the %d x %d sensor: is it a calibration of this camera at "
+                        "this resolution?", where, calibration.cx, calibration.cy, off, cam.cols, cam.rows)
     try:
         return replace(system, camera=replace(system.camera, lens=calibration))
     except HbisInputError as exc:
         raise HbisInputError(f"{where}: {exc}") from None
+
+
+def principal_point_offset(calibration, cols: int, rows: int) -> float:
+    """Distance in pixels from the calibration's principal point to the centre of a ``cols`` x
+    ``rows`` sensor (pixel centres 0-based, as OpenCV counts them)."""
+    return math.hypot(calibration.cx - (cols - 1) / 2, calibration.cy - (rows - 1) / 2)

@@ -2,7 +2,8 @@
 this file, with a ``register(subparsers)`` function; modules are found automatically.
 
 Conventions (docs/design.md, "CLI contract"): exit codes 0 success, 2 bad arguments or bad
-input (one line on stderr), 1 anything else; ``--version``; ``-v``/``-q`` set the level of the
+input (one line on stderr), 3 a device that failed (the motor controller timed out, vanished,
+went silent, raised an alarm; one line), 1 anything else; ``--version``; ``-v``/``-q`` set the level of the
 ``hbis_torch`` loggers (the library logs, this module configures) and ``-q`` hides the progress
 bars; a closed pipe ends the command quietly. A ``cmd_`` module imports only light modules at
 the top and its heavy ones (torch, matplotlib, pyserial) inside the function that runs it, so that
@@ -19,7 +20,7 @@ import pkgutil
 import sys
 
 from hbis_torch import __version__
-from hbis_torch.errors import HbisInputError
+from hbis_torch.errors import HbisError
 
 COMMANDS = sorted(m.name[4:] for m in pkgutil.iter_modules(__path__) if m.name.startswith("cmd_"))
 
@@ -108,6 +109,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         prog="hbis",
         description="Risley-prism foveated imaging (the hybrid bionic image sensor): design, "
         "scanning, simulation and super-resolution. Numbers default to the paper's Table 1.",
+        epilog="exit codes: 0 success; 2 bad arguments or bad input (one line on stderr); 3 a device "
+        "failed (the motor controller timed out, vanished, went silent, is held or raised an alarm: "
+        "fix the bench and retry); 1 anything else",
     )
     parser.add_argument("--version", action="version", version=f"hbis {__version__}")
     _add_verbosity(parser, None)
@@ -166,9 +170,9 @@ def main(argv: list[str] | None = None) -> int:
         return code
     except BrokenPipeError:
         return _quiet_broken_pipe()
-    except HbisInputError as exc:
+    except HbisError as exc:  # 2: bad input, 3: a device failed, 1: anything else raised on purpose
         print(f"hbis {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return int(exc.exit_code)
     except KeyboardInterrupt:
         print(f"hbis {args.command}: interrupted", file=sys.stderr)
         return 1

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
+from hbis_torch.budget import add_force_arg
 from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli.common import add_system_args, add_system_file_args, system_for
 from hbis_torch.errors import HbisInputError
@@ -39,7 +41,7 @@ def register(sub) -> None:
         "'hbis motors scan --out' wrote into an hbis-stack/1 TIFF: the read-back phases become the "
         "stack's phases_deg and the scan's reference_index is kept. FRAME is several image files, "
         "one pattern with {index} (e.g. 'cap_{index:03d}.png', replaced by 0..h*h-1), one multi-page "
-        "TIFF, or one video file. Everything is checked before anything is written. With --burst, no phases: "
+        "TIFF, or one video file (PyAV). Every frame's size is checked from its header before any is decoded. Everything is checked before anything is written. With --burst, no phases: "
         "the frames are a burst from a freely moving camera (any number >= 2); each frame's motion to the "
         "reference is measured (phase correlation or matched features, then Lucas-Kanade, the simplest motion "
         "model that explains it, frame by frame), with its brightness (gain, offset) and a confidence; frames that "
@@ -68,16 +70,19 @@ def register(sub) -> None:
     add_calibration_args(p)
     add_system_args(p)
     add_system_file_args(p)
+    add_force_arg(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from hbis_torch.capture import (
         assemble_stack,
+        frames_roi,
         load_calibration,
         read_frames,
         read_phases,
     )
+    from hbis_torch.capture.frames import probe_frames
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import write_stack
 
@@ -97,6 +102,13 @@ def run(args) -> int:
     system = system_for(args)
     scan = read_phases(args.phases)
     calibration = load_calibration(args.dark, args.flat, args.bad_pixels)
+    declared, _, _ = probe_frames(args.frames, count=scan.frames)  # headers only: size refused before decoding
+    frames_roi(system, declared.shape, args.roi)
+    from hbis_torch.budget import check_budget, estimate_assemble
+
+    count = declared.count or scan.frames
+    check_budget(estimate_assemble(count * declared.frame_bytes, count * math.prod(declared.shape),
+                                   bool(calibration)), args.force)
     frames, _ = read_frames(args.frames, count=scan.frames)
     stack = assemble_stack(frames, scan, system, roi=args.roi, bit_depth=args.bit_depth,
                            black_level=args.black_level, calibration=calibration, cfa=args.cfa)

@@ -91,8 +91,8 @@ def register(sub) -> None:
     c = a.add_argument_group("capture in-process and assemble the stack (docs/capture.md)")
     c.add_argument("--camera", metavar="SPEC",
                    help="grab each frame from a camera instead of --capture-cmd: opencv:SOURCE (OpenCV "
-                   "VideoCapture: device index or path, GStreamer pipeline, URL, video file; the 'camera' "
-                   "extra) or sim:SCENE (the digital twin's camera: a built-in scene or image file rendered "
+                   "VideoCapture: device index or path, GStreamer pipeline, URL; the 'camera' extra), "
+                   "video:FILE (a video file played back with PyAV; the 'video' extra) or sim:SCENE (the digital twin's camera: a built-in scene or image file rendered "
                    "through the forward model at the read-back phases)")
     c.add_argument("--frames", metavar="PATTERN",
                    help="frame files with {index} (e.g. 'frames/f{index:03d}.tif'): where --camera writes "

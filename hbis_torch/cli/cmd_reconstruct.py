@@ -40,6 +40,9 @@ def register(sub) -> None:
     from hbis_torch.cli.cmd_assemble import add_calibration_args
 
     add_calibration_args(p)
+    from hbis_torch.budget import add_force_arg
+
+    add_force_arg(p)
     p.set_defaults(func=run)
 
 
@@ -59,6 +62,10 @@ def run(args) -> int:
 
     calibration = load_calibration(args.dark, args.flat, args.bad_pixels)
     stack = read_stack(args.stack)
+    from hbis_torch.budget import check_budget, estimate_reconstruct
+
+    f = stack.frames
+    check_budget(estimate_reconstruct(f.shape[0], f.shape[2], f.shape[1], f.shape[3] if f.ndim == 4 else 1), args.force)
     if args.colour is not None:
         kw["colour"] = args.colour
     if calibration:

@@ -6,6 +6,7 @@ import argparse
 import textwrap
 from pathlib import Path
 
+from hbis_torch.budget import add_force_arg
 from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli.common import H_ARG, SEED_ARG, add_system_args, system_from_args
 
@@ -97,6 +98,7 @@ def register(sub) -> None:
     a.add_argument("--margin-px", type=bounded_float(0.0, 1000.0), default=8.0,
                    help="grid margin [pixels] around the frames (default 8; see docs/data.md)")
     add_system_args(p)
+    add_force_arg(p)
     p.set_defaults(func=run)
 
 
@@ -136,6 +138,9 @@ def run(args) -> int:
         bit_depth=args.bit_depth,
         noise=not args.no_noise,
     )
+    from hbis_torch.budget import check_budget, estimate_simulate
+
+    check_budget(estimate_simulate(args.h**2, roi[2], roi[3]), args.force)
     plan = plan_scan(system, args.h, args.phases_deg, method=args.method)
     size = args.scene_size_mm
     if size is not None and len(size) == 1:

@@ -64,7 +64,8 @@ def add_system_file_args(parser: argparse.ArgumentParser) -> None:
                    "(instead of the flags above; docs/capture.md)")
     g.add_argument("--calibration", metavar="FILE",
                    help="the lens calibration OpenCV wrote (cv2.FileStorage YAML/XML/JSON: camera matrix "
-                   "and distortion coefficients); needs the 'camera' extra")
+                   "and distortion coefficients); FILE:M1 picks one camera of a stereo calibration; needs "
+                   "the 'camera' extra")
 
 
 _SYSTEM_FLAGS = ("pixel_pitch_um", "rows", "cols", "focal_length_mm", "f_number", "wavelength_nm",

@@ -6,13 +6,13 @@ Prism 1 turns on GRBL's X axis and prism 2 on Y, with degrees as GRBL units. See
 
 import importlib
 
-from hbis_torch.errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
+from hbis_torch.errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblHeld, GrblMoveLost,
                                GrblProtocolError, GrblTimeout, ScanInterrupted)
 from hbis_torch.hardware.grbl_codes import alarm_meaning, error_meaning
 from hbis_torch.hardware.grbl_protocol import GrblStatus, parse_status, unwrap_near
 
 __all__ = [
-    "GrblAlarm", "GrblCommandError", "GrblController", "GrblDisconnected", "GrblError", "GrblMoveLost",
+    "GrblAlarm", "GrblCommandError", "GrblController", "GrblDisconnected", "GrblError", "GrblHeld", "GrblMoveLost",
     "GrblProtocolError", "GrblSimulator", "GrblStatus", "GrblTimeout", "GrblTimeouts",
     "ScanInterrupted", "alarm_meaning", "error_meaning", "open_grbl", "parse_status", "unwrap_near",
 ]

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import logging
 import math
-import re
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -23,12 +22,12 @@ from dataclasses import dataclass
 import serial
 
 from hbis_torch.checks import MAX_PHASE_DEG
-from hbis_torch.errors import (HbisInputError, GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblMoveLost,
-                     GrblProtocolError, GrblTimeout)
+from hbis_torch.errors import (HbisInputError, GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblHeld,
+                               GrblMoveLost, GrblProtocolError, GrblTimeout)
 from hbis_torch.hardware.grbl_codes import alarm_meaning, error_meaning
-from hbis_torch.hardware.grbl_protocol import (JOG_CANCEL, LINE_MAX_CHARS, SOFT_RESET, STATUS_QUERY, GrblStatus, Kind,
-                            classify, format_jog, format_move, nearest_step_phase,
-                            unwrap_near)
+from hbis_torch.hardware.grbl_protocol import (JOG_CANCEL, LINE_MAX_CHARS, REALTIME_BYTES, SOFT_RESET, STATUS_QUERY,
+                                               GrblStatus, Kind, classify, clean_line, format_jog, format_move,
+                                               nearest_step_phase, setting_write, unwrap_near)
 from hbis_torch.hardware.motion_profile import axis_limited, move_duration_s
 
 try:  # pyserial's POSIX backend lets termios.error (not an OSError) out of flush() on a dead tty
@@ -40,9 +39,11 @@ log = logging.getLogger(__name__)
 _IO_ERRORS = (serial.SerialException, OSError, _TermiosError)
 
 _ALARM_HINT = "reset the controller, then home ($H) or unlock ($X) before moving again"
+# A reset that brings no welcome within this is sent again: GRBL 1.1h loses a reset sent in the
+# 500 ms it spends printing ALARM:1 or ALARM:2 (report_alarm_message), and answers a later one.
+_RESET_RESEND_S = 1.0
+_HELD_STATES = ("Hold", "Door")
 # Fallbacks for timeout estimates when a controller does not report $110/$111 or $120/$121.
-# "$N=value": a setting written; the driver reads $$ again after it (and refuses $13=1).
-_SETTING_LINE = re.compile(r"^\$(\d+)\s*=\s*([-+0-9.eE]+)\s*$")
 
 _DEFAULT_RATE_DEG_PER_MIN = 500.0
 _DEFAULT_ACCEL_DEG_PER_S2 = 10.0
@@ -243,21 +244,49 @@ class GrblController:
         except (*_IO_ERRORS, AttributeError):
             pass
         self._write(SOFT_RESET)
-        deadline = time.monotonic() + self.timeouts.welcome_s
+        start = time.monotonic()
+        deadline, resend_at, sent = start + self.timeouts.welcome_s, start + _RESET_RESEND_S, 1
         while True:
-            event = self._next(deadline, in_reset=True)
-            if event is None:
+            event = self._next(min(deadline, resend_at), in_reset=True)
+            now = time.monotonic()
+            if event is None and now >= deadline:
                 raise GrblTimeout(
                     f"no GRBL welcome line from {self.url!r} within {self.timeouts.welcome_s:.1f} s of "
-                    f"a soft reset: is a GRBL 1.1 controller connected at {self.baudrate} baud?")
+                    f"{sent} soft reset(s): is a GRBL 1.1 controller connected at {self.baudrate} baud?")
+            # Reset again when none came back in time, or when GRBL says it now hears one (the end
+            # of its alarm window: a reset sent before that line was cleared).
+            if event is None or event == (Kind.MESSAGE, "Reset to continue"):
+                log.info("no welcome yet: soft reset again (GRBL drops a reset sent while it reports an alarm)")
+                self._write(SOFT_RESET)
+                resend_at, sent = now + _RESET_RESEND_S, sent + 1
+                continue
             kind, payload = event
             if kind is Kind.WELCOME:
                 break
+        if sent > 1:
+            self._drain_welcomes(0.3)  # a reset sent again may have been heard twice
         if not str(payload).startswith("1.1"):
             raise GrblProtocolError(f"controller runs GRBL {payload}; this driver speaks GRBL 1.1")
         self.version = str(payload)
         self._wco = None
         return self.version
+
+    def _drain_welcomes(self, wait_s: float) -> None:
+        """Read what comes within ``wait_s`` as part of the reset (a second welcome is no restart)."""
+        deadline = time.monotonic() + wait_s
+        while self._next(deadline, in_reset=True) is not None:
+            pass
+
+    def _no_answer(self, message: str, doing: str) -> GrblError:
+        """What a missing answer means: :class:`GrblHeld` when ``?`` shows a feed hold or an open
+        door (GRBL then runs no line but still reports), else :class:`GrblTimeout` with ``message``."""
+        try:
+            report = self._poll(self.timeouts.status_s)
+        except GrblAlarm as exc:
+            return exc
+        if report is not None and report.state in _HELD_STATES:
+            return GrblHeld(report.state, report.substate, doing)
+        return GrblTimeout(message)
 
     def send(self, line: str, timeout_s: float | None = None) -> list[tuple[Kind, object]]:
         """Send one line and wait for its ``ok``; returns the lines that came before it.
@@ -271,10 +300,16 @@ class GrblController:
         """
         if not isinstance(line, str) or "\n" in line or "\r" in line or not line.isascii():
             raise HbisInputError(f"a GRBL line must be one line of ASCII text, got {line!r}")
-        setting = _SETTING_LINE.match(line)
-        if setting and int(setting.group(1)) == 13 and setting.group(2).strip("+-0.") != "":
+        if any(ord(c) in REALTIME_BYTES or (ord(c) < 0x20 and c != "\t") for c in line):
+            raise HbisInputError(f"refusing {line!r}: it holds a real-time or control character "
+                                 "(GRBL acts on ?, !, ~ and 0x18 wherever they appear, comments included)")
+        # Match what GRBL will run, not what was typed: it drops spaces and comments first.
+        cleaned = clean_line(line)
+        setting = setting_write(line)
+        if setting is not None and setting[0] == 13 and int(setting[1]) != 0:
             raise HbisInputError(f"refusing {line!r}: $13=1 makes GRBL report inches, and this driver "
                                  "reads positions as degrees ($13 must stay 0)")
+        rereads = cleaned.startswith("$") and "=" in cleaned and not cleaned.startswith("$J=")
         if len(line) >= LINE_MAX_CHARS:
             raise HbisInputError(f"line too long for GRBL ({len(line)} >= {LINE_MAX_CHARS} characters): {line!r}")
         wait = self.timeouts.reply_s if timeout_s is None else float(timeout_s)
@@ -284,11 +319,12 @@ class GrblController:
         while True:
             event = self._next(deadline)
             if event is None:
-                raise GrblTimeout(f"no reply from the controller to {line!r} within {wait:.1f} s")
+                raise self._no_answer(f"no reply from the controller to {line!r} within {wait:.1f} s",
+                                      f"(it did not run {line!r})")
             kind, payload = event
             if kind is Kind.OK:
-                if setting or line.upper().startswith("$RST="):
-                    self.read_settings()  # a setting changed: what the driver relies on is read again
+                if rereads:
+                    self.read_settings()  # a setting may have changed: what the driver relies on is read again
                 return replies
             if kind is Kind.ERROR:
                 raise GrblCommandError(payload, error_meaning(payload), line)
@@ -308,7 +344,8 @@ class GrblController:
         while True:
             event = self._next(deadline)
             if event is None:
-                raise GrblTimeout(f"controller did not answer '$G' within {wait:.1f} s: it has gone silent")
+                raise self._no_answer(f"controller did not answer '$G' within {wait:.1f} s: it has gone silent",
+                                      "(it did not answer '$G')")
             kind, payload = event
             if kind is Kind.FEEDBACK and str(payload).startswith("GC:"):
                 seen_modes = True
@@ -444,6 +481,8 @@ class GrblController:
         if report.state == "Alarm":
             raise GrblAlarm(self.alarm_code, alarm_meaning(self.alarm_code) if self.alarm_code
                             else "motion is locked", "home ($H) or unlock ($X) first")
+        if report.state in _HELD_STATES:
+            raise GrblHeld(report.state, report.substate)
         if report.state != "Idle":
             raise GrblError(f"controller is in state {report.state}, not Idle; wait for it or reset it")
         return report
@@ -510,6 +549,9 @@ class GrblController:
                 else:
                     idle_elsewhere_since = None
             if time.monotonic() >= deadline:
+                if report is not None and report.state in _HELD_STATES:
+                    raise GrblHeld(report.state, report.substate,
+                                   f"short of X{goal[0]:.3f} Y{goal[1]:.3f} after {timeout_s:.1f} s")
                 last = f"last state {report.state}" if report else "no status report"
                 raise GrblTimeout(f"prisms did not reach X{goal[0]:.3f} Y{goal[1]:.3f} within {timeout_s:.1f} s ({last})")
             time.sleep(self.poll_interval_s)

@@ -56,6 +56,7 @@ ALARM_CODES: dict[int, str] = {
     7: "Homing fail: the safety door opened during homing",
     8: "Homing fail: pulling off did not clear the limit switch (check pull-off $27 and wiring)",
     9: "Homing fail: no limit switch found within the search distance (check wiring and $130/$131)",
+    10: "Homing fail: the second limit switch of a dual-motor axis did not trigger within the search distance after the first",
 }
 
 

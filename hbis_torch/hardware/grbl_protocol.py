@@ -16,7 +16,8 @@ STATUS_QUERY = b"?"
 FEED_HOLD = b"!"
 CYCLE_START = b"~"
 JOG_CANCEL = b"\x85"
-REALTIME_BYTES = frozenset(SOFT_RESET + STATUS_QUERY + FEED_HOLD + CYCLE_START + JOG_CANCEL)
+SAFETY_DOOR = b"\x84"
+REALTIME_BYTES = frozenset(SOFT_RESET + STATUS_QUERY + FEED_HOLD + CYCLE_START + JOG_CANCEL + SAFETY_DOOR)
 
 LINE_MAX_CHARS = 80
 """GRBL's serial line buffer; longer lines are rejected with error:11."""
@@ -166,6 +167,47 @@ def classify(line: str) -> tuple[Kind, object]:
     if line.startswith(">") and (line.endswith(":ok") or ":error:" in line) and line.isprintable():
         return Kind.STARTUP, line
     return Kind.NOISE, line
+
+
+def clean_line(line: str) -> str:
+    """A line as GRBL 1.1's main loop keeps it before parsing (``protocol_main_loop``).
+
+    Spaces and control characters are dropped, ``/`` (block delete) is ignored, a ``(`` comment
+    runs to its ``)``, a ``;`` comment to the end of the line, and letters are upper-cased:
+    ``"$1 3=(c)1;x"`` is ``"$13=1"``. Real-time bytes never reach the line (GRBL's serial
+    interrupt takes them out first), so they are dropped too.
+    """
+    out, in_parens, rest_is_comment = [], False, False
+    for char in line:
+        if ord(char) in REALTIME_BYTES or ord(char) > 0x7F:
+            continue
+        if rest_is_comment:
+            continue
+        if in_parens:
+            in_parens = char != ")"
+        elif char <= " " or char == "/":
+            continue
+        elif char == "(":
+            in_parens = True
+        elif char == ";":
+            rest_is_comment = True
+        else:
+            out.append(char.upper() if "a" <= char <= "z" else char)
+    return "".join(out)
+
+
+_SETTING_WRITE_RE = re.compile(r"^\$([-+]?(?:\d+\.?\d*|\.\d+))=([-+]?(?:\d+\.?\d*|\.\d+))$")
+
+
+def setting_write(line: str) -> tuple[int, float] | None:
+    """``(N, value)`` when ``line``, cleaned as GRBL cleans it, writes setting ``$N``; else None.
+
+    GRBL reads N as a number and truncates it (``$013=1`` and ``$13.5=1`` both write ``$13``).
+    """
+    m = _SETTING_WRITE_RE.match(clean_line(line))
+    if not m:
+        return None
+    return int(float(m.group(1))), float(m.group(2))
 
 
 def _number(value: float) -> str:

@@ -6,8 +6,14 @@ the thread live in :mod:`.simulator`.
 
 What is modelled: the welcome after a soft reset; ``$$`` and ``$N=value``; ``$G``, ``$I``, ``$``;
 ``$X`` unlock and ``$H`` homing (with ``$22``); ``$J=`` jogs and their cancel (0x85); feed hold
-``!`` and resume ``~``; the status report ``?``; G-code lines G0/G1/G4/G20/G21/G53/G90/G91 with
-X, Y, Z, F, P and N words and the GRBL 1.1 error codes for bad ones; Alarm lock-out (error:9).
+``!``, the safety door (0x84) and resume ``~``, during which no line runs (GRBL's suspend loop
+answers only ``?`` and a reset); the status report ``?``; G-code lines
+G0/G1/G4/G20/G21/G53/G90/G91 with X, Y, Z, F, P and N words and the GRBL 1.1 error codes for bad
+ones; Alarm lock-out (error:9); soft limits (``$20=1``: a move outside ``-$130..0`` raises
+ALARM:2, a jog gets error:15); the line cleaning of GRBL's main loop (spaces, control characters
+and ``/`` dropped, ``( )`` and ``;`` comments removed, letters upper-cased); and the 500 ms that
+GRBL 1.1h spends printing an alarm (``report_alarm_message``): after ALARM:1 or ALARM:2 a soft
+reset sent before ``[MSG:Reset to continue]`` is lost, and only a later one is heard.
 Positions are whole steps (``$100``-``$102``): a target is rounded to the nearest step, as GRBL
 does. A move follows a trapezoidal profile limited per axis by ``$110``-``$112`` (deg/min) and
 ``$120``-``$122`` (deg/s^2). Not modelled: arcs, probing, coordinate offsets, the planner's
@@ -22,7 +28,8 @@ import re
 from collections import deque
 from dataclasses import dataclass, field
 
-from hbis_torch.hardware.grbl_protocol import CYCLE_START, FEED_HOLD, JOG_CANCEL, LINE_MAX_CHARS, SOFT_RESET, STATUS_QUERY
+from hbis_torch.hardware.grbl_protocol import (CYCLE_START, FEED_HOLD, JOG_CANCEL, LINE_MAX_CHARS, SAFETY_DOOR,
+                                               SOFT_RESET, STATUS_QUERY, clean_line)
 from hbis_torch.hardware.motion_profile import axis_limited, distance_at, move_duration_s
 
 VERSION = "1.1h"
@@ -41,7 +48,10 @@ DEFAULT_SETTINGS: dict[int, float] = {
 _INTEGER_SETTINGS = {0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}
 PLANNER_BLOCKS = 15
 HOMING_DURATION_S = 1.0
-FAULT_KINDS = ("drop_reply", "garbage", "garbled_reply", "disconnect", "error", "alarm", "silent")
+ALARM_REPORT_DELAY_S = 0.5
+"""GRBL 1.1h's ``report_alarm_message`` waits this long after ``ALARM:N``; a critical alarm then
+prints ``[MSG:Reset to continue]`` and clears any reset that arrived meanwhile."""
+FAULT_KINDS = ("drop_reply", "garbage", "garbled_reply", "disconnect", "error", "alarm", "silent", "hold")
 
 _WORD_RE = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))?")
 
@@ -58,7 +68,8 @@ class Fault:
     Kinds: ``drop_reply`` (run the move, send no ``ok``), ``garbage`` (a line of noise before the
     ``ok``), ``garbled_reply`` (noise instead of the ``ok``), ``disconnect`` (hang up instead of
     answering), ``error`` (refuse the line with ``error:code``), ``alarm`` (run the move but stop
-    half way with ``ALARM:code``, default 1, a hard limit), ``silent`` (answer nothing ever again).
+    half way with ``ALARM:code``, default 1, a hard limit), ``silent`` (answer nothing ever again),
+    ``hold`` (accept the move, then a feed hold as if ``!`` came at once: no line runs until ``~``).
     """
 
     kind: str
@@ -115,6 +126,8 @@ class GrblMachineModel:
         self._modal = {"motion": 0, "distance": 90, "units": 21, "feed": None}
         self._planned = list(self.steps)  # where the last queued block ends
         self._hold_since: float | None = None
+        self.held: str | None = None  # "Hold" or "Door": suspended, no line runs until ~ or a reset
+        self._reset_lost_until: float | None = None  # the alarm window: a reset is lost before this
         self._send_wco = True
         self._last_now = 0.0
 
@@ -139,7 +152,7 @@ class GrblMachineModel:
         for byte in data:
             char = bytes([byte])
             if char == SOFT_RESET:
-                if not self.silent:
+                if not self.silent and self._reset_lost_until is None:
                     self._soft_reset(now)
             elif self.silent or (self.critical and char != SOFT_RESET):
                 continue
@@ -149,7 +162,9 @@ class GrblMachineModel:
             elif char == JOG_CANCEL:
                 self._jog_cancel(now)
             elif char == FEED_HOLD:
-                self._feed_hold(now)
+                self._feed_hold(now, "Hold")
+            elif char == SAFETY_DOOR:
+                self._feed_hold(now, "Door")
             elif char == CYCLE_START:
                 self._cycle_start(now)
             elif char in b"\r\n":
@@ -165,6 +180,9 @@ class GrblMachineModel:
     def tick(self, now: float) -> None:
         """Advance motion to model time ``now`` (s)."""
         self._last_now = now
+        if self._reset_lost_until is not None and now >= self._reset_lost_until:
+            self._reset_lost_until = None  # the window closes: the message, and resets heard again
+            self._emit("[MSG:Reset to continue]")
         if self._hold_since is not None:
             return
         while self._blocks:
@@ -172,8 +190,10 @@ class GrblMachineModel:
             if block.start is None:
                 block.start = now
             if block.alarm_fraction is not None and now >= block.start + block.alarm_fraction * block.duration:
-                self.steps = list(self._position(block, block.start + block.alarm_fraction * block.duration))
-                self._raise_alarm(block.alarm_code, critical=True)
+                at = block.start + block.alarm_fraction * block.duration
+                self.steps = list(self._position(block, at))
+                self._raise_alarm(block.alarm_code, critical=True, now=at)
+                self.tick(now)  # the alarm window may be over already
                 return
             end = block.start + block.duration
             if now < end:
@@ -188,7 +208,7 @@ class GrblMachineModel:
 
     def busy(self) -> bool:
         """Whether motion or a line is pending (the server polls faster then)."""
-        return bool(self._blocks or self._lines)
+        return bool(self._blocks or self._lines or self._reset_lost_until is not None)
 
     def position_deg(self, now: float | None = None) -> tuple[float, float, float]:
         """Machine position in degrees (whole steps over steps per degree)."""
@@ -234,15 +254,16 @@ class GrblMachineModel:
             block.start = now  # an idle machine starts the block at once
         self._blocks.append(block)
 
-    def _raise_alarm(self, code: int, *, critical: bool) -> None:
+    def _raise_alarm(self, code: int, *, critical: bool, now: float) -> None:
         self._blocks.clear()
         self._lines.clear()
         self._planned = list(self.steps)
+        self._hold_since, self.held = None, None
         self.state = "Alarm"
         self.critical = critical
         self._emit(f"ALARM:{code}")
-        if critical:
-            self._emit("[MSG:Reset to continue]")
+        if critical:  # "[MSG:Reset to continue]" follows at the end of the window (tick)
+            self._reset_lost_until = now + ALARM_REPORT_DELAY_S
 
     def _soft_reset(self, now: float) -> None:
         self.tick(now)
@@ -253,7 +274,7 @@ class GrblMachineModel:
         self._lines.clear()
         self._rx.clear()
         self._planned = list(self.steps)
-        self._hold_since = None
+        self._hold_since, self.held = None, None
         self._modal = {"motion": 0, "distance": 90, "units": 21, "feed": None}
         if moving:
             self._emit(f"ALARM:{6 if was_homing else 3}")
@@ -268,7 +289,7 @@ class GrblMachineModel:
     def _status_report(self, now: float) -> str:
         steps = self._current_steps(now)
         pos = ",".join(f"{s / self.settings[100 + i]:.3f}" for i, s in enumerate(steps))
-        state = self.state if self._hold_since is None else "Hold:0"
+        state = f"{self.held}:0" if self.held else self.state
         moving = self._blocks and self._blocks[0].kind in ("move", "jog") and self._hold_since is None
         feed = self._blocks[0].feed if moving else 0.0
         where = "MPos" if int(self.settings[10]) & 1 else "WPos"  # no offsets here: WPos = MPos
@@ -288,11 +309,20 @@ class GrblMachineModel:
         self._hold_since = None
         self.state = "Idle"
 
-    def _feed_hold(self, now: float) -> None:
+    def _feed_hold(self, now: float, kind: str) -> None:
+        """``!`` (kind "Hold") or the safety door (kind "Door"): motion freezes (when moving) and
+        GRBL enters its suspend loop, Idle or not: no line runs until ``~`` or a reset."""
+        if self.state in ("Alarm", "Check", "Home"):
+            return
+        if kind == "Door":
+            self._emit("[MSG:Check Door]")
+        if self.held is None or kind == "Door":
+            self.held = kind
         if self.state in ("Run", "Jog") and self._hold_since is None:
             self._hold_since = now
 
     def _cycle_start(self, now: float) -> None:
+        self.held = None  # the door of the model closes at once
         if self._hold_since is not None:
             if self._blocks and self._blocks[0].start is not None:
                 self._blocks[0].start += now - self._hold_since
@@ -300,7 +330,7 @@ class GrblMachineModel:
 
     # --------------------------------------------------------------------------------- lines
     def _process_lines(self, now: float) -> None:
-        while self._lines and not self.critical and not self.silent and not self.hung_up:
+        while self._lines and not self.critical and not self.silent and not self.hung_up and not self.held:
             if any(b.reply_when_done for b in self._blocks):
                 return  # $H and G4 hold the line parser until they finish, as in GRBL
             if len(self._blocks) >= PLANNER_BLOCKS:
@@ -313,9 +343,9 @@ class GrblMachineModel:
 
     def _execute(self, raw: str, now: float) -> str | None:
         """Run one line; returns the reply (``ok``/``error:N``) or None when it comes later."""
-        if len(raw) >= LINE_MAX_CHARS:
+        line = clean_line(raw)
+        if len(line) >= LINE_MAX_CHARS:
             return "error:11"
-        line = re.sub(r"\([^)]*\)|;.*$", "", raw).replace(" ", "").upper()
         if not line:
             return "ok"
         try:
@@ -365,9 +395,9 @@ class GrblMachineModel:
             if self.state not in ("Idle", "Jog"):
                 return "error:9" if self.state == "Alarm" else "error:8"
             return self._gcode(line[3:], now, jog=True)
-        elif re.fullmatch(r"\$\d+=.*", line):
+        elif re.fullmatch(r"\$[-+]?(\d+\.?\d*|\.\d+)=.*", line):
             n_text, value_text = line[1:].split("=", 1)
-            n = int(n_text)
+            n = int(float(n_text))  # GRBL reads N as a number and truncates it
             if n not in self.settings:
                 return "error:3"
             if self.state not in ("Idle", "Alarm"):
@@ -378,6 +408,8 @@ class GrblMachineModel:
                 return "error:2"
             if value < 0:
                 return "error:4"
+            if n == 20 and value and not self._homing_enabled():
+                return "error:10"  # soft limits need homing
             self.settings[n] = value
         else:
             return "error:3"
@@ -492,6 +524,11 @@ class GrblMachineModel:
             else:
                 target.append(round(axes[i] * scale * spm[i]))
         target = tuple(target)
+        if int(self.settings[20]) and self._beyond_travel(target):
+            if jog:
+                return "error:15"  # GRBL checks a jog's target and refuses it
+            self._raise_alarm(2, critical=True, now=now)  # ALARM:2 and no reply to the line
+            return None
         delta = [(b - a) / s for a, b, s in zip(start, target, spm)]
         length = math.sqrt(sum(d * d for d in delta))
         if length == 0:
@@ -510,6 +547,8 @@ class GrblMachineModel:
         self._planned = list(target)
         if self.state == "Idle":
             self.state = "Jog" if jog else "Run"
+        if "hold" in fault:
+            self._feed_hold(now, "Hold")
         if "drop_reply" in fault:
             return None
         if "garbled_reply" in fault:
@@ -518,6 +557,10 @@ class GrblMachineModel:
         if "garbage" in fault:
             self._out += self._noise() + b"\r\n"
         return "ok"
+
+    def _beyond_travel(self, target_steps) -> bool:
+        """GRBL 1.1h's soft limits: machine travel runs from -$130 (-$131, -$132) to 0."""
+        return any(not -self.settings[130 + i] <= t / self.settings[100 + i] <= 0 for i, t in enumerate(target_steps))
 
     def _due_faults(self) -> dict[str, int | None]:
         due: dict[str, int | None] = {}

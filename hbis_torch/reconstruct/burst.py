@@ -46,10 +46,13 @@ from hbis_torch.errors import HbisInputError
 # contrast (standard deviation of the blurred reference over 3 x 3 px).
 COMPARE_BLUR_PX = 1.0
 NOISE_TOLERANCE = 3.0
-CONTRAST_TOLERANCE = 0.5
+CONTRAST_TOLERANCE = 1.5
 # Where the other frames' samples in a reference pixel weigh less than this, the output leans on
 # the single-frame estimate (fully where they weigh nothing).
 FULL_COVERAGE = 2.0
+# Share of the output lattice's nodes near a pixel that samples land on: below NO_FILL the output is
+# the single-frame estimate, from FULL_FILL up the method's alone.
+NO_FILL, FULL_FILL = 0.5, 0.9
 
 
 def corrected_frames(stack) -> Tensor:
@@ -207,7 +210,7 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     else:
         image = _luma_and_chroma(run, stack, frames, positions, weights, said, kw)
     notes.extend(dict.fromkeys(said))
-    alpha = _blend_weight(cover, scale)
+    alpha = np.minimum(_blend_weight(cover, scale), _lattice_fill(positions, weights, scale))
     if alpha.ndim < np.ndim(image):
         alpha = alpha[..., None]
     out = alpha * np.asarray(image, dtype=np.float32) + (1 - alpha) * fallback
@@ -232,6 +235,24 @@ def _blend_weight(cover: np.ndarray, scale: int) -> np.ndarray:
 
     alpha = np.clip(cover / FULL_COVERAGE, 0, 1)
     return np.clip(zoom(alpha, scale, order=1, mode="nearest", grid_mode=True), 0, 1).astype(np.float32)
+
+
+def _lattice_fill(positions: Tensor, weights: Tensor, scale: int) -> np.ndarray:
+    """The method's share (S H, S W) float32 from how the samples fill the output lattice: the
+    share of output pixels near each (within S px) that a sample of weight > 0.5 lands on; 1 from
+    :data:`FULL_FILL` up, 0 at :data:`NO_FILL` and below. A few frames leave whole sub-pixel
+    phases empty, and deblurring the filled-in lattice then costs more than it gains (4 random
+    frames at S = 2: 2 to 4 dB under the single frame on simulated bursts; 8: 5 dB over it)."""
+    F, H, W = weights.shape
+    U = (scale * (positions[..., 0] + 0.5) - 0.5).round().long()
+    V = (scale * (positions[..., 1] + 0.5) - 0.5).round().long()
+    keep = (weights > 0.5) & (U >= 0) & (U < scale * W) & (V >= 0) & (V < scale * H)
+    hit = torch.zeros(scale * H * scale * W, dtype=torch.float32)
+    hit[(V * scale * W + U)[keep]] = 1.0
+    size = 2 * scale + 1
+    fill = torch.nn.functional.avg_pool2d(hit.reshape(1, 1, scale * H, scale * W), size, 1, size // 2,
+                                          count_include_pad=False)[0, 0]
+    return ((fill - NO_FILL) / (FULL_FILL - NO_FILL)).clamp(0, 1).numpy()
 
 
 def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: list) -> None:

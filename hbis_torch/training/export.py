@@ -53,6 +53,35 @@ def git_head() -> str:
         return "unknown"
 
 
+def load_weights(path) -> dict:
+    """A checkpoint dict read with ``torch.load(weights_only=True)``: no pickle code runs.
+
+    A file that needs more than tensors, numbers, strings, lists and dicts (an object that only
+    pickle can rebuild) is refused in one :class:`~hbis_torch.errors.HbisInputError` line.
+    """
+    import pickle
+
+    from hbis_torch.errors import HbisInputError
+
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise HbisInputError(f"{path}: no such file") from None
+    except pickle.UnpicklingError as exc:
+        text = str(exc)
+        if "GLOBAL" not in text and "global" not in text:  # not a class to rebuild: a damaged file
+            raise HbisInputError(f"{path}: not a readable checkpoint (the file is damaged or of another kind)") from None
+        detail = next((line.strip() for line in text.splitlines() if "GLOBAL" in line or "global" in line), "")[:160]
+        raise HbisInputError(f"{path}: refused: the file needs pickle to load, which could run code; a checkpoint "
+                             f"holds only tensors, numbers, strings, lists and dicts ({detail})") from None
+    except (RuntimeError, OSError, EOFError, ValueError) as exc:
+        raise HbisInputError(f"{path}: not a readable checkpoint ({type(exc).__name__}: "
+                             f"{(str(exc).strip().splitlines() or [''])[0][:160]})") from None
+    if not isinstance(ckpt, dict) or "model" not in ckpt or "model_config" not in ckpt:
+        raise HbisInputError(f"{path}: not a checkpoint (a dict with 'model' and 'model_config')")
+    return ckpt
+
+
 def load_checkpoint(path) -> tuple[HbisSRNet, dict]:
     """The model (eval mode, float32) and the raw checkpoint dict.
 
@@ -68,8 +97,15 @@ def load_checkpoint(path) -> tuple[HbisSRNet, dict]:
     -------
     model : HbisSRNet
     checkpoint : dict
+
+    Raises
+    ------
+    HbisInputError
+        For a file that is missing, corrupt, or needs pickle to load: it is read with
+        ``weights_only=True`` (tensors, numbers, strings, lists and dicts only), so a shared
+        checkpoint cannot run code.
     """
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    ckpt = load_weights(path)
     model = build_net(ckpt["model_config"])
     model.load_state_dict(ckpt["model"])
     return model.eval(), ckpt

@@ -1,0 +1,184 @@
+"""Real captured bursts: assemble, reconstruct and cross-validate the shared real-bursts set.
+
+The shared set (four MDSP sequences of Farsiu et al., 2004; not shipped with the project: it
+has no licence) is read from ``../shared/data/real-bursts`` beside the checkout. For every
+sequence and scale: ``hbis assemble --burst`` (frames, motion models picked, frames trusted, CPU
+seconds), then observation-space cross-validation (:func:`hbis_torch.validate.cross_validate`,
+three frames held out one at a time) of the single-frame estimate, the classical and the learned
+method (PSNR of the held-out frames' predictions, dB, and seconds per reconstruction), and the
+reconstructions from every frame: the reference enlarged beside classical and learned, with a
+crop, as pictures. Writes the JSON results, docs/real-bursts.md's tables and the pictures.
+
+    python3 benchmarks/bench_real_bursts.py [--scales 2 3 4] [--holdout 3]
+        [--json benchmarks/results/bench_real_bursts.json] [--doc docs/real-bursts.md]
+    python3 benchmarks/bench_real_bursts.py --scales 2 4 --extrapolate --no-doc --no-figures \
+        --json benchmarks/results/bench_real_bursts_extrapolate.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import benchutil  # first: pins numpy/scipy to one thread before they load
+import numpy as np
+import torch
+
+from hbis_torch.capture.burst import assemble_burst
+from hbis_torch.capture.frames import read_frames
+from hbis_torch.reconstruct.burst import single_frame
+from hbis_torch.reconstruct.registry import reconstruct
+from hbis_torch.validate import cross_validate
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data" / "real-bursts"
+SEQUENCES = ("text.tif", "disk.tif", "Emily_small.tif", "Book_case1_small.tif")
+METHODS = ("single-frame", "classical", "learned")
+
+
+def run_sequence(path: Path, scale: int, holdout: int, figures: Path | None, extrapolate: bool = False) -> dict:
+    """Assemble, cross-validate and picture one sequence at one scale: one result row."""
+    frames, names = read_frames([path])
+    start = time.process_time()
+    stack, messages = assemble_burst(frames, scale, names=names)
+    assemble_s = time.process_time() - start
+    models = stack.meta["motion_models"]
+    validation = cross_validate(stack, METHODS, holdout=holdout,
+                                method_options={"learned": {"extrapolate": True}} if extrapolate else None)
+    row = {"sequence": path.name, "scale": scale, "frames": len(frames), "size": list(frames.shape[1:]),
+           "trusted": int((stack.confidence >= 0.5).sum()),
+           "models": {m: models.count(m) for m in dict.fromkeys(models)}, "assemble_cpu_s": assemble_s,
+           "assemble_messages": messages, "held_out": validation.held_out, "scored_on": validation.scored_on}
+    for name, scores in validation.methods.items():
+        row[name] = {"psnr_db": scores.mean_psnr, "per_frame_db": scores.psnr, "seconds": scores.seconds,
+                     "messages": scores.messages}
+    row["classical_gain_db"] = validation.gain("classical")
+    row["learned_minus_classical_db"] = validation.gain("learned", "classical")
+    row["learned_ran"] = learned_ran(validation.methods["learned"].messages)
+    if figures is not None:
+        row["figure"] = picture(stack, path.stem, scale, figures)
+    return row
+
+
+def learned_ran(messages: list) -> str:
+    """What the learned method did, from its messages: ran the network, or returned the classical
+    image (no model for the scale; noise outside the model's training range)."""
+    if any("no learned model" in m for m in messages):
+        return "classical (no model for S)"
+    if any("training range" in m for m in messages):
+        return "classical (noise outside the training range)" + (" in some runs" if not all(
+            "training range" in m for m in messages if "learned method" in m) else "")
+    return "network"
+
+
+def picture(stack, name: str, scale: int, figures: Path) -> str:
+    """The reference enlarged beside the classical and learned reconstructions from every frame,
+    with a crop of each below; returns the picture's file name."""
+    from matplotlib.figure import Figure
+
+    ref = stack.to_float().numpy()[stack.reference_index]
+    images = {"reference, enlarged (cubic)": single_frame(ref, scale),
+              "classical": reconstruct(stack, "classical"), "learned": reconstruct(stack, "learned")}
+    H, W = images["classical"].shape[:2]
+    crop = (slice(H // 4, H // 4 + H // 3), slice(W // 4, W // 4 + W // 3))
+    fig = Figure(figsize=(9, 6 * H / W + 0.6))
+    axes = fig.subplots(2, 3)
+    for col, (title, image) in enumerate(images.items()):
+        cmap = None if image.ndim == 3 else "gray"
+        axes[0, col].imshow(np.clip(image, 0, 1), cmap=cmap, vmin=0, vmax=1, interpolation="nearest")
+        axes[0, col].set_title(title, fontsize=9)
+        axes[1, col].imshow(np.clip(image[crop], 0, 1), cmap=cmap, vmin=0, vmax=1, interpolation="nearest")
+        for ax in axes[:, col]:
+            ax.set_axis_off()
+    fig.suptitle(f"{name}: {len(stack.frames)} frames, scale {scale}", fontsize=10)
+    fig.tight_layout()
+    figures.mkdir(parents=True, exist_ok=True)
+    out = f"real-bursts-{name}-s{scale}.png"
+    fig.savefig(figures / out, dpi=80)
+    return out
+
+
+def table(rows: list) -> str:
+    """docs/real-bursts.md's results, as Markdown."""
+    lines = ["| sequence | S | frames (trusted) | motion models | single frame | classical | learned | "
+             "classical - single | learned - classical | learned gave | assemble CPU s | s per reconstruction (cl. / le.) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        models = ", ".join(f"{n} {m}" for m, n in r["models"].items())
+        lines.append(f"| {r['sequence']} | {r['scale']} | {r['frames']} ({r['trusted']}) | {models} | "
+                     f"{r['single-frame']['psnr_db']:.2f} | {r['classical']['psnr_db']:.2f} | "
+                     f"{r['learned']['psnr_db']:.2f} | {r['classical_gain_db']:+.2f} | "
+                     f"{r['learned_minus_classical_db']:+.2f} | {r['learned_ran']} | {r['assemble_cpu_s']:.1f} | "
+                     f"{r['classical']['seconds']:.2f} / {r['learned']['seconds']:.2f} |")
+    return "\n".join(lines)
+
+
+def summary(rows: list) -> dict:
+    """Per scale: the mean and worst gains the issue's goals are about."""
+    out = {}
+    for scale in sorted({r["scale"] for r in rows}):
+        part = [r for r in rows if r["scale"] == scale]
+        gain = [r["classical_gain_db"] for r in part]
+        learned = [r["learned_minus_classical_db"] for r in part]
+        out[str(scale)] = {"classical_gain_mean_db": float(np.mean(gain)), "classical_gain_worst_db": float(min(gain)),
+                           "learned_minus_classical_mean_db": float(np.mean(learned)),
+                           "learned_minus_classical_worst_db": float(min(learned))}
+    return out
+
+
+def write_doc(doc: Path, rows: list, result: dict, command: str) -> None:
+    """Replace the generated part of ``doc`` (between the two markers) with the tables."""
+    begin, end = "<!-- bench_real_bursts: begin -->", "<!-- bench_real_bursts: end -->"
+    lines = [begin, "", f"Generated by `{command}` (PSNR in dB of the held-out frames' predictions, "
+             f"{result['settings']['holdout']} frames held out one at a time; CPU seconds on one thread).", "",
+             table(rows), ""]
+    for scale, s in result["summary"].items():
+        lines.append(f"* S = {scale}: classical - single frame {s['classical_gain_mean_db']:+.2f} dB on average, "
+                     f"{s['classical_gain_worst_db']:+.2f} dB at worst; learned - classical "
+                     f"{s['learned_minus_classical_mean_db']:+.2f} dB on average, "
+                     f"{s['learned_minus_classical_worst_db']:+.2f} dB at worst.")
+    lines += ["", "Pictures (the reference enlarged, classical, learned; a crop of each below):", ""]
+    lines += [f"![{r['sequence']} at S = {r['scale']}](figures/{r['figure']})" for r in rows if "figure" in r]
+    lines += ["", end]
+    text = doc.read_text() if doc.exists() else f"# Real bursts\n\n{begin}\n{end}\n"
+    head, _, rest = text.partition(begin)
+    _, _, tail = rest.partition(end)
+    doc.write_text(head + "\n".join(lines) + tail)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--scales", type=int, nargs="+", default=[2])
+    parser.add_argument("--holdout", type=int, default=3)
+    parser.add_argument("--sequences", nargs="+", default=list(SEQUENCES))
+    parser.add_argument("--json", default=str(ROOT / "benchmarks/results/bench_real_bursts.json"))
+    parser.add_argument("--doc", type=Path, default=ROOT / "docs/real-bursts.md")
+    parser.add_argument("--no-figures", action="store_true")
+    parser.add_argument("--extrapolate", action="store_true",
+                        help="run the learned network even outside its training domain (with --no-doc)")
+    parser.add_argument("--no-doc", action="store_true", help="leave docs/real-bursts.md as it is")
+    args = parser.parse_args()
+    if not args.data.is_dir():
+        raise SystemExit(f"the shared real-bursts set is not at {args.data} (it is not shipped)")
+    torch.set_num_threads(1)
+    figures = None if args.no_figures else args.doc.parent / "figures"
+    rows = []
+    for scale in args.scales:
+        for name in args.sequences:
+            rows.append(run_sequence(args.data / name, scale, args.holdout, figures, args.extrapolate))
+            r = rows[-1]
+            print(f"{name} S={scale}: single {r['single-frame']['psnr_db']:.2f}, classical "
+                  f"{r['classical']['psnr_db']:.2f}, learned {r['learned']['psnr_db']:.2f} dB; models {r['models']}",
+                  flush=True)
+    result = benchutil.finish(args, rows, summary(rows))
+    print(table(rows))
+    print(result["summary"])
+    if not args.no_doc:
+        command = "python3 benchmarks/bench_real_bursts.py --scales " + " ".join(map(str, args.scales))
+        write_doc(args.doc, rows, result, command)
+
+
+if __name__ == "__main__":
+    main()

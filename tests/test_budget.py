@@ -1,0 +1,63 @@
+"""Up-front memory and time estimates: printed with -v, a job over the available memory refused in
+one line before any work unless --force."""
+
+import pytest
+
+from hbis_torch import budget
+from hbis_torch.cli import main
+from hbis_torch.errors import HbisInputError
+
+
+def test_estimates_grow_with_the_work_and_refuse_past_the_available_memory():
+    small, big = budget.estimate_simulate(16, 64, 64), budget.estimate_simulate(256, 1280, 960)
+    assert small.memory_bytes < 2**30 < 20 * 2**30 < big.memory_bytes and small.seconds < big.seconds
+    assert budget.estimate_reconstruct(16, 64, 64, 3).memory_bytes > budget.estimate_reconstruct(16, 64, 64).memory_bytes
+    budget.check_budget(small, available=2**40)
+    with pytest.raises(HbisInputError, match=r"would need about 38\.\d GiB .* give --force") as info:
+        budget.check_budget(big, available=8 * 2**30)
+    assert "\n" not in str(info.value)
+    budget.check_budget(big, force=True, available=8 * 2**30)  # --force: a warning, no refusal
+
+
+def test_available_memory_is_read():
+    assert budget.available_memory_bytes() is None or budget.available_memory_bytes() > 2**20
+
+
+@pytest.mark.parametrize("command", [
+    ["simulate", "--scene", "flat", "--h", "2", "--roi", "600,400,16,12", "--out", "{tmp}/s.tif"],
+    ["reconstruct", "{stack}", "--registration", "optics", "--out", "{tmp}/r.tif"],
+])
+def test_a_job_over_the_budget_is_refused_unless_forced(command, tmp_path, capsys, monkeypatch, caplog):
+    import logging
+
+    stack = tmp_path / "stack.tif"
+    assert main(["simulate", "--scene", "flat", "--h", "2", "--roi", "600,400,16,12", "--out", str(stack), "-q"]) == 0
+    argv = [a.format(tmp=tmp_path, stack=stack) for a in command]
+    out = tmp_path / ("s.tif" if command[0] == "simulate" else "r.tif")
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 2**20)  # a machine with 1 MiB free
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "give --force to run it anyway" in err and not out.exists(), err
+    with caplog.at_level(logging.INFO, logger="hbis_torch"):
+        assert main([*argv, "--force", "-v"]) == 0
+    assert "estimated peak memory" in caplog.text and "running anyway (--force)" in caplog.text and out.exists()
+
+
+def test_assemble_is_estimated_from_the_frame_headers(tmp_path, capsys, monkeypatch):
+    import numpy as np
+    import tifffile
+    from test_capture_assemble import write_phases
+
+    write_phases(tmp_path / "phases.json")
+    paths = []
+    for k, frame in enumerate(np.zeros((4, 20, 24), np.uint16)):
+        paths.append(str(tmp_path / f"f{k}.tif"))
+        tifffile.imwrite(paths[-1], frame)
+    argv = ["assemble", "--phases", str(tmp_path / "phases.json"), "--roi", "600,450,24,20",
+            "--out", str(tmp_path / "s.tif"), *paths]
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 2**20)
+    assert main(argv) == 2
+    assert "assembling 0 MiB of frames would need about" in capsys.readouterr().err
+    assert not (tmp_path / "s.tif").exists()
+    assert main([*argv, "--force"]) == 0 and (tmp_path / "s.tif").exists()

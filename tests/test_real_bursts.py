@@ -1,0 +1,39 @@
+"""The shared real-bursts set (real captured sequences, not shipped): every sequence assembles
+as a burst and reconstructs with both methods, finite, at the burst's scale. Skipped where the
+set is absent."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hbis_torch.capture.burst import assemble_burst
+from hbis_torch.capture.frames import read_frames
+from hbis_torch.reconstruct.registry import reconstruct
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real-bursts"
+pytestmark = [pytest.mark.skipif(not DATA.is_dir(), reason="the shared real-bursts set is absent"),
+              pytest.mark.usefixtures("one_thread")]
+
+
+def _check(name: str, scale: int, count: int | None = None):
+    frames, names = read_frames([DATA / name])
+    frames = frames[:count]
+    stack, messages = assemble_burst(frames, scale, names=names[:len(frames)])
+    assert stack.kind == "burst" and (stack.confidence >= 0.5).sum() >= len(frames) // 2
+    assert all(m.startswith("frame ") for m in messages)  # every rejection names its frame
+    for method in ("classical", "learned"):
+        image = reconstruct(stack, method)
+        assert image.shape[:2] == (scale * frames.shape[1], scale * frames.shape[2])
+        assert np.isfinite(image).all() and 0 <= image.min() and image.max() <= 1
+
+
+def test_text_first_frames_assemble_and_reconstruct():
+    _check("text.tif", 2, count=6)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["text.tif", "disk.tif", "Emily_small.tif", "Book_case1_small.tif"])
+@pytest.mark.parametrize("scale", [2, 3])
+def test_every_shared_sequence(name, scale):
+    _check(name, scale)
