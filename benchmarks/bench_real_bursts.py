@@ -172,7 +172,10 @@ def main() -> None:
             print(f"{name} S={scale}: single {r['single-frame']['psnr_db']:.2f}, classical "
                   f"{r['classical']['psnr_db']:.2f}, learned {r['learned']['psnr_db']:.2f} dB; models {r['models']}",
                   flush=True)
-    result = benchutil.finish(args, rows, summary(rows))
+    shown = argparse.Namespace(**{**vars(args), "doc": str(args.doc.resolve().relative_to(ROOT)) if
+                                  args.doc.resolve().is_relative_to(ROOT) else str(args.doc),
+                                  "data": "the shared real-bursts set (not shipped)" if args.data == DATA else str(args.data)})
+    result = benchutil.finish(shown, rows, summary(rows))
     print(table(rows))
     print(result["summary"])
     if not args.no_doc:

@@ -32,8 +32,15 @@ def test_text_first_frames_assemble_and_reconstruct():
     _check("text.tif", 2, count=6)
 
 
+def test_the_avi_reads_as_the_tiff():
+    video, _ = read_frames([DATA / "disk.avi"])
+    pages, _ = read_frames([DATA / "disk.tif"])
+    assert np.array_equal(video, pages)
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["text.tif", "disk.tif", "Emily_small.tif", "Book_case1_small.tif"])
-@pytest.mark.parametrize("scale", [2, 3])
+@pytest.mark.parametrize("name", ["text.tif", "disk.tif", "Emily_small.tif", "Book_case1_small.tif", "text.avi",
+                                  "disk.avi"])
+@pytest.mark.parametrize("scale", [2, 3, 4])
 def test_every_shared_sequence(name, scale):
     _check(name, scale)

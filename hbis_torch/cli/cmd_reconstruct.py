@@ -17,7 +17,9 @@ def register(sub) -> None:
         "reconstruct",
         help="super-resolve an hbis-stack/1 file (h times its size, float32 in [0, 1]; RGB for colour stacks)",
         description="Reconstruct the super-resolved image of a stack: h times the frames' size in "
-        f"each direction, covering the reference frame's ROI, written as a float32 TIFF in [0, 1]. Methods: {methods}.",
+        f"each direction, covering the reference frame's ROI, written as a float32 TIFF in [0, 1]. Methods: {methods}. "
+        "A burst stack ('hbis assemble --burst') goes through the same methods onto its reference frame's grid refined "
+        "S times, samples its motion does not explain down-weighted (docs/real-bursts.md).",
     )
     p.add_argument("stack", type=Path, help="input stack (hbis-stack/1 TIFF)")
     p.add_argument("--method", choices=tuple(METHODS), default="classical",

@@ -52,7 +52,7 @@ CONTRAST_TOLERANCE = 1.5
 FULL_COVERAGE = 2.0
 # Share of the output lattice's nodes near a pixel that samples land on: below NO_FILL the output is
 # the single-frame estimate, from FULL_FILL up the method's alone.
-NO_FILL, FULL_FILL = 0.5, 0.9
+NO_FILL, FULL_FILL = 0.4, 0.8
 
 
 def corrected_frames(stack) -> Tensor:
@@ -246,7 +246,7 @@ def _lattice_fill(positions: Tensor, weights: Tensor, scale: int) -> np.ndarray:
     F, H, W = weights.shape
     U = (scale * (positions[..., 0] + 0.5) - 0.5).round().long()
     V = (scale * (positions[..., 1] + 0.5) - 0.5).round().long()
-    keep = (weights > 0.5) & (U >= 0) & (U < scale * W) & (V >= 0) & (V < scale * H)
+    keep = (weights > 0.1) & (U >= 0) & (U < scale * W) & (V >= 0) & (V < scale * H)
     hit = torch.zeros(scale * H * scale * W, dtype=torch.float32)
     hit[(V * scale * W + U)[keep]] = 1.0
     size = 2 * scale + 1

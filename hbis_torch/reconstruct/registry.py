@@ -80,7 +80,9 @@ class Method:
         ``burst(stack, frames, positions, weights, messages=None, **options)`` -> ndarray
         (S H, S W): the method on a burst stack's grey (or one colour's) frames (F, H, W), given
         each sample's position (F, H, W, 2) and robustness weight (F, H, W)
-        (:mod:`hbis_torch.reconstruct.burst` works them out). Without one, burst stacks are refused.
+        (:mod:`hbis_torch.reconstruct.burst` works them out). Without one, a burst goes through
+        ``run`` as any stack does (its positions from
+        :func:`~hbis_torch.reconstruct.positions.stack_sample_positions`, without robustness).
     """
 
     name: str
@@ -174,7 +176,7 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     np.ndarray, shape (h*H, h*W) (or (h*H, h*W, 3) for a colour stack), float32 in [0, 1]
     """
     entry = get_method(method)
-    if getattr(stack, "kind", "hbis") == "burst":  # measured motion instead of optics: one path, every method
+    if getattr(stack, "kind", "hbis") == "burst" and entry.burst is not None:  # measured motion, robustness
         from hbis_torch.reconstruct.burst import reconstruct_burst
 
         return reconstruct_burst(stack, entry, registration=registration, **kw)
