@@ -58,7 +58,7 @@ def run(args) -> int:
     if args.out_dir is not None:
         from hbis_torch.cli.reconstruct_batch import run_batch
 
-        return run_batch(args)
+        return run_batch(args, prepare, reconstruct_one)
     if len(args.stack) != 1:
         raise HbisInputError(f"--out writes one stack and {len(args.stack)} are given; use --out-dir DIR for many")
     args.stack = args.stack[0]

@@ -78,9 +78,11 @@ def output_paths(stacks: list[Path], out_dir: Path, method: str) -> list[Path]:
     return outs
 
 
-def run_batch(args) -> int:
-    """Reconstruct every stack of ``args.stack`` into ``args.out_dir`` (see the module's docstring)."""
-    from hbis_torch.cli.cmd_reconstruct import prepare, reconstruct_one
+def run_batch(args, prepare, reconstruct_one) -> int:
+    """Reconstruct every stack of ``args.stack`` into ``args.out_dir`` (see the module's docstring).
+
+    ``prepare(args)`` and ``reconstruct_one(args, path, prepared)`` are ``hbis reconstruct``'s
+    (:mod:`hbis_torch.cli.cmd_reconstruct`): the same work as for one stack."""
     from hbis_torch.io_utils import check_output_dir
     from hbis_torch.progress import progress, progress_enabled, set_progress
 
@@ -109,7 +111,8 @@ def run_batch(args) -> int:
     set_progress(False)  # no bars inside: stacks run side by side
     try:
         with bar, ThreadPoolExecutor(max_workers=jobs) as pool:
-            futures = [pool.submit(_one, args, stack, out, prepared) for stack, out in zip(stacks, outs)]
+            futures = [pool.submit(_one, reconstruct_one, args, stack, out, prepared)
+                       for stack, out in zip(stacks, outs)]
             for i, future in enumerate(futures):
                 codes[i] = future.result()
                 bar.update()
@@ -130,13 +133,12 @@ def _takes_threads(method: str) -> bool:
     return METHODS[method].threads
 
 
-def _one(args, stack: Path, out: Path, prepared) -> int:
+def _one(reconstruct_one, args, stack: Path, out: Path, prepared) -> int:
     """Reconstruct and write one stack; its exit code (a failure is named in one line on stderr)."""
-    from hbis_torch.cli.cmd_reconstruct import reconstruct_one
     from hbis_torch.stack_io import write_image
 
     try:
-        image, messages, meta, pixel_um = reconstruct_one(args, stack, prepared, threads=None)
+        image, messages, meta, pixel_um = reconstruct_one(args, stack, prepared)
         for line in messages:
             print(f"hbis reconstruct: {stack}: {line}", file=sys.stderr)
         write_image(out, image, meta, pixel_size_um=pixel_um)
