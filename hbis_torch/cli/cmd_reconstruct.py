@@ -59,6 +59,8 @@ def run(args) -> int:
         from hbis_torch.cli.reconstruct_batch import run_batch
 
         return run_batch(args, prepare, reconstruct_one)
+    if args.jobs is not None:
+        raise HbisInputError("--jobs is for --out-dir (many stacks); one stack uses --threads")
     if len(args.stack) != 1:
         raise HbisInputError(f"--out writes one stack and {len(args.stack)} are given; use --out-dir DIR for many")
     args.stack = args.stack[0]
