@@ -213,8 +213,11 @@ def simulate(count: int, size: int, pool_seed: int, indices: range) -> list[dict
     if pool_workers <= 1 or len(indices) < 2:
         return build_pool(h, count, size, pool_seed, indices)
     chunks = [indices[i::pool_workers] for i in range(pool_workers)]
-    # fork: the workers need nothing of this script but build_pool (spawn would run it again)
-    with ProcessPoolExecutor(pool_workers, mp_context=multiprocessing.get_context("fork")) as pool:
+    # fork: the workers need nothing of this script but build_pool (spawn would run it again); one
+    # torch thread each, as torch's DataLoader workers: a forked child that enters an OpenMP region
+    # of the parent's thread pool can hang (on the GPU machine, the pools of a first try never came)
+    with ProcessPoolExecutor(pool_workers, mp_context=multiprocessing.get_context("fork"),
+                             initializer=torch.set_num_threads, initargs=(1,)) as pool:
         parts = list(pool.map(build_pool, *zip(*[(h, count, size, pool_seed, c) for c in chunks])))
     return [parts[i % pool_workers][i // pool_workers] for i in range(len(indices))]
 
