@@ -304,3 +304,18 @@ def test_the_learned_method_at_run_time_imports_nothing_of_its_build_side():
     reached = set().union(*(_reachable(graph, start) for start in starts))
     assert "hbis_torch.reconstruct.learned.runtime" in reached
     assert sorted(m for m in reached if m.startswith("hbis_torch.training")) == []
+
+
+#: What a learned reconstruction does not use: every one of these was once imported on its path,
+#: and each costs start-up (scipy.interpolate alone about half of ``import torch``).
+NOT_ON_THE_RECONSTRUCT_PATH = ("scipy", "matplotlib", "cv2", "skimage", "hbis_torch.training",
+                               "hbis_torch.simulate", "hbis_torch.system")
+
+
+def test_reconstruct_imports_only_what_it_uses(tmp_path):
+    from test_learned_cli import simulated_stack_file
+
+    stack, _ = simulated_stack_file(tmp_path, 2, size=24)
+    argv = ["reconstruct", str(stack), "--method", "learned", "--out", str(tmp_path / "sr.tif")]
+    assert _modules_after(argv, NOT_ON_THE_RECONSTRUCT_PATH) == []
+    assert (tmp_path / "sr.tif").is_file()  # it did run

@@ -185,3 +185,16 @@ def test_fast_kernel_matches_eager():
 def test_bad_input_gets_a_clear_error(make):
     with pytest.raises(HbisInputError):
         make()
+
+
+def test_not_a_knot_basis_is_scipys_cubic_spline():
+    import numpy as np
+    from scipy.interpolate import CubicSpline
+
+    from hbis_torch.optics.cubic_spline import not_a_knot_basis
+
+    rng = np.random.default_rng(3)
+    for knots in (np.linspace(0, 959, 11), np.linspace(0, 1, 4), np.sort(rng.random(7)) * 10, np.array([0.0, 2, 5])):
+        at = np.linspace(knots[0] - 1, knots[-1] + 1, 257)  # extrapolation included
+        np.testing.assert_allclose(not_a_knot_basis(knots, at), CubicSpline(knots, np.eye(len(knots)))(at),
+                                   rtol=0, atol=1e-12)

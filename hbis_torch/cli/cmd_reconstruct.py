@@ -19,11 +19,22 @@ def register(sub) -> None:
         description="Reconstruct the super-resolved image of a stack: h times the frames' size in "
         f"each direction, covering the reference frame's ROI, written as a float32 TIFF in [0, 1]. Methods: {methods}.",
     )
-    p.add_argument("stack", type=Path, help="input stack (hbis-stack/1 TIFF)")
+    p.add_argument("stack", type=Path, nargs="+", metavar="STACK",
+                   help="input stack (hbis-stack/1 TIFF); with --out-dir, any number of them, a glob pattern "
+                   "(quoted: 'scans/*.tif') or @LIST, a text file naming one stack a line")
     p.add_argument("--method", choices=tuple(METHODS), default="classical",
                    help="reconstruction method (default: classical)")
     _add_method_options(p, METHODS)
-    p.add_argument("--out", type=Path, required=True, help="output TIFF")
+    outputs = p.add_mutually_exclusive_group(required=True)
+    outputs.add_argument("--out", type=Path, help="output TIFF (one stack; an existing file is replaced)")
+    outputs.add_argument("--out-dir", type=Path, metavar="DIR",
+                         help="many stacks in one process (the model is opened once, stacks run side by side "
+                         "where cores are free): each to DIR/STEM.METHOD.tif; outputs that exist already are "
+                         "refused before any work; a stack that fails is named in one line and the others go on; "
+                         "exit 1 if one failed")
+    p.add_argument("--jobs", type=bounded_int(1, 256), default=None,
+                   help="with --out-dir: stacks reconstructed at once, each on one thread (default: the CPUs "
+                   "this process may use, at most the number of stacks; 1 where --threads is given)")
     p.add_argument("--registration", choices=("auto", "optics", "data"), default="auto",
                    help="sample positions from the tracer ('optics'), the tracer corrected by "
                    "registering the frames ('data'), or that correction where the data is "
@@ -44,44 +55,72 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    if args.out_dir is not None:
+        from hbis_torch.cli.reconstruct_batch import run_batch
+
+        return run_batch(args, prepare, reconstruct_one)
+    if len(args.stack) != 1:
+        raise HbisInputError(f"--out writes one stack and {len(args.stack)} are given; use --out-dir DIR for many")
+    args.stack = args.stack[0]
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
-    from hbis_torch.reconstruct.registry import METHODS, reconstruct
-    from hbis_torch.stack_io import object_pixel_um, read_stack, write_image
 
     check_output_path(args.out)
     check_distinct_paths({"STACK": args.stack}, {"--out": args.out})
+    prepared = prepare(args)
+    image, messages, meta, pixel_um = reconstruct_one(args, args.stack, prepared)
+    for line in messages:
+        print(f"hbis reconstruct: {line}", file=sys.stderr)
+    from hbis_torch.stack_io import write_image
+
+    write_image(args.out, image, meta, pixel_size_um=pixel_um)
+    print(f"wrote {args.out} ({image.shape[0]} x {image.shape[1]} px, float32{', RGB' if image.ndim == 3 else ''})")
+    return 0
+
+
+def prepare(args) -> tuple:
+    """What every stack of one command shares, checked before any work: the method's keywords
+    and the calibration frames."""
+    from hbis_torch.reconstruct.registry import METHODS
 
     method = METHODS[args.method]
     kw = method_keywords(args, method, METHODS)
     if method.threads and args.threads is not None:
         kw["threads"] = args.threads
-    from hbis_torch.capture.calibration import calibrate_stack, load_calibration
-
-    calibration = load_calibration(args.dark, args.flat, args.bad_pixels)
-    stack = read_stack(args.stack)
     if args.colour is not None:
         kw["colour"] = args.colour
+    from hbis_torch.capture.calibration import load_calibration
+
+    return kw, load_calibration(args.dark, args.flat, args.bad_pixels)
+
+
+def reconstruct_one(args, path: Path, prepared: tuple, threads: int | None = None) -> tuple:
+    """Read and reconstruct one stack: (image, messages, the output's metadata, its pixel size in um).
+
+    ``threads``: torch's threads for this stack (default ``--threads``, else torch's own)."""
+    from hbis_torch.reconstruct.registry import reconstruct
+    from hbis_torch.stack_io import object_pixel_um, read_stack
+
+    kw, calibration = prepared
+    stack = read_stack(path)
     if calibration:
+        from hbis_torch.capture.calibration import calibrate_stack
+
         stack = calibrate_stack(stack, calibration)
     messages: list[str] = []
     import torch
 
-    threads = torch.get_num_threads()
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
-    try:
-        image = reconstruct(stack, method=args.method, registration=args.registration,
-                            messages=messages, **kw)
-    finally:
+    before = torch.get_num_threads()
+    threads = threads or args.threads
+    if threads is not None:
         torch.set_num_threads(threads)
-    for line in messages:
-        print(f"hbis reconstruct: {line}", file=sys.stderr)
-    meta = {"format": "hbis-sr/1", "source": args.stack.name, "method": args.method,
+    try:
+        image = reconstruct(stack, method=args.method, registration=args.registration, messages=messages, **kw)
+    finally:
+        torch.set_num_threads(before)
+    meta = {"format": "hbis-sr/1", "source": path.name, "method": args.method,
             "registration": args.registration, "h": stack.h, "roi": list(stack.roi),
             "reference_index": stack.reference_index}
-    write_image(args.out, image, meta, pixel_size_um=object_pixel_um(stack.system, stack.h))
-    print(f"wrote {args.out} ({image.shape[0]} x {image.shape[1]} px, float32{', RGB' if image.ndim == 3 else ''})")
-    return 0
+    return image, messages, meta, object_pixel_um(stack.system, stack.h)
 
 
 def _options_by_flag(methods) -> dict:

@@ -171,10 +171,9 @@ def pinhole_landing(system: FoveaSystem, roi: Roi | None = None, dtype=torch.flo
 def _spline_basis(nodes: int, size: int, dtype, device) -> Tensor:
     """(size, nodes) matrix that evaluates a not-a-knot cubic spline through ``nodes`` equally
     spaced samples (the first at 0, the last at size - 1) at every integer 0..size-1."""
-    from scipy.interpolate import CubicSpline
+    from hbis_torch.optics.cubic_spline import not_a_knot_basis
 
-    knots = np.linspace(0.0, size - 1.0, nodes)
-    basis = CubicSpline(knots, np.eye(nodes))(np.arange(size, dtype=np.float64))
+    basis = not_a_knot_basis(np.linspace(0.0, size - 1.0, nodes), np.arange(size, dtype=np.float64))
     return torch.as_tensor(basis, dtype=dtype, device=device)
 
 

@@ -47,17 +47,10 @@ def landing_at(system: FoveaSystem, u: Tensor, v: Tensor, phi1_deg, phi2_deg) ->
 def spline_basis(knots: np.ndarray, at: np.ndarray) -> Tensor:
     """(len(at), len(knots)) float64 matrix evaluating the not-a-knot cubic spline through values
     at ``knots`` (increasing) at the points ``at``. With fewer than 4 knots the interpolant is the
-    polynomial through them."""
-    from scipy.interpolate import CubicSpline
+    polynomial through them (:func:`~hbis_torch.optics.cubic_spline.not_a_knot_basis`)."""
+    from hbis_torch.optics.cubic_spline import not_a_knot_basis
 
-    knots = np.asarray(knots, dtype=np.float64)
-    eye = np.eye(len(knots))
-    if len(knots) == 1:
-        return torch.ones(len(at), 1, dtype=torch.float64)
-    if len(knots) < 4:
-        coeffs = np.polyfit(knots, eye, len(knots) - 1)
-        return torch.from_numpy(np.stack([np.polyval(c, at) for c in coeffs.T], axis=1))
-    return torch.from_numpy(CubicSpline(knots, eye)(np.asarray(at, dtype=np.float64)))
+    return torch.from_numpy(not_a_knot_basis(knots, at))
 
 
 @lru_cache(maxsize=256)

@@ -62,7 +62,8 @@ def classical_and_noise(stack, registration: str = "optics", positions=None,
 
 def learned_sr(stack, model=None, positions=None, threads: int | None = None,
                registration: str = "optics", messages: list | None = None,
-               provider: str = "auto", extrapolate: bool = False, ensemble: int | None = None) -> np.ndarray:
+               provider: str = "auto", extrapolate: bool = False, ensemble: int | None = None,
+               precision: str | None = None) -> np.ndarray:
     """Super-resolve a stack: the classical image, refined by an ONNX model in onnxruntime.
 
     The learned method takes every stack the classical method takes (any reference frame, any
@@ -102,13 +103,16 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         cost (``training/eval_matrix.py --ensemble N`` measures the gain). None: 2 at
         h = 7, where the classical step takes most of the time, else 1
         (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`).
+    precision : {"int8", "fp32"} or None
+        Which file of the model runs (:func:`~hbis_torch.reconstruct.learned.runtime.with_precision`;
+        None: the file named, float32 for the shipped models; ``"int8"``: its int8 file).
 
     Returns
     -------
     ndarray, shape (h H, h W), float32 in [0, 1]
     """
     # before any work; the session opens after the classical step
-    path, metadata, missing = model_to_run(model, stack.h)
+    path, metadata, missing = model_to_run(model, stack.h, precision)
     ensemble = check_ensemble(ensemble, stack.h)
     image, noise_params = classical_and_noise(stack, registration, positions, messages)
     if missing is not None:  # no shipped network for this h: as outside the training domain
@@ -130,25 +134,25 @@ def _runner(path: str, mtime_ns: int, threads: int | None, provider: str) -> Lea
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
                         threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
-                        ensemble: int | None = None) -> np.ndarray:
+                        ensemble: int | None = None, precision: str | None = None) -> np.ndarray:
     """The ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS` (``hbis reconstruct``).
 
     Unlike :func:`learned_sr`, the registration defaults to ``"auto"``, as for every method of
     :func:`hbis_torch.reconstruct.reconstruct`.
     """
     return learned_sr(stack, model=model, threads=threads, registration=registration, messages=messages,
-                      provider=provider, extrapolate=extrapolate, ensemble=ensemble)
+                      provider=provider, extrapolate=extrapolate, ensemble=ensemble, precision=precision)
 
 
 def reconstruct_learned_raw_bayer(stack, registration: str = "auto", *, messages: list | None = None, model=None,
                                   threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
-                                  ensemble: int | None = None) -> np.ndarray:
+                                  ensemble: int | None = None, precision: str | None = None) -> np.ndarray:
     """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
     refined by the network, with the noise of the sensor model or of one colour's sub-lattice: the
     ``raw_bayer`` path of the ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS`.
     Keywords as for :func:`reconstruct_learned`; returns (h H, h W, 3) float32.
     """
-    path, _, missing = model_to_run(model, stack.h)
+    path, _, missing = model_to_run(model, stack.h, precision)
     ensemble = check_ensemble(ensemble, stack.h)
     planes = reconstruct_classical_raw_bayer(stack, registration, messages=messages)
     if missing is not None:  # as learned_sr: the classical image, said so

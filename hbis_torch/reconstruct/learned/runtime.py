@@ -72,15 +72,15 @@ def default_model_path(h: int, tier: str = "fast") -> Path:
 NO_MODEL_REMEDY = "--model runs a model of your own"
 
 
-def model_to_run(model, h: int) -> tuple[Path | None, dict | None, str | None]:
-    """:func:`check_model`'s (path, metadata, None); or (None, None, the line saying so) where no
-    model is named and none is shipped for ``h`` (the learned method then returns the classical
-    image)."""
+def model_to_run(model, h: int, precision: str | None = None) -> tuple[Path | None, dict | None, str | None]:
+    """:func:`check_model`'s (path, metadata, None), the file at ``precision``
+    (:func:`with_precision`); or (None, None, the line saying so) where no model is named (or a
+    tier is) and none is shipped for ``h`` (the learned method then returns the classical image)."""
     tier = tier_of(model)
     missing = missing_model(h, tier) if tier is not None else None
     if missing is not None:
         return None, None, missing
-    return (*check_model(model, h), None)
+    return (*with_precision(*check_model(model, h), precision), None)
 
 
 def missing_model(h: int, tier: str = "fast") -> str | None:
@@ -88,9 +88,57 @@ def missing_model(h: int, tier: str = "fast") -> str | None:
     path = shipped_model_path(h, tier)
     if path.is_file():
         return None
-    shipped = sorted(p.name for p in models_dir().glob("hbis_sr_h*.onnx"))
+    shipped = sorted(p.name for p in models_dir().glob("hbis_sr_h*.onnx") if not p.name.endswith(".int8.onnx"))
     which = "" if tier == "fast" else f"{tier} "  # the fast tier's line as before the tiers
     return f"no {which}learned model for h = {h} at {path} (shipped: {', '.join(shipped) or 'none'})"
+
+
+PRECISIONS = ("int8", "fp32")
+# What runs without --precision: None, the file named (the shipped float32 ones). The int8 files run
+# the network 1.3-1.6 times as fast on AVX2 cores but lose more than 0.05 dB in some held-out cells
+# (0.7 to 2.5 dB in the cleanest ones, export/check_int8.py, docs/learned.md), so they are not the default.
+DEFAULT_PRECISION = None
+
+
+def int8_path(model) -> Path:
+    """Where the int8 file of a float32 model lives: ``NAME.int8.onnx`` beside ``NAME.onnx``
+    (``export/quantize_int8.py`` writes it, :mod:`hbis_torch.training.quantize`)."""
+    model = Path(model)
+    return model.with_name(model.name.removesuffix(".onnx") + ".int8.onnx")
+
+
+def with_precision(path: Path, metadata: dict, precision: str | None = None) -> tuple[Path, dict]:
+    """The model file to run at ``precision``, and its metadata.
+
+    Parameters
+    ----------
+    path : Path
+        A checked model file (:func:`check_model`), float32 or int8.
+    metadata : dict
+        Its metadata.
+    precision : {"int8", "fp32"} or None
+        None (the default): the file itself (:data:`DEFAULT_PRECISION`). ``"int8"``: the int8
+        file beside a float32 model (:func:`int8_path`), which must exist. ``"fp32"``: the
+        float32 file.
+
+    Raises
+    ------
+    HbisInputError
+        An unknown precision, ``"int8"`` where there is no int8 file, ``"fp32"`` for an int8 file.
+    """
+    if precision not in (None, *PRECISIONS):
+        raise HbisInputError(f"unknown precision {precision!r} (choose from {', '.join(PRECISIONS)})")
+    own = metadata.get("precision", "fp32")
+    precision = precision or DEFAULT_PRECISION or own
+    if precision == own:
+        return path, metadata
+    if own != "fp32":
+        raise HbisInputError(f"{path.name} is an {own} model; --precision {precision} needs its float32 file")
+    int8 = int8_path(path)
+    if not int8.is_file():
+        raise HbisInputError(f"no int8 file for {path.name} ({int8} is missing; python export/quantize_int8.py "
+                             f"{path} makes it), or use --precision fp32")
+    return check_model(int8, int(metadata["h"]))
 
 
 def session_options(threads: int | None = None):
@@ -115,6 +163,9 @@ def default_threads(threads: int | None = None) -> int:
 
 
 PROVIDERS = ("auto", "openvino", "cpu")
+# What "auto" runs an int8 file on: onnxruntime's integer convolutions ran the QDQ models faster
+# than OpenVINO did here (benchmarks/bench_fast.py)
+INT8_AUTO_PROVIDER = "cpu"
 OPENVINO = "OpenVINOExecutionProvider"
 
 
@@ -281,12 +332,17 @@ class LearnedSR:
         Tile size in LR pixels (the halo, :attr:`halo` pixels, comes on top).
     provider : {"auto", "openvino", "cpu"}
         What runs the model: OpenVINO or onnxruntime's CPU kernels (:func:`execution_providers`).
+        With ``"auto"``, an int8 file runs on onnxruntime's CPU kernels (:data:`INT8_AUTO_PROVIDER`).
+    precision : {"int8", "fp32"} or None
+        Which file of the model runs (:func:`with_precision`; None: the one named).
 
     Attributes
     ----------
     h : int
     provider : str
         ``"openvino"`` or ``"cpu"``: what took the model.
+    precision : str
+        ``"int8"`` or ``"fp32"``: which file runs.
     metadata : dict
         The model's ``metadata_props`` (h, frames, normalisation, training commit, ...).
     architecture : Architecture
@@ -297,8 +353,11 @@ class LearnedSR:
     """
 
     def __init__(self, model=None, h: int | None = None, threads: int | None = None, tile: int = 256,
-                 provider: str = "auto"):
-        path, self.metadata = check_model(model, h)
+                 provider: str = "auto", precision: str | None = None):
+        path, self.metadata = with_precision(*check_model(model, h), precision)
+        self.precision = self.metadata.get("precision", "fp32")
+        if provider == "auto" and self.precision == "int8":
+            provider = INT8_AUTO_PROVIDER
         if len(onnxruntime_distributions()) > 1:
             warnings.warn("both onnxruntime and onnxruntime-openvino are installed; they write the same "
                           "onnxruntime module over each other. Keep one: pip uninstall -y onnxruntime "

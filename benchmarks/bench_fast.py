@@ -1,0 +1,256 @@
+"""Every speed goal of the [fast] issue, as ratios measured side by side in one run.
+
+    python benchmarks/bench_fast.py                 # h = 4 and 7, best of 3
+    python benchmarks/bench_fast.py --quick         # h = 4 only, best of 2, 20 stacks for --out-dir
+    python benchmarks/bench_fast.py --skip fullframe outdir
+
+Each goal compares a time with work that fixes its floor on the same machine, in the same run;
+every measurement is repeated ``--repeats`` times, in turn with the others, and the best kept
+(other jobs on shared cores only ever slow a run down):
+
+- ``fft``: one float32 FFT pair (``torch.fft.rfft2`` + ``irfft2``, 2 threads) of the full-frame
+  output (960 h x 1280 h): the floor of any Wiener step.
+- ``fullframe``: ``hbis reconstruct`` (a fresh process, as a user runs it) of a full 960 x 1280
+  frame of ``hbis simulate --scene camera --roi full`` and of a 32 x 32 stack; the method's own
+  time is the difference (start-up and fixed costs cancel), over the FFT pair
+  (goals: classical <= 6, learned <= 9). Peak RSS of the full-frame process (``wait4``; goal
+  <= 1 GB at h = 4, 2 GB at h = 7).
+- ``network``: the h = 4 network alone on a 480 x 640 LR input: onnxruntime fp32 and int8 (the
+  shipped ``.int8.onnx``), and OpenVINO fp32 and bf16 where the ``openvino`` package is installed
+  (goal: int8 >= 2.5 x fp32).
+- ``startup``: a 32 x 32 learned reconstruct against ``python -c "import torch"`` (goal <= 1.3).
+- ``outdir``: N stacks of 64 x 64 at h = 4 through one ``hbis reconstruct --out-dir`` against
+  separate invocations, of which ``--separate`` are run and the time scaled to N (goal >= 5).
+
+Prints one table of goals and writes it to ``--out`` (default
+benchmarks/results/bench_fast.md) with the machine's load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PARTS = ("fft", "fullframe", "network", "startup", "outdir")
+
+
+def env() -> dict:
+    return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+            "HBIS_PROGRESS": "0"}
+
+
+def run_process(argv: list[str]) -> tuple[float, float]:
+    """(wall seconds, peak RSS in GB) of one child process; raises if it fails."""
+    t0 = time.perf_counter()
+    child = subprocess.Popen(argv, cwd=REPO, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - t0
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise RuntimeError(f"{' '.join(argv)} failed: {child.stderr.read().decode()[-2000:]}")
+    child.stderr.close()
+    return wall, usage.ru_maxrss / 2**20
+
+
+def hbis(*args: str) -> list[str]:
+    return [sys.executable, "-m", "hbis_torch", *args]
+
+
+def simulate(work: Path, h: int, roi: str, name: str) -> Path:
+    path = work / name
+    if not path.exists():
+        run_process(hbis("simulate", "--scene", "camera", "--h", str(h), "--roi", roi, "--out", str(path)))
+    return path
+
+
+def fft_pair(h: int, repeats: int) -> float:
+    """Best time of one float32 rfft2 + irfft2 of the (960 h, 1280 h) output, 2 threads."""
+    import torch
+
+    torch.set_num_threads(2)
+    x = torch.rand(960 * h, 1280 * h)
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        torch.fft.irfft2(torch.fft.rfft2(x), s=x.shape)
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def fullframe(work: Path, h: int, repeats: int) -> dict:
+    """Own times (full frame minus 32 x 32, best of ``repeats``) and peak RSS, per method."""
+    full = simulate(work, h, "full", f"full_h{h}.tif")
+    small = simulate(work, h, "624,464,32,32", f"small_h{h}.tif")
+    best: dict = {}
+    for _ in range(repeats):
+        for method in ("classical", "learned"):
+            for size, stack in (("full", full), ("small", small)):
+                wall, rss = run_process(hbis("reconstruct", str(stack), "--method", method,
+                                             "--out", str(work / f"out_{method}_{size}_h{h}.tif")))
+                key = (method, size)
+                best[key] = min(best.get(key, (float("inf"), 0)), (wall, rss))
+    return {method: {"full_s": best[method, "full"][0], "small_s": best[method, "small"][0],
+                     "own_s": best[method, "full"][0] - best[method, "small"][0],
+                     "peak_rss_gb": best[method, "full"][1]} for method in ("classical", "learned")}
+
+
+def network(repeats: int) -> dict:
+    """Best seconds of the h = 4 network on a 480 x 640 LR input, per runtime and precision."""
+    import numpy as np
+
+    from hbis_torch.reconstruct.learned import LearnedSR, default_model_path, int8_path
+    from hbis_torch.reconstruct.learned.runtime import openvino_installed
+
+    rng = np.random.default_rng(0)
+    feeds = {"base": rng.random((1, 16, 480, 640), dtype=np.float32) - 0.5,
+             "noise": np.full((1, 1, 480, 640), 0.3, np.float32)}
+    runners = {"onnxruntime fp32": LearnedSR(h=4, provider="cpu", precision="fp32").session,
+               "onnxruntime int8": LearnedSR(h=4, provider="cpu", precision="int8").session}
+    if openvino_installed():
+        import openvino as ov
+
+        core = ov.Core()
+        for precision, model in (("f32", default_model_path(4)), ("bf16", default_model_path(4)),
+                                 ("f32", int8_path(default_model_path(4)))):
+            name = f"OpenVINO {'int8 (QDQ file)' if 'int8' in model.name else precision}"
+            try:
+                compiled = core.compile_model(str(model), "CPU", {"INFERENCE_PRECISION_HINT": precision,
+                                                                   "INFERENCE_NUM_THREADS": 2})
+            except RuntimeError as exc:  # a CPU without the precision's instructions
+                print(f"{name}: not run ({str(exc).splitlines()[0]})")
+                continue
+            request = compiled.create_infer_request()
+            runners[name] = type("R", (), {"run": lambda self, names, f, r=request: [r.infer(f)[0]]})()
+    reference = runners["onnxruntime fp32"].run(["image"], feeds)[0]
+    times, change = {}, {}
+    for _ in range(repeats):
+        for name, runner in runners.items():
+            t0 = time.perf_counter()
+            out = np.asarray(runner.run(["image"], feeds)[0])
+            times[name] = min(times.get(name, float("inf")), time.perf_counter() - t0)
+            change[name] = float(np.sqrt(np.mean((out - reference) ** 2)))
+    return {name: {"seconds": times[name], "rms_change": change[name]} for name in runners}
+
+
+def startup(work: Path, repeats: int) -> dict:
+    small = simulate(work, 4, "624,464,32,32", "small_h4.tif")
+    best = {"torch": float("inf"), "learned_32": float("inf")}
+    for _ in range(repeats):
+        best["torch"] = min(best["torch"], run_process([sys.executable, "-c", "import torch"])[0])
+        best["learned_32"] = min(best["learned_32"], run_process(hbis(
+            "reconstruct", str(small), "--method", "learned", "--out", str(work / "start.tif")))[0])
+    return best
+
+
+def outdir(work: Path, count: int, separate: int, repeats: int) -> dict:
+    """Seconds per stack: ``count`` stacks through --out-dir, and ``separate`` separate invocations."""
+    stack = simulate(work, 4, "608,448,64,64", "s64_h4.tif")
+    folder = work / "many"
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir()
+    for i in range(count):
+        shutil.copy(stack, folder / f"s{i:03d}.tif")
+    batch, single = float("inf"), float("inf")
+    for r in range(repeats):
+        out = work / f"many_out_{r}"
+        shutil.rmtree(out, ignore_errors=True)
+        batch = min(batch, run_process(hbis("reconstruct", str(folder / "*.tif"), "--method", "learned",
+                                            "--out-dir", str(out)))[0] / count)
+        t0 = time.perf_counter()
+        for i in range(separate):
+            run_process(hbis("reconstruct", str(folder / f"s{i:03d}.tif"), "--method", "learned",
+                             "--out", str(work / f"one_{i}.tif")))
+        single = min(single, (time.perf_counter() - t0) / separate)
+    return {"count": count, "separate": separate, "batch_s_per_stack": batch, "single_s_per_stack": single}
+
+
+def report(results: dict, hs, args) -> str:
+    """The goals table (markdown)."""
+    rows = []
+
+    def row(goal, value, target, met, detail):
+        rows.append(f"| {goal} | {value} | {target} | {'yes' if met else '**no**'} | {detail} |")
+
+    for h in hs:
+        if ("fft", h) in results and ("fullframe", h) in results:
+            fft, ff = results["fft", h], results["fullframe", h]
+            for method, target in (("classical", 6), ("learned", 9)):
+                r = ff[method]["own_s"] / fft
+                row(f"{method} own time / FFT pair, h = {h}", f"{r:.1f}x", f"<= {target}x", r <= target,
+                    f"full {ff[method]['full_s']:.2f} s - 32² {ff[method]['small_s']:.2f} s; FFT pair {fft:.3f} s")
+            rss = max(ff[m]["peak_rss_gb"] for m in ff)
+            limit = 1.0 if h == 4 else 2.0
+            row(f"peak RSS, full frame, h = {h}", f"{rss:.2f} GB", f"<= {limit:.0f} GB", rss <= limit,
+                ", ".join(f"{m} {ff[m]['peak_rss_gb']:.2f} GB" for m in ff))
+    if "network" in results:
+        net = results["network"]
+        r = net["onnxruntime fp32"]["seconds"] / net["onnxruntime int8"]["seconds"]
+        row("int8 network speed / fp32 (h = 4, 480 x 640 LR)", f"{r:.2f}x", ">= 2.5x", r >= 2.5,
+            "; ".join(f"{k} {v['seconds']:.3f} s (rms change {v['rms_change']:.1e})" for k, v in net.items()))
+    if "startup" in results:
+        s = results["startup"]
+        r = s["learned_32"] / s["torch"]
+        row("32² learned reconstruct / import torch", f"{r:.2f}x", "<= 1.3x", r <= 1.3,
+            f"{s['learned_32']:.2f} s against {s['torch']:.2f} s")
+    if "outdir" in results:
+        o = results["outdir"]
+        r = o["single_s_per_stack"] / o["batch_s_per_stack"]
+        row(f"--out-dir throughput / separate invocations ({o['count']} stacks of 64², h = 4)", f"{r:.1f}x",
+            ">= 5x", r >= 5, f"{o['batch_s_per_stack']:.3f} s a stack in one process; "
+            f"{o['single_s_per_stack']:.2f} s a stack over {o['separate']} separate invocations, scaled")
+    load = os.getloadavg()
+    return (f"# bench_fast: the [fast] goals, measured side by side\n\n`python benchmarks/bench_fast.py "
+            f"{' '.join(args.argv)}`, best of {args.repeats}, {len(os.sched_getaffinity(0))} CPUs, load average "
+            f"{load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at the end (shared cores: other jobs slow "
+            f"every figure, ratios less)\n\n| goal | measured | target | met | detail |\n| --- | --- | --- | --- | --- |\n"
+            + "\n".join(rows) + "\n")
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="h = 4 only, best of 2, 20 stacks, 3 separate runs")
+    parser.add_argument("--hs", type=int, nargs="+", default=None, choices=(4, 7))
+    parser.add_argument("--repeats", type=int, default=None)
+    parser.add_argument("--stacks", type=int, default=None, help="stacks through --out-dir (default 100)")
+    parser.add_argument("--separate", type=int, default=None, help="separate invocations run (default 10)")
+    parser.add_argument("--skip", nargs="+", default=[], choices=PARTS)
+    parser.add_argument("--work", type=Path, default=None, help="folder for the stacks (default: a temporary one)")
+    parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "bench_fast.md")
+    args = parser.parse_args(argv)
+    args.argv = argv
+    hs = args.hs or ([4] if args.quick else [4, 7])
+    args.repeats = args.repeats or (2 if args.quick else 3)
+    count = args.stacks or (20 if args.quick else 100)
+    separate = args.separate or (3 if args.quick else 10)
+    work = args.work or Path(tempfile.mkdtemp(prefix="bench_fast_"))
+    work.mkdir(parents=True, exist_ok=True)
+    results: dict = {}
+    for h in hs:
+        if "fft" not in args.skip:
+            results["fft", h] = fft_pair(h, args.repeats)
+        if "fullframe" not in args.skip:
+            results["fullframe", h] = fullframe(work, h, args.repeats)
+    if "network" not in args.skip:
+        results["network"] = network(args.repeats)
+    if "startup" not in args.skip:
+        results["startup"] = startup(work, args.repeats)
+    if "outdir" not in args.skip:
+        results["outdir"] = outdir(work, count, separate, args.repeats)
+    text = report(results, hs, args)
+    print(text)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
+    if args.work is None:
+        shutil.rmtree(work, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

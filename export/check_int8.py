@@ -1,0 +1,99 @@
+"""Check int8 models against their float32 files on the held-out matrix, cell by cell.
+
+    python export/check_int8.py [--h 2 4 7] [--models hbis_torch/models] [--name hbis_sr_h{h}]
+                                [--photos ...] [--size 72] [--out parity.json]
+
+Every cell of the held-out matrix (:mod:`hbis_torch.training.heldout`: its conditions x its
+photographs x h, stacks the training never saw) is reconstructed once by the classical step,
+and the network refines it twice, from the float32 file ``NAME.onnx`` and from its int8 file
+``NAME.int8.onnx`` (export/quantize_int8.py), both on onnxruntime's CPU kernels, with the
+learned method's own settings (its default self-ensemble; a stack outside the training domain
+is run anyway, so that every cell compares the two networks). The table per h gives, per cell,
+int8 minus float32 PSNR (dB, against the truth); the goal is no cell below -0.05 dB. Exits 1 if
+a cell is below ``--tolerance``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.reconstruct.classical import optics_cutoff
+from hbis_torch.reconstruct.learned import LearnedSR, models_dir
+from hbis_torch.reconstruct.learned.method import classical_and_noise
+from hbis_torch.training.heldout import CONDITIONS, PHOTOS, make_stack, score
+from hbis_torch.training.quantize import int8_path
+
+
+def parse(argv):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    parser.add_argument("--h", type=int, nargs="+", default=[2, 4, 7], choices=[2, 4, 7])
+    parser.add_argument("--models", type=Path, default=None, help="folder of the models (default: shipped)")
+    parser.add_argument("--name", default="hbis_sr_h{h}", help="a model's file name without .onnx, {h} its factor")
+    parser.add_argument("--int8", nargs="+", default=None, metavar="FILE",
+                        help="int8 files to compare (each with {h}); default: NAME.int8.onnx beside the model")
+    parser.add_argument("--size", type=int, default=72, help="LR side of each stack (h = 7: 2/3 of it)")
+    parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS)
+    parser.add_argument("--conditions", type=int, nargs="+", default=None, help="indices of the conditions (default: all)")
+    parser.add_argument("--tolerance", type=float, default=0.05, help="largest loss of a cell, dB")
+    parser.add_argument("--out", type=Path, default=None, help="write every cell as JSON")
+    return parser.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
+    if args.out is not None and args.out.exists():
+        print(f"check_int8: {args.out} exists; choose another --out", file=sys.stderr)
+        return 2
+    folder = args.models or models_dir()
+    conditions = args.conditions if args.conditions is not None else range(len(CONDITIONS))
+    cells, started, failed = [], time.monotonic(), False
+    for h in args.h:
+        model = folder / (args.name.format(h=h) + ".onnx")
+        candidates = [Path(p.format(h=h)) for p in args.int8] if args.int8 else [int8_path(model)]
+        fp32 = LearnedSR(model, provider="cpu")
+        int8 = [LearnedSR(p, provider="cpu") for p in candidates]
+        for c in conditions:
+            for photo in args.photos:
+                size = args.size if h < 7 else (2 * args.size) // 3
+                stack, truth = make_stack(CONDITIONS[c], photo, h, size, seed=1000 + c)
+                image, noise = classical_and_noise(stack, "optics")
+                inputs = (image, noise, optics_cutoff(stack.system))
+                reference = score(fp32(*inputs, extrapolate=True), truth, h)
+                deltas = [score(run(*inputs, extrapolate=True), truth, h) - reference for run in int8]
+                cells.append({"h": h, "condition": CONDITIONS[c].name, "photo": photo, "fp32_db": reference,
+                              "classical_db": score(image, truth, h), "int8_minus_fp32_db": deltas})
+        failed |= print_table(h, [x for x in cells if x["h"] == h], candidates, args)
+    print(f"\n{time.monotonic() - started:.0f} s")
+    if args.out is not None:
+        atomic_write_text(args.out, json.dumps(cells, indent=1))
+    return 1 if failed else 0
+
+
+def print_table(h: int, rows: list[dict], candidates: list[Path], args) -> bool:
+    """Print one h's cells (int8 minus fp32, dB) per candidate; True if a cell loses more than the tolerance."""
+    failed = False
+    for k, path in enumerate(candidates):
+        print(f"\n## h = {h}: {path.name} minus {args.name.format(h=h)}.onnx, dB\n")
+        print("| condition | " + " | ".join(args.photos) + " | fp32 mean |")
+        print("|---" * (len(args.photos) + 2) + "|")
+        for name in dict.fromkeys(x["condition"] for x in rows):
+            row = [x for x in rows if x["condition"] == name]
+            print(f"| {name} | " + " | ".join(f"{x['int8_minus_fp32_db'][k]:+.3f}" for x in row)
+                  + f" | {np.mean([x['fp32_db'] for x in row]):.2f} |")
+        deltas = np.array([x["int8_minus_fp32_db"][k] for x in rows])
+        print(f"\nh = {h}, {path.name}: mean {deltas.mean():+.3f} dB, worst cell {deltas.min():+.3f} dB, "
+              f"{int((deltas < -args.tolerance).sum())} of {deltas.size} cells below -{args.tolerance} dB")
+        failed |= bool((deltas < -args.tolerance).any())
+    return failed
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

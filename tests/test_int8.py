@@ -1,0 +1,86 @@
+"""int8 models: the quantisation (hbis_torch.training.quantize), the runtime's choice of file
+(--precision) and the shipped int8 files."""
+
+import shutil
+
+import numpy as np
+import onnx
+import pytest
+
+from hbis_torch.cli import main
+from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.learned import LearnedSR, default_model_path, int8_path, read_model_metadata
+from hbis_torch.reconstruct.learned.runtime import check_model, with_precision
+from hbis_torch.training.data import build_pool, whole_example
+from hbis_torch.training.quantize import float_nodes, quantize_model
+
+
+@pytest.mark.parametrize("h", [2, 4, 7])
+def test_shipped_int8_files_are_small_and_keep_the_metadata(h):
+    path = int8_path(default_model_path(h))
+    meta, fp32 = read_model_metadata(path), read_model_metadata(default_model_path(h))
+    assert path.stat().st_size < default_model_path(h).stat().st_size  # int8 weights: smaller than float32
+    assert meta["precision"] == "int8" and default_model_path(h).name in meta["quantized_from"]
+    assert {k: v for k, v in meta.items() if k in fp32} == fp32
+
+
+def test_image_path_stays_float():
+    model = onnx.load(str(default_model_path(4)))
+    kept = float_nodes(model)
+    ops = {node.name: node.op_type for node in model.graph.node}
+    assert [ops[name] for name in kept] == ["Sub", "Concat", "Conv", "Add", "DepthToSpace"]
+    quantized = onnx.load(str(int8_path(default_model_path(4))))
+    residual = [n for n in quantized.graph.node if n.op_type == "Add" and "base" in n.input]
+    assert len(residual) == 1  # the input itself, not a dequantised copy, is added to the correction
+
+
+def test_int8_output_is_near_the_float_one():
+    base, noise, _ = whole_example(build_pool(4, 1, 40, seed=99)[0], 4)
+    fp32 = LearnedSR(h=4, provider="cpu", precision="fp32").infer(base, noise)
+    int8 = LearnedSR(h=4, provider="cpu", precision="int8")
+    assert int8.precision == "int8" and int8.path.name.endswith(".int8.onnx")
+    diff = int8.infer(base, noise) - fp32
+    assert np.isfinite(diff).all()
+    assert 0 < np.sqrt(np.mean(diff**2)) < 5e-3  # it is quantised (not the float graph), and close
+
+
+def test_precision_picks_the_file_or_refuses(tmp_path):
+    path, meta = check_model(None, 4)
+    assert with_precision(path, meta)[0] == path  # the default: the file named
+    assert with_precision(path, meta, "int8")[0] == int8_path(path)
+    int8, int8_meta = with_precision(path, meta, "int8")
+    assert with_precision(int8, int8_meta)[0] == int8  # an int8 file named runs as it is
+    with pytest.raises(HbisInputError, match="needs its float32 file"):
+        with_precision(int8, int8_meta, "fp32")
+    lone = tmp_path / "lone.onnx"
+    shutil.copy(path, lone)
+    with pytest.raises(HbisInputError, match="no int8 file for lone.onnx"):
+        with_precision(lone, meta, "int8")
+    with pytest.raises(HbisInputError, match="unknown precision"):
+        with_precision(path, meta, "fp16")
+
+
+def test_quantize_any_model_file_and_refuse_to_overwrite(tmp_path):
+    model = tmp_path / "mine_h4.onnx"
+    shutil.copy(default_model_path(4), model)
+    out = quantize_model(model, count=1, method="minmax")
+    assert out == tmp_path / "mine_h4.int8.onnx"
+    meta = read_model_metadata(out)
+    assert meta["precision"] == "int8" and meta["h"] == "4"
+    before = out.read_bytes()
+    with pytest.raises(HbisInputError, match="exists"):
+        quantize_model(model, count=1)
+    assert out.read_bytes() == before
+    with pytest.raises(HbisInputError, match="int8 already"):
+        quantize_model(out, tmp_path / "again.onnx")
+
+
+def test_cli_precision(tmp_path, capsys):
+    from test_learned_cli import simulated_stack_file
+
+    stack, _ = simulated_stack_file(tmp_path, 4)
+    out = tmp_path / "sr.tif"
+    assert main(["reconstruct", str(stack), "--method", "learned", "--precision", "int8", "--out", str(out)]) == 0
+    assert out.is_file()
+    assert main(["reconstruct", str(stack), "--precision", "int8", "--out", str(tmp_path / "c.tif")]) == 2
+    assert "only for --method learned" in capsys.readouterr().err
