@@ -9,8 +9,9 @@ methods in turn within each round, ``--repeats`` rounds; the table gives medians
 time as ``hbis reconstruct --method M [--model T]`` spends it (read the stack,
 :func:`hbis_torch.reconstruct.reconstruct` with registration "auto", write the TIFF; the
 interpreter's start and imports are not in it), its CPU seconds (user + system, all threads), and
-the PSNR of the output against the truth. The ratio best / fast is measured side by side in
-the same run (the issue's goal: at most 2.5 at h = 4). Writes ``--out`` (Markdown).
+the PSNR of the output against the truth. Both tiers run at both precisions (``--precision fp32``
+and ``int8``, the int8 files of export/quantize_int8.py); the ratio best / fast at each precision is
+measured side by side in the same run (the goal: at most 2.5 at h = 4, both in int8). Writes ``--out`` (Markdown).
 """
 
 from __future__ import annotations
@@ -24,15 +25,16 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-ROWS = (("classical", None), ("learned", "fast"), ("learned", "best"))
+ROWS = (("classical", None, None), ("learned", "fast", "fp32"), ("learned", "best", "fp32"),
+        ("learned", "fast", "int8"), ("learned", "best", "int8"))  # method, --model, --precision
 
 CHILD = r"""
 import json, sys, time
-method, tier, stack_path, out_path = sys.argv[1:5]
+method, tier, precision, stack_path, out_path = sys.argv[1:6]
 import tifffile
 from hbis_torch.stack_io import read_stack
 from hbis_torch.reconstruct.registry import reconstruct
-kw = {} if tier == "-" else {"model": tier}
+kw = {} if tier == "-" else {"model": tier, "precision": precision}
 t0, c0 = time.perf_counter(), time.process_time()
 image = reconstruct(read_stack(stack_path), method=method, registration="auto", **kw)
 tifffile.imwrite(out_path, image, photometric="minisblack")
@@ -55,8 +57,8 @@ def stack_for(work: Path, h: int) -> tuple[Path, Path]:
     return stack, truth
 
 
-def measure(method: str, tier: str | None, stack: Path, out: Path) -> dict:
-    done = subprocess.run([sys.executable, "-c", CHILD, method, tier or "-", str(stack), str(out)],
+def measure(method: str, tier: str | None, precision: str | None, stack: Path, out: Path) -> dict:
+    done = subprocess.run([sys.executable, "-c", CHILD, method, tier or "-", precision or "-", str(stack), str(out)],
                           cwd=REPO, env=env(), capture_output=True, text=True)
     if done.returncode != 0:
         raise RuntimeError(f"{method} {tier} failed:\n{done.stderr}")
@@ -84,18 +86,20 @@ def main(argv=None) -> int:
         truth = tifffile.imread(truth_path)
         runs = {row: [] for row in ROWS}
         for _ in range(args.repeats):
-            for method, tier in ROWS:
-                out = args.work / f"out_h{h}_{method}_{tier}.tif"
-                runs[method, tier].append(measure(method, tier, stack, out))
+            for method, tier, precision in ROWS:
+                out = args.work / f"out_h{h}_{method}_{tier}_{precision}.tif"
+                runs[method, tier, precision].append(measure(method, tier, precision, stack, out))
         med = {}
-        for (method, tier), rs in runs.items():
-            image = tifffile.imread(args.work / f"out_h{h}_{method}_{tier}.tif")
-            med[tier] = [statistics.median(r[k] for r in rs) for k in ("seconds", "cpu_seconds")]
-            name = method if tier is None else f"{method} --model {tier}"
-            lines.append(f"| {h} | {name} | {med[tier][0]:.2f} | {med[tier][1]:.2f} | "
+        for (method, tier, precision), rs in runs.items():
+            image = tifffile.imread(args.work / f"out_h{h}_{method}_{tier}_{precision}.tif")
+            med[tier, precision] = m = [statistics.median(r[k] for r in rs) for k in ("seconds", "cpu_seconds")]
+            name = method if tier is None else f"{method} --model {tier} --precision {precision}"
+            lines.append(f"| {h} | {name} | {m[0]:.2f} | {m[1]:.2f} | "
                          f"{psnr(np.clip(image, 0, 1), truth):.2f} |")
-        ratios.append(f"h = {h}: best / fast end to end {med['best'][0] / med['fast'][0]:.2f}x "
-                      f"(CPU {med['best'][1] / med['fast'][1]:.2f}x)")
+        for precision in ("fp32", "int8"):
+            best, fast = med["best", precision], med["fast", precision]
+            ratios.append(f"h = {h}, {precision}: best / fast end to end {best[0] / fast[0]:.2f}x "
+                          f"(CPU {best[1] / fast[1]:.2f}x)")
     lines += [""] + ratios
     text = "\n".join(lines) + f"\n\nCommand: python benchmarks/bench_tiers.py {' '.join(argv or sys.argv[1:])}\n"
     print(text)
