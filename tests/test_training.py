@@ -78,3 +78,22 @@ def test_resume_after_a_kill_reproduces_the_uninterrupted_run(tmp_path):
 def test_unknown_override_is_refused(tmp_path):
     result = run(["learning_rat=1"], tmp_path)
     assert result.returncode != 0 and "unknown or malformed override" in result.stderr
+
+
+def test_device_flag_and_growth_from_a_smaller_network(tmp_path):
+    """``--device cpu`` (the flag form), a network grown from a shipped one (it starts at that
+    network's validation PSNR, above the classical image's), pools over 2 processes, prefetch."""
+    result = run(["--device", "cpu", "width=40", "blocks=5", "max_steps=2", "eval_interval=2",
+                  "pool_workers=2", "prefetch=2", f"init_from={REPO / 'hbis_torch/models/hbis_sr_h2.pt'}"],
+                 tmp_path / "grown")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "on cpu" in result.stdout and "grown from" in result.stdout
+    first = history(tmp_path / "grown")[0]
+    assert first["step"] == 0 and first["val_psnr"] > first["base_psnr"] + 0.1
+
+
+def test_cuda_without_a_gpu_is_refused(tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("a GPU is visible")
+    result = run(["--device", "cuda", "max_steps=1"], tmp_path / "x")
+    assert result.returncode != 0 and "torch sees no GPU" in result.stderr

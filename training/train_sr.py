@@ -4,12 +4,20 @@ Read it top to bottom: config, setup, data, the loop. One process:
 
     python training/train_sr.py h=4 max_minutes=20 out_dir=training/runs/sr_h4
 
-Two processes on one machine (DDP over gloo, the same script unchanged):
+Two processes on one machine (DDP over gloo on the CPU, over NCCL on GPUs, the same script unchanged):
 
     torchrun --standalone --nproc_per_node=2 training/train_sr.py h=4 max_minutes=20
 
-Any name in the config block can be overridden as ``name=value`` (Python literals). Killing the
-run and starting the same command again resumes from ``out_dir/ckpt.pt``. The outputs in
+On a GPU (``device=auto``, the default, takes one where torch sees one), with bf16 autocast and a
+larger network grown from a shipped one (:func:`hbis_torch.training.net.grow_net`):
+
+    python training/train_sr.py --device cuda h=4 width=64 blocks=8 batch_size=32 bf16=True \
+        init_from=hbis_torch/models/hbis_sr_h4.pt pool_workers=8 prefetch=4
+
+Any name in the config block can be overridden as ``name=value`` or ``--name value`` (Python
+literals). Killing the run and starting the same command again resumes from ``out_dir/ckpt.pt``,
+on any device: a long run can be split into sittings (``max_minutes`` counts the training time
+of all of them). The outputs in
 ``out_dir``: ``ckpt.pt`` (latest, for resuming), ``model.pt`` (best validation PSNR),
 ``history.json`` and ``val_psnr.png`` (the validation curve against the classical image it refines).
 The training stacks draw their optics, noise, scan and reference frame at random
@@ -22,10 +30,12 @@ from __future__ import annotations
 import ast
 import json
 import math
+import multiprocessing
 import os
 import subprocess
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +49,7 @@ from hbis_torch.run_lock import exit_with_parent, lock_dir, remove_temp_files
 from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.training.data import (POOL_VERSION, build_pool, load_pool, make_batch, save_pool, training_domain,
                                       whole_example)
-from hbis_torch.training.net import build_net, count_parameters, depth_to_space
+from hbis_torch.training.net import build_net, count_parameters, depth_to_space, grow_net
 
 # ---------------------------------------------------------------------------- config
 h = 4  # resolution improvement factor; the model takes h*h frames
@@ -68,10 +78,31 @@ threads = 0  # torch threads per process; 0: the CPUs divided among the processe
 out_dir = "training/runs/sr_h4"
 resume = True
 progress_bar = True
+device = "auto"  # "auto" (a GPU where torch sees one, else the CPU), "cpu" or "cuda"
+bf16 = False  # bf16 autocast of the forward pass on a GPU (the loss and the weights stay float32)
+init_from = ""  # weights (a .pt of export_onnx.py --weights, or a model.pt) of a smaller plain network to grow from
+pool_workers = 1  # processes that simulate a pool not yet cached (each example has its own seed: same pool)
+prefetch = 0  # batches prepared ahead in threads (0: each batch when it is needed); the same batches either way
 
 # ---------------------------------------------------------------------------- overrides
 config_keys = [k for k, v in dict(globals()).items() if not k.startswith("_") and isinstance(v, (int, float, str, bool))]
-for arg in sys.argv[1:]:
+
+
+def _as_overrides(argv: list[str]) -> list[str]:
+    """``--name value`` and ``--name=value`` as ``name=value``; other arguments unchanged."""
+    out, i = [], 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg.startswith("--") and "=" not in arg and i + 1 < len(argv):
+            out.append(f"{arg[2:]}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(arg[2:] if arg.startswith("--") else arg)
+        i += 1
+    return out
+
+
+for arg in _as_overrides(sys.argv[1:]):
     key, _, value = arg.partition("=")
     if key not in config_keys or not _:
         raise SystemExit(f"unknown or malformed override {arg!r}; known: {', '.join(config_keys)}")
@@ -97,14 +128,23 @@ def git_commit() -> str:
     return head + ("-dirty" if dirty else "")
 
 
+if device not in ("auto", "cpu", "cuda"):
+    raise SystemExit(f"train_sr: device must be auto, cpu or cuda, got {device!r}")
+use_cuda = device == "cuda" or (device == "auto" and torch.cuda.is_available())
+if use_cuda and not torch.cuda.is_available():
+    raise SystemExit("train_sr: device=cuda, but torch sees no GPU (device=cpu or auto trains on the CPU)")
 ddp = "RANK" in os.environ
 if ddp:
     exit_with_parent()  # a worker ends with its launcher (torchrun killed outright)
-    dist.init_process_group("gloo")
+    dist.init_process_group("nccl" if use_cuda else "gloo")
     rank, world = dist.get_rank(), dist.get_world_size()
 else:
     rank, world = 0, 1
 master = rank == 0
+dev = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)) % torch.cuda.device_count()) if use_cuda \
+    else torch.device("cpu")
+if use_cuda:
+    torch.cuda.set_device(dev)
 torch.set_num_threads(threads or max(1, len(os.sched_getaffinity(0)) // world))
 torch.manual_seed(seed)  # same initial weights on every rank (DDP also broadcasts them)
 out = Path(out_dir)
@@ -118,21 +158,32 @@ if master:
     for tmp in remove_temp_files(out):
         print(f"removed {tmp.name}, left by a run that was killed")
 
-model = build_net(architecture)
+def initial_model():
+    """The network of ``architecture``: fresh from ``seed``, or grown from ``init_from``'s weights."""
+    if not init_from:
+        return build_net(architecture)
+    small = torch.load(init_from, map_location="cpu", weights_only=False)
+    source = build_net(small["model_config"])
+    source.load_state_dict(small["model"])
+    return grow_net(source, architecture)
+
+
+model = initial_model().to(dev)
 optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
 step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
 ckpt_path = out / "ckpt.pt"
 if resume and ckpt_path.exists():
     ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
     model.load_state_dict(ckpt["model"])
-    optimizer.load_state_dict(ckpt["optimizer"])
+    optimizer.load_state_dict(ckpt["optimizer"])  # its state moves to the parameters' device
     step, trained_s, history = ckpt["step"], ckpt["trained_s"], ckpt["history"]
     best_psnr = max((r["val_psnr"] for r in history), default=-math.inf)
     if master:
         print(f"resumed from {ckpt_path} at step {step} ({trained_s / 60:.1f} min trained)")
-net = torch.nn.parallel.DistributedDataParallel(model) if ddp else model
+net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[dev] if use_cuda else None) if ddp else model
 if master:
-    print(f"{architecture}: {count_parameters(model)} parameters, {world} process(es)")
+    print(f"{architecture}: {count_parameters(model)} parameters, {world} process(es) on {dev}"
+          + (", bf16 autocast" if bf16 and use_cuda else "") + (f", grown from {init_from}" if init_from else ""))
 
 # ---------------------------------------------------------------------------- data
 def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
@@ -142,7 +193,7 @@ def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
         part = Path(f"{path}.part{rank}of{world}.npz")
         if not part.exists():
             t0 = time.monotonic()
-            save_pool(part, build_pool(h, count, size, pool_seed, range(rank, count, world)))
+            save_pool(part, simulate(count, size, pool_seed, range(rank, count, world)))
             print(f"rank {rank}: simulated {len(range(rank, count, world))} {name} stacks in {time.monotonic() - t0:.0f} s")
         if ddp:
             dist.barrier()
@@ -157,6 +208,20 @@ def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
     return load_pool(path)
 
 
+def simulate(count: int, size: int, pool_seed: int, indices: range) -> list[dict]:
+    """:func:`build_pool` of ``indices``, over ``pool_workers`` processes (the same examples, in order)."""
+    if pool_workers <= 1 or len(indices) < 2:
+        return build_pool(h, count, size, pool_seed, indices)
+    chunks = [indices[i::pool_workers] for i in range(pool_workers)]
+    # fork: the workers need nothing of this script but build_pool (spawn would run it again); one
+    # torch thread each, as torch's DataLoader workers: a forked child that enters an OpenMP region
+    # of the parent's thread pool can hang (on the GPU machine, the pools of a first try never came)
+    with ProcessPoolExecutor(pool_workers, mp_context=multiprocessing.get_context("fork"),
+                             initializer=torch.set_num_threads, initargs=(1,)) as pool:
+        parts = list(pool.map(build_pool, *zip(*[(h, count, size, pool_seed, c) for c in chunks])))
+    return [parts[i % pool_workers][i // pool_workers] for i in range(len(indices))]
+
+
 # Training and validation stacks come from disjoint seed streams (seed and seed + 1).
 train_pool = cached_pool("train", pool_size, pool_roi, seed)
 val_pool = cached_pool("val", val_size, val_roi, seed + 1)
@@ -165,9 +230,24 @@ val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across
 
 # Every batch comes from its own seed (seed, rank, step), so a resumed run sees the same data
 # as an uninterrupted one and the ranks never see the same examples.
-def train_batch(at_step: int):
+def cpu_batch(at_step: int):
     rng = np.random.default_rng([seed, rank, at_step])
     return [torch.from_numpy(a) for a in make_batch(train_pool, h, patch, batch_size, rng)]
+
+
+_ahead: dict = {}  # step -> future of its batch (prefetch > 0)
+_threads = ThreadPoolExecutor(prefetch) if prefetch > 0 else None
+
+
+def train_batch(at_step: int):
+    """The batch of ``at_step`` on the training device; with ``prefetch``, the next ones are
+    prepared in threads meanwhile (numpy's crops release the GIL; the GPU waits less)."""
+    if _threads is None:
+        return [a.to(dev, non_blocking=True) for a in cpu_batch(at_step)]
+    for s in range(at_step, at_step + prefetch + 1):
+        if s not in _ahead:
+            _ahead[s] = _threads.submit(cpu_batch, s)
+    return [a.to(dev, non_blocking=True) for a in _ahead.pop(at_step).result()]
 
 
 @torch.no_grad()
@@ -177,11 +257,13 @@ def validate() -> tuple[float, float]:
     sums = torch.zeros(3, dtype=torch.float64)
     for base, noise, truth in val_set:
         base, noise, truth = (torch.from_numpy(a) for a in (base, noise, truth))
-        image = model(base, noise)
+        image = model(base.to(dev), noise.to(dev)).cpu()  # float32 weights, no autocast: the figure of record
         sums += torch.tensor([psnr(image.clamp(0, 1), truth), psnr(depth_to_space(base, h), truth), 1.0],
                              dtype=torch.float64)
     if ddp:
+        sums = sums.to(dev)  # NCCL reduces GPU tensors only
         dist.all_reduce(sums)
+        sums = sums.cpu()
     model.train()
     return (sums[0] / sums[2]).item(), (sums[1] / sums[2]).item()
 
@@ -251,7 +333,9 @@ def train() -> None:
         trained_s = time.monotonic() - started
         progress = torch.tensor([max(step / max_steps if max_steps > 0 else 1.0, trained_s / budget_s)])
         if ddp:
+            progress = progress.to(dev)
             dist.broadcast(progress, 0)
+            progress = progress.cpu()
         done = progress.item() >= 1.0
         evaluated = bool(history) and history[-1]["step"] == step  # e.g. just resumed
         if (step % eval_interval == 0 or done) and not evaluated:
@@ -274,7 +358,9 @@ def train() -> None:
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(progress.item(), step)
         base, noise, truth = train_batch(step)
-        loss = crop_loss(net(base, noise), depth_to_space(base, h), truth)
+        with torch.autocast("cuda", dtype=torch.bfloat16, enabled=bf16 and use_cuda):
+            image = net(base, noise)
+        loss = crop_loss(image.float(), depth_to_space(base, h), truth)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip if grad_clip > 0 else math.inf)

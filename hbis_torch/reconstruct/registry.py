@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from hbis_torch.errors import HbisInputError
@@ -216,8 +215,9 @@ register(Method(
     summary="the classical image refined by a small network in onnxruntime (docs/learned.md)",
     threads=True,
     options=(
-        Option("--model", "model", "ONNX model file (default: the shipped model for the stack's h)",
-               {"type": Path, "metavar": "M.onnx"}),
+        Option("--model", "model", "'fast' (the default: the shipped small model for the stack's h), 'best' "
+               "(the shipped larger model: more held-out dB for more time, docs/learned.md) or an ONNX model file",
+               {"type": str, "metavar": "fast|best|M.onnx"}),
         Option("--provider", "provider", "what runs the model; 'auto' (the default) takes OpenVINO where "
                "installed (pip install 'hbis-torch[openvino]'), else onnxruntime's CPU kernels",
                {"choices": ("auto", "openvino", "cpu")}),

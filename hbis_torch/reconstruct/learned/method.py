@@ -73,8 +73,10 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     Parameters
     ----------
     stack : hbis_torch.stack_io.Stack
-    model : path, optional
-        Defaults to the shipped model for the stack's h (:func:`default_model_path`). Where none
+    model : path or {"fast", "best"}, optional
+        A model file, or the shipped model of that tier for the stack's h
+        (:data:`~hbis_torch.reconstruct.learned.runtime.TIERS`); defaults to the shipped fast
+        model (:func:`default_model_path`). Where none
         is shipped (h other than 2, 4 and 7), the classical image is returned, with a line in
         ``messages`` saying so.
     positions : array (F, H, W, 2), optional

@@ -42,12 +42,29 @@ def models_dir() -> Path:
     return Path(str(files("hbis_torch") / "models"))
 
 
-def default_model_path(h: int) -> Path:
-    """The shipped model for factor ``h``; HbisInputError if there is none."""
-    missing = missing_model(h)
+# The shipped models come in two tiers (docs/learned.md, "Two tiers"): "fast", the default, and
+# "best", a larger network for users who trade time for held-out quality.
+TIERS = {"fast": "hbis_sr_h{h}.onnx", "best": "hbis_sr_h{h}_best.onnx"}
+
+
+def tier_of(model) -> str | None:
+    """The tier a ``model`` argument names: None -> "fast"; "fast" or "best" -> itself; a file -> None."""
+    if model is None:
+        return "fast"
+    return str(model) if isinstance(model, (str, Path)) and str(model) in TIERS else None
+
+
+def shipped_model_path(h: int, tier: str = "fast") -> Path:
+    """Where the shipped model of factor ``h`` and ``tier`` (:data:`TIERS`) is, whether or not it exists."""
+    return models_dir() / TIERS[tier].format(h=int(h))
+
+
+def default_model_path(h: int, tier: str = "fast") -> Path:
+    """The shipped model for factor ``h`` of ``tier`` ("fast" or "best"); HbisInputError if there is none."""
+    missing = missing_model(h, tier)
     if missing is not None:
         raise HbisInputError(f"{missing}; pass --model to use another")
-    return models_dir() / f"hbis_sr_h{int(h)}.onnx"
+    return shipped_model_path(h, tier)
 
 
 # What the line says where no model is shipped for a stack's h and the learned method returns the
@@ -57,21 +74,23 @@ NO_MODEL_REMEDY = "--model runs a model of your own"
 
 def model_to_run(model, h: int, precision: str | None = None) -> tuple[Path | None, dict | None, str | None]:
     """:func:`check_model`'s (path, metadata, None), the file at ``precision``
-    (:func:`with_precision`); or (None, None, the line saying so) where no model is named and
-    none is shipped for ``h`` (the learned method then returns the classical image)."""
-    missing = missing_model(h) if model is None else None
+    (:func:`with_precision`); or (None, None, the line saying so) where no model is named (or a
+    tier is) and none is shipped for ``h`` (the learned method then returns the classical image)."""
+    tier = tier_of(model)
+    missing = missing_model(h, tier) if tier is not None else None
     if missing is not None:
         return None, None, missing
     return (*with_precision(*check_model(model, h), precision), None)
 
 
-def missing_model(h: int) -> str | None:
-    """None if a model for factor ``h`` is shipped, else the line that says there is none."""
-    path = models_dir() / f"hbis_sr_h{int(h)}.onnx"
+def missing_model(h: int, tier: str = "fast") -> str | None:
+    """None if a model for factor ``h`` of ``tier`` is shipped, else the line that says there is none."""
+    path = shipped_model_path(h, tier)
     if path.is_file():
         return None
     shipped = sorted(p.name for p in models_dir().glob("hbis_sr_h*.onnx") if not p.name.endswith(".int8.onnx"))
-    return f"no learned model for h = {h} at {path} (shipped: {', '.join(shipped) or 'none'})"
+    which = "" if tier == "fast" else f"{tier} "  # the fast tier's line as before the tiers
+    return f"no {which}learned model for h = {h} at {path} (shipped: {', '.join(shipped) or 'none'})"
 
 
 PRECISIONS = ("int8", "fp32")
@@ -261,8 +280,9 @@ def check_model(model=None, h: int | None = None) -> tuple[Path, dict]:
 
     Parameters
     ----------
-    model : path, optional
-        The ``.onnx`` file; by default the shipped model for ``h``.
+    model : path or {"fast", "best"}, optional
+        The ``.onnx`` file, or the shipped model of that tier for ``h`` (:data:`TIERS`); by
+        default the shipped fast model for ``h``.
     h : int, optional
         The stack's factor: the model must be for it.
 
@@ -277,10 +297,11 @@ def check_model(model=None, h: int | None = None) -> tuple[Path, dict]:
     HbisInputError
         No such file, not an ONNX file, not an hbis SR model, or a model for another h.
     """
-    if model is None:
+    tier = tier_of(model)
+    if tier is not None:
         if h is None:
             raise HbisInputError("give a model file or the factor h of a shipped model")
-        model = default_model_path(h)
+        model = default_model_path(h, tier)
     path = Path(model)
     if not path.is_file():
         raise HbisInputError(f"model file not found: {path}")
