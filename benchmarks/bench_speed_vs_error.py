@@ -124,12 +124,10 @@ def markdown(rows: list[dict], args, hs, sizes, photos) -> str:
 
 
 def plot(rows: list[dict], hs, sizes, path: Path) -> None:
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(hs), figsize=(5 * len(hs), 4), squeeze=False)
+    fig = Figure(figsize=(5 * len(hs), 4))
+    axes = fig.subplots(1, len(hs), squeeze=False)
     methods = list(dict.fromkeys(r["method"] for r in rows))
     for ax, h in zip(axes[0], hs):
         for method in methods:
