@@ -138,7 +138,8 @@ def write_doc(doc: Path, rows: list, result: dict, command: str) -> None:
                      f"{s['classical_gain_worst_db']:+.2f} dB at worst; learned - classical "
                      f"{s['learned_minus_classical_mean_db']:+.2f} dB on average, "
                      f"{s['learned_minus_classical_worst_db']:+.2f} dB at worst.")
-    lines += ["", "Pictures (the reference enlarged, classical, learned; a crop of each below):", ""]
+    lines += ["", "Pictures (the reference enlarged, classical, learned; a crop of each below). The benchmark draws them where it "
+              "runs; they are not shipped, since the sequences carry no licence (the links work after a run):", ""]
     lines += [f"![{r['sequence']} at S = {r['scale']}](figures/{r['figure']})" for r in rows if "figure" in r]
     lines += ["", end]
     text = doc.read_text() if doc.exists() else f"# Real bursts\n\n{begin}\n{end}\n"
