@@ -180,3 +180,17 @@ def test_colour_burst_goes_per_channel_or_as_luma():
         assert psnr(image, rgb) > psnr(single, rgb) + 1.0, colour
     with pytest.raises(Exception, match="colour option"):
         reconstruct(Stack(stack.frames[..., 0], stack.meta), "classical", colour="luma")
+
+
+@pytest.mark.parametrize("options", [{"model": "best"}, {"precision": "int8"}, {"model": "best", "precision": "int8"},
+                                     {"ensemble": 2}, {"extrapolate": True}])
+def test_every_learned_option_reaches_the_burst_path(options):
+    """Each option of the learned entry is taken on a burst as on a scan (the tiers and the int8
+    files came after the burst path; a keyword it did not know was a TypeError)."""
+    stack, _ = assemble_burst(_burst(count=4).frames, 2)
+    plain = reconstruct(stack, "learned", extrapolate=True)
+    notes: list = []
+    image = reconstruct(stack, "learned", messages=notes, **options)
+    assert image.shape == plain.shape and np.isfinite(image).all()
+    if options.get("model") == "best" or options.get("precision") == "int8":
+        assert not np.array_equal(image, plain)  # another network ran

@@ -15,13 +15,13 @@ from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, classical_re
 
 def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
                   model=None, threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
-                  ensemble: int | None = None) -> np.ndarray:
+                  ensemble: int | None = None, precision: str | None = None) -> np.ndarray:
     """The learned method's burst path: the classical burst image and its lattice noise, refined
     by the network for the burst's scale; where no model is shipped for it, the classical image,
     with a message (:func:`~hbis_torch.reconstruct.learned.runtime.classical_returned`).
 
     Returns (S H, S W) float32 in [0, 1]."""
-    path, metadata, missing = model_to_run(model, stack.h)
+    path, metadata, missing = model_to_run(model, stack.h, precision)
     ensemble = check_ensemble(ensemble, stack.h)
     measured: list = []
     image = classical_sr(frames, positions, stack.h, True, weights=weights, cutoff=None,
