@@ -4,12 +4,11 @@ Prism 1 turns on GRBL's X axis and prism 2 on Y, with degrees as GRBL units. See
 ``docs/hardware.md`` for wiring, settings and fault behaviour.
 """
 
-import importlib
-
 from hbis_torch.errors import (GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblHeld, GrblMoveLost,
                                GrblProtocolError, GrblTimeout, ScanInterrupted)
 from hbis_torch.hardware.grbl_codes import alarm_meaning, error_meaning
 from hbis_torch.hardware.grbl_protocol import GrblStatus, parse_status, unwrap_near
+from hbis_torch.lazy import lazy_exports
 
 __all__ = [
     "GrblAlarm", "GrblCommandError", "GrblController", "GrblDisconnected", "GrblError", "GrblHeld", "GrblMoveLost",
@@ -24,11 +23,4 @@ __all__ = [
 _LAZY = {"GrblController": "grbl", "GrblTimeouts": "grbl", "open_grbl": "grbl", "GrblSimulator": "simulator"}
 
 
-def __getattr__(name):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY, globals())

@@ -22,7 +22,7 @@ Where each part lives
     Which h a scene needs (:func:`recommend_h`).
 """
 
-import importlib
+from hbis_torch.lazy import lazy_exports
 
 # Names handed on from the modules that define them, imported on first use (PEP 562), so that
 # the registry (``hbis reconstruct --help`` reads it) comes without torch.
@@ -44,11 +44,4 @@ _HOMES = {
 __all__ = sorted(_HOMES)
 
 
-def __getattr__(name: str):
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f"{__name__}.{_HOMES[name]}"), name)
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES, globals())

@@ -16,7 +16,7 @@ prediction by PSNR, beside the single-frame baseline (docs/validate.md).
     :func:`cross_validate`, which runs it all over the methods of the registry.
 """
 
-import importlib
+from hbis_torch.lazy import lazy_exports
 
 # Imported on first use (PEP 562), so that ``hbis validate --help`` comes without torch.
 _HOMES = {
@@ -42,11 +42,4 @@ _HOMES = {
 __all__ = sorted(_HOMES)
 
 
-def __getattr__(name: str):
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f"{__name__}.{_HOMES[name]}"), name)
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES, globals())
