@@ -12,8 +12,8 @@ function of its :class:`~hbis_torch.reconstruct.registry.Method`):
    object, an occlusion, a brightness jump) is down-weighted, pixel by pixel: the frame and the
    reference, both blurred against aliasing, are compared at the sample's position, and the
    difference is weighed against what noise and the local contrast allow, as in the robustness
-   map of Wronski et al. (2019); rejections are grown by a pixel (a minimum filter), so the
-   edges of a moving object are not smeared either;
+   map of Wronski et al. (2019) [1]_, in place of Farsiu's L1 [2]_; rejections are grown by a
+   pixel (a minimum filter), so the edges of a moving object are not smeared either;
 4. *fallback*: where the other frames leave (almost) nothing, the output is the single-frame
    estimate (the reference enlarged, cubic spline), blended by the other frames' coverage; a
    burst whose frames are all copies of the reference gets the single-frame estimate, and says so.
