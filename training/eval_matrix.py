@@ -1,6 +1,6 @@
 """The learned method against the classical one on stacks the training never saw.
 
-    python training/eval_matrix.py [--h 2 4 7] [--models hbis_torch/models] [--ensemble 8] [--out matrix.json]
+    python training/eval_matrix.py [--h 2 4 7] [--tier fast|best | --models DIR] [--ensemble 8] [--out matrix.json]
 
 Held out from training on every axis at once:
 
@@ -47,6 +47,7 @@ from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
 from hbis_torch.reconstruct.learned.inputs import check_ensemble
 from hbis_torch.reconstruct.learned.method import classical_and_noise
+from hbis_torch.reconstruct.learned.runtime import TIERS, shipped_model_path
 from hbis_torch.training.heldout import CONDITIONS, PHOTOS, make_stack, noise_ratio, score
 
 
@@ -54,7 +55,10 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("--h", type=int, nargs="+", default=[2, 4, 7], choices=[2, 4, 7])
-    parser.add_argument("--models", type=Path, default=None, help="folder of hbis_sr_h{h}.onnx (default: shipped)")
+    models = parser.add_mutually_exclusive_group()
+    models.add_argument("--tier", choices=tuple(TIERS), default="fast",
+                        help="the shipped models of this tier (hbis reconstruct --model)")
+    models.add_argument("--models", type=Path, default=None, help="a folder of hbis_sr_h{h}.onnx instead")
     parser.add_argument("--size", type=int, default=72, help="LR side of each stack (h = 7: 2/3 of it)")
     parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS)
     parser.add_argument("--ensemble", type=int, default=None, choices=(1, 2, 4, 8),
@@ -68,8 +72,8 @@ def main(argv=None) -> int:
     cells = []
     jobs = [(h, c, p) for h in args.h for c in range(len(CONDITIONS)) for p in args.photos]
     started = time.monotonic()
-    runners = {h: LearnedSR(None if args.models is None else args.models / f"hbis_sr_h{h}.onnx", h=h)
-               for h in args.h}
+    runners = {h: LearnedSR(shipped_model_path(h, args.tier) if args.models is None
+                            else args.models / f"hbis_sr_h{h}.onnx", h=h) for h in args.h}
     for h, c, photo in tqdm(jobs, desc="cells", disable=not sys.stderr.isatty()):
         size = args.size if h < 7 else (2 * args.size) // 3
         stack, truth = make_stack(CONDITIONS[c], photo, h, size, seed=1000 + c)
@@ -89,7 +93,8 @@ def main(argv=None) -> int:
             cell["extrapolated_delta_db"] = score(runners[h](*args_, extrapolate=True, ensemble=args.ensemble), truth, h) - classical
         cells.append(cell)
     ensembles = ", ".join(f"{check_ensemble(args.ensemble, h)} at h = {h}" for h in args.h)
-    print(f"# learned - classical, dB (PSNR vs truth, border {2} LR px), self-ensemble of {ensembles}; "
+    which = f"models in {args.models}" if args.models is not None else f"the shipped {args.tier} models"
+    print(f"# learned ({which}) - classical, dB (PSNR vs truth, border {2} LR px), self-ensemble of {ensembles}; "
           f"{time.monotonic() - started:.0f} s")
     for h in args.h:
         rows = [x for x in cells if x["h"] == h]
