@@ -95,7 +95,7 @@ def missing_model(h: int, tier: str = "fast") -> str | None:
 
 PRECISIONS = ("int8", "fp32")
 # What runs without --precision: None, the file named (the shipped float32 ones). The int8 files run
-# the network 1.3-1.6 times as fast on AVX2 cores but lose more than 0.05 dB in some held-out cells
+# the network 1.25-1.5 times as fast on AVX2 cores but lose more than 0.05 dB in some held-out cells
 # (0.5 to 6.9 dB in the cleanest ones at h = 2 and 4, export/check_int8.py, docs/learned.md), so they are not the default.
 DEFAULT_PRECISION = None
 
