@@ -47,6 +47,7 @@ from hbis_torch.io_utils import atomic_path, atomic_write_text
 from hbis_torch.metrics import psnr
 from hbis_torch.run_lock import exit_with_parent, lock_dir, remove_temp_files
 from hbis_torch.reconstruct.learned.architecture import Architecture
+from hbis_torch.training.burst_data import BURST_POOL_VERSION, build_burst_pool
 from hbis_torch.training.data import (POOL_VERSION, build_pool, load_pool, make_batch, save_pool, training_domain,
                                       whole_example)
 from hbis_torch.training.net import build_net, count_parameters, depth_to_space, grow_net
@@ -61,6 +62,9 @@ pool_size = 480  # simulated training stacks (random scenes, optics, noise and s
 pool_roi = 96  # LR side of each simulated training stack; patches are cropped from them
 val_size = 24  # validation stacks (their own seeds, never trained on; same random degradations)
 val_roi = 64  # LR side of a validation stack (PSNR over the whole h*val_roi square)
+burst_pool_size = 0  # simulated bursts (freely moving camera, hbis_torch.training.burst_data) added to the pool
+burst_roi = 48  # LR side of a burst's frames
+burst_val_size = 0  # validation bursts, added to the validation set
 cache_dir = "training/runs/cache"  # simulated pools are generated once and reused
 batch_size = 8  # per process
 lr = 3e-4  # peak learning rate (AdamW), cosine decay to lr/20 over the budget: the network learns a small
@@ -149,7 +153,7 @@ torch.set_num_threads(threads or max(1, len(os.sched_getaffinity(0)) // world))
 torch.manual_seed(seed)  # same initial weights on every rank (DDP also broadcasts them)
 out = Path(out_dir)
 commit = git_commit()
-domain = training_domain()  # the optics and noise this pool spans: the model's domain
+domain = training_domain(bursts=burst_pool_size > 0)  # the optics and noise this pool spans: the model's domain
 if master:
     try:
         out_lock = lock_dir(out)  # one run per out_dir; released when this process ends
@@ -186,14 +190,17 @@ if master:
           + (", bf16 autocast" if bf16 and use_cuda else "") + (f", grown from {init_from}" if init_from else ""))
 
 # ---------------------------------------------------------------------------- data
-def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
+def cached_pool(name: str, count: int, size: int, pool_seed: int, builder=build_pool) -> list[dict]:
     """A simulated pool, built once (split across the ranks) and cached as an .npz file."""
-    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}_v{POOL_VERSION}.npz"
+    if count == 0:
+        return []
+    version = BURST_POOL_VERSION if builder is build_burst_pool else POOL_VERSION
+    path = Path(cache_dir) / f"{name}_h{h}_n{count}_roi{size}_seed{pool_seed}_v{version}.npz"
     if not path.exists():
         part = Path(f"{path}.part{rank}of{world}.npz")
         if not part.exists():
             t0 = time.monotonic()
-            save_pool(part, simulate(count, size, pool_seed, range(rank, count, world)))
+            save_pool(part, simulate(count, size, pool_seed, range(rank, count, world), builder))
             print(f"rank {rank}: simulated {len(range(rank, count, world))} {name} stacks in {time.monotonic() - t0:.0f} s")
         if ddp:
             dist.barrier()
@@ -208,23 +215,27 @@ def cached_pool(name: str, count: int, size: int, pool_seed: int) -> list[dict]:
     return load_pool(path)
 
 
-def simulate(count: int, size: int, pool_seed: int, indices: range) -> list[dict]:
-    """:func:`build_pool` of ``indices``, over ``pool_workers`` processes (the same examples, in order)."""
+def simulate(count: int, size: int, pool_seed: int, indices: range, builder=build_pool) -> list[dict]:
+    """``builder`` (:func:`build_pool`, or :func:`build_burst_pool`) of ``indices``, over
+    ``pool_workers`` processes (the same examples, in order)."""
     if pool_workers <= 1 or len(indices) < 2:
-        return build_pool(h, count, size, pool_seed, indices)
+        return builder(h, count, size, pool_seed, indices)
     chunks = [indices[i::pool_workers] for i in range(pool_workers)]
     # fork: the workers need nothing of this script but build_pool (spawn would run it again); one
     # torch thread each, as torch's DataLoader workers: a forked child that enters an OpenMP region
     # of the parent's thread pool can hang (on the GPU machine, the pools of a first try never came)
     with ProcessPoolExecutor(pool_workers, mp_context=multiprocessing.get_context("fork"),
                              initializer=torch.set_num_threads, initargs=(1,)) as pool:
-        parts = list(pool.map(build_pool, *zip(*[(h, count, size, pool_seed, c) for c in chunks])))
+        parts = list(pool.map(builder, *zip(*[(h, count, size, pool_seed, c) for c in chunks])))
     return [parts[i % pool_workers][i // pool_workers] for i in range(len(indices))]
 
 
-# Training and validation stacks come from disjoint seed streams (seed and seed + 1).
-train_pool = cached_pool("train", pool_size, pool_roi, seed)
-val_pool = cached_pool("val", val_size, val_roi, seed + 1)
+# Training and validation stacks come from disjoint seed streams (seed and seed + 1; the bursts'
+# seed + 2 and seed + 3).
+train_pool = cached_pool("train", pool_size, pool_roi, seed) + \
+    cached_pool("burst", burst_pool_size, burst_roi, seed + 2, build_burst_pool)
+val_pool = cached_pool("val", val_size, val_roi, seed + 1) + \
+    cached_pool("burstval", burst_val_size, burst_roi, seed + 3, build_burst_pool)
 val_set = [whole_example(ex, h) for ex in val_pool[rank::world]]  # split across the ranks
 
 

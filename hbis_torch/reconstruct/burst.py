@@ -148,6 +148,33 @@ def single_frame(frame: np.ndarray, scale: int) -> np.ndarray:
     return np.clip(out[..., 0] if frame.ndim == 2 else out, 0, 1).astype(np.float32)
 
 
+def burst_samples(stack, frames: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Steps 1 to 3 of the module docstring: what every method's burst path is handed.
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+        A burst stack.
+    frames : Tensor, optional
+        Its :func:`corrected_frames`, where the caller has them already.
+
+    Returns
+    -------
+    frames : Tensor, shape (F, H, W) or (F, H, W, 3), float32
+        Brightness-corrected.
+    positions : Tensor, shape (F, H, W, 2), float64
+    trusted : Tensor, shape (F,), bool
+    weights : Tensor, shape (F, H, W), float64
+        The robustness weights (:func:`robustness_weights`).
+    """
+    from hbis_torch.reconstruct.positions import burst_positions
+
+    frames = corrected_frames(stack) if frames is None else frames
+    positions, trusted = burst_positions(stack)
+    weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index)
+    return frames, positions, trusted, weights
+
+
 def reconstruct_burst(stack, method, registration: str = "auto", messages: list | None = None,
                       colour: str | None = None, **kw) -> np.ndarray:
     """Super-resolve a burst stack with a registered method (module docstring).
@@ -173,7 +200,6 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     np.ndarray, shape (S H, S W) or (S H, S W, 3), float32 in [0, 1]
     """
     from hbis_torch.reconstruct.colour import COLOUR_MODES, DEFAULT_MODE
-    from hbis_torch.reconstruct.positions import burst_positions
 
     if registration == "optics":
         raise HbisInputError("a burst stack has no optics: its motion was measured by 'hbis assemble --burst' "
@@ -186,15 +212,14 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     if run is None:
         raise HbisInputError(f"the {method.name} method does not take burst stacks")
     frames = corrected_frames(stack)
-    grey, ref, scale = _luma(frames), stack.reference_index, stack.h
+    ref, scale = stack.reference_index, stack.h
     fallback = single_frame(frames[ref].numpy(), scale)
     notes = messages if messages is not None else []
     if all(torch.equal(frames[k], frames[ref]) for k in range(len(frames))):
         notes.append(f"all {len(frames)} frames are identical: no new samples, so the output is the single-frame "
                      "estimate (the reference frame enlarged, cubic spline)")
         return fallback
-    positions, trusted = burst_positions(stack)
-    weights = robustness_weights(grey, positions, trusted, ref)
+    frames, positions, trusted, weights = burst_samples(stack, frames)
     cover = coverage(positions, weights, ref)
     if float(cover.max()) == 0.0:
         notes.append("no frame but the reference could be used (none registered, or none agrees with it): the output "

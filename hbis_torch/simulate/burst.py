@@ -55,7 +55,8 @@ def random_motions(count: int, shape, rng, max_shift: float = 1.5, max_rotation_
 
 
 def simulate_burst(truth: np.ndarray, scale: int, motions: np.ndarray, noise: float = 0.01, seed: int = 0,
-                   moving_patch: tuple | None = None, moving_frames=(), gains=None) -> SimulatedBurst:
+                   moving_patch: tuple | None = None, moving_frames=(), gains=None,
+                   blur_px: float = 0.0) -> SimulatedBurst:
     """Render the frames of a burst of ``truth`` seen through ``motions``.
 
     Parameters
@@ -75,12 +76,15 @@ def simulate_burst(truth: np.ndarray, scale: int, motions: np.ndarray, noise: fl
     moving_frames : sequence of int
     gains : sequence of (g, o), optional
         Per frame, the frame shows ``g * scene + o`` (a brightness change).
+    blur_px : float
+        Standard deviation of a Gaussian lens blur, LR px, applied to the scene before the pixel
+        area (the truth stays sharp: the lens is what the reconstruction undoes).
 
     Returns
     -------
     SimulatedBurst
     """
-    from scipy.ndimage import map_coordinates, uniform_filter
+    from scipy.ndimage import gaussian_filter, map_coordinates, uniform_filter
 
     truth = np.asarray(truth, dtype=np.float64)
     rng = np.random.default_rng(seed)
@@ -92,6 +96,8 @@ def simulate_burst(truth: np.ndarray, scale: int, motions: np.ndarray, noise: fl
         if moving_patch is not None and k in moving_frames:
             scene = _moved(truth, moving_patch)
             moving[k] = True
+        if blur_px > 0:
+            scene = gaussian_filter(scene, blur_px * scale, mode="nearest")
         area = uniform_filter(scene, scale, mode="nearest")  # the pixel's area, S x S output px
         x, y, w = (m @ np.stack((u.ravel(), v.ravel(), np.ones(u.size))))
         ur, vr = (x / w).reshape(H, W), (y / w).reshape(H, W)
