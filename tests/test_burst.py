@@ -9,7 +9,7 @@ from skimage import data, transform
 from hbis_torch.capture.burst import assemble_burst
 from hbis_torch.cli import main
 from hbis_torch.metrics import psnr
-from hbis_torch.reconstruct.burst import single_frame
+from hbis_torch.reconstruct.single_frame import single_frame
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.simulate.burst import random_motions, simulate_burst
 from hbis_torch.stack_io import Stack, read_image, read_stack

@@ -255,7 +255,18 @@ def test_cli_prints_a_table_and_json(stack_file, capsys):
     assert all(np.isfinite(m["mean_psnr_db"]) and len(m["psnr_db"]) == 2 for m in report["methods"].values())
 
 
+def test_cli_passes_a_methods_own_options_to_it(stack_file, capsys):
+    runs = {}
+    for extra in ([], ["--no-deblur"]):
+        assert main(["validate", str(stack_file), "--method", "bicubic,classical", "--registration", "optics",
+                     "--json", *extra]) == 0
+        runs[bool(extra)] = json.loads(capsys.readouterr().out)["methods"]
+    assert runs[False]["single-frame"]["psnr_db"] == runs[True]["single-frame"]["psnr_db"]  # it takes no options
+    assert runs[False]["classical"]["psnr_db"] != runs[True]["classical"]["psnr_db"]
+
+
 @pytest.mark.parametrize("argv, message", [
+    (["--method", "classical", "--ensemble", "2"], "--ensemble is only for --method learned"),
     (["--method", "magic"], "unknown method 'magic'"),
     (["--method", "classical,"], "empty name"),
     (["--holdout", "4"], "holdout must be from 1 to 3"),

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from hbis_torch.checks import bounded_int
+from hbis_torch.cli.method_options import add_method_options, method_keywords
 from hbis_torch.errors import HbisInputError
 
 
@@ -26,7 +27,7 @@ def register(sub) -> None:
                    "(quoted: 'scans/*.tif') or @LIST, a text file naming one stack a line")
     p.add_argument("--method", choices=tuple(METHODS), default="classical",
                    help="reconstruction method (default: classical)")
-    _add_method_options(p, METHODS)
+    add_method_options(p, METHODS)
     outputs = p.add_mutually_exclusive_group(required=True)
     outputs.add_argument("--out", type=Path, help="output TIFF (one stack; an existing file is replaced)")
     outputs.add_argument("--out-dir", type=Path, metavar="DIR",
@@ -133,35 +134,3 @@ def reconstruct_one(args, path: Path, prepared: tuple, threads: int | None = Non
             "reference_index": stack.reference_index}
     pixel_um = None if stack.kind == "burst" else object_pixel_um(stack.system, stack.h)  # a burst has no optics
     return image, messages, meta, pixel_um
-
-
-def _options_by_flag(methods) -> dict:
-    """Every method option by flag: (the :class:`hbis_torch.reconstruct.registry.Option`, the
-    names of the methods that take it)."""
-    by_flag: dict = {}
-    for name, method in methods.items():
-        for option in method.options:
-            by_flag.setdefault(option.flag, (option, []))[1].append(name)
-    return by_flag
-
-
-def _add_method_options(parser, methods) -> None:
-    """One flag per method option, its help prefixed by the methods that take it; unset flags
-    leave no attribute (``SUPPRESS``), so that :func:`method_keywords` sees which were given."""
-    import argparse
-
-    group = parser.add_argument_group("options of one method")
-    for flag, (option, takers) in _options_by_flag(methods).items():
-        group.add_argument(flag, dest=option.keyword, default=argparse.SUPPRESS,
-                           help=f"{', '.join(takers)}: {option.help}", **option.argparse)
-
-
-def method_keywords(args, method, methods) -> dict:
-    """The method options given on the command line, as the run function's keywords; an option
-    of another method is refused with one line, before any work."""
-    for flag, (option, takers) in _options_by_flag(methods).items():
-        if hasattr(args, option.keyword) and option.keyword not in method.keywords:
-            raise HbisInputError(f"{flag} is only for --method {' or '.join(takers)}; "
-                                 f"the {method.name} method does not take it")
-    return {option.keyword: getattr(args, option.keyword) for option in method.options
-            if hasattr(args, option.keyword)}

@@ -29,11 +29,13 @@ Limits: it measures consistency with the observations, not closeness to the trut
 than the frames' pixels is seen only through its aliasing, so the score under-rates real gains
 at those frequencies and can reward an image that is sharpened or textured to fit the aliasing;
 noise in the held-out frame caps every score alike; a wrong motion (a moving object, a bad
-registration) lowers it for every method. Idea: Nguyen, Milanfar and Golub, IEEE TIP 2001
+registration) lowers it for every method. A method's own options (--model, --ensemble, --no-deblur,
+...) apply to every scored method that takes them. Idea: Nguyen, Milanfar and Golub, IEEE TIP 2001
 (cross-validation for multi-frame super-resolution)."""
 
 
 def register(sub) -> None:
+    from hbis_torch.cli.method_options import add_method_options
     from hbis_torch.reconstruct.registry import METHODS
 
     p = sub.add_parser(
@@ -57,6 +59,7 @@ def register(sub) -> None:
     p.add_argument("--blur", type=bounded_float(0.0, 10.0), default=None, metavar="PX",
                    help="the forward model's Gaussian blur, standard deviation in frame pixels (default 0.2)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    add_method_options(p, METHODS)
     p.set_defaults(func=run)
 
 
@@ -73,7 +76,11 @@ def method_names(given) -> list[str]:
 
 
 def run(args) -> int:
+    from hbis_torch.cli.method_options import keywords_for_methods
+    from hbis_torch.reconstruct.registry import METHODS
+
     names = method_names(args.method)  # before reading the stack
+    options = keywords_for_methods(args, names, METHODS)
     from hbis_torch.progress import progress
     from hbis_torch.stack_io import read_stack
     from hbis_torch.validate.cross import DEFAULT_HOLDOUT, cross_validate
@@ -91,7 +98,7 @@ def run(args) -> int:
         result = cross_validate(stack, names, holdout, registration=args.registration,
                                 border_px=DEFAULT_BORDER_PX if args.border is None else args.border,
                                 blur_px=DEFAULT_BLUR_PX if args.blur is None else args.blur,
-                                messages=messages, on_step=bar.update)
+                                method_options=options, messages=messages, on_step=bar.update)
     for line in messages:
         print(f"hbis validate: {line}", file=sys.stderr)
     for name, scores in result.methods.items():

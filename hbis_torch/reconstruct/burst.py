@@ -15,7 +15,7 @@ function of its :class:`~hbis_torch.reconstruct.registry.Method`):
    map of Wronski et al. (2019) [1]_, in place of Farsiu's L1 [2]_; rejections are grown by a
    pixel (a minimum filter), so the edges of a moving object are not smeared either;
 4. *fallback*: where the other frames leave (almost) nothing, the output is the single-frame
-   estimate (the reference enlarged, cubic spline), blended by the other frames' coverage; a
+   estimate (the reference enlarged, bicubic), blended by the other frames' coverage; a
    burst whose frames are all copies of the reference gets the single-frame estimate, and says so.
 
 Colour bursts are registered once (on the luminance) and go through the method per channel
@@ -40,6 +40,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.single_frame import single_frame
 
 # Robustness: a sample keeps weight exp(-(d / tau)^2), d the blurred difference to the reference
 # at its position, tau = NOISE_TOLERANCE x the difference's noise + CONTRAST_TOLERANCE x the local
@@ -138,16 +139,6 @@ def coverage(positions: Tensor, weights: Tensor, reference: int) -> np.ndarray:
     return total.reshape(H, W).numpy()
 
 
-def single_frame(frame: np.ndarray, scale: int) -> np.ndarray:
-    """The single-frame estimate: ``frame`` (H, W[, 3]) enlarged ``scale`` times (cubic spline,
-    on the output grid of docs/design.md section 1), float32 in [0, 1]."""
-    from hbis_torch.reconstruct.colour import upsample
-
-    frame = np.asarray(frame, dtype=np.float64)
-    out = upsample(frame[..., None] if frame.ndim == 2 else frame, scale)
-    return np.clip(out[..., 0] if frame.ndim == 2 else out, 0, 1).astype(np.float32)
-
-
 def burst_samples(stack, frames: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Steps 1 to 3 of the module docstring: what every method's burst path is handed.
 
@@ -217,13 +208,13 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     notes = messages if messages is not None else []
     if all(torch.equal(frames[k], frames[ref]) for k in range(len(frames))):
         notes.append(f"all {len(frames)} frames are identical: no new samples, so the output is the single-frame "
-                     "estimate (the reference frame enlarged, cubic spline)")
+                     "estimate (the reference frame enlarged, bicubic)")
         return fallback
     frames, positions, trusted, weights = burst_samples(stack, frames)
     cover = coverage(positions, weights, ref)
     if float(cover.max()) == 0.0:
         notes.append("no frame but the reference could be used (none registered, or none agrees with it): the output "
-                     "is the single-frame estimate (the reference frame enlarged, cubic spline)")
+                     "is the single-frame estimate (the reference frame enlarged, bicubic)")
         return fallback
     _report_weights(weights, trusted, ref, notes)
     said: list[str] = []  # the method's lines, once each (a colour burst runs it per channel)
