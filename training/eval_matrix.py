@@ -1,6 +1,7 @@
 """The learned method against the classical one on stacks the training never saw.
 
     python training/eval_matrix.py [--h 2 4 7] [--tier fast|best | --models DIR] [--ensemble 8] [--out matrix.json]
+    python training/eval_matrix.py --bursts [--h 2 3 4] [--models DIR] [--out bursts.json]
 
 Held out from training on every axis at once:
 
@@ -20,6 +21,13 @@ Held out from training on every axis at once:
 * **Captured-like metadata**: the stacks do not carry their noise model (as a stack assembled from
   a camera does not), so the noise is measured (on the classical step's lattice,
   :func:`~hbis_torch.reconstruct.learned.method.classical_and_noise`); one row keeps it, to compare.
+
+With ``--bursts`` the rows are bursts of a freely moving camera instead, from a renderer of their
+own (:mod:`hbis_torch.training.heldout_burst`: pixel footprints traced through each frame's
+homography, Poisson-Gaussian noise, a disc defocus, a moving object, brightness changes, few or
+many frames, rotation and zoom), assembled as a user's burst is (``hbis assemble --burst``,
+motion measured) and reconstructed by ``hbis reconstruct``'s full burst path; h is then the
+burst's scale S.
 
 The conditions, photographs and stacks are :mod:`hbis_torch.training.heldout`'s (shared with
 training/variants_ab.py and benchmarks/bench_ensemble.py).
@@ -54,7 +62,12 @@ from hbis_torch.training.heldout import CONDITIONS, PHOTOS, make_stack, noise_ra
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("--h", type=int, nargs="+", default=[2, 4, 7], choices=[2, 4, 7])
+    parser.add_argument("--h", type=int, nargs="+", default=None, choices=[2, 3, 4, 7],
+                        help="h of the scans (default 2 4 7), or the bursts' scales S (default 2 3 4)")
+    parser.add_argument("--bursts", action="store_true", help="the burst rows (hbis_torch.training.heldout_burst)")
+    parser.add_argument("--validate", action="store_true",
+                        help="bursts: also score each cell as hbis validate does, without the truth (3 frames held "
+                        "out), to compare its learned - classical with the truth's")
     models = parser.add_mutually_exclusive_group()
     models.add_argument("--tier", choices=tuple(TIERS), default="fast",
                         help="the shipped models of this tier (hbis reconstruct --model)")
@@ -69,6 +82,9 @@ def main(argv=None) -> int:
     if args.out is not None and args.out.exists():
         print(f"eval_matrix: {args.out} exists; choose another --out", file=sys.stderr)
         return 2
+    if args.bursts:
+        return burst_matrix(args)
+    args.h = args.h or [2, 4, 7]
     cells = []
     jobs = [(h, c, p) for h in args.h for c in range(len(CONDITIONS)) for p in args.photos]
     started = time.monotonic()
@@ -125,6 +141,61 @@ def main(argv=None) -> int:
                   "anyway (extrapolate=True) gives there, row means: "
                   + ", ".join(f"{name} {np.mean(v):+.2f}" for name, v in by_row.items())
                   + f" (worst cell {min(x['extrapolated_delta_db'] for x in returned):+.2f} dB).")
+    if args.out is not None:
+        atomic_write_text(args.out, json.dumps(cells, indent=1))
+    return 0
+
+
+def burst_matrix(args) -> int:
+    """The burst rows: every condition x photograph x scale, both methods through ``reconstruct``."""
+    from hbis_torch.capture.burst import assemble_burst
+    from hbis_torch.reconstruct import reconstruct
+    from hbis_torch.training.heldout_burst import BURST_CONDITIONS, make_burst
+
+    scales = args.h or [2, 3, 4]
+    size = args.size * 2 // 3
+    cells, started = [], time.monotonic()
+    jobs = [(s, c, p) for s in scales for c in range(len(BURST_CONDITIONS)) for p in args.photos]
+    for scale, c, photo in tqdm(jobs, desc="burst cells", disable=not sys.stderr.isatty()):
+        frames, truth, bits = make_burst(BURST_CONDITIONS[c], photo, scale, size, seed=2000 + c)
+        stack, _ = assemble_burst(frames, scale, bit_depth=bits)
+        model = shipped_model_path(scale, args.tier) if args.models is None else args.models / f"hbis_sr_h{scale}.onnx"
+        notes: list[str] = []
+        classical = score(reconstruct(stack, "classical"), truth, scale)
+        learned = score(reconstruct(stack, "learned", model=str(model), messages=notes, ensemble=args.ensemble,
+                                    extrapolate=False), truth, scale)
+        returned = [n for n in notes if "classical image" in n]
+        cells.append({"scale": scale, "condition": BURST_CONDITIONS[c].name, "photo": photo,
+                      "classical_db": classical, "learned_db": learned, "delta_db": learned - classical,
+                      "classical_returned": returned[0] if returned else None})
+        if args.validate:
+            from hbis_torch.validate import cross_validate
+
+            scored = cross_validate(stack, ["classical", "learned"], method_options={"learned": {"model": str(model)}})
+            cells[-1]["validate_delta_db"] = scored.gain("learned", "classical")
+    which = f"models in {args.models}" if args.models is not None else f"the shipped {args.tier} models"
+    print(f"# bursts: learned ({which}) - classical, dB (PSNR vs truth, border 2 LR px); "
+          f"{time.monotonic() - started:.0f} s")
+    for scale in scales:
+        rows = [x for x in cells if x["scale"] == scale]
+        print(f"\n## S = {scale}, {size} x {size} px frames\n")
+        print("| condition | " + " | ".join(args.photos) + " | mean | classical |")
+        print("|---" * (len(args.photos) + 3) + "|")
+        for cond in BURST_CONDITIONS:
+            row = [x for x in rows if x["condition"] == cond.name]
+            text = [f"{x['delta_db']:+.2f}" + "*" * bool(x["classical_returned"]) for x in row]
+            print(f"| {cond.name} | " + " | ".join(text) + f" | {np.mean([x['delta_db'] for x in row]):+.2f} | "
+                  f"{np.mean([x['classical_db'] for x in row]):.2f} |")
+        deltas = np.array([x["delta_db"] for x in rows])
+        print(f"\nS = {scale}: mean {deltas.mean():+.2f} dB, worst cell {deltas.min():+.2f} dB, "
+              f"{int((deltas < -0.3).sum())} of {deltas.size} cells below -0.3 dB"
+              + (" (* the classical image returned)" if any(x["classical_returned"] for x in rows) else ""))
+        if args.validate:
+            seen = np.array([x["validate_delta_db"] for x in rows])
+            slope = float(np.polyfit(deltas, seen, 1)[0]) if deltas.std() > 0 else float("nan")
+            print(f"hbis validate's learned - classical on the same cells (no truth): mean {seen.mean():+.2f} dB, "
+                  f"worst {seen.min():+.2f} dB; it moves {slope:.2f} dB per dB of the truth's "
+                  f"(correlation {np.corrcoef(deltas, seen)[0, 1]:.2f})")
     if args.out is not None:
         atomic_write_text(args.out, json.dumps(cells, indent=1))
     return 0
