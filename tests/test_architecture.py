@@ -308,7 +308,7 @@ def test_the_learned_method_at_run_time_imports_nothing_of_its_build_side():
 
 #: What a learned reconstruction does not use: every one of these was once imported on its path,
 #: and each costs start-up (scipy.interpolate alone about half of ``import torch``).
-NOT_ON_THE_RECONSTRUCT_PATH = ("scipy", "matplotlib", "cv2", "skimage", "hbis_torch.training",
+NOT_ON_THE_RECONSTRUCT_PATH = ("scipy", "matplotlib", "cv2", "skimage", "onnx", "hbis_torch.training",
                                "hbis_torch.simulate", "hbis_torch.system")
 
 

@@ -47,7 +47,7 @@ from hbis_torch.io_utils import atomic_path, atomic_write_text
 from hbis_torch.metrics import psnr
 from hbis_torch.run_lock import exit_with_parent, lock_dir, remove_temp_files
 from hbis_torch.reconstruct.learned.architecture import Architecture
-from hbis_torch.training.burst_data import BURST_POOL_VERSION, build_burst_pool
+from hbis_torch.training.burst_data import BURST_POOL_VERSION, build_burst_pool, training_domain_with_bursts
 from hbis_torch.training.data import (POOL_VERSION, build_pool, load_pool, make_batch, save_pool, training_domain,
                                       whole_example)
 from hbis_torch.training.net import build_net, count_parameters, depth_to_space, grow_net
@@ -153,7 +153,8 @@ torch.set_num_threads(threads or max(1, len(os.sched_getaffinity(0)) // world))
 torch.manual_seed(seed)  # same initial weights on every rank (DDP also broadcasts them)
 out = Path(out_dir)
 commit = git_commit()
-domain = training_domain(bursts=burst_pool_size > 0)  # the optics and noise this pool spans: the model's domain
+# the optics and noise this pool spans: the model's domain
+domain = training_domain_with_bursts() if burst_pool_size > 0 else training_domain()
 if master:
     try:
         out_lock = lock_dir(out)  # one run per out_dir; released when this process ends

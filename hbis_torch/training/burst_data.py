@@ -120,11 +120,18 @@ def simulate_burst_example(scale: int, size: int, seed: int) -> dict:
     }
 
 
-def noise_at_mid_grey_range() -> list[float]:
-    """[lowest, highest] frame noise at mid-grey of these bursts (:data:`NOISE`, plus the 8-bit
-    quantisation's), full scale 1: what the training domain adds to the scan pool's."""
+def training_domain_with_bursts() -> dict:
+    """The domain of a pool of scans and bursts: the scans'
+    (:func:`hbis_torch.training.data.training_domain`), its noise range widened to the bursts'
+    (:data:`NOISE`, with the 8-bit quantisation's), full scale 1."""
+    from hbis_torch.training.data import training_domain
+
+    domain = training_domain()
     quantisation = 1 / (255 * 12**0.5)
-    return [float(np.hypot(NOISE[0], quantisation)), float(np.hypot(NOISE[1], quantisation))]
+    low, high = domain["noise_at_mid_grey"]
+    domain["noise_at_mid_grey"] = [min(low, float(np.hypot(NOISE[0], quantisation))),
+                                   max(high, float(np.hypot(NOISE[1], quantisation)))]
+    return domain
 
 
 def build_burst_pool(scale: int, count: int, size: int, seed: int, indices=None) -> list[dict]:

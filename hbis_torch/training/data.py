@@ -485,15 +485,10 @@ def whole_example(example: dict, h: int, measured_noise: bool = False):
     return base[None], noise[None], example["truth"][None, None]
 
 
-def training_domain(bursts: bool = False) -> dict:
+def training_domain() -> dict:
     """The domain of this training pipeline: what :func:`export_model
-    <hbis_torch.training.export.export_model>` records as the model's ``training_domain``.
-
-    Parameters
-    ----------
-    bursts : bool
-        The pool also holds bursts (:mod:`hbis_torch.training.burst_data`): their noise widens
-        the noise range.
+    <hbis_torch.training.export.export_model>` records as the model's ``training_domain``
+    (a pool with bursts: :func:`hbis_torch.training.burst_data.training_domain_with_bursts`).
 
     Returns
     -------
@@ -511,11 +506,6 @@ def training_domain(bursts: bool = False) -> dict:
     def noise(full_well: float, read: float, bits: int) -> float:
         return noise_at_mid_grey(sensor_noise_params(full_well, read, bits))
 
-    low, high = noise(FULL_WELL_E[1], READ_NOISE_E[0], max(BIT_DEPTHS)), noise(FULL_WELL_E[0], READ_NOISE_E[1],
-                                                                                  min(BIT_DEPTHS))
-    if bursts:
-        from hbis_torch.training.burst_data import noise_at_mid_grey_range
-
-        burst_low, burst_high = noise_at_mid_grey_range()
-        low, high = min(low, burst_low), max(high, burst_high)
-    return {"cutoff_cycles_per_px": [cutoff(F_NUMBER[1]), cutoff(F_NUMBER[0])], "noise_at_mid_grey": [low, high]}
+    return {"cutoff_cycles_per_px": [cutoff(F_NUMBER[1]), cutoff(F_NUMBER[0])],
+            "noise_at_mid_grey": [noise(FULL_WELL_E[1], READ_NOISE_E[0], max(BIT_DEPTHS)),
+                                  noise(FULL_WELL_E[0], READ_NOISE_E[1], min(BIT_DEPTHS))]}
