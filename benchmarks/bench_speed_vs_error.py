@@ -39,7 +39,9 @@ LEARNED = (
     ("learned int8 x1", None, "int8", 1),
     ("learned fp32 x2", None, "fp32", 2),
     ("learned fp32 x8", None, "fp32", 8),
-    # ("learned best x1", "hbis_sr_best_h{h}.onnx", "fp32", 1),  # the [quality] tier, once shipped
+    ("learned best fp32 x1", "hbis_sr_h{h}_best.onnx", "fp32", 1),  # the best tier (hbis reconstruct --model best)
+    ("learned best int8 x1", "hbis_sr_h{h}_best.onnx", "int8", 1),
+    ("learned best fp32 x8", "hbis_sr_h{h}_best.onnx", "fp32", 8),
 )
 
 

@@ -110,19 +110,18 @@ def test_bayer_joint_demosaicking_and_learned_demosaic_first(colour_case, tmp_pa
 
 @pytest.mark.parametrize("kind", ["rgb", "bayer"])
 def test_colour_stacks_at_an_h_without_a_shipped_model_get_the_classical_image(kind):
-    """RGB and raw Bayer stacks at h = 3 (no model shipped): the learned method returns the
+    """RGB and raw Bayer stacks at h = 5 (no model shipped): the learned method returns the
     classical reconstruction, with one line saying why, as for grey stacks."""
     from hbis_torch.reconstruct.learned import models_dir
 
-    if (models_dir() / "hbis_sr_h3.onnx").exists():
-        pytest.skip("a model for h = 3 is shipped")
+    assert not (models_dir() / "hbis_sr_h5.onnx").exists()
     if kind == "bayer":
         pytest.importorskip("cv2")  # the demosaicking of the registration proxy
     rgb = skimage.data.astronaut()[40:240, 140:340]
-    stack, _ = simulate_colour_stack(rgb, FoveaSystem(), 3, (608, 456, 20, 20), SensorModel(), seed=3)
+    stack, _ = simulate_colour_stack(rgb, FoveaSystem(), 5, (608, 456, 16, 16), SensorModel(), seed=3)
     if kind == "bayer":
         stack = Stack(mosaic(stack.frames, "RGGB").astype(stack.frames.dtype), {**stack.meta, "cfa": "RGGB"})
     messages = []
     learned = reconstruct(stack, "learned", registration="optics", messages=messages)
     np.testing.assert_array_equal(learned, reconstruct(stack, "classical", registration="optics"))
-    assert any("no learned model for h = 3" in m for m in messages)
+    assert any("no learned model for h = 5" in m for m in messages)

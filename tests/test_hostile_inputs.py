@@ -295,7 +295,7 @@ ARGUMENTS = [
     ["demo", "--seed", "-1", "--out", "{tmp}/demo"],
     ["demo", "--seed", str(2**70), "--out", "{tmp}/demo"],
     ["demo", "--threads", "0", "--out", "{tmp}/demo"],
-    ["demo", "--h", "3", "--out", "{tmp}/demo"],  # no shipped model for h = 3
+    ["demo", "--h", "5", "--out", "{tmp}/demo"],  # no shipped model for h = 5
     ["demo", "--out", "{file}"],
     ["demo", "--out", "/proc/hbis-demo"],
     ["design", "--h", "1e9"],

@@ -76,13 +76,12 @@ def test_a_model_for_another_h_is_a_clear_input_error(tmp_path, capsys):
 def test_no_shipped_model_for_this_h_gives_the_classical_image_and_says_so(tmp_path, capsys):
     """The learned method refuses no stack the classical method takes: at an h no model is shipped
     for, it returns the classical image with one line saying why (as outside the training domain)."""
-    if (models_dir() / "hbis_sr_h3.onnx").exists():
-        pytest.skip("a model for h = 3 is shipped")
-    stack_path, _ = simulated_stack_file(tmp_path, 3, size=24)
+    assert not (models_dir() / "hbis_sr_h5.onnx").exists()
+    stack_path, _ = simulated_stack_file(tmp_path, 5, size=16)
     out = tmp_path / "x.tif"
     code = main(["reconstruct", str(stack_path), "--method", "learned", "--out", str(out)])
     err = capsys.readouterr().err
-    assert code == 0 and "no learned model for h = 3" in err and "returns the classical image" in err
+    assert code == 0 and "no learned model for h = 5" in err and "returns the classical image" in err
     classical = reconstruct_classical(read_stack(stack_path), "auto")
     np.testing.assert_array_equal(tifffile.imread(out), classical)
     # a model named explicitly must fit: one for another h stays an input error (above)
