@@ -77,7 +77,7 @@ def test_no_shipped_model_for_this_h_gives_the_classical_image_and_says_so(tmp_p
     """The learned method refuses no stack the classical method takes: at an h no model is shipped
     for, it returns the classical image with one line saying why (as outside the training domain)."""
     assert not (models_dir() / "hbis_sr_h5.onnx").exists()
-    stack_path, _ = simulated_stack_file(tmp_path, 5, size=16)
+    stack_path, _ = simulated_stack_file(tmp_path, 5, size=24)
     out = tmp_path / "x.tif"
     code = main(["reconstruct", str(stack_path), "--method", "learned", "--out", str(out)])
     err = capsys.readouterr().err
