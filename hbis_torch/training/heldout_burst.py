@@ -9,7 +9,9 @@ noise. These bursts share none of that but the motion's convention (frame px -> 
   the output grid with scikit-image's anti-aliased resize;
 * **the pixel**: every frame pixel averages the scene over its own footprint, traced through the
   frame's homography (a (2S)^2-point quadrature of the square, each point a bilinear read of the
-  output grid), so rotated and zoomed frames integrate rotated and scaled squares;
+  output grid), so rotated and zoomed frames integrate rotated and scaled squares; the bilinear
+  reads soften the scene by about half an output pixel (at S = 2, still frames weigh the output
+  pixels 1, 7, 7, 1 / 16 per axis), a little lens blur of their own;
 * **the lens**: none, or a uniform disc (defocus) rather than a Gaussian;
 * **the noise**: Poisson-Gaussian (shot noise of a full well, read noise), drawn with numpy,
   quantised to 8 or 10 bits; vignetting-free;
