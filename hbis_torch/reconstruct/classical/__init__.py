@@ -24,14 +24,17 @@ the optics, from the registration, or both), then:
 
 Coordinates: LR pixel (u, v) is the centre of column u, row v of the reference frame's ROI;
 HR pixel (U, V) is centred at LR ((U + 0.5)/h - 0.5, (V + 0.5)/h - 0.5) (docs/design.md, section 1).
-Positions and interpolation weights are float64; the per-node sums, the deblurring (FFTs and
-filter) and the result are float32 (tests/test_fullframe.py: within 1e-4 of float64).
+Positions are float64, but on the lattice only each sample's nearest node (an integer) and its
+offset from it (float32) are kept (:mod:`.lattice`); the per-node sums, the deblurring (FFTs
+and filter) and the result are float32 (tests/test_fullframe.py: within 1e-4 of float64).
 
 Modules
 -------
 :mod:`.transfer`
     The image model's transfer functions: optics (:func:`optics_cutoff`,
     :func:`diffraction_otf`), pixel aperture (:func:`box`), splat (:func:`splat_transfer`).
+:mod:`.lattice`
+    The samples' nearest lattice nodes and offsets, a batch at a time (:func:`node_batch`).
 :mod:`.splat`
     Step 1: :func:`splat`, :func:`snap_to_lattice`, hole filling (:func:`fill_holes`).
 :mod:`.wiener`

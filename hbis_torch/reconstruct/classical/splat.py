@@ -126,6 +126,18 @@ class NodeSums:
         idx = ((yi + 1) * (cols + 2) + xi + 1).clamp(0, (rows + 2) * (cols + 2) - 1).long()
         return idx, near.to(self.sums[0].dtype) if weights is None else weights * near
 
+    def node_index(self, col: Tensor, row: Tensor, weights: Tensor | None) -> tuple[Tensor, Tensor | None]:
+        """:meth:`nodes` of samples at integer nodes ``col``, ``row`` (N,) int32: the flat index
+        (int32) and the weight, None (1 for every sample) where ``weights`` is None and every
+        sample is near enough to count."""
+        rows, cols = self.shape
+        (col_lo, col_hi), (row_lo, row_hi) = torch.aminmax(col), torch.aminmax(row)
+        if col_lo >= -1 and col_hi <= cols and row_lo >= -1 and row_hi <= rows:
+            return row.add(1).mul_(cols + 2).add_(col).add_(1), weights
+        near = (col >= -1) & (col <= cols) & (row >= -1) & (row <= rows)
+        idx = row.clamp(-1, rows).add_(1).mul_(cols + 2).add_(col.clamp(-1, cols)).add_(1)
+        return idx, near.to(self.sums[0].dtype) if weights is None else weights * near
+
     def add(self, k: int, idx: Tensor, weighted: Tensor) -> None:
         """Add samples' ``weighted`` values (N,) to sum ``k`` at their nodes ``idx``."""
         self.sums[k].index_add_(0, idx, weighted)
@@ -153,14 +165,14 @@ class NodeSums:
 
 def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Tensor, Tensor, float]:
     """:func:`snap_to_lattice` followed by :func:`splat`, the same sums in bounded memory: the
-    samples come in batches (each pass over them calls ``batches()`` anew), and the snapped
-    samples' nodes and weights (hence the denominator) serve both the pilot and the result.
+    samples come in batches (each pass over them calls ``batches()`` anew), each sample at its
+    nearest node; the snapped samples' sums serve both the pilot and the result, which adds
+    only their first-order corrections to them.
 
     Parameters
     ----------
     batches : callable
-        () -> iterable of (values, x, y, weights) batches, each as :func:`snap_to_lattice`'s
-        arguments (weights may be None).
+        () -> iterable of :class:`~hbis_torch.reconstruct.classical.lattice.NodeBatch`.
     shape : (rows, cols)
     sigma : float
 
@@ -171,39 +183,33 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
     typical : float
         :func:`typical_weight` of the denominator.
     """
-    # The sums in float32 (a node gets a few samples; the image is float32 in the end), the
-    # coordinates in float64. At most five (rows, cols) float32 arrays live at once.
+    # The sums in float32 (a node gets a few samples; the image is float32 in the end). At most
+    # five (rows, cols) float32 arrays live at once.
     sums = NodeSums(shape, sigma, 2, torch.float32)
     off_node = 0.0
-    # batches seen, and the first one's nodes and weights (the second pass's, if it is the only one)
-    seen, kept = 0, None
-    for values, x, y, weights in batches():
-        xn, yn = torch.round(x), torch.round(y)
-        off_node = max(off_node, float((xn - x).abs().max()), float((yn - y).abs().max()))
-        idx, w = sums.nodes(xn, yn, None if weights is None else weights.to(torch.float32))
-        sums.add(1, idx, w)
-        sums.add(0, idx, w * values.to(torch.float32))
+    seen, kept = 0, None  # batches seen, and the first one (the second pass's, if it is the only one)
+    for batch in batches():
+        off_node = max(off_node, float(batch.dx.abs().max()), float(batch.dy.abs().max()))
+        idx, w = sums.node_index(batch.col, batch.row, batch.weights)
+        sums.add(1, idx, torch.ones(1).expand(len(idx)) if w is None else w)
+        sums.add(0, idx, batch.values if w is None else w * batch.values)
         seen += 1
-        kept = (xn, yn, idx, w) if seen == 1 else None
+        kept = [(batch, idx, w)] if seen == 1 else None
     den = sums.spread(1, release=True)
     typical = typical_weight(den)
     if off_node >= 1e-3:
-        pilot = fill_holes(sums.spread(0, release=True), den, typical)
+        # the samples move to their nodes with value + grad . (node - x): the snapped sums
+        # (kept) plus the corrections' (float32 like the sums: the correction is a small part)
+        pilot = fill_holes(sums.spread(0), den, typical)
         gradient = torch.empty((1, 2) + den.shape, dtype=den.dtype)  # (1, 2, rows, cols): d/dx, d/dy
         gradient_into(pilot, 1, gradient[0, 0])
         gradient_into(pilot, 0, gradient[0, 1])
         del pilot
-        sums.clear(0)
-        for values, x, y, weights in batches():
-            if seen == 1:
-                xn, yn, idx, w = kept
-            else:
-                xn, yn = torch.round(x), torch.round(y)
-                idx, w = sums.nodes(xn, yn, None if weights is None else weights.to(torch.float32))
-            # value + grad . (node - x), in float32 like the sums (the correction is a small part)
-            sx, sy = _sample(gradient, x, y)
-            corrected = sx.mul_((xn - x).to(torch.float32)).add_(sy.mul_((yn - y).to(torch.float32))).add_(values)
-            sums.add(0, idx, corrected.mul_(w))
+        for batch, idx, w in kept or ((b, *sums.node_index(b.col, b.row, b.weights)) for b in batches()):
+            sx, sy = _sample(gradient, batch.col.to(torch.float32).sub_(batch.dx),
+                             batch.row.to(torch.float32).sub_(batch.dy))
+            correction = sx.mul_(batch.dx).add_(sy.mul_(batch.dy))
+            sums.add(0, idx, correction if w is None else correction.mul_(w))
         del gradient
     return sums.spread(0, release=True), den, typical
 

@@ -1,0 +1,138 @@
+"""The samples' places on the h-times lattice, a batch of samples at a time: each sample's
+nearest node (integers) and its offset from it (float32), which is all that the splat onto the
+lattice (:func:`~hbis_torch.reconstruct.classical.splat.splat_on_lattice`) needs.
+
+The HR coordinate of a sample is x = h (u + 0.5) - 0.5 (docs/design.md, section 1). Positions
+given as spline nodes (:class:`~hbis_torch.optics.NodePositions`) are never summed in float64:
+x = h c + C + h d for the pixel's column c, a float64 constant C per frame (its mean
+displacement) and the float32 spline of the displacement's variation d
+(:func:`~hbis_torch.optics.interpolate_displacements`), so only the small fractional part
+frac(C) + h d is computed, in float32 (rounding about 1e-7 of it: some 1e-6 HR px).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from hbis_torch.optics import NodePositions, interpolate_displacements
+
+
+class NodeBatch(NamedTuple):
+    """A batch of N samples and their nearest lattice nodes.
+
+    Attributes
+    ----------
+    values : Tensor, shape (N,), float32
+    col, row : Tensor, shape (N,), int32
+        The nearest node (column, row), possibly outside the lattice.
+    dx, dy : Tensor, shape (N,), float32
+        Node minus sample position, HR px (within half a node).
+    weights : Tensor, shape (N,), float32, or None
+    """
+
+    values: Tensor
+    col: Tensor
+    row: Tensor
+    dx: Tensor
+    dy: Tensor
+    weights: Tensor | None
+
+
+def batch_slices(count: int, height: int, width: int, samples: int) -> list[tuple[slice, slice]]:
+    """(frames, rows) slices of a (count, height, width) stack, of about ``samples`` samples at
+    most: whole frames, or rows of one frame where a frame has more."""
+    step = max(1, samples // (height * width))
+    rows = min(height, max(1, samples // width))
+    return [(slice(k, k + step), slice(r, r + rows)) for k in range(0, count, step) for r in range(0, height, rows)]
+
+
+def _spline_parts(positions: NodePositions, part: tuple[slice, slice], h: int, offset: tuple[float, float],
+                  row_step: int = 1) -> list[tuple[Tensor, Tensor]]:
+    """Frames and rows ``part`` of the nodes' splines, per axis (x, then y): the integer part
+    (f, 1, 1) int32 of the HR coordinate's per-frame constant, less ``offset`` (HR px), and the
+    small rest (f, rows, cols) float32. Rows: every ``row_step``-th of ``part[1]``."""
+    rows = np.arange(positions.height)[part[1]][::row_step]
+    variation, mean = interpolate_displacements(positions._replace(values=positions.values[part[0]]), rows=rows)
+    out = []
+    for axis, first in enumerate((positions.u[0], positions.v[0])):
+        constant = (first + mean[:, axis] + 0.5) * h - 0.5 - offset[axis]  # (f,) float64
+        whole = torch.floor(constant)
+        rest = variation[:, axis].mul_(h).add_((constant - whole).to(torch.float32)[:, None, None])
+        out.append((whole.to(torch.int32)[:, None, None], rest))
+    return out
+
+
+def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_step: int) -> tuple[float, float]:
+    """The samples' common sub-pixel offset (x, y) on the lattice, HR px, from every
+    ``row_step``-th row of the batches ``part_list``: the circular mean of the coordinates'
+    fractional parts (:func:`~hbis_torch.reconstruct.classical.splat.offset_from_sums`)."""
+    from hbis_torch.reconstruct.classical.splat import offset_from_sums
+
+    sums = [[0.0, 0.0, 0], [0.0, 0.0, 0]]
+    for part in part_list:
+        keep = None
+        if weights is not None:
+            keep = weights[part][:, ::row_step].reshape(-1) > 0
+        spline = _spline_parts(positions, part, h, (0.0, 0.0), row_step) if isinstance(positions, NodePositions) else None
+        for axis in (0, 1):
+            if spline is not None:
+                rest = spline[axis][1].reshape(-1)
+                rest = rest.sub_(torch.round(rest))  # the integer part adds nothing to the angle
+            else:
+                coord = positions[part][:, ::row_step, :, axis].reshape(-1).mul(h).add_(0.5 * h - 0.5)
+                rest = coord.sub_(torch.round(coord)).to(torch.float32)
+            if keep is not None:
+                rest = rest[keep]
+            # the fractional part in float32: its cosine and sine are the same to 1e-7, the sums in float64
+            angle = rest.mul_(2 * math.pi)
+            sums[axis][0] += float(torch.cos(angle).sum(dtype=torch.float64))
+            sums[axis][1] += float(torch.sin(angle).sum(dtype=torch.float64))
+            sums[axis][2] += angle.numel()
+    return offset_from_sums(*sums[0]), offset_from_sums(*sums[1])
+
+
+def node_batch(frames: Tensor, positions, part: tuple[slice, slice], h: int, offset: tuple[float, float],
+               weights: Tensor | None = None) -> NodeBatch:
+    """The samples of frames and rows ``part`` (:func:`batch_slices`) on the lattice whose
+    nodes sit at ``offset`` (HR px) from the output grid's.
+
+    Parameters
+    ----------
+    frames : Tensor, shape (F, H, W)
+    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions
+        The samples' ROI-local reference LR coordinates (or the nodes they are interpolated from).
+    part : (slice, slice)
+    h : int
+    offset : (float, float)
+    weights : Tensor, shape (F, H, W), optional
+
+    Returns
+    -------
+    NodeBatch
+    """
+    cols = torch.arange(frames.shape[2], dtype=torch.int32)
+    rows = torch.arange(frames.shape[1], dtype=torch.int32)[part[1]]
+    spline = _spline_parts(positions, part, h, offset) if isinstance(positions, NodePositions) else None
+    nodes, rests = [], []
+    for axis, pixel in ((0, cols[None, None, :]), (1, rows[None, :, None])):
+        if spline is not None:
+            whole, rest = spline[axis]
+            nearest = torch.round(rest)
+            node = nearest.to(torch.int32).add_(whole).add_(pixel * h)
+            rest = nearest.sub_(rest)
+        else:
+            coord = positions[part][..., axis].mul(h).add_(0.5 * h - 0.5 - offset[axis])
+            nearest = torch.round(coord)
+            rest = (nearest - coord).to(torch.float32)
+            # beyond the lattice by more than a node is as good as anywhere beyond it (and fits int32)
+            node = nearest.clamp_(-2, 1 << 30).to(torch.int32)
+        nodes.append(node.reshape(-1))
+        rests.append(rest.reshape(-1))
+    values = frames[part].reshape(-1).to(torch.float32)
+    w = None if weights is None else weights[part].reshape(-1).to(torch.float32)
+    return NodeBatch(values, nodes[0], nodes[1], rests[0], rests[1], w)
