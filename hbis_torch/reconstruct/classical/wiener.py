@@ -130,15 +130,46 @@ def wiener_deblur(
     model = _Model(fx[0].to(dtype), fy[:, 0].to(dtype), h, aperture, cutoff, offset, eps2)
     # averaged over 3 x 3 frequencies for the filter's prior (which needs each block's
     # neighbours as they were before filtering)
-    measured = torch.nn.functional.avg_pool2d(measured[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
-    for block in blocks:
-        spectrum[block] *= _mmse_filter(measured[block], model._replace(fy=model.fy[block]), shifts, s2,
-                                        beta, noise2, strength)
+    measured = _mean_3x3(measured)
+    # Rows of opposite fy (i and rows - i) share their aliases' terms (_mmse_filter): a block
+    # of rows 0 < i < rows / 2 is filtered with its mirror block, rows 0 and rows / 2 alone.
+    for start in range(1, (shape[0] + 1) // 2, BLOCK_ROWS):
+        block = slice(start, min(start + BLOCK_ROWS, (shape[0] + 1) // 2))
+        mirror = torch.arange(shape[0] - block.start, shape[0] - block.stop, -1)
+        ahead, behind = _mmse_filter(measured[block], model._replace(fy=model.fy[block]), shifts, s2, beta,
+                                     noise2, strength, mirrored=measured[mirror])
+        spectrum[block] *= ahead
+        spectrum[mirror] *= behind
+    alone = torch.tensor([0] + ([shape[0] // 2] if shape[0] % 2 == 0 and shape[0] > 1 else []))
+    spectrum[alone] *= _mmse_filter(measured[alone], model._replace(fy=model.fy[alone]), shifts, s2, beta,
+                                    noise2, strength)[0]
     del measured
     out = _irfft2_in_place(spectrum, shape, out=p)
     del spectrum
     shift_image(smooth, offset, add_to=out)
     return out.to(image.dtype)
+
+
+def _mean_3x3(power: Tensor) -> Tensor:
+    """``avg_pool2d(power, 3, 1, 1, count_include_pad=False)`` of (rows, cols) as two separable
+    sums divided by the neighbours counted (a tenth of avg_pool2d's time); ``power`` is
+    overwritten with the result."""
+    rows, cols = power.shape
+    across = power.clone()
+    across[:, 1:] += power[:, :-1]
+    across[:, :-1] += power[:, 1:]
+    power.copy_(across)
+    power[1:] += across[:-1]
+    power[:-1] += across[1:]
+    del across
+
+    def counted(n: int) -> Tensor:  # neighbours along one axis: 3, 2 at either end
+        count = torch.full((n,), 3.0, dtype=power.dtype)
+        count[0] -= 1
+        count[-1] -= 1
+        return count if n > 1 else torch.ones(1, dtype=power.dtype)
+
+    return power.div_(counted(rows)[:, None]).div_(counted(cols)[None, :])
 
 
 def _irfft2_in_place(spectrum: Tensor, shape: tuple[int, int], out: Tensor | None = None) -> Tensor:
@@ -215,10 +246,10 @@ class _Model(NamedTuple):
     def terms(self, kx: int, ky: int, rows: Tensor, cols: Tensor, s2: float, beta: float):
         """The prior P = s2 abs(f + k)^-beta, abs(K) and W of alias (kx, ky) at rows x cols."""
         gx, gy = self.fx[cols][None, :] + kx, self.fy[rows][:, None] + ky
-        r2 = gx * gx + gy * gy + self.eps2
+        r2 = (gx * gx + self.eps2) + gy * gy
         optics = (torch.ones_like(r2) if self.cutoff is None
-                  else diffraction_otf(torch.sqrt(r2) * (self.h / self.cutoff)))
-        prior = r2.pow_(-0.5 * beta).mul_(s2)
+                  else diffraction_otf(torch.sqrt(r2).mul_(self.h / self.cutoff)))
+        prior = r2.log_().mul_(-0.5 * beta).exp_().mul_(s2)  # pow's a quarter of the time
         k_mag = optics * (box(gx, self.h * self.aperture) * box(gy, self.h * self.aperture))
         optics *= box(gx, self.aperture) * box(gy, self.aperture)
         return prior, k_mag, optics
@@ -232,7 +263,7 @@ class _Model(NamedTuple):
 
 
 def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float,
-                 noise2: float, strength: float) -> Tensor:
+                 noise2: float, strength: float, mirrored: Tensor | None = None) -> list[Tensor]:
     """The MMSE filter of :func:`wiener_deblur` at the frequencies of (rows of) the half spectrum.
 
     Parameters
@@ -244,26 +275,30 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
         The image model on those frequencies, ``fy`` (rows,), ``fx`` (cols // 2 + 1,) (its
         dtype is the filter's).
     shifts : list of (kx, ky)
-        The aliases, (0, 0) included.
+        The aliases, (0, 0) included, a set symmetric in ky.
     s2, beta : float
         The scene prior s^2 / abs(f)^beta (:func:`fit_spectrum`).
     noise2 : float
         Noise power per node (intensity^2).
     strength : float
         Multiplies the noise power.
+    mirrored : Tensor, shape of ``measured``, optional
+        The power at the rows of frequencies -fy (same order): their filter too.
 
     Returns
     -------
-    Tensor, shape of ``measured``, complex
+    list of Tensor, shape of ``measured``, complex
+        The filter at the rows, then (with ``mirrored``) at the mirrored rows.
     """
     # Alias k's lattice phase is the unaliased one times the constant exp(-2 pi i k . offset),
     # so the numerator is phase(f) sum_k c_k P W |K|: two real sums. The aliases one at a time,
     # each only where the optics passes it; the unaliased term last, since its prior depends on
-    # the others' sum.
+    # the others' sum. Every term but the phase is even in each frequency: alias (kx, ky) at -fy
+    # is alias (kx, -ky) at fy, so mirrored rows reuse the terms with ky's phase negated.
     dtype = model.fx.dtype
-    cross_re = torch.zeros(measured.shape, dtype=dtype)
-    cross_im = torch.zeros(measured.shape, dtype=dtype)
-    power = torch.zeros(measured.shape, dtype=dtype)
+    sides = [measured] if mirrored is None else [measured, mirrored]
+    power = torch.zeros(measured.shape, dtype=dtype)  # the aliases' (the same at -fy)
+    cross = [(torch.zeros(measured.shape, dtype=dtype), torch.zeros(measured.shape, dtype=dtype)) for _ in sides]
     for kx, ky in shifts:
         if (kx, ky) == (0, 0):
             continue
@@ -272,36 +307,41 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
             continue
         prior, k_mag, w = model.terms(kx, ky, rows, cols, s2, beta)
         weighted = prior.mul_(k_mag)
-        angle = 2 * math.pi * (kx * model.offset[0] + ky * model.offset[1])
         c0, c1 = cols[0], cols[-1] + 1  # the columns are contiguous (fx increases)
         power[:, c0:c1].index_add_(0, rows, weighted * k_mag)
         weighted *= w
-        cross_re[:, c0:c1].index_add_(0, rows, weighted, alpha=math.cos(angle))
-        cross_im[:, c0:c1].index_add_(0, rows, weighted, alpha=-math.sin(angle))
+        for (cross_re, cross_im), sign in zip(cross, (1, -1)):
+            angle = 2 * math.pi * (kx * model.offset[0] + sign * ky * model.offset[1])
+            cross_re[:, c0:c1].index_add_(0, rows, weighted, alpha=math.cos(angle))
+            cross_im[:, c0:c1].index_add_(0, rows, weighted, alpha=-math.sin(angle))
         del prior, k_mag, w, weighted
     # Where the image holds more power than the power law explains (a grating, a texture), the
     # prior of the unaliased frequency is raised to what is measured (power smoothed over 3 x 3
     # frequencies, less the noise and the aliases' share), as long as the aperture passes it.
     every_row, every_col = torch.arange(measured.shape[0]), torch.arange(measured.shape[1])
-    prior, k0, w0 = model.terms(0, 0, every_row, every_col, s2, beta)
+    prior0, k0, w0 = model.terms(0, 0, every_row, every_col, s2, beta)
     seen = k0 * k0
-    empirical = measured.sub(noise2).sub_(power).clamp_min_(0).div_(seen.clamp_min(1e-12))
-    prior = torch.where(seen > 0.05, torch.maximum(prior, empirical), prior)
-    del empirical
-    prior *= k0
-    power += prior * k0
-    cross_re += prior.mul_(w0)
-    del prior, k0, w0, seen
-    power += strength * noise2
-    cross_re /= power
-    cross_im /= power
-    del power
-    filt = torch.complex(cross_re, cross_im)
-    del cross_re, cross_im
+    passed = seen > 0.05
     px, py = model.phase()
-    filt *= py[:, None]
-    filt *= px[None, :]
-    return filt
+    filters = []
+    for side, (cross_re, cross_im), py_side in zip(sides, cross, (py, py.conj())):
+        empirical = side.sub(noise2).sub_(power).clamp_min_(0).div_(seen.clamp_min(1e-12))
+        prior = torch.where(passed, torch.maximum(prior0, empirical), prior0)
+        del empirical
+        prior *= k0
+        total = power + prior * k0
+        cross_re += prior.mul_(w0)
+        del prior
+        total += strength * noise2
+        cross_re /= total
+        cross_im /= total
+        del total
+        filt = torch.complex(cross_re, cross_im)
+        del cross_re, cross_im
+        filt *= py_side[:, None]
+        filt *= px[None, :]
+        filters.append(filt)
+    return filters
 
 
 def shift_image(image: Tensor, offset: tuple[float, float], add_to: Tensor | None = None) -> Tensor:
@@ -431,13 +471,15 @@ def periodic_smooth(image: Tensor, in_place: bool = False) -> tuple[Tensor, Tens
        and Vision 39(2), 2011, pp. 161-179.
     """
     M, N = image.shape
-    v = torch.zeros_like(image)
-    v[0, :] += image[-1, :] - image[0, :]
-    v[-1, :] += image[0, :] - image[-1, :]
-    v[:, 0] += image[:, -1] - image[:, 0]
-    v[:, -1] += image[:, 0] - image[:, -1]
-    S = torch.fft.rfft2(v)  # v is real: half the spectrum
-    del v
+    # The boundary image v (the jumps across opposite borders: rows 0 and M - 1 hold
+    # +-(image[-1] - image[0]), columns 0 and N - 1 likewise) is zero inside, so its rfft2 is
+    # two outer products of 1-D transforms: A(r) (1 - e^(2 pi i q / M)) + B(q) (1 - e^(2 pi i r / N)).
+    complex_dtype = image.dtype.to_complex()
+    rows = torch.fft.rfft(image[-1, :] - image[0, :])  # A, (N // 2 + 1,)
+    cols = torch.fft.fft(image[:, -1] - image[:, 0])  # B, (M,)
+    turn_q = 1 - torch.exp(2j * math.pi * torch.arange(M, dtype=torch.float64) / M).to(complex_dtype)
+    turn_r = 1 - torch.exp(2j * math.pi * torch.arange(N // 2 + 1, dtype=torch.float64) / N).to(complex_dtype)
+    S = (turn_q[:, None] * rows[None, :]).add_(cols[:, None] * turn_r[None, :])
     q = torch.arange(M, dtype=image.dtype)[:, None]
     r = torch.arange(N // 2 + 1, dtype=image.dtype)[None, :]
     den = 2 * torch.cos(2 * math.pi * q / M) + 2 * torch.cos(2 * math.pi * r / N) - 4
