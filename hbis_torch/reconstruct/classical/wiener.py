@@ -487,5 +487,5 @@ def periodic_smooth(image: Tensor, in_place: bool = False) -> tuple[Tensor, Tens
     S /= den
     del den
     S[0, 0] = 0
-    s = torch.fft.irfft2(S, s=(M, N))
+    s = _irfft2_in_place(S, (M, N))  # S is ours to overwrite
     return (image.sub_(s) if in_place else image - s), s
