@@ -51,20 +51,58 @@ def batch_slices(count: int, height: int, width: int, samples: int) -> list[tupl
     return [(slice(k, k + step), slice(r, r + rows)) for k in range(0, count, step) for r in range(0, height, rows)]
 
 
+class _Axis(NamedTuple):
+    """One axis of a batch's HR coordinates from the node splines (:func:`_spline_parts`): the
+    coordinate less the pixel's h c is ``whole + rest``."""
+
+    whole: Tensor  # (f, 1, 1) int32: the integer part of the per-frame constant
+    rest: Tensor  # (f, rows, cols) float32: the constant's fractional part plus h times the variation
+    variation: Tensor  # (f, rows, cols) float32: the spline of the displacement's variation, LR px
+    mean: Tensor  # (f,) float64: the frame's mean displacement, LR px
+    first: float  # the first pixel's LR coordinate
+
+
 def _spline_parts(positions: NodePositions, part: tuple[slice, slice], h: int, offset: tuple[float, float],
-                  row_step: int = 1) -> list[tuple[Tensor, Tensor]]:
-    """Frames and rows ``part`` of the nodes' splines, per axis (x, then y): the integer part
-    (f, 1, 1) int32 of the HR coordinate's per-frame constant, less ``offset`` (HR px), and the
-    small rest (f, rows, cols) float32. Rows: every ``row_step``-th of ``part[1]``."""
+                  row_step: int = 1) -> list[_Axis]:
+    """Frames and rows ``part`` of the nodes' splines, per axis (x, then y), on the lattice whose
+    nodes sit at ``offset`` (HR px) from the output grid's. Rows: every ``row_step``-th of
+    ``part[1]``."""
     rows = np.arange(positions.height)[part[1]][::row_step]
     variation, mean = interpolate_displacements(positions._replace(values=positions.values[part[0]]), rows=rows)
     out = []
-    for axis, first in enumerate((positions.u[0], positions.v[0])):
+    for axis, first in enumerate((float(positions.u[0]), float(positions.v[0]))):
         constant = (first + mean[:, axis] + 0.5) * h - 0.5 - offset[axis]  # (f,) float64
         whole = torch.floor(constant)
-        rest = variation[:, axis].mul_(h).add_((constant - whole).to(torch.float32)[:, None, None])
-        out.append((whole.to(torch.int32)[:, None, None], rest))
+        rest = torch.mul(variation[:, axis], h).add_((constant - whole).to(torch.float32)[:, None, None])
+        out.append(_Axis(whole.to(torch.int32)[:, None, None], rest, variation[:, axis], mean[:, axis], first))
     return out
+
+
+# Samples this close to halfway between two nodes (in float32's rest) have their node chosen from
+# the float64 coordinate, as the code before lattice.py did: float32's rounding (1e-6 of the rest)
+# could otherwise pick the other node, and exact ties (a frame on the pixel grid, a lattice
+# offset of 0 at even h) would break the other way.
+TIE_MARGIN = 1e-3
+
+
+def _nearest_node(axis: _Axis, pixel: Tensor, dim: int, h: int, shift: float) -> tuple[Tensor, Tensor]:
+    """The nearest node (int32) along one axis of every sample of ``axis`` (frames, rows, cols)
+    and node minus sample (float32), HR px; ``pixel`` (int32) is the samples' column (``dim``
+    2) or row (``dim`` 1) indices, ``shift`` the lattice's offset along the axis."""
+    nearest = torch.round(axis.rest)
+    shape = [1, 1, 1]
+    shape[dim] = -1
+    node = nearest.to(torch.int32).add_(axis.whole).add_(pixel.view(shape) * h)
+    gap = nearest.sub_(axis.rest)
+    ties = torch.nonzero(gap.abs() > 0.5 - TIE_MARGIN, as_tuple=True)
+    if len(ties[0]):
+        # the earlier float64 sum: variation + (pixel coordinate + mean), then x = (u + 0.5) h - 0.5
+        place = axis.variation[ties].double() + ((axis.first + pixel[ties[dim]].double()) + axis.mean[ties[0]])
+        coord = ((place + 0.5) * h - 0.5) - shift
+        rounded = torch.round(coord)
+        node[ties] = rounded.to(torch.int32)
+        gap[ties] = (rounded - coord).to(torch.float32)
+    return node, gap
 
 
 def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_step: int) -> tuple[float, float]:
@@ -81,7 +119,7 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
         spline = _spline_parts(positions, part, h, (0.0, 0.0), row_step) if isinstance(positions, NodePositions) else None
         for axis in (0, 1):
             if spline is not None:
-                rest = spline[axis][1].reshape(-1)
+                rest = spline[axis].rest.reshape(-1)
                 rest = rest.sub_(torch.round(rest))  # the integer part adds nothing to the angle
             else:
                 coord = positions[part][:, ::row_step, :, axis].reshape(-1).mul(h).add_(0.5 * h - 0.5)
@@ -118,21 +156,18 @@ def node_batch(frames: Tensor, positions, part: tuple[slice, slice], h: int, off
     cols = torch.arange(frames.shape[2], dtype=torch.int32)
     rows = torch.arange(frames.shape[1], dtype=torch.int32)[part[1]]
     spline = _spline_parts(positions, part, h, offset) if isinstance(positions, NodePositions) else None
-    nodes, rests = [], []
-    for axis, pixel in ((0, cols[None, None, :]), (1, rows[None, :, None])):
+    nodes, gaps = [], []
+    for axis, (pixel, dim) in enumerate(((cols, 2), (rows, 1))):
         if spline is not None:
-            whole, rest = spline[axis]
-            nearest = torch.round(rest)
-            node = nearest.to(torch.int32).add_(whole).add_(pixel * h)
-            rest = nearest.sub_(rest)
+            node, gap = _nearest_node(spline[axis], pixel, dim, h, offset[axis])
         else:
-            coord = positions[part][..., axis].mul(h).add_(0.5 * h - 0.5 - offset[axis])
+            coord = ((positions[part][..., axis] + 0.5) * h - 0.5) - offset[axis]
             nearest = torch.round(coord)
-            rest = (nearest - coord).to(torch.float32)
+            gap = (nearest - coord).to(torch.float32)
             # beyond the lattice by more than a node is as good as anywhere beyond it (and fits int32)
             node = nearest.clamp_(-2, 1 << 30).to(torch.int32)
         nodes.append(node.reshape(-1))
-        rests.append(rest.reshape(-1))
+        gaps.append(gap.reshape(-1))
     values = frames[part].reshape(-1).to(torch.float32)
     w = None if weights is None else weights[part].reshape(-1).to(torch.float32)
-    return NodeBatch(values, nodes[0], nodes[1], rests[0], rests[1], w)
+    return NodeBatch(values, nodes[0], nodes[1], gaps[0], gaps[1], w)
