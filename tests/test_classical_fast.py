@@ -9,6 +9,7 @@ import torch
 
 from hbis_torch.optics import NodePositions, interpolate_positions
 from hbis_torch.reconstruct.classical.lattice import batch_slices, node_batch
+from hbis_torch.reconstruct.classical.periodic import add_shifted_smooth, mirror_borders, shift_image, smooth_spectrum
 from hbis_torch.reconstruct.classical.wiener import _mean_3x3, _mmse_filter, _Model, periodic_smooth
 
 
@@ -83,3 +84,15 @@ def test_periodic_smooth_and_mean_3x3_match_their_plain_forms():
             assert float((p + s - image).abs().max()) < tol
             pooled = torch.nn.functional.avg_pool2d(image[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
             assert float((_mean_3x3(image.clone()) - pooled).abs().max()) < tol
+
+
+def test_smooth_part_shifted_in_the_fourier_domain_matches_shift_image():
+    """The smooth part's bicubic shift as a DFT multiplier plus the mirrored borders mended
+    equals shift_image of the smooth part itself (every offset sign, odd and even sizes)."""
+    gen = torch.Generator().manual_seed(6)
+    for shape, offset in (((40, 52), (0.5, 0.5)), ((33, 27), (-0.5, 0.2)), ((8, 9), (0.31, -0.44)), ((64, 50), (0.0, 0.25))):
+        image = torch.rand(shape, generator=gen, dtype=torch.float64)
+        smooth = smooth_spectrum(image)
+        expected = shift_image(torch.fft.irfft2(smooth, s=shape), offset)
+        got = torch.fft.irfft2(add_shifted_smooth(torch.zeros_like(smooth), smooth, shape, offset), s=shape)
+        assert float((mirror_borders(got, smooth, offset) - expected).abs().max()) < 1e-12

@@ -1,5 +1,6 @@
 """Wiener (MMSE linear) deblurring of the interpolated image, with aliasing and a fitted
-power-law scene prior; the periodic + smooth split that keeps the FFT's borders quiet.
+power-law scene prior; the FFT's borders are kept quiet by the periodic + smooth split
+(:mod:`.periodic`).
 """
 
 from __future__ import annotations
@@ -11,6 +12,16 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from hbis_torch.reconstruct.classical.periodic import (  # noqa: F401 - periodic_smooth, shift_image: also here
+    BAND,
+    BLOCK_ROWS,
+    _row_blocks,
+    add_shifted_smooth,
+    mirror_borders,
+    periodic_smooth,
+    shift_image,
+    smooth_spectrum,
+)
 from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, splat_transfer
 
 # The deblurring never trusts the data more than this noise level (intensity units, [0, 1]):
@@ -18,18 +29,9 @@ from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, spla
 # ~1e-3 px) dominate, and a sharper filter would amplify them near the aperture's zeros.
 NOISE_FLOOR = 2e-3
 
-# Rows of the half spectrum handled at a time where the filter and the prior's fit need
-# temporaries per frequency: they then stay a few MB whatever the image's size.
-BLOCK_ROWS = 256
-
-
 # Half spectra of at least this many frequencies (a full frame at h = 7 has 30 M, at h = 4
 # 9.8 M) are inverted in place (:func:`_irfft2_in_place`), where memory is what runs out.
 IN_PLACE_FFT_SIZE = 2 ** 24
-
-
-def _row_blocks(rows: int) -> list[slice]:
-    return [slice(r, min(r + BLOCK_ROWS, rows)) for r in range(0, rows, BLOCK_ROWS)]
 
 
 def wiener_deblur(
@@ -104,22 +106,25 @@ def wiener_deblur(
     """
     # The FFT sees the image as periodic; its borders' jumps would ring through the whole image
     # at the frequencies the pixel aperture nearly erases. Deblur only the periodic part and
-    # add the smooth rest back (Moisan 2011).
+    # add the smooth rest back (Moisan 2011): the periodic part's spectrum is the image's less
+    # the smooth part's, and the smooth part, shifted, is added to the filtered spectrum, so that
+    # one rfft2 and one irfft2 do (images smaller than two BANDs: the smooth part on its own).
     work = image.to(dtype)
     own = overwrite or work.data_ptr() != image.data_ptr()  # work's memory may be reused
-    p, smooth = periodic_smooth(work, in_place=own)
-    del work
-    shape = p.shape
+    shape = work.shape
+    smooth = smooth_spectrum(work)
+    spectrum = torch.fft.rfft2(work).sub_(smooth)
+    work = work if own else None  # kept for the result, or freed
+    if min(shape) < 2 * BAND:
+        smooth = torch.fft.irfft2(smooth, s=shape)
     fy = torch.fft.fftfreq(shape[0], dtype=torch.float64)[:, None]
     fx = torch.fft.rfftfreq(shape[1], dtype=torch.float64)[None, :]
-    spectrum = torch.fft.rfft2(p)
-    p = p if own else None  # kept for the result, or freed
     blocks = _row_blocks(shape[0])
     for block in blocks:
         spectrum[block] /= (splat_transfer(fx, kernel_sigma) * splat_transfer(fy[block], kernel_sigma)).to(dtype)
 
     if h == 1:  # nothing to deblur: only the splat's smoothing is undone
-        return shift_image(smooth, offset, add_to=torch.fft.irfft2(spectrum, s=shape, out=p)).to(image.dtype)
+        return _add_smooth(spectrum, smooth, shape, offset, work).to(image.dtype)
     eps2 = (0.5 / max(shape)) ** 2  # keeps the prior finite at f = 0
     shifts = [(kx, ky) for ky in range(-aliases, aliases + 1) for kx in range(-aliases, aliases + 1)]
     noise2 = max(noise, NOISE_FLOOR) ** 2
@@ -144,10 +149,20 @@ def wiener_deblur(
     spectrum[alone] *= _mmse_filter(measured[alone], model._replace(fy=model.fy[alone]), shifts, s2, beta,
                                     noise2, strength)[0]
     del measured
-    out = _irfft2_in_place(spectrum, shape, out=p)
-    del spectrum
-    shift_image(smooth, offset, add_to=out)
-    return out.to(image.dtype)
+    return _add_smooth(spectrum, smooth, shape, offset, work).to(image.dtype)
+
+
+def _add_smooth(spectrum: Tensor, smooth: Tensor, shape: tuple[int, int], offset: tuple[float, float],
+                out: Tensor | None) -> Tensor:
+    """The filtered periodic part's ``spectrum`` inverted (into ``out``, if given; ``spectrum``
+    is overwritten) plus the smooth part shifted by ``offset`` (:func:`shift_image`): given as
+    its spectrum (added before the inverse, the borders mended after), or as an image (shape
+    ``shape``: added after the inverse)."""
+    if smooth.is_complex():
+        add_shifted_smooth(spectrum, smooth, shape, offset)
+        out = _irfft2_in_place(spectrum, shape, out=out)
+        return out if offset == (0.0, 0.0) else mirror_borders(out, smooth, offset)
+    return shift_image(smooth, offset, add_to=_irfft2_in_place(spectrum, shape, out=out))
 
 
 def _mean_3x3(power: Tensor) -> Tensor:
@@ -344,48 +359,6 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
     return filters
 
 
-def shift_image(image: Tensor, offset: tuple[float, float], add_to: Tensor | None = None) -> Tensor:
-    """A smooth image whose node j sits at coordinate j + offset, resampled at the integer
-    coordinates (that is, at nodes j - offset): bicubic, borders mirrored. Used for the smooth
-    part of the periodic + smooth split, which varies slowly, so a cubic needs no prefilter.
-
-    The interpolation is ``grid_sample``'s (bicubic, A = -0.75, reflection about the border
-    nodes, align_corners=True); the offset being the same for every node, it is applied as two
-    4-tap filters, one per axis, a block of rows at a time (no (rows, cols, 2) grid: a full
-    frame's 0.5 GB). Shapes (rows, cols); with ``add_to`` the result is added to it in place
-    (and returned).
-    """
-    if offset == (0.0, 0.0):
-        return image if add_to is None else add_to.add_(image)
-    rows, cols = image.shape
-    out = torch.zeros_like(image) if add_to is None else add_to
-    wx, ix = _cubic_taps(float(offset[0]), cols)
-    wy, iy = _cubic_taps(float(offset[1]), rows)
-    for block in _row_blocks(rows):
-        n = block.stop - block.start
-        part = image.index_select(0, iy[block.start:block.stop + 3]).index_select(1, ix)  # (n + 3, cols + 3)
-        across = sum(w * part[:, k:k + cols] for k, w in enumerate(wx))
-        out[block] += sum(w * across[k:k + n] for k, w in enumerate(wy))
-    return out
-
-
-def _cubic_taps(shift: float, n: int) -> tuple[list[float], Tensor]:
-    """The bicubic (Keys, A = -0.75, as ``grid_sample``'s) that resamples n nodes at j - ``shift``:
-    its 4 weights, and the indices (n + 3,) whose entries j .. j + 3 are node j's taps, reflected
-    about the first and last nodes."""
-    start = math.floor(-shift)
-    t, A = -shift - start, -0.75
-    weights = [(((A * (t + 1) - 5 * A) * (t + 1) + 8 * A) * (t + 1) - 4 * A),
-               ((A + 2) * t - (A + 3)) * t * t + 1,
-               ((A + 2) * (1 - t) - (A + 3)) * (1 - t) * (1 - t) + 1,
-               ((A * (2 - t) - 5 * A) * (2 - t) + 8 * A) * (2 - t) - 4 * A]
-    index = torch.arange(n + 3) + (start - 1)
-    if n == 1:
-        return weights, torch.zeros_like(index)
-    index = index.remainder(2 * (n - 1))  # reflect about 0 and n - 1 (period 2 (n - 1))
-    return weights, torch.where(index > n - 1, 2 * (n - 1) - index, index)
-
-
 def fit_spectrum(power: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: float) -> tuple[float, float]:
     """Fit the scene prior s^2 / abs(f)^beta to an image's power spectrum, the noise being known.
 
@@ -456,36 +429,3 @@ def fit_spectrum(power: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: 
         if best is None or scatter < best[0]:
             best = (scatter, math.exp(level), beta)
     return best[1], best[2]
-
-
-def periodic_smooth(image: Tensor, in_place: bool = False) -> tuple[Tensor, Tensor]:
-    """Periodic plus smooth decomposition (Moisan, J. Math. Imaging Vis. 39, 2011).
-
-    image = p + s with p periodic (no jump between opposite borders) and s smooth (its
-    Laplacian vanishes inside; it carries the border jumps). Shapes (rows, cols); ``in_place``
-    writes p over ``image``.
-
-    References
-    ----------
-    .. [1] L. Moisan, "Periodic plus smooth image decomposition", Journal of Mathematical Imaging
-       and Vision 39(2), 2011, pp. 161-179.
-    """
-    M, N = image.shape
-    # The boundary image v (the jumps across opposite borders: rows 0 and M - 1 hold
-    # +-(image[-1] - image[0]), columns 0 and N - 1 likewise) is zero inside, so its rfft2 is
-    # two outer products of 1-D transforms: A(r) (1 - e^(2 pi i q / M)) + B(q) (1 - e^(2 pi i r / N)).
-    complex_dtype = image.dtype.to_complex()
-    rows = torch.fft.rfft(image[-1, :] - image[0, :])  # A, (N // 2 + 1,)
-    cols = torch.fft.fft(image[:, -1] - image[:, 0])  # B, (M,)
-    turn_q = 1 - torch.exp(2j * math.pi * torch.arange(M, dtype=torch.float64) / M).to(complex_dtype)
-    turn_r = 1 - torch.exp(2j * math.pi * torch.arange(N // 2 + 1, dtype=torch.float64) / N).to(complex_dtype)
-    S = (turn_q[:, None] * rows[None, :]).add_(cols[:, None] * turn_r[None, :])
-    q = torch.arange(M, dtype=image.dtype)[:, None]
-    r = torch.arange(N // 2 + 1, dtype=image.dtype)[None, :]
-    den = 2 * torch.cos(2 * math.pi * q / M) + 2 * torch.cos(2 * math.pi * r / N) - 4
-    den[0, 0] = 1.0
-    S /= den
-    del den
-    S[0, 0] = 0
-    s = _irfft2_in_place(S, (M, N))  # S is ours to overwrite
-    return (image.sub_(s) if in_place else image - s), s
