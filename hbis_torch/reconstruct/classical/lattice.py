@@ -33,6 +33,8 @@ class NodeBatch(NamedTuple):
     dx, dy : Tensor, shape (N,), float32
         Node minus sample position, HR px (within half a node).
     weights : Tensor, shape (N,), float32, or None
+    reach : float
+        The largest abs(dx) or abs(dy).
     """
 
     values: Tensor
@@ -41,6 +43,7 @@ class NodeBatch(NamedTuple):
     dx: Tensor
     dy: Tensor
     weights: Tensor | None
+    reach: float = 0.0
 
 
 def batch_slices(count: int, height: int, width: int, samples: int) -> list[tuple[slice, slice]]:
@@ -85,24 +88,28 @@ def _spline_parts(positions: NodePositions, part: tuple[slice, slice], h: int, o
 TIE_MARGIN = 1e-3
 
 
-def _nearest_node(axis: _Axis, pixel: Tensor, dim: int, h: int, shift: float) -> tuple[Tensor, Tensor]:
-    """The nearest node (int32) along one axis of every sample of ``axis`` (frames, rows, cols)
-    and node minus sample (float32), HR px; ``pixel`` (int32) is the samples' column (``dim``
-    2) or row (``dim`` 1) indices, ``shift`` the lattice's offset along the axis."""
+def _nearest_node(axis: _Axis, pixel: Tensor, dim: int, h: int, shift: float) -> tuple[Tensor, Tensor, float]:
+    """The nearest node (int32) along one axis of every sample of ``axis`` (frames, rows, cols),
+    node minus sample (float32, HR px) and its largest magnitude; ``pixel`` (int32) is the
+    samples' column (``dim`` 2) or row (``dim`` 1) indices, ``shift`` the lattice's offset
+    along the axis."""
     nearest = torch.round(axis.rest)
     shape = [1, 1, 1]
     shape[dim] = -1
-    node = nearest.to(torch.int32).add_(axis.whole).add_(pixel.view(shape) * h)
+    node = nearest.to(torch.int32).add_(pixel.view(shape) * h + axis.whole)
     gap = nearest.sub_(axis.rest)
-    ties = torch.nonzero(gap.abs() > 0.5 - TIE_MARGIN, as_tuple=True)
-    if len(ties[0]):
+    low, high = torch.aminmax(gap)
+    reach = max(-float(low), float(high))
+    if reach > 0.5 - TIE_MARGIN:  # some samples near halfway (none where they sit near nodes)
+        ties = torch.nonzero(gap.abs() > 0.5 - TIE_MARGIN, as_tuple=True)
         # the earlier float64 sum: variation + (pixel coordinate + mean), then x = (u + 0.5) h - 0.5
         place = axis.variation[ties].double() + ((axis.first + pixel[ties[dim]].double()) + axis.mean[ties[0]])
         coord = ((place + 0.5) * h - 0.5) - shift
         rounded = torch.round(coord)
         node[ties] = rounded.to(torch.int32)
         gap[ties] = (rounded - coord).to(torch.float32)
-    return node, gap
+        reach = float(gap.abs().max())
+    return node, gap, reach
 
 
 def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_step: int) -> tuple[float, float]:
@@ -156,18 +163,20 @@ def node_batch(frames: Tensor, positions, part: tuple[slice, slice], h: int, off
     cols = torch.arange(frames.shape[2], dtype=torch.int32)
     rows = torch.arange(frames.shape[1], dtype=torch.int32)[part[1]]
     spline = _spline_parts(positions, part, h, offset) if isinstance(positions, NodePositions) else None
-    nodes, gaps = [], []
+    nodes, gaps, reach = [], [], 0.0
     for axis, (pixel, dim) in enumerate(((cols, 2), (rows, 1))):
         if spline is not None:
-            node, gap = _nearest_node(spline[axis], pixel, dim, h, offset[axis])
+            node, gap, far = _nearest_node(spline[axis], pixel, dim, h, offset[axis])
         else:
             coord = ((positions[part][..., axis] + 0.5) * h - 0.5) - offset[axis]
             nearest = torch.round(coord)
             gap = (nearest - coord).to(torch.float32)
+            far = float(gap.abs().max()) if gap.numel() else 0.0
             # beyond the lattice by more than a node is as good as anywhere beyond it (and fits int32)
             node = nearest.clamp_(-2, 1 << 30).to(torch.int32)
         nodes.append(node.reshape(-1))
         gaps.append(gap.reshape(-1))
+        reach = max(reach, far)
     values = frames[part].reshape(-1).to(torch.float32)
     w = None if weights is None else weights[part].reshape(-1).to(torch.float32)
-    return NodeBatch(values, nodes[0], nodes[1], gaps[0], gaps[1], w)
+    return NodeBatch(values, nodes[0], nodes[1], gaps[0], gaps[1], w, reach)

@@ -133,7 +133,7 @@ class NodeSums:
         rows, cols = self.shape
         (col_lo, col_hi), (row_lo, row_hi) = torch.aminmax(col), torch.aminmax(row)
         if col_lo >= -1 and col_hi <= cols and row_lo >= -1 and row_hi <= rows:
-            return row.add(1).mul_(cols + 2).add_(col).add_(1), weights
+            return row.mul(cols + 2).add_(col).add_(cols + 3), weights
         near = (col >= -1) & (col <= cols) & (row >= -1) & (row <= rows)
         idx = row.clamp(-1, rows).add_(1).mul_(cols + 2).add_(col.clamp(-1, cols)).add_(1)
         return idx, near.to(self.sums[0].dtype) if weights is None else weights * near
@@ -189,7 +189,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
     off_node = 0.0
     seen, kept = 0, None  # batches seen, and the first one (the second pass's, if it is the only one)
     for batch in batches():
-        off_node = max(off_node, float(batch.dx.abs().max()), float(batch.dy.abs().max()))
+        off_node = max(off_node, batch.reach)
         idx, w = sums.node_index(batch.col, batch.row, batch.weights)
         sums.add(1, idx, torch.ones(1).expand(len(idx)) if w is None else w)
         sums.add(0, idx, batch.values if w is None else w * batch.values)
@@ -206,8 +206,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
         gradient_into(pilot, 0, gradient[0, 1])
         del pilot
         for batch, idx, w in kept or ((b, *sums.node_index(b.col, b.row, b.weights)) for b in batches()):
-            sx, sy = _sample(gradient, batch.col.to(torch.float32).sub_(batch.dx),
-                             batch.row.to(torch.float32).sub_(batch.dy))
+            sx, sy = _sample(gradient, torch.sub(batch.col, batch.dx), torch.sub(batch.row, batch.dy))
             correction = sx.mul_(batch.dx).add_(sy.mul_(batch.dy))
             sums.add(0, idx, correction if w is None else correction.mul_(w))
         del gradient
