@@ -96,3 +96,18 @@ def test_smooth_part_shifted_in_the_fourier_domain_matches_shift_image():
         expected = shift_image(torch.fft.irfft2(smooth, s=shape), offset)
         got = torch.fft.irfft2(add_shifted_smooth(torch.zeros_like(smooth), smooth, shape, offset), s=shape)
         assert float((mirror_borders(got, smooth, offset) - expected).abs().max()) < 1e-12
+
+
+def test_all_finite_by_the_sum_agrees_with_isfinite():
+    """A NaN or an infinity anywhere is found; finite values whose sum overflows are finite."""
+    from hbis_torch.reconstruct.classical.sr import _all_finite
+
+    values = torch.rand(1000)
+    assert _all_finite(values)
+    for bad in (float("nan"), float("inf"), -float("inf")):
+        broken = values.clone()
+        broken[517] = bad
+        assert not _all_finite(broken)
+    large = torch.full((8,), 3e38)
+    assert _all_finite(large) and not _all_finite(torch.cat((large, torch.tensor([float("nan")]))))
+    assert _all_finite(torch.tensor([float(torch.finfo(torch.float32).max), -float(torch.finfo(torch.float32).max)]))
