@@ -200,7 +200,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
     if off_node >= 1e-3:
         # the samples move to their nodes with value + grad . (node - x): the snapped sums
         # (kept) plus the corrections' (float32 like the sums: the correction is a small part)
-        pilot = fill_holes(sums.spread(0), den, typical)
+        pilot = fill_holes(sums.spread(0), den, typical, in_place=True)
         gradient = torch.empty((1, 2) + den.shape, dtype=den.dtype)  # (1, 2, rows, cols): d/dx, d/dy
         gradient_into(pilot, 1, gradient[0, 0])
         gradient_into(pilot, 0, gradient[0, 1])
@@ -338,19 +338,20 @@ def lower_median(values: Tensor, where: Tensor) -> float:
     return float(picked[middle])
 
 
-def fill_holes(num: Tensor, den: Tensor, typical: float | None = None) -> Tensor:
+def fill_holes(num: Tensor, den: Tensor, typical: float | None = None, *, in_place: bool = False) -> Tensor:
     """num / den, with nodes of little weight taken from the sums blurred wider and wider.
 
     Only the holes' blurred values are used: where there are few of them (a frame's border)
     they are computed at the holes alone (:func:`_blur_at`), else by blurring the whole image.
-    Shapes (rows, cols); ``typical`` is :func:`typical_weight` of ``den``, if the caller has it.
+    Shapes (rows, cols); ``typical`` is :func:`typical_weight` of ``den``, if the caller has it;
+    ``in_place`` writes the image over ``num`` (no image-sized temporaries).
     """
     if typical is None:
         typical = typical_weight(den)
     if typical == 0.0:
         raise HbisInputError("no sample falls on the output grid")
-    image = num / den.clamp_min(1e-12)
     rows, cols = torch.nonzero(den < 0.25 * typical).unbind(1)
+    fills = []  # (rows, cols, values) of the holes, from the sums before num is divided
     sigma = 1.0
     while len(rows) and sigma <= 64:
         taps = 2 * math.ceil(4 * sigma) + 1
@@ -359,9 +360,15 @@ def fill_holes(num: Tensor, den: Tensor, typical: float | None = None) -> Tensor
         else:
             n2, d2 = _gaussian_blur(num, sigma)[rows, cols], _gaussian_blur(den, sigma)[rows, cols]
         ok = d2 >= 0.05 * typical
-        image[rows[ok], cols[ok]] = n2[ok] / d2[ok].clamp_min(1e-12)
+        fills.append((rows[ok], cols[ok], n2[ok] / d2[ok].clamp_min(1e-12)))
         rows, cols = rows[~ok], cols[~ok]
         sigma *= 2
     if len(rows):
-        image[rows, cols] = num.sum() / den.sum()
+        fills.append((rows, cols, num.sum() / den.sum()))
+    if in_place and 0.25 * typical >= 1e-12:
+        image = num.div_(den)  # every node below 1e-12 (0/0 among them) is a hole, overwritten below
+    else:
+        image = num / den.clamp_min(1e-12)
+    for rows, cols, values in fills:
+        image[rows, cols] = values
     return image

@@ -221,7 +221,7 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
 
         # snap_to_lattice, then splat: the same sums, in batches of frames (or of rows)
         num, den, typical = splat_on_lattice(batches, shape, kernel_sigma)
-        return fill_holes(num, den, typical), den, offset, typical
+        return fill_holes(num, den, typical, in_place=True), den, offset, typical
     num = den = 0
     for part in slices:
         if isinstance(positions, NodePositions):
