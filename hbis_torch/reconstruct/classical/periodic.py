@@ -153,33 +153,36 @@ def add_shifted_smooth(spectrum: Tensor, smooth: Tensor, shape: tuple[int, int],
     return spectrum
 
 
-def _smooth_rows(smooth: Tensor, rows: Tensor, shape: tuple[int, int]) -> Tensor:
-    """Rows ``rows`` (K,) of irfft2(``smooth``, shape): (K, cols), from the inverse along the
-    rows' axis at those rows alone (a (K, rows) matrix), then irfft along each. In float64,
-    a block of rows at a time: BLAS's sums may split with the threads, and the image must not
-    depend on their number (to float32's rounding, a float64 sum's order never shows)."""
-    M, N = shape
-    inverse = torch.exp(2j * math.pi * torch.outer(rows.double(), torch.arange(M, dtype=torch.float64)) / M) / M
-    total = sum(inverse[:, block] @ smooth[block].to(torch.complex128) for block in _row_blocks(M))
-    return torch.fft.irfft(total, n=N, dim=1).to(smooth.real.dtype)
+def _smooth_band(smooth: Tensor, rows: Tensor, cols: Tensor, shape: tuple[int, int]) -> tuple[Tensor, Tensor]:
+    """Rows ``rows`` (K,) and columns ``cols`` (L,) of irfft2(``smooth``, shape): (K, cols) and
+    (rows, L), without the whole inverse.
 
-
-def _smooth_cols(smooth: Tensor, cols: Tensor, shape: tuple[int, int]) -> Tensor:
-    """Columns ``cols`` (K,) of irfft2(``smooth``, shape): (rows, K). irfft2 is the real part
-    of (1/N) sum_r c_r Y(m, r) e^(2 pi i r n / N) with Y the inverse along the rows' axis and
-    c_r = 2 but at r = 0 and r = N / 2 (where it is 1): the sum over r first, at the K columns
-    (in float64, a block of rows at a time, as :func:`_smooth_rows`), then the inverse along the
-    rows' axis of those K alone."""
+    Rows: the inverse along the rows' axis at those rows alone (a (K, rows) matrix), then irfft
+    along each. Columns: irfft2 is the real part of (1/N) sum_r c_r Y(m, r) e^(2 pi i r n / N),
+    Y the inverse along the rows' axis, c_r = 2 but at r = 0 and r = N / 2 (where it is 1): the
+    sum over r first, at the L columns, then the inverse along the rows' axis of those alone.
+    Both products in float64, one pass over ``smooth`` a block of rows at a time: BLAS's sums may
+    split with the threads, and the image must not depend on their number (at float32's
+    rounding a float64 sum's order never shows).
+    """
     M, N = shape
     half = smooth.shape[1]
+    inverse = torch.exp(2j * math.pi * torch.outer(rows.double(), torch.arange(M, dtype=torch.float64)) / M) / M
     count = torch.full((half,), 2.0, dtype=torch.float64)
     count[0] = 1.0
     if N % 2 == 0:
         count[-1] = 1.0
     freq = torch.arange(half, dtype=torch.float64)
     forward = count[:, None] * torch.exp(2j * math.pi * torch.outer(freq, cols.double()) / N) / N
-    summed = torch.cat([smooth[block].to(torch.complex128) @ forward for block in _row_blocks(M)])
-    return torch.fft.ifft(summed, dim=0).real.to(smooth.real.dtype)
+    at_rows = torch.zeros((len(rows), half), dtype=torch.complex128)
+    at_cols = []
+    for block in _row_blocks(M):
+        part = smooth[block].to(torch.complex128)
+        at_rows += inverse[:, block] @ part
+        at_cols.append(part @ forward)
+    real = smooth.real.dtype
+    return (torch.fft.irfft(at_rows, n=N, dim=1).to(real),
+            torch.fft.ifft(torch.cat(at_cols), dim=0).real.to(real))
 
 
 def mirror_borders(out: Tensor, smooth: Tensor, offset: tuple[float, float]) -> Tensor:
@@ -200,15 +203,14 @@ def mirror_borders(out: Tensor, smooth: Tensor, offset: tuple[float, float]) -> 
     wrap_x, wrap_y = _periodic_taps(float(offset[0]), N), _periodic_taps(float(offset[1]), M)
     # the rows next to the top and bottom, every column (corners included): shifted along x
     # both ways, then along y
-    band = _smooth_rows(smooth, rows_at, (M, N))  # (2 BAND, N)
+    band, band_cols = _smooth_band(smooth, rows_at, cols_at, (M, N))  # (2 BAND, N), (M, 2 BAND)
     mirrored = sum(w * band[:, mirror_x[b:b + N]] for b, w in enumerate(wx))
     wrapped = sum(w * band[:, wrap_x[b:b + N]] for b, w in enumerate(wx))
     for i in (0, 1, M - 2, M - 1):
         out[i] += sum(w * (mirrored[at_row[mirror_y[i + a]]] - wrapped[at_row[wrap_y[i + a]]])
                       for a, w in enumerate(wy))
     # the columns next to the left and right, the other rows (whose taps along y stay inside)
-    band = _smooth_cols(smooth, cols_at, (M, N))  # (M, 2 BAND)
-    down = sum(w * band[wrap_y[a:a + M]] for a, w in enumerate(wy))[2:M - 2]
+    down = sum(w * band_cols[wrap_y[a:a + M]] for a, w in enumerate(wy))[2:M - 2]
     for j in (0, 1, N - 2, N - 1):
         out[2:M - 2, j] += sum(w * (down[:, at_col[mirror_x[j + b]]] - down[:, at_col[wrap_x[j + b]]])
                                for b, w in enumerate(wx))
