@@ -9,8 +9,14 @@ import torch
 
 from hbis_torch.optics import NodePositions, interpolate_positions
 from hbis_torch.reconstruct.classical.lattice import batch_slices, node_batch
-from hbis_torch.reconstruct.classical.periodic import add_shifted_smooth, mirror_borders, shift_image, smooth_spectrum
-from hbis_torch.reconstruct.classical.wiener import _mean_3x3, _mmse_filter, _Model, periodic_smooth
+from hbis_torch.reconstruct.classical.periodic import (
+    add_shifted_smooth,
+    mirror_borders,
+    periodic_smooth,
+    shift_image,
+    smooth_spectrum,
+)
+from hbis_torch.reconstruct.classical.wiener import _mean_3x3, _mmse_filter, _Model
 
 
 def _nodes(gen, count=3, height=40, width=56, amplitude=0.0):
@@ -29,7 +35,8 @@ def test_nodes_from_splines_match_float64_positions():
     nearest node (ties included: frame 0 sits exactly halfway at h = 4), and node minus
     sample agrees to float32 rounding."""
     gen = torch.Generator().manual_seed(5)
-    for h, amplitude, offset in ((4, 0.0, (0.0, 0.0)), (4, 2.0, (0.3, -0.45)), (7, 5.0, (0.0, 0.1)), (2, 1.0, (-0.5, 0.5))):
+    cases = ((4, 0.0, (0.0, 0.0)), (4, 2.0, (0.3, -0.45)), (7, 5.0, (0.0, 0.1)), (2, 1.0, (-0.5, 0.5)))
+    for h, amplitude, offset in cases:
         nodes = _nodes(gen, amplitude=amplitude)
         frames = torch.rand((3, nodes.height, nodes.width), generator=gen)
         dense = interpolate_positions(nodes)
@@ -90,7 +97,8 @@ def test_smooth_part_shifted_in_the_fourier_domain_matches_shift_image():
     """The smooth part's bicubic shift as a DFT multiplier plus the mirrored borders mended
     equals shift_image of the smooth part itself (every offset sign, odd and even sizes)."""
     gen = torch.Generator().manual_seed(6)
-    for shape, offset in (((40, 52), (0.5, 0.5)), ((33, 27), (-0.5, 0.2)), ((8, 9), (0.31, -0.44)), ((64, 50), (0.0, 0.25))):
+    cases = (((40, 52), (0.5, 0.5)), ((33, 27), (-0.5, 0.2)), ((8, 9), (0.31, -0.44)), ((64, 50), (0.0, 0.25)))
+    for shape, offset in cases:
         image = torch.rand(shape, generator=gen, dtype=torch.float64)
         smooth = smooth_spectrum(image)
         expected = shift_image(torch.fft.irfft2(smooth, s=shape), offset)

@@ -123,7 +123,9 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
         keep = None
         if weights is not None:
             keep = weights[part][:, ::row_step].reshape(-1) > 0
-        spline = _spline_parts(positions, part, h, (0.0, 0.0), row_step) if isinstance(positions, NodePositions) else None
+        spline = None
+        if isinstance(positions, NodePositions):
+            spline = _spline_parts(positions, part, h, (0.0, 0.0), row_step)
         for axis in (0, 1):
             if spline is not None:
                 rest = spline[axis].rest.reshape(-1)
