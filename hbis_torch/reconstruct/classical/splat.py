@@ -128,9 +128,11 @@ class NodeSums:
 
     def node_index(self, col: Tensor, row: Tensor, weights: Tensor | None) -> tuple[Tensor, Tensor | None]:
         """:meth:`nodes` of samples at integer nodes ``col``, ``row`` (N,) int32: the flat index
-        (int32) and the weight, None (1 for every sample) where ``weights`` is None and every
-        sample is near enough to count."""
+        (int32, int64 on a lattice of 2^31 nodes or more) and the weight, None (1 for every
+        sample) where ``weights`` is None and every sample is near enough to count."""
         rows, cols = self.shape
+        if (rows + 2) * (cols + 2) > torch.iinfo(torch.int32).max:  # flat indices beyond int32
+            col, row = col.long(), row.long()
         (col_lo, col_hi), (row_lo, row_hi) = torch.aminmax(col), torch.aminmax(row)
         if col_lo >= -1 and col_hi <= cols and row_lo >= -1 and row_hi <= rows:
             return row.mul(cols + 2).add_(col).add_(cols + 3), weights
