@@ -20,6 +20,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.optics import NodePositions, interpolate_displacements
+from hbis_torch.reconstruct.classical.splat import offset_from_sums
 
 
 class NodeBatch(NamedTuple):
@@ -116,8 +117,6 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
     """The samples' common sub-pixel offset (x, y) on the lattice, HR px, from every
     ``row_step``-th row of the batches ``part_list``: the circular mean of the coordinates'
     fractional parts (:func:`~hbis_torch.reconstruct.classical.splat.offset_from_sums`)."""
-    from hbis_torch.reconstruct.classical.splat import offset_from_sums
-
     sums = [[0.0, 0.0, 0], [0.0, 0.0, 0]]
     for part in part_list:
         keep = None
@@ -131,7 +130,7 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
                 rest = spline[axis].rest.reshape(-1)
                 rest = rest.sub_(torch.round(rest))  # the integer part adds nothing to the angle
             else:
-                coord = positions[part][:, ::row_step, :, axis].reshape(-1).mul(h).add_(0.5 * h - 0.5)
+                coord = ((positions[part][:, ::row_step, :, axis].reshape(-1) + 0.5) * h - 0.5)
                 rest = coord.sub_(torch.round(coord)).to(torch.float32)
             if keep is not None:
                 rest = rest[keep]
