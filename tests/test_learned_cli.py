@@ -111,8 +111,10 @@ def test_learned_treats_untrusted_frames_as_the_classical_method_does(tmp_path, 
     messages = []
     optics = learned_sr(stack, messages=messages, threads=1, provider="cpu")
     assert messages == []
-    assert np.array_equal(optics, learned_sr(stack, positions=optical_positions(stack), threads=1,
-                                             provider="cpu"))
+    # the optics' node splines (the default) against every pixel's float64 position: the same
+    # samples, their lattice offsets to float32 rounding
+    assert np.abs(optics - learned_sr(stack, positions=optical_positions(stack), threads=1,
+                                      provider="cpu")).max() < 1e-5
 
 
 def test_repeated_calls_reuse_the_session_until_the_model_file_changes(tmp_path):

@@ -266,10 +266,13 @@ def test_untrusted_frames_keep_the_optics_and_classical_data_mode_leaves_them_ou
     messages = []
     data = reconstruct(stack, registration="data", messages=messages)
     assert messages[-1] == "left out 1 frame(s) the registration could not trust"
-    assert np.array_equal(data, classical_sr(frames, corrected, H, weights=trusted.double(), **kw).numpy())
+    # the positions from the nodes (the methods') and every pixel's (float64) agree to float32
+    # rounding, some 1e-6 HR px: the images to 1e-6, far below what one frame changes
+    assert np.abs(data - classical_sr(frames, corrected, H, weights=trusted.double(), **kw).numpy()).max() < 1e-5
     messages = []
     auto = reconstruct(stack, registration="auto", messages=messages)
     assert not any("frame(s)" in m for m in messages)
-    assert np.array_equal(auto, classical_sr(frames, corrected, H, **kw).numpy())
+    assert np.abs(auto - classical_sr(frames, corrected, H, **kw).numpy()).max() < 1e-5
+    assert np.abs(auto - data).max() > 1e-3
 
 

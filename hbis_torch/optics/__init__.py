@@ -33,6 +33,7 @@ from hbis_torch.optics.inverse import (  # noqa: E402 - after the forward model 
 )
 from hbis_torch.optics.sample_geometry import (
     NodePositions,
+    interpolate_displacements,
     interpolate_positions,
     landing_at,
     landing_on_grid,
@@ -53,6 +54,7 @@ __all__ = [
     "axis_deviation",
     "deviation_azimuth",
     "exit_directions",
+    "interpolate_displacements",
     "interpolate_positions",
     "land_on_plane",
     "landing_at",

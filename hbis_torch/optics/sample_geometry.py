@@ -231,26 +231,51 @@ def interpolate_positions(nodes: NodePositions, rows=None, cols=None) -> Tensor:
     Tensor, shape (F, len(rows), len(cols), 2), float64
         (default: every row and column, (F, height, width, 2)).
     """
+    shift, mean = interpolate_displacements(nodes, rows, cols)
+    cols = np.arange(nodes.width) if cols is None else np.asarray(cols)
+    rows = np.arange(nodes.height) if rows is None else np.asarray(rows)
+    uu = torch.from_numpy(nodes.u[0] + cols.astype(np.float64))[None, :]
+    vv = torch.from_numpy(nodes.v[0] + rows.astype(np.float64))[:, None]
+    out = torch.empty(shift.shape[0], len(rows), len(cols), 2, dtype=torch.float64)
+    out[..., 0] = shift[:, 0]
+    out[..., 1] = shift[:, 1]
+    out[..., 0] += uu + mean[:, 0, None, None]
+    out[..., 1] += vv + mean[:, 1, None, None]
+    return out
+
+
+def interpolate_displacements(nodes: NodePositions, rows=None, cols=None) -> tuple[Tensor, Tensor]:
+    """:func:`interpolate_positions` before its float64 sum: every pixel's displacement from its
+    own coordinates, as each frame's mean (float64) plus the spline of the variation about it
+    (float32), for callers that need less than the whole float64 position.
+
+    Parameters
+    ----------
+    nodes : NodePositions
+    rows, cols : array of int, optional
+        As :func:`interpolate_positions`'s.
+
+    Returns
+    -------
+    variation : Tensor, shape (F, 2, len(rows), len(cols)), float32
+        (u, v) displacement about the frame's mean, pixels.
+    mean : Tensor, shape (F, 2), float64
+        Each frame's mean (u, v) displacement, pixels. Pixel (row r, column c) of frame k is at
+        ``(nodes.u[0] + c, nodes.v[0] + r) + mean[k] + variation[k, :, r, c]``.
+    """
     values, nu, nv = nodes.values, nodes.u, nodes.v
     base_u = torch.from_numpy(nu)[None, :]
     base_v = torch.from_numpy(nv)[:, None]
     base = torch.stack(torch.broadcast_tensors(base_u, base_v), -1)
     shift = (values - base).movedim(-1, 1)  # (F, 2, n_v, n_u), smooth
     # each frame's mean displacement stays in float64 (the splines reproduce constants)
-    offset = shift.mean(dim=(2, 3))  # (F, 2)
-    shift = (shift - offset[:, :, None, None]).to(torch.float32)
+    mean = shift.mean(dim=(2, 3))  # (F, 2)
+    shift = (shift - mean[:, :, None, None]).to(torch.float32)
     bu = _regular_basis(nodes.width, len(nu)).to(torch.float32)
     bv = _regular_basis(nodes.height, len(nv)).to(torch.float32)
-    cols = np.arange(nodes.width) if cols is None else np.asarray(cols)
-    rows = np.arange(nodes.height) if rows is None else np.asarray(rows)
-    bu, bv = bu[torch.from_numpy(cols)], bv[torch.from_numpy(rows)]
+    if cols is not None:
+        bu = bu[torch.from_numpy(np.asarray(cols))]
+    if rows is not None:
+        bv = bv[torch.from_numpy(np.asarray(rows))]
     # the narrow pass (along u, on n_v rows) first: fewer flops than along v first
-    shift = bv @ (shift @ bu.T)  # (F, 2, rows, cols)
-    uu = torch.from_numpy(nu[0] + cols.astype(np.float64))[None, :]
-    vv = torch.from_numpy(nv[0] + rows.astype(np.float64))[:, None]
-    out = torch.empty(shift.shape[0], len(rows), len(cols), 2, dtype=torch.float64)
-    out[..., 0] = shift[:, 0]
-    out[..., 1] = shift[:, 1]
-    out[..., 0] += uu + offset[:, 0, None, None]
-    out[..., 1] += vv + offset[:, 1, None, None]
-    return out
+    return bv @ (shift @ bu.T), mean

@@ -24,19 +24,24 @@ the optics, from the registration, or both), then:
 
 Coordinates: LR pixel (u, v) is the centre of column u, row v of the reference frame's ROI;
 HR pixel (U, V) is centred at LR ((U + 0.5)/h - 0.5, (V + 0.5)/h - 0.5) (docs/design.md, section 1).
-Positions and interpolation weights are float64; the per-node sums, the deblurring (FFTs and
-filter) and the result are float32 (tests/test_fullframe.py: within 1e-4 of float64).
+Positions are float64, but on the lattice only each sample's nearest node (an integer) and its
+offset from it (float32) are kept (:mod:`.lattice`); the per-node sums, the deblurring (FFTs
+and filter) and the result are float32 (tests/test_fullframe.py: within 1e-4 of float64).
 
 Modules
 -------
 :mod:`.transfer`
     The image model's transfer functions: optics (:func:`optics_cutoff`,
     :func:`diffraction_otf`), pixel aperture (:func:`box`), splat (:func:`splat_transfer`).
+:mod:`.lattice`
+    The samples' nearest lattice nodes and offsets, a batch at a time (:func:`node_batch`).
 :mod:`.splat`
     Step 1: :func:`splat`, :func:`snap_to_lattice`, hole filling (:func:`fill_holes`).
 :mod:`.wiener`
-    Step 2: :func:`wiener_deblur`, the prior's fit (:func:`fit_spectrum`), :func:`shift_image`,
-    :func:`periodic_smooth`.
+    Step 2: :func:`wiener_deblur`, the prior's fit (:func:`fit_spectrum`).
+:mod:`.periodic`
+    Its periodic + smooth split (:func:`periodic_smooth`) and the smooth part's shift
+    (:func:`shift_image`, or in the Fourier domain).
 :mod:`.sr`
     Both steps on frames with known positions: :func:`classical_sr`, :func:`lattice_image`,
     :func:`lattice_noise` (and :func:`lattice_noise_params`, the frames' noise model measured
@@ -54,13 +59,8 @@ from hbis_torch.reconstruct.classical.method import reconstruct_classical, stack
 from hbis_torch.reconstruct.classical.splat import common_offset, fill_holes, snap_to_lattice, splat
 from hbis_torch.reconstruct.classical.sr import classical_sr, lattice_image, lattice_noise, lattice_noise_params
 from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, optics_cutoff, splat_transfer
-from hbis_torch.reconstruct.classical.wiener import (
-    NOISE_FLOOR,
-    fit_spectrum,
-    periodic_smooth,
-    shift_image,
-    wiener_deblur,
-)
+from hbis_torch.reconstruct.classical.periodic import periodic_smooth, shift_image
+from hbis_torch.reconstruct.classical.wiener import NOISE_FLOOR, fit_spectrum, wiener_deblur
 from hbis_torch.reconstruct.positions import REGISTRATIONS, optical_sample_positions
 
 __all__ = [

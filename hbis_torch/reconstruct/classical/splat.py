@@ -126,6 +126,20 @@ class NodeSums:
         idx = ((yi + 1) * (cols + 2) + xi + 1).clamp(0, (rows + 2) * (cols + 2) - 1).long()
         return idx, near.to(self.sums[0].dtype) if weights is None else weights * near
 
+    def node_index(self, col: Tensor, row: Tensor, weights: Tensor | None) -> tuple[Tensor, Tensor | None]:
+        """:meth:`nodes` of samples at integer nodes ``col``, ``row`` (N,) int32: the flat index
+        (int32, int64 on a lattice of 2^31 nodes or more) and the weight, None (1 for every
+        sample) where ``weights`` is None and every sample is near enough to count."""
+        rows, cols = self.shape
+        if (rows + 2) * (cols + 2) > torch.iinfo(torch.int32).max:  # flat indices beyond int32
+            col, row = col.long(), row.long()
+        (col_lo, col_hi), (row_lo, row_hi) = torch.aminmax(col), torch.aminmax(row)
+        if col_lo >= -1 and col_hi <= cols and row_lo >= -1 and row_hi <= rows:
+            return row.mul(cols + 2).add_(col).add_(cols + 3), weights
+        near = (col >= -1) & (col <= cols) & (row >= -1) & (row <= rows)
+        idx = row.clamp(-1, rows).add_(1).mul_(cols + 2).add_(col.clamp(-1, cols)).add_(1)
+        return idx, near.to(self.sums[0].dtype) if weights is None else weights * near
+
     def add(self, k: int, idx: Tensor, weighted: Tensor) -> None:
         """Add samples' ``weighted`` values (N,) to sum ``k`` at their nodes ``idx``."""
         self.sums[k].index_add_(0, idx, weighted)
@@ -153,14 +167,14 @@ class NodeSums:
 
 def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Tensor, Tensor, float]:
     """:func:`snap_to_lattice` followed by :func:`splat`, the same sums in bounded memory: the
-    samples come in batches (each pass over them calls ``batches()`` anew), and the snapped
-    samples' nodes and weights (hence the denominator) serve both the pilot and the result.
+    samples come in batches (each pass over them calls ``batches()`` anew), each sample at its
+    nearest node; the snapped samples' weights (hence the denominator) serve both the pilot
+    and the result.
 
     Parameters
     ----------
     batches : callable
-        () -> iterable of (values, x, y, weights) batches, each as :func:`snap_to_lattice`'s
-        arguments (weights may be None).
+        () -> iterable of :class:`~hbis_torch.reconstruct.classical.lattice.NodeBatch`.
     shape : (rows, cols)
     sigma : float
 
@@ -171,39 +185,34 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
     typical : float
         :func:`typical_weight` of the denominator.
     """
-    # The sums in float32 (a node gets a few samples; the image is float32 in the end), the
-    # coordinates in float64. At most five (rows, cols) float32 arrays live at once.
+    # The sums in float32 (a node gets a few samples; the image is float32 in the end). At most
+    # five (rows, cols) float32 arrays live at once.
     sums = NodeSums(shape, sigma, 2, torch.float32)
     off_node = 0.0
-    # batches seen, and the first one's nodes and weights (the second pass's, if it is the only one)
-    seen, kept = 0, None
-    for values, x, y, weights in batches():
-        xn, yn = torch.round(x), torch.round(y)
-        off_node = max(off_node, float((xn - x).abs().max()), float((yn - y).abs().max()))
-        idx, w = sums.nodes(xn, yn, None if weights is None else weights.to(torch.float32))
-        sums.add(1, idx, w)
-        sums.add(0, idx, w * values.to(torch.float32))
+    seen, kept = 0, None  # batches seen, and the first one (the second pass's, if it is the only one)
+    for batch in batches():
+        off_node = max(off_node, batch.reach)
+        idx, w = sums.node_index(batch.col, batch.row, batch.weights)
+        sums.add(1, idx, torch.ones(1).expand(len(idx)) if w is None else w)
+        sums.add(0, idx, batch.values if w is None else w * batch.values)
         seen += 1
-        kept = (xn, yn, idx, w) if seen == 1 else None
+        kept = [(batch, idx, w)] if seen == 1 else None
     den = sums.spread(1, release=True)
     typical = typical_weight(den)
     if off_node >= 1e-3:
-        pilot = fill_holes(sums.spread(0, release=True), den, typical)
+        # the samples move to their nodes with value + grad . (node - x), in float32 like the
+        # sums (the correction is a small part); the snapped sums are freed first (at h = 7 they
+        # would add 240 MB at the peak)
+        pilot = fill_holes(sums.spread(0, release=True), den, typical, in_place=True)
         gradient = torch.empty((1, 2) + den.shape, dtype=den.dtype)  # (1, 2, rows, cols): d/dx, d/dy
         gradient_into(pilot, 1, gradient[0, 0])
         gradient_into(pilot, 0, gradient[0, 1])
         del pilot
         sums.clear(0)
-        for values, x, y, weights in batches():
-            if seen == 1:
-                xn, yn, idx, w = kept
-            else:
-                xn, yn = torch.round(x), torch.round(y)
-                idx, w = sums.nodes(xn, yn, None if weights is None else weights.to(torch.float32))
-            # value + grad . (node - x), in float32 like the sums (the correction is a small part)
-            sx, sy = _sample(gradient, x, y)
-            corrected = sx.mul_((xn - x).to(torch.float32)).add_(sy.mul_((yn - y).to(torch.float32))).add_(values)
-            sums.add(0, idx, corrected.mul_(w))
+        for batch, idx, w in kept or ((b, *sums.node_index(b.col, b.row, b.weights)) for b in batches()):
+            sx, sy = _sample(gradient, torch.sub(batch.col, batch.dx), torch.sub(batch.row, batch.dy))
+            corrected = sx.mul_(batch.dx).add_(sy.mul_(batch.dy)).add_(batch.values)
+            sums.add(0, idx, corrected if w is None else corrected.mul_(w))
         del gradient
     return sums.spread(0, release=True), den, typical
 
@@ -226,9 +235,15 @@ def _sample(image: Tensor, x: Tensor, y: Tensor) -> Tensor:
     grid = torch.empty((1, 1, len(x), 2), dtype=image.dtype)
     torch.mul(x, 2 / max(cols - 1, 1), out=grid[0, 0, :, 0]).sub_(1)
     torch.mul(y, 2 / max(rows - 1, 1), out=grid[0, 0, :, 1]).sub_(1)
-    out = torch.nn.functional.grid_sample(image, grid, mode="bilinear",
-                                          padding_mode="border", align_corners=True)[0, :, 0]
-    return out
+    # grid_sample runs its batch in parallel, not the points of one: the points as a batch of
+    # one row per thread, against the same image (expanded, not copied)
+    parts = torch.get_num_threads()
+    if parts > 1 and len(x) % parts == 0 and len(x) >= 1 << 16:
+        out = torch.nn.functional.grid_sample(image.expand(parts, -1, -1, -1), grid.view(parts, 1, -1, 2),
+                                              mode="bilinear", padding_mode="border", align_corners=True)
+        return out.movedim(0, 1).reshape(image.shape[1], len(x))
+    return torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border",
+                                           align_corners=True)[0, :, 0]
 
 
 def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: float,
@@ -327,19 +342,20 @@ def lower_median(values: Tensor, where: Tensor) -> float:
     return float(picked[middle])
 
 
-def fill_holes(num: Tensor, den: Tensor, typical: float | None = None) -> Tensor:
+def fill_holes(num: Tensor, den: Tensor, typical: float | None = None, *, in_place: bool = False) -> Tensor:
     """num / den, with nodes of little weight taken from the sums blurred wider and wider.
 
     Only the holes' blurred values are used: where there are few of them (a frame's border)
     they are computed at the holes alone (:func:`_blur_at`), else by blurring the whole image.
-    Shapes (rows, cols); ``typical`` is :func:`typical_weight` of ``den``, if the caller has it.
+    Shapes (rows, cols); ``typical`` is :func:`typical_weight` of ``den``, if the caller has it;
+    ``in_place`` writes the image over ``num`` (no image-sized temporaries).
     """
     if typical is None:
         typical = typical_weight(den)
     if typical == 0.0:
         raise HbisInputError("no sample falls on the output grid")
-    image = num / den.clamp_min(1e-12)
     rows, cols = torch.nonzero(den < 0.25 * typical).unbind(1)
+    fills = []  # (rows, cols, values) of the holes, from the sums before num is divided
     sigma = 1.0
     while len(rows) and sigma <= 64:
         taps = 2 * math.ceil(4 * sigma) + 1
@@ -348,9 +364,15 @@ def fill_holes(num: Tensor, den: Tensor, typical: float | None = None) -> Tensor
         else:
             n2, d2 = _gaussian_blur(num, sigma)[rows, cols], _gaussian_blur(den, sigma)[rows, cols]
         ok = d2 >= 0.05 * typical
-        image[rows[ok], cols[ok]] = n2[ok] / d2[ok].clamp_min(1e-12)
+        fills.append((rows[ok], cols[ok], n2[ok] / d2[ok].clamp_min(1e-12)))
         rows, cols = rows[~ok], cols[~ok]
         sigma *= 2
     if len(rows):
-        image[rows, cols] = num.sum() / den.sum()
+        fills.append((rows, cols, num.sum() / den.sum()))
+    if in_place and 0.25 * typical >= 1e-12:
+        image = num.div_(den)  # every node below 1e-12 (0/0 among them) is a hole, overwritten below
+    else:
+        image = num / den.clamp_min(1e-12)
+    for rows, cols, values in fills:
+        image[rows, cols] = values
     return image

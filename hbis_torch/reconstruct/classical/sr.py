@@ -14,12 +14,11 @@ from torch import Tensor
 from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import NodePositions, interpolate_positions
+from hbis_torch.reconstruct.classical.lattice import batch_slices, common_offset_of, node_batch
 from hbis_torch.reconstruct.classical.splat import (
-    circular_sums,
     every_other,
     fill_holes,
     lower_median,
-    offset_from_sums,
     splat,
     splat_on_lattice,
     typical_weight,
@@ -88,8 +87,9 @@ def classical_sr(
     Returns
     -------
     Tensor, shape (h*H, h*W), float32 in [0, 1]
-        Positions and the interpolation's weights in float64, the per-node sums and the
-        deblurring in float32 (tests/test_fullframe.py checks these against float64).
+        Positions in float64 (on the lattice: each sample's node and its float32 offset from
+        it), the per-node sums and the deblurring in float32 (tests/test_fullframe.py checks
+        these against float64).
     """
     h = check_h(h)
     frames, positions, weights = _check_inputs(frames, positions, weights, fill_factor, kernel_sigma,
@@ -111,10 +111,18 @@ def classical_sr(
         del valid
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
                               cutoff, strength, overwrite=True)
-    if not bool(torch.isfinite(image).all()):  # finite samples never should give this: say so
+    if not _all_finite(image):  # finite samples never should give this: say so
         raise RuntimeError("the classical reconstruction produced non-finite values; please report "
                            "the stack that caused it")
     return image.clamp_(0, 1).to(torch.float32)
+
+
+def _all_finite(values: Tensor) -> bool:
+    """Whether every entry of a float tensor is finite: its sum is (a NaN or an infinity makes
+    the sum one), unless finite values too large overflow it (then entry by entry). One pass
+    without a boolean tensor of the values' size: a thirtieth of
+    ``torch.isfinite(values).all()``'s time on a full frame."""
+    return math.isfinite(float(values.sum())) or bool(torch.isfinite(values).all())
 
 
 def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: float,
@@ -130,7 +138,7 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
     """
     if isinstance(frames, Tensor) and frames.dtype == torch.float32:
         # float32 samples are exact enough, and half the memory: checked, not copied
-        if not bool(torch.isfinite(frames).all()):
+        if not _all_finite(frames):
             raise HbisInputError("frames contain non-finite values (NaN or inf)")
     else:
         frames = as_float64_tensor(frames, "frames")
@@ -198,17 +206,24 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     """
     F, H, W = frames.shape
     shape = (h * H, h * W)
-    step = max(1, BATCH_SAMPLES // (H * W))  # frames per batch
-    rows = min(H, max(1, BATCH_SAMPLES // W))  # rows per batch: all, unless a frame is too large
-    slices = [(slice(k, k + step), slice(r, r + rows)) for k in range(0, F, step) for r in range(0, H, rows)]
+    slices = batch_slices(F, H, W, BATCH_SAMPLES)
+    if on_lattice:
+        # The samples' common offset from every fourth row: a quarter of the cosines to take, and
+        # where there are several batches of the positions to interpolate (within 5e-5 HR px of
+        # the whole set's on a full frame at h = 4).
+        offset = common_offset_of(positions, slices, h, weights, OFFSET_ROW_STRIDE)
+        # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2) it is
+        # computed once for both passes over the samples.
+        kept = [node_batch(frames, positions, slices[0], h, offset, weights)] if len(slices) == 1 else None
 
-    # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2) its coordinates
-    # are computed once and kept for the three passes over the samples below.
-    kept = {}
+        def batches():
+            return kept or (node_batch(frames, positions, part, h, offset, weights) for part in slices)
 
-    def coords(part):  # HR lattice coordinates of a batch (frames, rows), and their weights
-        if kept:
-            return kept["batch"]
+        # snap_to_lattice, then splat: the same sums, in batches of frames (or of rows)
+        num, den, typical = splat_on_lattice(batches, shape, kernel_sigma)
+        return fill_holes(num, den, typical, in_place=True), den, offset, typical
+    num = den = 0
+    for part in slices:
         if isinstance(positions, NodePositions):
             where = interpolate_positions(positions._replace(values=positions.values[part[0]]),
                                           rows=np.arange(H)[part[1]])
@@ -217,43 +232,10 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         x = (where[..., 0].reshape(-1) + 0.5).mul_(h).sub_(0.5)
         y = (where[..., 1].reshape(-1) + 0.5).mul_(h).sub_(0.5)
         w = None if weights is None else weights[part].reshape(-1)
-        if len(slices) == 1:
-            kept["batch"] = (x, y, w)
-        return x, y, w
-
-    offset = (0.0, 0.0)
-    if on_lattice:
-        # The samples' common offset from every fourth row: a quarter of the cosines to take, and
-        # where there are several batches of the positions to interpolate (within 5e-5 HR px of
-        # the whole set's on a full frame at h = 4).
-        stride = OFFSET_ROW_STRIDE
-        sums = [0.0, 0.0, 0, 0.0, 0.0, 0]
-        for frames_part, rows_part in slices:
-            if len(slices) == 1:  # the batch's coordinates are kept whole: every fourth row of them
-                x, y, w = (None if t is None else t.view(-1, H, W)[:, ::stride].reshape(-1)
-                           for t in coords((frames_part, rows_part)))
-            else:
-                x, y, w = coords((frames_part, slice(rows_part.start, rows_part.stop, stride)))
-            if w is not None:
-                x, y = x[w > 0], y[w > 0]
-            sums = [a + b for a, b in zip(sums, circular_sums(x) + circular_sums(y))]
-        offset = (offset_from_sums(*sums[:3]), offset_from_sums(*sums[3:]))
-
-    def batches():
-        for part in slices:
-            x, y, w = coords(part)
-            yield frames[part].reshape(-1), x - offset[0], y - offset[1], w
-
-    if on_lattice:
-        # snap_to_lattice, then splat: the same sums, in batches of frames (or of rows)
-        num, den, typical = splat_on_lattice(batches, shape, kernel_sigma)
-    else:
-        num = den = 0
-        for values, x, y, w in batches():
-            n, d = splat(values.to(torch.float64), x, y, shape, kernel_sigma, w)
-            num, den = num + n, den + d
-        typical = typical_weight(den)
-    return fill_holes(num, den, typical), den, offset, typical
+        n, d = splat(frames[part].reshape(-1).to(torch.float64), x, y, shape, kernel_sigma, w)
+        num, den = num + n, den + d
+    typical = typical_weight(den)
+    return fill_holes(num, den, typical), den, (0.0, 0.0), typical
 
 
 def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = None) -> float:

@@ -24,7 +24,8 @@ def diffraction_otf(rho: Tensor) -> Tensor:
     (2/pi) (acos(rho) - rho sqrt(1 - rho^2)) for rho < 1, else 0.
     """
     r = rho.clamp(0, 1)
-    return (2 / math.pi) * (torch.acos(r) - r * torch.sqrt(1 - r * r))
+    chord = r.square().neg_().add_(1).sqrt_().mul_(r)  # r sqrt(1 - r^2), in place
+    return torch.acos(r).sub_(chord).mul_(2 / math.pi)
 
 
 def box(f: Tensor, width: float) -> Tensor:

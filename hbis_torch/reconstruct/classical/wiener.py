@@ -1,5 +1,6 @@
 """Wiener (MMSE linear) deblurring of the interpolated image, with aliasing and a fitted
-power-law scene prior; the periodic + smooth split that keeps the FFT's borders quiet.
+power-law scene prior; the FFT's borders are kept quiet by the periodic + smooth split
+(:mod:`.periodic`).
 """
 
 from __future__ import annotations
@@ -11,6 +12,15 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from hbis_torch.reconstruct.classical.periodic import (
+    BAND,
+    BLOCK_ROWS,
+    _row_blocks,
+    add_shifted_smooth,
+    mirror_borders,
+    shift_image,
+    smooth_spectrum,
+)
 from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, splat_transfer
 
 # The deblurring never trusts the data more than this noise level (intensity units, [0, 1]):
@@ -18,18 +28,9 @@ from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, spla
 # ~1e-3 px) dominate, and a sharper filter would amplify them near the aperture's zeros.
 NOISE_FLOOR = 2e-3
 
-# Rows of the half spectrum handled at a time where the filter and the prior's fit need
-# temporaries per frequency: they then stay a few MB whatever the image's size.
-BLOCK_ROWS = 256
-
-
 # Half spectra of at least this many frequencies (a full frame at h = 7 has 30 M, at h = 4
 # 9.8 M) are inverted in place (:func:`_irfft2_in_place`), where memory is what runs out.
 IN_PLACE_FFT_SIZE = 2 ** 24
-
-
-def _row_blocks(rows: int) -> list[slice]:
-    return [slice(r, min(r + BLOCK_ROWS, rows)) for r in range(0, rows, BLOCK_ROWS)]
 
 
 def wiener_deblur(
@@ -104,41 +105,95 @@ def wiener_deblur(
     """
     # The FFT sees the image as periodic; its borders' jumps would ring through the whole image
     # at the frequencies the pixel aperture nearly erases. Deblur only the periodic part and
-    # add the smooth rest back (Moisan 2011).
+    # add the smooth rest back (Moisan 2011): the periodic part's spectrum is the image's less
+    # the smooth part's, and the smooth part, shifted, is added to the filtered spectrum, so that
+    # one rfft2 and one irfft2 do (images smaller than two BANDs: the smooth part on its own).
     work = image.to(dtype)
     own = overwrite or work.data_ptr() != image.data_ptr()  # work's memory may be reused
-    p, smooth = periodic_smooth(work, in_place=own)
-    del work
-    shape = p.shape
+    shape = work.shape
+    smooth = smooth_spectrum(work)
+    spectrum = torch.fft.rfft2(work)
+    torch.view_as_real(spectrum).sub_(torch.view_as_real(smooth))  # real pairs: faster than complex ops
+    work = work if own else None  # kept for the result, or freed
+    if min(shape) < 2 * BAND:
+        smooth = torch.fft.irfft2(smooth, s=shape)
     fy = torch.fft.fftfreq(shape[0], dtype=torch.float64)[:, None]
     fx = torch.fft.rfftfreq(shape[1], dtype=torch.float64)[None, :]
-    spectrum = torch.fft.rfft2(p)
-    p = p if own else None  # kept for the result, or freed
     blocks = _row_blocks(shape[0])
     for block in blocks:
-        spectrum[block] /= (splat_transfer(fx, kernel_sigma) * splat_transfer(fy[block], kernel_sigma)).to(dtype)
+        transfer = (splat_transfer(fx, kernel_sigma) * splat_transfer(fy[block], kernel_sigma)).to(dtype)
+        torch.view_as_real(spectrum[block]).div_(transfer[..., None])
 
     if h == 1:  # nothing to deblur: only the splat's smoothing is undone
-        return shift_image(smooth, offset, add_to=torch.fft.irfft2(spectrum, s=shape, out=p)).to(image.dtype)
+        return _add_smooth(spectrum, smooth, shape, offset, work).to(image.dtype)
     eps2 = (0.5 / max(shape)) ** 2  # keeps the prior finite at f = 0
     shifts = [(kx, ky) for ky in range(-aliases, aliases + 1) for kx in range(-aliases, aliases + 1)]
     noise2 = max(noise, NOISE_FLOOR) ** 2
     # the prior's fit evaluates the model on a subsample, in float64
     kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2)
-    measured = spectrum.abs().square_().div_(shape[0] * shape[1])  # the image's power, |Z|^2 / n
+    # the image's power |Z|^2 / n, from the real pairs (abs's square root squared: 2.5 times as long)
+    parts = torch.view_as_real(spectrum)
+    measured = torch.mul(parts[..., 0], parts[..., 0]).addcmul_(parts[..., 1], parts[..., 1]).div_(shape[0] * shape[1])
+    del parts
     s2, beta = fit_spectrum(measured, fx, fy, kernel, shifts, noise2)
     model = _Model(fx[0].to(dtype), fy[:, 0].to(dtype), h, aperture, cutoff, offset, eps2)
-    # averaged over 3 x 3 frequencies for the filter's prior (which needs each block's
+    # the power averaged over 3 x 3 frequencies for the filter's prior (which needs each block's
     # neighbours as they were before filtering)
-    measured = torch.nn.functional.avg_pool2d(measured[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
-    for block in blocks:
-        spectrum[block] *= _mmse_filter(measured[block], model._replace(fy=model.fy[block]), shifts, s2,
-                                        beta, noise2, strength)
-    del measured
-    out = _irfft2_in_place(spectrum, shape, out=p)
-    del spectrum
-    shift_image(smooth, offset, add_to=out)
-    return out.to(image.dtype)
+    _apply_filter(spectrum, _mean_3x3(measured), model, (shifts, s2, beta, noise2, strength))
+    return _add_smooth(spectrum, smooth, shape, offset, work).to(image.dtype)
+
+
+def _apply_filter(spectrum: Tensor, measured: Tensor, model: _Model, terms: tuple) -> None:
+    """Multiply the half ``spectrum`` (rows, cols // 2 + 1) by the MMSE filter in place, a block
+    of rows at a time: rows of opposite fy (i and rows - i) share their aliases' terms
+    (:func:`_mmse_filter`), so a block of rows 0 < i < rows / 2 is filtered with its mirror
+    block, rows 0 and rows / 2 alone. ``measured`` is the power averaged over 3 x 3
+    frequencies, ``terms`` :func:`_mmse_filter`'s (shifts, s2, beta, noise2, strength)."""
+    rows = spectrum.shape[0]
+    for start in range(1, (rows + 1) // 2, BLOCK_ROWS):
+        block = slice(start, min(start + BLOCK_ROWS, (rows + 1) // 2))
+        mirror = torch.arange(rows - block.start, rows - block.stop, -1)
+        ahead, behind = _mmse_filter(measured[block], model._replace(fy=model.fy[block]), *terms,
+                                     mirrored=measured[mirror])
+        spectrum[block] *= ahead
+        spectrum[mirror] *= behind
+    alone = torch.tensor([0] + ([rows // 2] if rows % 2 == 0 and rows > 1 else []))
+    spectrum[alone] *= _mmse_filter(measured[alone], model._replace(fy=model.fy[alone]), *terms)[0]
+
+
+def _add_smooth(spectrum: Tensor, smooth: Tensor, shape: tuple[int, int], offset: tuple[float, float],
+                out: Tensor | None) -> Tensor:
+    """The filtered periodic part's ``spectrum`` inverted (into ``out``, if given; ``spectrum``
+    is overwritten) plus the smooth part shifted by ``offset`` (:func:`shift_image`): given as
+    its spectrum (added before the inverse, the borders mended after), or as an image (shape
+    ``shape``: added after the inverse)."""
+    if smooth.is_complex():
+        add_shifted_smooth(spectrum, smooth, shape, offset)
+        out = _irfft2_in_place(spectrum, shape, out=out)
+        return out if offset == (0.0, 0.0) else mirror_borders(out, smooth, offset)
+    return shift_image(smooth, offset, add_to=_irfft2_in_place(spectrum, shape, out=out))
+
+
+def _mean_3x3(power: Tensor) -> Tensor:
+    """``avg_pool2d(power, 3, 1, 1, count_include_pad=False)`` of (rows, cols) as two separable
+    sums divided by the neighbours counted (a tenth of avg_pool2d's time); ``power`` is
+    overwritten with the result."""
+    rows, cols = power.shape
+    across = power.clone()
+    across[:, 1:] += power[:, :-1]
+    across[:, :-1] += power[:, 1:]
+    power.copy_(across)
+    power[1:] += across[:-1]
+    power[:-1] += across[1:]
+    del across
+
+    def counted(n: int) -> Tensor:  # neighbours along one axis: 3, 2 at either end
+        count = torch.full((n,), 3.0, dtype=power.dtype)
+        count[0] -= 1
+        count[-1] -= 1
+        return count if n > 1 else torch.ones(1, dtype=power.dtype)
+
+    return power.div_(counted(rows)[:, None]).div_(counted(cols)[None, :])
 
 
 def _irfft2_in_place(spectrum: Tensor, shape: tuple[int, int], out: Tensor | None = None) -> Tensor:
@@ -215,10 +270,10 @@ class _Model(NamedTuple):
     def terms(self, kx: int, ky: int, rows: Tensor, cols: Tensor, s2: float, beta: float):
         """The prior P = s2 abs(f + k)^-beta, abs(K) and W of alias (kx, ky) at rows x cols."""
         gx, gy = self.fx[cols][None, :] + kx, self.fy[rows][:, None] + ky
-        r2 = gx * gx + gy * gy + self.eps2
+        r2 = (gx * gx + self.eps2) + gy * gy
         optics = (torch.ones_like(r2) if self.cutoff is None
-                  else diffraction_otf(torch.sqrt(r2) * (self.h / self.cutoff)))
-        prior = r2.pow_(-0.5 * beta).mul_(s2)
+                  else diffraction_otf(torch.sqrt(r2).mul_(self.h / self.cutoff)))
+        prior = r2.log_().mul_(-0.5 * beta).exp_().mul_(s2)  # pow's a quarter of the time
         k_mag = optics * (box(gx, self.h * self.aperture) * box(gy, self.h * self.aperture))
         optics *= box(gx, self.aperture) * box(gy, self.aperture)
         return prior, k_mag, optics
@@ -232,7 +287,7 @@ class _Model(NamedTuple):
 
 
 def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float,
-                 noise2: float, strength: float) -> Tensor:
+                 noise2: float, strength: float, mirrored: Tensor | None = None) -> list[Tensor]:
     """The MMSE filter of :func:`wiener_deblur` at the frequencies of (rows of) the half spectrum.
 
     Parameters
@@ -244,26 +299,30 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
         The image model on those frequencies, ``fy`` (rows,), ``fx`` (cols // 2 + 1,) (its
         dtype is the filter's).
     shifts : list of (kx, ky)
-        The aliases, (0, 0) included.
+        The aliases, (0, 0) included, a set symmetric in ky.
     s2, beta : float
         The scene prior s^2 / abs(f)^beta (:func:`fit_spectrum`).
     noise2 : float
         Noise power per node (intensity^2).
     strength : float
         Multiplies the noise power.
+    mirrored : Tensor, shape of ``measured``, optional
+        The power at the rows of frequencies -fy (same order): their filter too.
 
     Returns
     -------
-    Tensor, shape of ``measured``, complex
+    list of Tensor, shape of ``measured``, complex
+        The filter at the rows, then (with ``mirrored``) at the mirrored rows.
     """
     # Alias k's lattice phase is the unaliased one times the constant exp(-2 pi i k . offset),
     # so the numerator is phase(f) sum_k c_k P W |K|: two real sums. The aliases one at a time,
     # each only where the optics passes it; the unaliased term last, since its prior depends on
-    # the others' sum.
+    # the others' sum. Every term but the phase is even in each frequency: alias (kx, ky) at -fy
+    # is alias (kx, -ky) at fy, so mirrored rows reuse the terms with ky's phase negated.
     dtype = model.fx.dtype
-    cross_re = torch.zeros(measured.shape, dtype=dtype)
-    cross_im = torch.zeros(measured.shape, dtype=dtype)
-    power = torch.zeros(measured.shape, dtype=dtype)
+    sides = [measured] if mirrored is None else [measured, mirrored]
+    power = torch.zeros(measured.shape, dtype=dtype)  # the aliases' (the same at -fy)
+    cross = [(torch.zeros(measured.shape, dtype=dtype), torch.zeros(measured.shape, dtype=dtype)) for _ in sides]
     for kx, ky in shifts:
         if (kx, ky) == (0, 0):
             continue
@@ -272,78 +331,41 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
             continue
         prior, k_mag, w = model.terms(kx, ky, rows, cols, s2, beta)
         weighted = prior.mul_(k_mag)
-        angle = 2 * math.pi * (kx * model.offset[0] + ky * model.offset[1])
         c0, c1 = cols[0], cols[-1] + 1  # the columns are contiguous (fx increases)
         power[:, c0:c1].index_add_(0, rows, weighted * k_mag)
         weighted *= w
-        cross_re[:, c0:c1].index_add_(0, rows, weighted, alpha=math.cos(angle))
-        cross_im[:, c0:c1].index_add_(0, rows, weighted, alpha=-math.sin(angle))
+        for (cross_re, cross_im), sign in zip(cross, (1, -1)):
+            angle = 2 * math.pi * (kx * model.offset[0] + sign * ky * model.offset[1])
+            cross_re[:, c0:c1].index_add_(0, rows, weighted, alpha=math.cos(angle))
+            cross_im[:, c0:c1].index_add_(0, rows, weighted, alpha=-math.sin(angle))
         del prior, k_mag, w, weighted
     # Where the image holds more power than the power law explains (a grating, a texture), the
     # prior of the unaliased frequency is raised to what is measured (power smoothed over 3 x 3
     # frequencies, less the noise and the aliases' share), as long as the aperture passes it.
     every_row, every_col = torch.arange(measured.shape[0]), torch.arange(measured.shape[1])
-    prior, k0, w0 = model.terms(0, 0, every_row, every_col, s2, beta)
+    prior0, k0, w0 = model.terms(0, 0, every_row, every_col, s2, beta)
     seen = k0 * k0
-    empirical = measured.sub(noise2).sub_(power).clamp_min_(0).div_(seen.clamp_min(1e-12))
-    prior = torch.where(seen > 0.05, torch.maximum(prior, empirical), prior)
-    del empirical
-    prior *= k0
-    power += prior * k0
-    cross_re += prior.mul_(w0)
-    del prior, k0, w0, seen
-    power += strength * noise2
-    cross_re /= power
-    cross_im /= power
-    del power
-    filt = torch.complex(cross_re, cross_im)
-    del cross_re, cross_im
+    passed = seen > 0.05
     px, py = model.phase()
-    filt *= py[:, None]
-    filt *= px[None, :]
-    return filt
-
-
-def shift_image(image: Tensor, offset: tuple[float, float], add_to: Tensor | None = None) -> Tensor:
-    """A smooth image whose node j sits at coordinate j + offset, resampled at the integer
-    coordinates (that is, at nodes j - offset): bicubic, borders mirrored. Used for the smooth
-    part of the periodic + smooth split, which varies slowly, so a cubic needs no prefilter.
-
-    The interpolation is ``grid_sample``'s (bicubic, A = -0.75, reflection about the border
-    nodes, align_corners=True); the offset being the same for every node, it is applied as two
-    4-tap filters, one per axis, a block of rows at a time (no (rows, cols, 2) grid: a full
-    frame's 0.5 GB). Shapes (rows, cols); with ``add_to`` the result is added to it in place
-    (and returned).
-    """
-    if offset == (0.0, 0.0):
-        return image if add_to is None else add_to.add_(image)
-    rows, cols = image.shape
-    out = torch.zeros_like(image) if add_to is None else add_to
-    wx, ix = _cubic_taps(float(offset[0]), cols)
-    wy, iy = _cubic_taps(float(offset[1]), rows)
-    for block in _row_blocks(rows):
-        n = block.stop - block.start
-        part = image.index_select(0, iy[block.start:block.stop + 3]).index_select(1, ix)  # (n + 3, cols + 3)
-        across = sum(w * part[:, k:k + cols] for k, w in enumerate(wx))
-        out[block] += sum(w * across[k:k + n] for k, w in enumerate(wy))
-    return out
-
-
-def _cubic_taps(shift: float, n: int) -> tuple[list[float], Tensor]:
-    """The bicubic (Keys, A = -0.75, as ``grid_sample``'s) that resamples n nodes at j - ``shift``:
-    its 4 weights, and the indices (n + 3,) whose entries j .. j + 3 are node j's taps, reflected
-    about the first and last nodes."""
-    start = math.floor(-shift)
-    t, A = -shift - start, -0.75
-    weights = [(((A * (t + 1) - 5 * A) * (t + 1) + 8 * A) * (t + 1) - 4 * A),
-               ((A + 2) * t - (A + 3)) * t * t + 1,
-               ((A + 2) * (1 - t) - (A + 3)) * (1 - t) * (1 - t) + 1,
-               ((A * (2 - t) - 5 * A) * (2 - t) + 8 * A) * (2 - t) - 4 * A]
-    index = torch.arange(n + 3) + (start - 1)
-    if n == 1:
-        return weights, torch.zeros_like(index)
-    index = index.remainder(2 * (n - 1))  # reflect about 0 and n - 1 (period 2 (n - 1))
-    return weights, torch.where(index > n - 1, 2 * (n - 1) - index, index)
+    filters = []
+    for side, (cross_re, cross_im), py_side in zip(sides, cross, (py, py.conj())):
+        empirical = side.sub(noise2).sub_(power).clamp_min_(0).div_(seen.clamp_min(1e-12))
+        prior = torch.where(passed, torch.maximum(prior0, empirical), prior0)
+        del empirical
+        prior *= k0
+        total = power + prior * k0
+        cross_re += prior.mul_(w0)
+        del prior
+        total += strength * noise2
+        cross_re /= total
+        cross_im /= total
+        del total
+        filt = torch.complex(cross_re, cross_im)
+        del cross_re, cross_im
+        filt *= py_side[:, None]
+        filt *= px[None, :]
+        filters.append(filt)
+    return filters
 
 
 def fit_spectrum(power: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: float) -> tuple[float, float]:
@@ -416,34 +438,3 @@ def fit_spectrum(power: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: 
         if best is None or scatter < best[0]:
             best = (scatter, math.exp(level), beta)
     return best[1], best[2]
-
-
-def periodic_smooth(image: Tensor, in_place: bool = False) -> tuple[Tensor, Tensor]:
-    """Periodic plus smooth decomposition (Moisan, J. Math. Imaging Vis. 39, 2011).
-
-    image = p + s with p periodic (no jump between opposite borders) and s smooth (its
-    Laplacian vanishes inside; it carries the border jumps). Shapes (rows, cols); ``in_place``
-    writes p over ``image``.
-
-    References
-    ----------
-    .. [1] L. Moisan, "Periodic plus smooth image decomposition", Journal of Mathematical Imaging
-       and Vision 39(2), 2011, pp. 161-179.
-    """
-    M, N = image.shape
-    v = torch.zeros_like(image)
-    v[0, :] += image[-1, :] - image[0, :]
-    v[-1, :] += image[0, :] - image[-1, :]
-    v[:, 0] += image[:, -1] - image[:, 0]
-    v[:, -1] += image[:, 0] - image[:, -1]
-    S = torch.fft.rfft2(v)  # v is real: half the spectrum
-    del v
-    q = torch.arange(M, dtype=image.dtype)[:, None]
-    r = torch.arange(N // 2 + 1, dtype=image.dtype)[None, :]
-    den = 2 * torch.cos(2 * math.pi * q / M) + 2 * torch.cos(2 * math.pi * r / N) - 4
-    den[0, 0] = 1.0
-    S /= den
-    del den
-    S[0, 0] = 0
-    s = torch.fft.irfft2(S, s=(M, N))
-    return (image.sub_(s) if in_place else image - s), s

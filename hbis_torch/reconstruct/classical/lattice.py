@@ -1,0 +1,183 @@
+"""The samples' places on the h-times lattice, a batch of samples at a time: each sample's
+nearest node (integers) and its offset from it (float32), which is all that the splat onto the
+lattice (:func:`~hbis_torch.reconstruct.classical.splat.splat_on_lattice`) needs.
+
+The HR coordinate of a sample is x = h (u + 0.5) - 0.5 (docs/design.md, section 1). Positions
+given as spline nodes (:class:`~hbis_torch.optics.NodePositions`) are never summed in float64:
+x = h c + C + h d for the pixel's column c, a float64 constant C per frame (its mean
+displacement) and the float32 spline of the displacement's variation d
+(:func:`~hbis_torch.optics.interpolate_displacements`), so only the small fractional part
+frac(C) + h d is computed, in float32 (rounding about 1e-7 of it: some 1e-6 HR px).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from hbis_torch.optics import NodePositions, interpolate_displacements
+from hbis_torch.reconstruct.classical.splat import offset_from_sums
+
+
+class NodeBatch(NamedTuple):
+    """A batch of N samples and their nearest lattice nodes.
+
+    Attributes
+    ----------
+    values : Tensor, shape (N,), float32
+    col, row : Tensor, shape (N,), int32
+        The nearest node (column, row), possibly outside the lattice.
+    dx, dy : Tensor, shape (N,), float32
+        Node minus sample position, HR px (within half a node).
+    weights : Tensor, shape (N,), float32, or None
+    reach : float
+        The largest abs(dx) or abs(dy).
+    """
+
+    values: Tensor
+    col: Tensor
+    row: Tensor
+    dx: Tensor
+    dy: Tensor
+    weights: Tensor | None
+    reach: float = 0.0
+
+
+def batch_slices(count: int, height: int, width: int, samples: int) -> list[tuple[slice, slice]]:
+    """(frames, rows) slices of a (count, height, width) stack, of about ``samples`` samples at
+    most: whole frames, or rows of one frame where a frame has more."""
+    step = max(1, samples // (height * width))
+    rows = min(height, max(1, samples // width))
+    return [(slice(k, k + step), slice(r, r + rows)) for k in range(0, count, step) for r in range(0, height, rows)]
+
+
+class _Axis(NamedTuple):
+    """One axis of a batch's HR coordinates from the node splines (:func:`_spline_parts`): the
+    coordinate less the pixel's h c is ``whole + rest``."""
+
+    whole: Tensor  # (f, 1, 1) int32: the integer part of the per-frame constant
+    rest: Tensor  # (f, rows, cols) float32: the constant's fractional part plus h times the variation
+    variation: Tensor  # (f, rows, cols) float32: the spline of the displacement's variation, LR px
+    mean: Tensor  # (f,) float64: the frame's mean displacement, LR px
+    first: float  # the first pixel's LR coordinate
+
+
+def _spline_parts(positions: NodePositions, part: tuple[slice, slice], h: int, offset: tuple[float, float],
+                  row_step: int = 1) -> list[_Axis]:
+    """Frames and rows ``part`` of the nodes' splines, per axis (x, then y), on the lattice whose
+    nodes sit at ``offset`` (HR px) from the output grid's. Rows: every ``row_step``-th of
+    ``part[1]``."""
+    rows = np.arange(positions.height)[part[1]][::row_step]
+    variation, mean = interpolate_displacements(positions._replace(values=positions.values[part[0]]), rows=rows)
+    out = []
+    for axis, first in enumerate((float(positions.u[0]), float(positions.v[0]))):
+        constant = (first + mean[:, axis] + 0.5) * h - 0.5 - offset[axis]  # (f,) float64
+        whole = torch.floor(constant)
+        rest = torch.mul(variation[:, axis], h).add_((constant - whole).to(torch.float32)[:, None, None])
+        out.append(_Axis(whole.to(torch.int32)[:, None, None], rest, variation[:, axis], mean[:, axis], first))
+    return out
+
+
+# Samples this close to halfway between two nodes (in float32's rest) have their node chosen from
+# the float64 coordinate, as the code before lattice.py did: float32's rounding (1e-6 of the rest)
+# could otherwise pick the other node, and exact ties (a frame on the pixel grid, a lattice
+# offset of 0 at even h) would break the other way.
+TIE_MARGIN = 1e-3
+
+
+def _nearest_node(axis: _Axis, pixel: Tensor, dim: int, h: int, shift: float) -> tuple[Tensor, Tensor, float]:
+    """The nearest node (int32) along one axis of every sample of ``axis`` (frames, rows, cols),
+    node minus sample (float32, HR px) and its largest magnitude; ``pixel`` (int32) is the
+    samples' column (``dim`` 2) or row (``dim`` 1) indices, ``shift`` the lattice's offset
+    along the axis."""
+    nearest = torch.round(axis.rest)
+    shape = [1, 1, 1]
+    shape[dim] = -1
+    node = nearest.to(torch.int32).add_(pixel.view(shape) * h + axis.whole)
+    gap = nearest.sub_(axis.rest)
+    low, high = torch.aminmax(gap)
+    reach = max(-float(low), float(high))
+    if reach > 0.5 - TIE_MARGIN:  # some samples near halfway (none where they sit near nodes)
+        ties = torch.nonzero(gap.abs() > 0.5 - TIE_MARGIN, as_tuple=True)
+        # the earlier float64 sum: variation + (pixel coordinate + mean), then x = (u + 0.5) h - 0.5
+        place = axis.variation[ties].double() + ((axis.first + pixel[ties[dim]].double()) + axis.mean[ties[0]])
+        coord = ((place + 0.5) * h - 0.5) - shift
+        rounded = torch.round(coord)
+        node[ties] = rounded.to(torch.int32)
+        gap[ties] = (rounded - coord).to(torch.float32)
+        reach = float(gap.abs().max())
+    return node, gap, reach
+
+
+def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_step: int) -> tuple[float, float]:
+    """The samples' common sub-pixel offset (x, y) on the lattice, HR px, from every
+    ``row_step``-th row of the batches ``part_list``: the circular mean of the coordinates'
+    fractional parts (:func:`~hbis_torch.reconstruct.classical.splat.offset_from_sums`)."""
+    sums = [[0.0, 0.0, 0], [0.0, 0.0, 0]]
+    for part in part_list:
+        keep = None
+        if weights is not None:
+            keep = weights[part][:, ::row_step].reshape(-1) > 0
+        spline = None
+        if isinstance(positions, NodePositions):
+            spline = _spline_parts(positions, part, h, (0.0, 0.0), row_step)
+        for axis in (0, 1):
+            if spline is not None:
+                rest = spline[axis].rest.reshape(-1)
+                rest = rest.sub_(torch.round(rest))  # the integer part adds nothing to the angle
+            else:
+                coord = ((positions[part][:, ::row_step, :, axis].reshape(-1) + 0.5) * h - 0.5)
+                rest = coord.sub_(torch.round(coord)).to(torch.float32)
+            if keep is not None:
+                rest = rest[keep]
+            # the fractional part in float32: its cosine and sine are the same to 1e-7, the sums in float64
+            angle = rest.mul_(2 * math.pi)
+            sums[axis][0] += float(torch.cos(angle).sum(dtype=torch.float64))
+            sums[axis][1] += float(torch.sin(angle).sum(dtype=torch.float64))
+            sums[axis][2] += angle.numel()
+    return offset_from_sums(*sums[0]), offset_from_sums(*sums[1])
+
+
+def node_batch(frames: Tensor, positions, part: tuple[slice, slice], h: int, offset: tuple[float, float],
+               weights: Tensor | None = None) -> NodeBatch:
+    """The samples of frames and rows ``part`` (:func:`batch_slices`) on the lattice whose
+    nodes sit at ``offset`` (HR px) from the output grid's.
+
+    Parameters
+    ----------
+    frames : Tensor, shape (F, H, W)
+    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions
+        The samples' ROI-local reference LR coordinates (or the nodes they are interpolated from).
+    part : (slice, slice)
+    h : int
+    offset : (float, float)
+    weights : Tensor, shape (F, H, W), optional
+
+    Returns
+    -------
+    NodeBatch
+    """
+    cols = torch.arange(frames.shape[2], dtype=torch.int32)
+    rows = torch.arange(frames.shape[1], dtype=torch.int32)[part[1]]
+    spline = _spline_parts(positions, part, h, offset) if isinstance(positions, NodePositions) else None
+    nodes, gaps, reach = [], [], 0.0
+    for axis, (pixel, dim) in enumerate(((cols, 2), (rows, 1))):
+        if spline is not None:
+            node, gap, far = _nearest_node(spline[axis], pixel, dim, h, offset[axis])
+        else:
+            coord = ((positions[part][..., axis] + 0.5) * h - 0.5) - offset[axis]
+            nearest = torch.round(coord)
+            gap = (nearest - coord).to(torch.float32)
+            far = float(gap.abs().max()) if gap.numel() else 0.0
+            # beyond the lattice by more than a node is as good as anywhere beyond it (and fits int32)
+            node = nearest.clamp_(-2, 1 << 30).to(torch.int32)
+        nodes.append(node.reshape(-1))
+        gaps.append(gap.reshape(-1))
+        reach = max(reach, far)
+    values = frames[part].reshape(-1).to(torch.float32)
+    w = None if weights is None else weights[part].reshape(-1).to(torch.float32)
+    return NodeBatch(values, nodes[0], nodes[1], gaps[0], gaps[1], w, reach)

@@ -1,0 +1,136 @@
+"""The classical method's faster steps against the plain forms they replace: the lattice's
+nodes from the float32 node splines against float64 positions, the Wiener filter's mirrored
+rows, the boundary spectrum of the periodic + smooth split, the 3 x 3 mean of the power."""
+
+import math
+
+import numpy as np
+import torch
+
+from hbis_torch.optics import NodePositions, interpolate_positions
+from hbis_torch.reconstruct.classical.lattice import batch_slices, node_batch
+from hbis_torch.reconstruct.classical.periodic import (
+    add_shifted_smooth,
+    mirror_borders,
+    periodic_smooth,
+    shift_image,
+    smooth_spectrum,
+)
+from hbis_torch.reconstruct.classical.wiener import _mean_3x3, _mmse_filter, _Model
+
+
+def _nodes(gen, count=3, height=40, width=56, amplitude=0.0):
+    """NodePositions of a small stack: every pixel on the grid (plus a smooth displacement of
+    ``amplitude`` LR px and a per-frame shift)."""
+    nu, nv = np.linspace(0, width - 1, 5), np.linspace(0, height - 1, 4)
+    base = torch.stack(torch.broadcast_tensors(torch.from_numpy(nu)[None, :], torch.from_numpy(nv)[:, None]), -1)
+    wobble = amplitude * torch.rand((count, len(nv), len(nu), 2), generator=gen, dtype=torch.float64)
+    shift = torch.rand((count, 1, 1, 2), generator=gen, dtype=torch.float64) * 3
+    shift[0] = 0  # the first frame on the pixel grid: every sample halfway between two nodes at even h
+    return NodePositions(base + wobble + shift, nu, nv, width, height)
+
+
+def test_nodes_from_splines_match_float64_positions():
+    """Each sample's node from the float32 parts of the node splines is the float64 position's
+    nearest node (ties included: frame 0 sits exactly halfway at h = 4), and node minus
+    sample agrees to float32 rounding."""
+    gen = torch.Generator().manual_seed(5)
+    cases = ((4, 0.0, (0.0, 0.0)), (4, 2.0, (0.3, -0.45)), (7, 5.0, (0.0, 0.1)), (2, 1.0, (-0.5, 0.5)))
+    for h, amplitude, offset in cases:
+        nodes = _nodes(gen, amplitude=amplitude)
+        frames = torch.rand((3, nodes.height, nodes.width), generator=gen)
+        dense = interpolate_positions(nodes)
+        for part in batch_slices(3, nodes.height, nodes.width, 2 * nodes.height * nodes.width):
+            fast, plain = node_batch(frames, nodes, part, h, offset), node_batch(frames, dense, part, h, offset)
+            assert torch.equal(fast.col, plain.col) and torch.equal(fast.row, plain.row)
+            assert float((fast.dx - plain.dx).abs().max()) < 1e-5 and float((fast.dy - plain.dy).abs().max()) < 1e-5
+            assert torch.equal(fast.values, plain.values)
+            x = (dense[part][..., 0].reshape(-1) + 0.5) * h - 0.5 - offset[0]
+            assert float((fast.col - fast.dx.double() - x).abs().max()) < 1e-5
+
+
+def test_mirrored_rows_share_the_aliases_terms():
+    """The filter of rows at -fy from the terms of the rows at fy equals the filter computed
+    on those rows directly (an offset that is not half a pixel: the aliases' phases differ)."""
+    gen = torch.Generator().manual_seed(2)
+    rows, cols = 24, 32
+    fy = torch.fft.fftfreq(rows, dtype=torch.float64).to(torch.float32)
+    fx = torch.fft.rfftfreq(cols, dtype=torch.float64).to(torch.float32)
+    model = _Model(fx, fy, 3, 1.0, 1.5, (0.2, -0.35), 1e-4)
+    measured = torch.rand((rows, len(fx)), generator=gen) * 1e-3
+    block, mirror = slice(1, 6), torch.arange(rows - 1, rows - 6, -1)
+    shifts = [(kx, ky) for ky in (-1, 0, 1) for kx in (-1, 0, 1)]
+    args = (shifts, 1e-4, 2.0, 1e-5, 2.0)
+    ahead, behind = _mmse_filter(measured[block], model._replace(fy=fy[block]), *args, mirrored=measured[mirror])
+    direct = _mmse_filter(measured[mirror], model._replace(fy=fy[mirror]), *args)[0]
+    assert torch.allclose(ahead, _mmse_filter(measured[block], model._replace(fy=fy[block]), *args)[0])
+    assert float((behind - direct).abs().max()) <= 1e-6 * float(direct.abs().max())
+
+
+def test_periodic_smooth_and_mean_3x3_match_their_plain_forms():
+    """The boundary image's spectrum from 1-D FFTs against Moisan's rfft2 of the boundary image;
+    separable 3 x 3 means against avg_pool2d (float32 and float64, odd and even sizes)."""
+    gen = torch.Generator().manual_seed(4)
+    for shape in ((33, 48), (50, 31), (2, 5)):
+        for dtype, tol in ((torch.float64, 1e-12), (torch.float32, 1e-5)):
+            image = torch.rand(shape, generator=gen, dtype=dtype)
+            v = torch.zeros_like(image)
+            v[0, :] += image[-1, :] - image[0, :]
+            v[-1, :] += image[0, :] - image[-1, :]
+            v[:, 0] += image[:, -1] - image[:, 0]
+            v[:, -1] += image[:, 0] - image[:, -1]
+            M, N = shape
+            q = torch.arange(M, dtype=dtype)[:, None]
+            r = torch.arange(N // 2 + 1, dtype=dtype)[None, :]
+            den = 2 * torch.cos(2 * math.pi * q / M) + 2 * torch.cos(2 * math.pi * r / N) - 4
+            den[0, 0] = 1
+            spectrum = torch.fft.rfft2(v) / den
+            spectrum[0, 0] = 0
+            p, s = periodic_smooth(image)
+            assert float((s - torch.fft.irfft2(spectrum, s=shape)).abs().max()) < tol
+            assert float((p + s - image).abs().max()) < tol
+            pooled = torch.nn.functional.avg_pool2d(image[None, None], 3, 1, 1, count_include_pad=False)[0, 0]
+            assert float((_mean_3x3(image.clone()) - pooled).abs().max()) < tol
+
+
+def test_smooth_part_shifted_in_the_fourier_domain_matches_shift_image():
+    """The smooth part's bicubic shift as a DFT multiplier plus the mirrored borders mended
+    equals shift_image of the smooth part itself (every offset sign, odd and even sizes)."""
+    gen = torch.Generator().manual_seed(6)
+    cases = (((40, 52), (0.5, 0.5)), ((33, 27), (-0.5, 0.2)), ((8, 9), (0.31, -0.44)), ((64, 50), (0.0, 0.25)))
+    for shape, offset in cases:
+        image = torch.rand(shape, generator=gen, dtype=torch.float64)
+        smooth = smooth_spectrum(image)
+        expected = shift_image(torch.fft.irfft2(smooth, s=shape), offset)
+        got = torch.fft.irfft2(add_shifted_smooth(torch.zeros_like(smooth), smooth, shape, offset), s=shape)
+        assert float((mirror_borders(got, smooth, offset) - expected).abs().max()) < 1e-12
+
+
+def test_all_finite_by_the_sum_agrees_with_isfinite():
+    """A NaN or an infinity anywhere is found; finite values whose sum overflows are finite."""
+    from hbis_torch.reconstruct.classical.sr import _all_finite
+
+    values = torch.rand(1000)
+    assert _all_finite(values)
+    for bad in (float("nan"), float("inf"), -float("inf")):
+        broken = values.clone()
+        broken[517] = bad
+        assert not _all_finite(broken)
+    large = torch.full((8,), 3e38)
+    assert _all_finite(large) and not _all_finite(torch.cat((large, torch.tensor([float("nan")]))))
+    assert _all_finite(torch.tensor([float(torch.finfo(torch.float32).max), -float(torch.finfo(torch.float32).max)]))
+
+
+def test_fill_holes_in_place_gives_the_same_image():
+    """Holes of every kind (empty nodes, a wide empty band, weak nodes): the same bits in place."""
+    from hbis_torch.reconstruct.classical.splat import fill_holes
+
+    gen = torch.Generator().manual_seed(8)
+    den = torch.rand((60, 70), generator=gen) + 0.5
+    den[10:14, 20:23] = 0  # a small hole
+    den[:, 40:62] = 0  # a band wider than the first blurs
+    den[30, 5] = 0.1  # a weak node
+    num = den * torch.rand((60, 70), generator=gen)
+    expected = fill_holes(num, den)
+    got = fill_holes(num.clone(), den, in_place=True)
+    assert torch.isfinite(got).all() and torch.equal(got, expected)
