@@ -115,14 +115,7 @@ def main(argv=None) -> int:
     for h in args.h:
         rows = [x for x in cells if x["h"] == h]
         print(f"\n## h = {h}\n")
-        print("| condition | " + " | ".join(args.photos) + " | mean | classical |")
-        print("|---" * (len(args.photos) + 3) + "|")
-        for cond in CONDITIONS:
-            row = [x for x in rows if x["condition"] == cond.name]
-            deltas = [x["delta_db"] for x in row]
-            cells_text = [f"{x['delta_db']:+.2f}" + "*" * bool(x["classical_returned"]) for x in row]
-            print(f"| {cond.name} | " + " | ".join(cells_text)
-                  + f" | {np.mean(deltas):+.2f} | {np.mean([x['classical_db'] for x in row]):.2f} |")
+        print_rows(rows, CONDITIONS, args.photos)
         ratios = np.array([x["noise_ratio"] for x in rows if not x["condition"].startswith("noise in the metadata")])
         frames = np.array([x["frames_noise_ratio"] for x in rows])
         print(f"\nMeasured noise over the sensor's at mid grey (stacks without a sensor model): on the "
@@ -144,6 +137,18 @@ def main(argv=None) -> int:
     if args.out is not None:
         atomic_write_text(args.out, json.dumps(cells, indent=1))
     return 0
+
+
+def print_rows(rows: list[dict], conditions, photos) -> None:
+    """One table row per condition: learned - classical per photograph (* where the classical
+    image was returned), the row's mean and its mean classical PSNR."""
+    print("| condition | " + " | ".join(photos) + " | mean | classical |")
+    print("|---" * (len(photos) + 3) + "|")
+    for cond in conditions:
+        row = [x for x in rows if x["condition"] == cond.name]
+        text = [f"{x['delta_db']:+.2f}" + "*" * bool(x["classical_returned"]) for x in row]
+        print(f"| {cond.name} | " + " | ".join(text) + f" | {np.mean([x['delta_db'] for x in row]):+.2f} | "
+              f"{np.mean([x['classical_db'] for x in row]):.2f} |")
 
 
 def burst_matrix(args) -> int:
@@ -179,13 +184,7 @@ def burst_matrix(args) -> int:
     for scale in scales:
         rows = [x for x in cells if x["scale"] == scale]
         print(f"\n## S = {scale}, {size} x {size} px frames\n")
-        print("| condition | " + " | ".join(args.photos) + " | mean | classical |")
-        print("|---" * (len(args.photos) + 3) + "|")
-        for cond in BURST_CONDITIONS:
-            row = [x for x in rows if x["condition"] == cond.name]
-            text = [f"{x['delta_db']:+.2f}" + "*" * bool(x["classical_returned"]) for x in row]
-            print(f"| {cond.name} | " + " | ".join(text) + f" | {np.mean([x['delta_db'] for x in row]):+.2f} | "
-                  f"{np.mean([x['classical_db'] for x in row]):.2f} |")
+        print_rows(rows, BURST_CONDITIONS, args.photos)
         deltas = np.array([x["delta_db"] for x in rows])
         print(f"\nS = {scale}: mean {deltas.mean():+.2f} dB, worst cell {deltas.min():+.2f} dB, "
               f"{int((deltas < -0.3).sum())} of {deltas.size} cells below -0.3 dB"
