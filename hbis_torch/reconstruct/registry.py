@@ -218,8 +218,9 @@ register(Method(
         Option("--model", "model", "'fast' (the default: the shipped small model for the stack's h), 'best' "
                "(the shipped larger model: more held-out dB for more time, docs/learned.md) or an ONNX model file",
                {"type": str, "metavar": "fast|best|M.onnx"}),
-        Option("--provider", "provider", "what runs the model; 'auto' (the default) takes OpenVINO where "
-               "installed (pip install 'hbis-torch[openvino]'), else onnxruntime's CPU kernels",
+        Option("--provider", "provider", "what runs the model; 'auto' (the default) and 'cpu': onnxruntime's "
+               "CPU kernels; 'openvino': OpenVINO (pip install 'hbis-torch[openvino]'), no faster here in fp32 "
+               "and 1-6 s to compile the model",
                {"choices": ("auto", "openvino", "cpu")}),
         Option("--extrapolate", "extrapolate", "run the network on a stack outside its training domain too "
                "(a lens blurrier, or noise far lower or higher, than any it was trained on); by default such "

@@ -164,9 +164,13 @@ def default_threads(threads: int | None = None) -> int:
 
 
 PROVIDERS = ("auto", "openvino", "cpu")
-# What "auto" runs an int8 file on: onnxruntime's integer convolutions ran the QDQ models faster
-# than OpenVINO did here (benchmarks/bench_fast.py)
-INT8_AUTO_PROVIDER = "cpu"
+# What "auto" runs a model on: onnxruntime's own kernels. In fp32 OpenVINO ran the shipped h = 4
+# model no faster (0.420 s against 0.415 s on a 480 x 640 input, benchmarks/bench_fast.py) and
+# compiles the graph first, 1 to 6 s a process, so that a 32^2 reconstruct started in 1.49 times
+# an `import torch` through it and 1.26 times through onnxruntime; onnxruntime's integer
+# convolutions ran the int8 files faster than OpenVINO did too (bench_providers). "openvino"
+# still takes OpenVINO.
+AUTO_PROVIDER = "cpu"
 OPENVINO = "OpenVINOExecutionProvider"
 
 
@@ -190,7 +194,8 @@ def execution_providers(provider: str = "auto", threads: int | None = None) -> l
     onnxruntime's own CPU kernels it ran the h = 4 model at about the same speed here
     (``benchmarks/bench_providers.py``, benchmarks/results/bench_providers.txt). Precision is
     pinned to FP32, so that a CPU with bf16 or fp16 units does not lower it. ``"cpu"``:
-    onnxruntime's own kernels. ``"auto"``: OpenVINO where installed, else the CPU kernels.
+    onnxruntime's own kernels. ``"auto"``: OpenVINO where installed, else the CPU kernels (what a
+    caller gets here; :class:`LearnedSR` turns ``"auto"`` into :data:`AUTO_PROVIDER` first).
     """
     import onnxruntime as ort
 
@@ -333,7 +338,7 @@ class LearnedSR:
         Tile size in LR pixels (the halo, :attr:`halo` pixels, comes on top).
     provider : {"auto", "openvino", "cpu"}
         What runs the model: OpenVINO or onnxruntime's CPU kernels (:func:`execution_providers`).
-        With ``"auto"``, an int8 file runs on onnxruntime's CPU kernels (:data:`INT8_AUTO_PROVIDER`).
+        ``"auto"`` (the default) runs onnxruntime's CPU kernels (:data:`AUTO_PROVIDER` says why).
     precision : {"int8", "fp32"} or None
         Which file of the model runs (:func:`with_precision`; None: the one named).
 
@@ -357,8 +362,8 @@ class LearnedSR:
                  provider: str = "auto", precision: str | None = None):
         path, self.metadata = with_precision(*check_model(model, h), precision)
         self.precision = self.metadata.get("precision", "fp32")
-        if provider == "auto" and self.precision == "int8":
-            provider = INT8_AUTO_PROVIDER
+        if provider == "auto":
+            provider = AUTO_PROVIDER
         if len(onnxruntime_distributions()) > 1:
             warnings.warn("both onnxruntime and onnxruntime-openvino are installed; they write the same "
                           "onnxruntime module over each other. Keep one: pip uninstall -y onnxruntime "
