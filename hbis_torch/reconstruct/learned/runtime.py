@@ -167,9 +167,9 @@ PROVIDERS = ("auto", "openvino", "cpu")
 # What "auto" runs a model on: onnxruntime's own kernels. In fp32 OpenVINO ran the shipped h = 4
 # model no faster (0.420 s against 0.415 s on a 480 x 640 input, benchmarks/bench_fast.py) and
 # compiles the graph first, 1 to 6 s a process, so that a 32^2 reconstruct started in 1.49 times
-# an `import torch` through it and 1.26 times through onnxruntime; onnxruntime's integer
-# convolutions ran the int8 files faster than OpenVINO did too (bench_providers). "openvino"
-# still takes OpenVINO.
+# an `import torch` through it and 1.26 times through onnxruntime. The int8 files ran faster in
+# OpenVINO in that run (0.239 s against onnxruntime's 0.341 s), by less than its compile takes
+# on one stack. "openvino" still takes OpenVINO, for either file.
 AUTO_PROVIDER = "cpu"
 OPENVINO = "OpenVINOExecutionProvider"
 
