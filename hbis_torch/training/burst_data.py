@@ -2,9 +2,10 @@
 
 A Risley scan puts its samples on a near-regular lattice; a burst (``hbis assemble --burst``)
 puts them wherever the camera went, a few frames or many, with gaps, and its motion is measured,
-not known. The refiners trained on scans alone did not transfer to real bursts, so the pool of
-each scale also holds burst examples (:func:`simulate_burst_example`), and one model per scale
-serves both kinds of stack. Each example draws, from its own seed:
+not known. A training pool can hold burst examples beside the scans
+(:func:`simulate_burst_example`; ``training/train_sr.py burst_pool_size=N``), so that one model
+per scale serves both kinds of stack (docs/real-bursts.md says what that gave: the shipped
+models are trained on scans alone). Each example draws, from its own seed:
 
 * the scene: the scan pool's scenes (:data:`~hbis_torch.training.data.TRAIN_SCENES`, the
   held-out photographs never), drawn on the output grid;
