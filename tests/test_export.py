@@ -1,6 +1,7 @@
 """ONNX export: opset, dynamic height/width, metadata, parity with torch at another size."""
 
 import json
+import os
 
 import numpy as np
 import onnx
@@ -274,3 +275,22 @@ class _Runs:
 
     def __reduce__(self):
         return (self.marker.touch, ())
+
+
+def test_a_models_metadata_is_read_once_while_the_file_is_unchanged(exported, tmp_path):
+    import shutil
+
+    from hbis_torch.reconstruct.learned import runtime
+
+    copy = tmp_path / "m.onnx"
+    shutil.copy(exported[1], copy)
+    first = runtime.read_model_metadata(copy)
+    hits = runtime._metadata_items.cache_info().hits
+    first["h"] = "mutated"  # the caller's dict is its own
+    assert runtime.read_model_metadata(copy)["h"] != "mutated"
+    assert runtime._metadata_items.cache_info().hits == hits + 1
+    misses = runtime._metadata_items.cache_info().misses
+    os.utime(copy, ns=(0, 0))  # a changed file is read again
+    written = {p.key: p.value for p in onnx.load(str(exported[1])).metadata_props}
+    assert runtime.read_model_metadata(copy) == written
+    assert runtime._metadata_items.cache_info().misses == misses + 1

@@ -167,8 +167,8 @@ def burst_matrix(args) -> int:
         model = shipped_model_path(scale, args.tier) if args.models is None else args.models / f"hbis_sr_h{scale}.onnx"
         notes: list[str] = []
         classical = score(reconstruct(stack, "classical"), truth, scale)
-        learned = score(reconstruct(stack, "learned", model=str(model), messages=notes, ensemble=args.ensemble,
-                                    extrapolate=False), truth, scale)
+        learned = score(reconstruct(stack, "learned", model=str(model), messages=notes, ensemble=args.ensemble),
+                        truth, scale)
         returned = [n for n in notes if "classical image" in n]
         cells.append({"scale": scale, "condition": BURST_CONDITIONS[c].name, "photo": photo,
                       "classical_db": classical, "learned_db": learned, "delta_db": learned - classical,
