@@ -91,6 +91,17 @@ def test_the_default_is_two_at_h7_and_one_elsewhere(tmp_path):
             assert np.abs(chosen - learned_sr(stack, registration="optics", ensemble=1)).max() > 1e-4
 
 
+def test_the_best_tier_defaults_to_two_symmetries(tmp_path):
+    # the best models are for users who chose time for quality: 2 symmetries at every h
+    assert [default_ensemble(h, "best") for h in (2, 4, 7)] == [2, 2, 2]
+    assert default_ensemble(4, None) == default_ensemble(4, "fast") == 1  # a file of no tier: as fast
+    assert check_ensemble(None, 4, "best") == 2 and check_ensemble(8, 4, "best") == 8
+    stack = read_stack(simulated_stack_file(tmp_path, 4, size=12)[0])
+    chosen = learned_sr(stack, registration="optics", model="best")
+    np.testing.assert_array_equal(chosen, learned_sr(stack, registration="optics", model="best", ensemble=2))
+    assert np.abs(chosen - learned_sr(stack, registration="optics", model="best", ensemble=1)).max() > 1e-4
+
+
 def test_cli_ensemble_is_learned_only_and_checked_first(tmp_path, capsys):
     stack_path, truth = simulated_stack_file(tmp_path, 4)
     out = tmp_path / "sr.tif"

@@ -10,7 +10,7 @@ from hbis_torch.reconstruct.classical import classical_sr
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, estimate_noise_params, noise_params_from_meta
 from hbis_torch.reconstruct.learned.method import _runner
-from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, classical_returned, model_to_run
+from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, classical_returned, model_to_run, tier_of
 
 
 def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
@@ -23,7 +23,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
 
     Returns (S H, S W) float32 in [0, 1]."""
     path, metadata, missing = model_to_run(model, stack.h, precision)
-    ensemble = check_ensemble(ensemble, stack.h)
+    ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     image = classical_sr(frames, positions, stack.h, True, weights=weights, cutoff=None).numpy()
     if missing is not None:
         return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)

@@ -198,17 +198,21 @@ def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 25
 # rot90 k times; k >= 4 is the transpose, then rot90 (k - 4) times.
 ENSEMBLE_ORDER = (0, 4, 2, 6, 1, 5, 3, 7)
 ENSEMBLE_SIZES = (1, 2, 4, 8)
-# The self-ensemble the learned method uses unless told: 2 at h = 7, where the classical step
-# takes most of its time, so that averaging two symmetries costs 9 % more time end to end at
-# 128^2 (benchmarks/bench_ensemble.py) for +0.08 dB on the validation set, never less on any of
-# its stacks (+0.10 dB on the held-out matrix; docs/learned.md); 1 elsewhere (at h = 4 it would
-# cost 14 %, past the margin of the speed goal at 256^2).
-DEFAULT_ENSEMBLE = {7: 2}
+# The self-ensemble the learned method uses unless told, per tier and h. Fast tier: 2 at h = 7,
+# where the classical step takes most of its time, so that averaging two symmetries costs 9 % more
+# time end to end at 128^2 (benchmarks/bench_ensemble.py) for +0.08 dB on the validation set,
+# never less on any of its stacks (+0.10 dB on the held-out matrix; docs/learned.md); 1 elsewhere
+# (at h = 4 it would cost 14 %, past the margin of the speed goal at 256^2). Best tier: the user
+# has chosen time for quality, and 2 symmetries at h = 2 and 4 add +0.09 / +0.08 dB on the
+# held-out matrix (docs/learned.md, "Two tiers"); BEST_ENSEMBLE_H7 at h = 7.
+BEST_ENSEMBLE_H7 = 2
+DEFAULT_ENSEMBLE = {"fast": {7: 2}, "best": {2: 2, 4: 2, 7: BEST_ENSEMBLE_H7}}
 
 
-def default_ensemble(h: int) -> int:
-    """The self-ensemble size the learned method uses at ``h`` unless told (:data:`DEFAULT_ENSEMBLE`)."""
-    return DEFAULT_ENSEMBLE.get(int(h), 1)
+def default_ensemble(h: int, tier: str | None = "fast") -> int:
+    """The self-ensemble size the learned method uses at ``h`` unless told (:data:`DEFAULT_ENSEMBLE`);
+    ``tier`` "fast" or "best" (None, a model file of no tier: as "fast")."""
+    return DEFAULT_ENSEMBLE[tier or "fast"].get(int(h), 1)
 
 
 def _transform_phases(phases: np.ndarray, k: int) -> np.ndarray:
@@ -233,11 +237,11 @@ def _untransform_image(image: np.ndarray, k: int) -> np.ndarray:
     return image.T if k >= 4 else image
 
 
-def check_ensemble(count, h: int | None = None) -> int:
+def check_ensemble(count, h: int | None = None, tier: str | None = "fast") -> int:
     """``count`` if it is a self-ensemble size (:data:`ENSEMBLE_SIZES`), else one clear error;
-    None is :func:`default_ensemble` of ``h`` (1 without an ``h``)."""
+    None is :func:`default_ensemble` of ``h`` and ``tier`` (1 without an ``h``)."""
     if count is None:
-        return default_ensemble(h) if h is not None else 1
+        return default_ensemble(h, tier) if h is not None else 1
     if not isinstance(count, (int, np.integer)) or isinstance(count, bool) or count not in ENSEMBLE_SIZES:
         raise HbisInputError(f"ensemble must be one of {', '.join(map(str, ENSEMBLE_SIZES))}, got {count!r}")
     return int(count)

@@ -12,7 +12,8 @@ from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, recons
 from hbis_torch.reconstruct.classical.method import reconstruct_classical_raw_bayer
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, estimate_noise_params, noise_params_from_meta
-from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, LearnedSR, classical_returned, model_to_run
+from hbis_torch.reconstruct.learned.runtime import (NO_MODEL_REMEDY, LearnedSR, classical_returned, model_to_run,
+                                                    tier_of)
 
 
 def classical_and_noise(stack, registration: str = "optics", positions=None,
@@ -100,9 +101,10 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     ensemble : {1, 2, 4, 8} or None
         Average the network over this many of the square's symmetries (geometric self-ensemble,
         :func:`~hbis_torch.reconstruct.learned.inputs.self_ensemble`): as many times the network's
-        cost (``training/eval_matrix.py --ensemble N`` measures the gain). None: 2 at
-        h = 7, where the classical step takes most of the time, else 1
-        (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`).
+        cost (``training/eval_matrix.py --ensemble N`` measures the gain). None: the
+        tier's default (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`: the fast
+        models 2 at h = 7, where the classical step takes most of the time, else 1; the best
+        models 2; a model file of no tier as the fast ones).
     precision : {"int8", "fp32"} or None
         Which file of the model runs (:func:`~hbis_torch.reconstruct.learned.runtime.with_precision`;
         None: the file named, float32 for the shipped models; ``"int8"``: its int8 file).
@@ -113,7 +115,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     """
     # before any work; the session opens after the classical step
     path, metadata, missing = model_to_run(model, stack.h, precision)
-    ensemble = check_ensemble(ensemble, stack.h)
+    ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     image, noise_params = classical_and_noise(stack, registration, positions, messages)
     if missing is not None:  # no shipped network for this h: as outside the training domain
         return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)
@@ -153,7 +155,7 @@ def reconstruct_learned_raw_bayer(stack, registration: str = "auto", *, messages
     Keywords as for :func:`reconstruct_learned`; returns (h H, h W, 3) float32.
     """
     path, _, missing = model_to_run(model, stack.h, precision)
-    ensemble = check_ensemble(ensemble, stack.h)
+    ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     planes = reconstruct_classical_raw_bayer(stack, registration, messages=messages)
     if missing is not None:  # as learned_sr: the classical image, said so
         return classical_returned(planes, missing, messages, remedy=NO_MODEL_REMEDY)

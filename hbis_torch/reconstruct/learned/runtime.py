@@ -20,7 +20,7 @@ import numpy as np
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain, unhelpful_model
-from hbis_torch.reconstruct.learned.inputs import TILE_HALO, run_tiled, super_resolve
+from hbis_torch.reconstruct.learned.inputs import TILE_HALO, check_ensemble, run_tiled, super_resolve
 
 MODEL_FORMAT = "hbis-sr-onnx/2"
 NORMALISATION = (
@@ -346,6 +346,8 @@ class LearnedSR:
     Attributes
     ----------
     h : int
+    tier : {"fast", "best"} or None
+        The shipped tier ``model`` named (None: a file); sets the default self-ensemble.
     provider : str
         ``"openvino"`` or ``"cpu"``: what took the model.
     precision : str
@@ -362,6 +364,7 @@ class LearnedSR:
     def __init__(self, model=None, h: int | None = None, threads: int | None = None, tile: int = 256,
                  provider: str = "auto", precision: str | None = None):
         path, self.metadata = with_precision(*check_model(model, h), precision)
+        self.tier = tier_of(model)
         self.precision = self.metadata.get("precision", "fp32")
         if provider == "auto":
             provider = AUTO_PROVIDER
@@ -424,13 +427,14 @@ class LearnedSR:
             Run the network anyway.
         ensemble : {1, 2, 4, 8} or None
             Average the network over this many of the square's symmetries, at as many times its
-            cost (:func:`~hbis_torch.reconstruct.learned.inputs.self_ensemble`); None: 2 at
-            h = 7, else 1 (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`).
+            cost (:func:`~hbis_torch.reconstruct.learned.inputs.self_ensemble`); None: the
+            default of :attr:`tier` (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`).
 
         Returns
         -------
         ndarray, shape (hH, hW), float32 in [0, 1]
         """
+        ensemble = check_ensemble(ensemble, self.h, self.tier)
         reason = self.unhelpful or outside_domain(self.domain, noise_params, cutoff)
         if reason is not None and not extrapolate:
             return classical_returned(image, reason, messages)
