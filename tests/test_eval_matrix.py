@@ -69,3 +69,11 @@ def test_cells_outside_the_training_domain_report_both_the_method_and_the_networ
     printed = capsys.readouterr().out
     assert "+0.00*" in printed and "extrapolate=True" in printed
     assert em.main(["--h", "2", "--out", str(out)]) == 2  # never overwrites a result
+
+
+def test_a_tier_runs_at_its_own_default_self_ensemble(em, tmp_path, capsys):
+    # --tier best scores the best models as hbis reconstruct --model best runs them (2 symmetries)
+    out = tmp_path / "best.json"
+    assert em.main(["--h", "4", "--tier", "best", "--photos", "camera", "--size", "16", "--out", str(out)]) == 0
+    assert {c["ensemble"] for c in json.loads(out.read_text())} == {2}
+    assert "self-ensemble of 2 at h = 4" in capsys.readouterr().out

@@ -55,7 +55,7 @@ from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
 from hbis_torch.reconstruct.learned.inputs import check_ensemble
 from hbis_torch.reconstruct.learned.method import classical_and_noise
-from hbis_torch.reconstruct.learned.runtime import TIERS, shipped_model_path
+from hbis_torch.reconstruct.learned.runtime import TIERS
 from hbis_torch.training.heldout import CONDITIONS, PHOTOS, make_stack, noise_ratio, score
 
 
@@ -88,8 +88,9 @@ def main(argv=None) -> int:
     cells = []
     jobs = [(h, c, p) for h in args.h for c in range(len(CONDITIONS)) for p in args.photos]
     started = time.monotonic()
-    runners = {h: LearnedSR(shipped_model_path(h, args.tier) if args.models is None
-                            else args.models / f"hbis_sr_h{h}.onnx", h=h) for h in args.h}
+    # a tier by name, so that its default self-ensemble applies; a folder's files as the fast tier
+    tier = args.tier if args.models is None else None
+    runners = {h: LearnedSR(tier or args.models / f"hbis_sr_h{h}.onnx", h=h) for h in args.h}
     for h, c, photo in tqdm(jobs, desc="cells", disable=not sys.stderr.isatty()):
         size = args.size if h < 7 else (2 * args.size) // 3
         stack, truth = make_stack(CONDITIONS[c], photo, h, size, seed=1000 + c)
@@ -98,7 +99,7 @@ def main(argv=None) -> int:
         notes: list[str] = []
         learned_image = runners[h](*args_, messages=notes, ensemble=args.ensemble)
         classical, learned = score(classical_image, truth, h), score(learned_image, truth, h)
-        cell = {"h": h, "condition": CONDITIONS[c].name, "photo": photo, "ensemble": check_ensemble(args.ensemble, h),
+        cell = {"h": h, "condition": CONDITIONS[c].name, "photo": photo, "ensemble": check_ensemble(args.ensemble, h, tier),
                 "classical_db": classical,
                 "learned_db": learned, "delta_db": learned - classical,
                 "classical_returned": notes[0] if notes else None,  # and why
@@ -108,7 +109,7 @@ def main(argv=None) -> int:
         if notes:  # what the network would have done there
             cell["extrapolated_delta_db"] = score(runners[h](*args_, extrapolate=True, ensemble=args.ensemble), truth, h) - classical
         cells.append(cell)
-    ensembles = ", ".join(f"{check_ensemble(args.ensemble, h)} at h = {h}" for h in args.h)
+    ensembles = ", ".join(f"{check_ensemble(args.ensemble, h, tier)} at h = {h}" for h in args.h)
     which = f"models in {args.models}" if args.models is not None else f"the shipped {args.tier} models"
     print(f"# learned ({which}) - classical, dB (PSNR vs truth, border {2} LR px), self-ensemble of {ensembles}; "
           f"{time.monotonic() - started:.0f} s")
@@ -164,10 +165,10 @@ def burst_matrix(args) -> int:
     for scale, c, photo in tqdm(jobs, desc="burst cells", disable=not sys.stderr.isatty()):
         frames, truth, bits = make_burst(BURST_CONDITIONS[c], photo, scale, size, seed=2000 + c)
         stack, _ = assemble_burst(frames, scale, bit_depth=bits)
-        model = shipped_model_path(scale, args.tier) if args.models is None else args.models / f"hbis_sr_h{scale}.onnx"
+        model = args.tier if args.models is None else str(args.models / f"hbis_sr_h{scale}.onnx")
         notes: list[str] = []
         classical = score(reconstruct(stack, "classical"), truth, scale)
-        learned = score(reconstruct(stack, "learned", model=str(model), messages=notes, ensemble=args.ensemble),
+        learned = score(reconstruct(stack, "learned", model=model, messages=notes, ensemble=args.ensemble),
                         truth, scale)
         returned = [n for n in notes if "classical image" in n]
         cells.append({"scale": scale, "condition": BURST_CONDITIONS[c].name, "photo": photo,
