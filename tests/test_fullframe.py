@@ -159,6 +159,7 @@ def test_gradient_into_is_torch_gradient():
             for dim in (0, 1):
                 out = torch.full(shape, float("nan"), dtype=dtype)
                 assert torch.equal(gradient_into(image, dim, out), torch.gradient(image, dim=dim)[0])
+                assert torch.equal(gradient_into(image, dim, out, twice=True), 2 * torch.gradient(image, dim=dim)[0])
 
 
 def test_wiener_overwrite_gives_the_same_image_and_leaves_the_input_alone_by_default():
