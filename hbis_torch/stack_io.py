@@ -188,6 +188,13 @@ class Stack:
             return torch.from_numpy(np.array(self.frames, dtype=np.float32))
         white = 2 ** self.bit_depth - 1
         black = self.black_level
+        if black == 0:
+            # One pass: numpy's float32 division gives torch's bits (every uint16 value checked);
+            # only values above white (none in a valid file) need clipping.
+            x = np.divide(self.frames, np.float32(white), dtype=np.float32)
+            if self.frames.max() > white:
+                np.minimum(x, np.float32(1.0), out=x)
+            return torch.from_numpy(x)
         x = torch.from_numpy(self.frames.astype(np.float32))
         return x.sub_(black).div_(white - black).clamp_(0.0, 1.0)  # in place: a full frame's stack is 80 MB
 
@@ -256,8 +263,10 @@ def write_image(path, image, meta: dict | None = None, pixel_size_um: float | No
     image = np.asarray(image.detach().cpu() if isinstance(image, torch.Tensor) else image)
     if not (image.ndim == 2 or (image.ndim == 3 and image.shape[-1] == 3)):
         raise HbisInputError(f"{path}: an image must have shape (H, W) or (H, W, 3), got {image.shape}")
-    image = image.astype(np.float32)
-    if not np.isfinite(image).all():
+    image = np.asarray(image, dtype=np.float32)  # no copy of a float32 image
+    with np.errstate(over="ignore"):  # the sum is finite, unless values are not or it overflows
+        finite = bool(np.isfinite(image.sum())) or bool(np.isfinite(image).all())
+    if not finite:
         raise HbisInputError(f"{path}: the image contains NaN or infinite values")
     meta = dict(meta or {})
     if pixel_size_um is not None:

@@ -109,7 +109,10 @@ def read_tiff(path: Path, max_pages: int) -> tuple[np.ndarray, str | None]:
         with quiet_tifffile(), tifffile.TiffFile(path) as tif:
             pages = declared_pages(tif, path, max_pages)
             description = pages[0].description
-            arrays = [p.asarray() for p in pages]
+            # decoded into one array (the pages' shapes and dtypes are checked alike): no stacking copy
+            arrays = np.empty((len(pages),) + tuple(pages[0].shape), pages[0].dtype)
+            for page, out in zip(pages, arrays):
+                page.asarray(out=out)
     except StackFormatError:
         raise
     except FileNotFoundError:
@@ -125,7 +128,7 @@ def read_tiff(path: Path, max_pages: int) -> tuple[np.ndarray, str | None]:
         raise StackFormatError(
             f"{path}: pages must be grayscale (rows, cols) or RGB (rows, cols, 3), got shape {arrays[0].shape}"
         )
-    return np.stack(arrays), description
+    return arrays, description
 
 
 def write_tiff(tmp: Path, array: np.ndarray, description: str, pixel_size_um: float | None = None) -> None:

@@ -16,7 +16,7 @@ from hbis_torch.reconstruct.classical.periodic import (
     shift_image,
     smooth_spectrum,
 )
-from hbis_torch.reconstruct.classical.wiener import _mean_3x3, _mmse_filter, _Model
+from hbis_torch.reconstruct.classical.wiener import _add_at, _mean_3x3, _mmse_filter, _Model, _ring_of, _ring_sums
 
 
 def _nodes(gen, count=3, height=40, width=56, amplitude=0.0):
@@ -67,11 +67,44 @@ def test_mirrored_rows_share_the_aliases_terms():
     assert float((behind - direct).abs().max()) <= 1e-6 * float(direct.abs().max())
 
 
+def test_alias_terms_added_as_a_slice_or_by_index_add_alike():
+    """An alias's terms go to contiguous rows as a slice's add_, to others by index_add_: the
+    same sums."""
+    gen = torch.Generator().manual_seed(9)
+    sums = torch.rand((6, 8), generator=gen)
+    values = torch.rand((3, 4), generator=gen)
+    for rows in (torch.tensor([1, 2, 3]), torch.tensor([0, 2, 5])):
+        got, expected = sums.clone(), sums.clone()
+        _add_at(got, rows, torch.arange(2, 6), values, 0.5)
+        expected[:, 2:6].index_add_(0, rows, values, alpha=0.5)
+        assert torch.equal(got, expected)
+
+
+def test_ring_sums_from_half_the_rows_match_every_row():
+    """The rings' counts and power sums found on rows 0 .. rows // 2 (their mirrors' power
+    added) against bincount over every row (odd and even sizes, more rows than a block, float32
+    and float64 power, which is left as it was)."""
+    gen = torch.Generator().manual_seed(10)
+    for rows, cols in ((300, 40), (301, 33), (2, 8), (1, 6), (7, 7)):
+        fy = torch.fft.fftfreq(rows, dtype=torch.float64)[:, None]
+        fx = torch.fft.rfftfreq(cols, dtype=torch.float64)[None, :]
+        edges = torch.logspace(math.log10(1.5 / max(rows, cols)), math.log10(0.71), 25, dtype=torch.float64)
+        bins = _ring_of(fx, fy, edges).reshape(-1) + 1
+        for dtype in (torch.float32, torch.float64):
+            power = torch.rand((rows, cols // 2 + 1), generator=gen, dtype=dtype)
+            before = power.clone()
+            count, total = _ring_sums(power, fx, fy, edges)
+            assert torch.equal(count, torch.bincount(bins, minlength=26)[1:25])
+            expected = torch.bincount(bins, power.reshape(-1).double(), minlength=26)[1:25]
+            assert torch.allclose(total, expected, rtol=1e-12, atol=0)
+            assert torch.equal(power, before)
+
+
 def test_periodic_smooth_and_mean_3x3_match_their_plain_forms():
     """The boundary image's spectrum from 1-D FFTs against Moisan's rfft2 of the boundary image;
     separable 3 x 3 means against avg_pool2d (float32 and float64, odd and even sizes)."""
     gen = torch.Generator().manual_seed(4)
-    for shape in ((33, 48), (50, 31), (2, 5)):
+    for shape in ((33, 48), (50, 31), (2, 5), (300, 17)):  # 300 rows: more than one block
         for dtype, tol in ((torch.float64, 1e-12), (torch.float32, 1e-5)):
             image = torch.rand(shape, generator=gen, dtype=dtype)
             v = torch.zeros_like(image)

@@ -159,6 +159,7 @@ def test_gradient_into_is_torch_gradient():
             for dim in (0, 1):
                 out = torch.full(shape, float("nan"), dtype=dtype)
                 assert torch.equal(gradient_into(image, dim, out), torch.gradient(image, dim=dim)[0])
+                assert torch.equal(gradient_into(image, dim, out, twice=True), 2 * torch.gradient(image, dim=dim)[0])
 
 
 def test_wiener_overwrite_gives_the_same_image_and_leaves_the_input_alone_by_default():
@@ -173,7 +174,7 @@ def test_wiener_overwrite_gives_the_same_image_and_leaves_the_input_alone_by_def
 
 
 def test_wiener_inverse_in_place_gives_the_same_image(monkeypatch):
-    """Spectra of IN_PLACE_FFT_SIZE or more (a full frame at h = 7) are inverted a block at a
+    """Spectra of IN_PLACE_FFT_SIZE or more (a full frame at h = 4 or 7) are inverted a block at a
     time without irfft2's spectrum-sized temporary: the same image, odd and even sizes."""
     from hbis_torch.reconstruct.classical import wiener
 

@@ -80,6 +80,20 @@ def test_to_float_uses_bit_depth_and_black_level():
     assert torch.equal(floats.to_float(), torch.from_numpy(floats.frames))
 
 
+def test_to_float_without_black_level_gives_the_in_place_formulas_bits():
+    """With black level 0 the frames go to float32 in one numpy division: the same bits as
+    (x - 0) / white clipped to [0, 1] in torch, for every 8- and 16-bit value (those above a
+    12-bit white clipped)."""
+    for dtype, bit_depth in ((np.uint16, 12), (np.uint16, 16), (np.uint8, 8)):
+        values = np.arange(np.iinfo(dtype).max + 1, dtype=dtype).reshape(1, 1, -1)
+        stack = _stack(dtype, frames=1, bit_depth=bit_depth)
+        stack = Stack(values, stack.meta)
+        white = 2 ** bit_depth - 1
+        expected = torch.from_numpy(values.astype(np.float32)).sub_(0).div_(white).clamp_(0.0, 1.0)
+        got = stack.to_float()
+        assert got.dtype == torch.float32 and torch.equal(got, expected)
+
+
 def test_defaults_when_optional_keys_are_absent(tmp_path):
     stack = _stack(np.uint8, bit_depth=None)
     del stack.meta["reference_index"]
@@ -243,3 +257,8 @@ def test_image_round_trip(tmp_path):
     assert meta == {"h": 4, "roi": [1, 2, 3, 4]}
     with pytest.raises(HbisInputError, match="NaN"):
         write_image(tmp_path / "n.tif", np.full((2, 2), np.nan))
+    with pytest.raises(HbisInputError, match="NaN"):  # one infinity among finite values
+        write_image(tmp_path / "i.tif", np.array([[0.5, np.inf], [0.1, 0.2]], dtype=np.float32))
+    large = np.full((4, 4), 3e38, dtype=np.float32)  # finite, though its sum overflows
+    write_image(tmp_path / "l.tif", large)
+    np.testing.assert_array_equal(read_image(tmp_path / "l.tif")[0], large)

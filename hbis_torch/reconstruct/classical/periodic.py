@@ -44,13 +44,18 @@ def smooth_spectrum(image: Tensor) -> Tensor:
     cols = torch.fft.fft(image[:, -1] - image[:, 0])  # B, (M,)
     turn_q = 1 - torch.exp(2j * math.pi * torch.arange(M, dtype=torch.float64) / M).to(complex_dtype)
     turn_r = 1 - torch.exp(2j * math.pi * torch.arange(N // 2 + 1, dtype=torch.float64) / N).to(complex_dtype)
-    S = (turn_q[:, None] * rows[None, :]).add_(cols[:, None] * turn_r[None, :])
-    q = torch.arange(M, dtype=image.dtype)[:, None]
-    r = torch.arange(N // 2 + 1, dtype=image.dtype)[None, :]
-    den = 2 * torch.cos(2 * math.pi * q / M) + 2 * torch.cos(2 * math.pi * r / N) - 4
-    den[0, 0] = 1.0
-    torch.view_as_real(S).div_(den[..., None])  # as real pairs: a third of a complex division's time
-    del den
+    # the denominator 2 cos(2 pi q / M) + 2 cos(2 pi r / N) - 4 from its two 1-D parts
+    cos_q = 2 * torch.cos(2 * math.pi * torch.arange(M, dtype=image.dtype) / M)
+    cos_r = 2 * torch.cos(2 * math.pi * torch.arange(N // 2 + 1, dtype=image.dtype) / N)
+    S = torch.empty((M, N // 2 + 1), dtype=complex_dtype)
+    # a block of rows at a time, while its temporaries are in the cache
+    for block in _row_blocks(M):
+        part = torch.mul(turn_q[block, None], rows[None, :], out=S[block])
+        part.add_(cols[block, None] * turn_r[None, :])
+        den = (cos_q[block, None] + cos_r[None, :]).sub_(4)
+        if block.start == 0:
+            den[0, 0] = 1.0
+        torch.view_as_real(part).div_(den[..., None])  # as real pairs: a third of a complex division's time
     S[0, 0] = 0
     return S
 

@@ -204,27 +204,36 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
         # sums (the correction is a small part); the snapped sums are freed first (at h = 7 they
         # would add 240 MB at the peak)
         pilot = fill_holes(sums.spread(0, release=True), den, typical, in_place=True)
+        # twice the gradient (central differences not halved: a pass over both less), halved
+        # per sample with the same bits (a power of two scales exactly)
         gradient = torch.empty((1, 2) + den.shape, dtype=den.dtype)  # (1, 2, rows, cols): d/dx, d/dy
-        gradient_into(pilot, 1, gradient[0, 0])
-        gradient_into(pilot, 0, gradient[0, 1])
+        gradient_into(pilot, 1, gradient[0, 0], twice=True)
+        gradient_into(pilot, 0, gradient[0, 1], twice=True)
         del pilot
         sums.clear(0)
         for batch, idx, w in kept or ((b, *sums.node_index(b.col, b.row, b.weights)) for b in batches()):
             sx, sy = _sample(gradient, torch.sub(batch.col, batch.dx), torch.sub(batch.row, batch.dy))
-            corrected = sx.mul_(batch.dx).add_(sy.mul_(batch.dy)).add_(batch.values)
+            corrected = sx.mul_(batch.dx).add_(sy.mul_(batch.dy))
+            torch.add(batch.values, corrected, alpha=0.5, out=corrected)
             sums.add(0, idx, corrected if w is None else corrected.mul_(w))
         del gradient
     return sums.spread(0, release=True), den, typical
 
 
-def gradient_into(image: Tensor, dim: int, out: Tensor) -> Tensor:
+def gradient_into(image: Tensor, dim: int, out: Tensor, twice: bool = False) -> Tensor:
     """``torch.gradient(image, dim=dim)[0]`` (unit spacing: central differences, one-sided at
     both ends; at least 2 entries along ``dim``), written into ``out`` of ``image``'s shape
-    without torch's temporaries (three image-sized arrays)."""
+    without torch's temporaries (three image-sized arrays); ``twice``: twice that, exactly (the
+    central differences not halved)."""
     n = image.shape[dim]
-    torch.sub(image.narrow(dim, 2, n - 2), image.narrow(dim, 0, n - 2), out=out.narrow(dim, 1, n - 2)).div_(2)
-    torch.sub(image.narrow(dim, 1, 1), image.narrow(dim, 0, 1), out=out.narrow(dim, 0, 1))
-    torch.sub(image.narrow(dim, n - 1, 1), image.narrow(dim, n - 2, 1), out=out.narrow(dim, n - 1, 1))
+    inner = torch.sub(image.narrow(dim, 2, n - 2), image.narrow(dim, 0, n - 2), out=out.narrow(dim, 1, n - 2))
+    first = torch.sub(image.narrow(dim, 1, 1), image.narrow(dim, 0, 1), out=out.narrow(dim, 0, 1))
+    last = torch.sub(image.narrow(dim, n - 1, 1), image.narrow(dim, n - 2, 1), out=out.narrow(dim, n - 1, 1))
+    if twice:
+        first.mul_(2)
+        last.mul_(2)
+    else:
+        inner.div_(2)
     return out
 
 
