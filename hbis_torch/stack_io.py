@@ -189,8 +189,9 @@ class Stack:
         white = 2 ** self.bit_depth - 1
         black = self.black_level
         if black == 0:
-            # One pass: numpy's float32 division gives torch's bits (every uint16 value checked);
-            # only values above white (none in a valid file) need clipping.
+            # One division, no float32 copy first: numpy's float32 division gives torch's bits
+            # (every uint16 value checked); only values above white (none in a valid file) need
+            # clipping, which an integer max (a cheap read) rules out.
             x = np.divide(self.frames, np.float32(white), dtype=np.float32)
             if self.frames.max() > white:
                 np.minimum(x, np.float32(1.0), out=x)

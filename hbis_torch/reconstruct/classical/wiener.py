@@ -434,15 +434,12 @@ def fit_spectrum(power: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: 
     cols = 2 * (half - 1) if half > 1 else 1
     edges = torch.logspace(math.log10(1.5 / max(rows, cols)), math.log10(0.71), 25, dtype=fx.dtype)
 
-    def ring_of(fx: Tensor, fy: Tensor) -> Tensor:  # ring index; -1 and 24: outside the rings
-        return _ring_of(fx, fy, edges)
-
     count, total = _ring_sums(power, fx, fy, edges)
     m = total / count.clamp_min(1)
     # The model's shape is smooth in frequency: evaluate it on a subsample (about 16k points).
     stride = max(1, rows * half // 16384)
     pick = torch.arange(0, rows * half, stride)
-    ring = ring_of(fx[0, pick % half], fy[pick // half, 0])
+    ring = _ring_of(fx[0, pick % half], fy[pick // half, 0], edges)  # -1 and 24: outside the rings
     inside = (ring >= 0) & (ring < 24)
     pick, sub_ring = pick[inside], ring[inside]
     sub_count = torch.bincount(sub_ring, minlength=24)
