@@ -36,7 +36,7 @@ from hbis_torch.training.heldout import CONDITIONS, PHOTOS, make_stack  # the he
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--hs", type=int, nargs="+", default=[2, 4], choices=[2, 4, 7])
+    parser.add_argument("--hs", type=int, nargs="+", default=[2, 4], choices=[2, 3, 4, 7])
     parser.add_argument("--size", type=int, default=256, help="sensor ROI side, LR pixels")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=2)

@@ -194,3 +194,18 @@ def test_every_learned_option_reaches_the_burst_path(options):
     assert image.shape == plain.shape and np.isfinite(image).all()
     if options.get("model") == "best" or options.get("precision") == "int8":
         assert not np.array_equal(image, plain)  # another network ran
+
+
+def test_scale_three_bursts_run_the_shipped_model():
+    """S = 3 has a shipped model (trained on scans and bursts, hbis_torch/models/README.md): the
+    learned method refines the classical image there instead of returning it."""
+    motions = random_motions(12, (SIZE, SIZE), np.random.default_rng(3), 1.5, 1.0)
+    burst = simulate_burst(_truth(3, which="astronaut"), 3, motions, noise=0.005, seed=3)
+    stack, _ = assemble_burst(burst.frames, 3)
+    notes: list = []
+    learned = reconstruct(stack, "learned", messages=notes)
+    classical = reconstruct(stack, "classical")
+    assert not any("no learned model" in n for n in notes), notes
+    assert learned.shape == (3 * SIZE, 3 * SIZE) and np.abs(learned - classical).max() > 1e-3
+    gain = psnr(learned, burst.truth) - psnr(classical, burst.truth)
+    assert gain > 1.0, gain  # 2.3 dB on this burst

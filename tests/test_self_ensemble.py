@@ -80,8 +80,8 @@ def test_the_average_is_closer_to_the_truth(tmp_path):
     assert scores[0] + 0.05 < scores[1] < scores[2]
 
 
-def test_the_default_is_two_at_h7_and_one_elsewhere(tmp_path):
-    assert [default_ensemble(h) for h in (2, 3, 4, 7)] == [1, 1, 1, 2]
+def test_the_default_is_two_at_h3_and_h7_and_one_elsewhere(tmp_path):
+    assert [default_ensemble(h) for h in (2, 3, 4, 7)] == [1, 2, 1, 2]
     assert check_ensemble(None, 7) == 2 and check_ensemble(None, 4) == 1 and check_ensemble(None) == 1
     for h in (4, 7):
         stack = read_stack(simulated_stack_file(tmp_path, h, size=12)[0])

@@ -78,7 +78,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         A model file, or the shipped model of that tier for the stack's h
         (:data:`~hbis_torch.reconstruct.learned.runtime.TIERS`); defaults to the shipped fast
         model (:func:`default_model_path`). Where none
-        is shipped (h other than 2, 4 and 7), the classical image is returned, with a line in
+        is shipped (h other than 2, 3, 4 and 7; 2, 4 and 7 for "best"), the classical image is returned, with a line in
         ``messages`` saying so.
     positions : array (F, H, W, 2), optional
         Sample positions in ROI-local reference LR pixels; by default the classical method's
