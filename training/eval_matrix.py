@@ -56,6 +56,7 @@ from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
 from hbis_torch.reconstruct.learned.inputs import check_ensemble
 from hbis_torch.reconstruct.learned.method import classical_and_noise
 from hbis_torch.reconstruct.learned.runtime import TIERS
+from hbis_torch.training.data import TRAIN_PHOTOS
 from hbis_torch.training.heldout import CONDITIONS, PHOTOS, make_stack, noise_ratio, score
 
 
@@ -73,7 +74,10 @@ def main(argv=None) -> int:
                         help="the shipped models of this tier (hbis reconstruct --model)")
     models.add_argument("--models", type=Path, default=None, help="a folder of hbis_sr_h{h}.onnx instead")
     parser.add_argument("--size", type=int, default=72, help="LR side of each stack (h = 7: 2/3 of it)")
-    parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS)
+    parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS + TRAIN_PHOTOS,
+                        help="the held-out photographs (default: all five); training photographs instead "
+                        "(grass, gravel, ...) make a validation matrix, to choose between models without "
+                        "looking at the held-out ones")
     parser.add_argument("--ensemble", type=int, default=None, choices=(1, 2, 4, 8),
                         help="the learned method's geometric self-ensemble (hbis reconstruct --ensemble; "
                         "default: the learned method's, 2 at h = 7, else 1)")
