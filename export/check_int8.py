@@ -34,7 +34,7 @@ from hbis_torch.training.quantize import int8_path
 def parse(argv):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    parser.add_argument("--h", type=int, nargs="+", default=[2, 4, 7], choices=[2, 4, 7])
+    parser.add_argument("--h", type=int, nargs="+", default=[2, 3, 4, 7], choices=[2, 3, 4, 7])
     parser.add_argument("--models", type=Path, default=None, help="folder of the models (default: shipped)")
     parser.add_argument("--name", default="hbis_sr_h{h}", help="a model's file name without .onnx, {h} its factor")
     parser.add_argument("--int8", nargs="+", default=None, metavar="FILE",

@@ -230,7 +230,7 @@ register(Method(
                "of the time, else 1): as many times the network's time, for a small gain in PSNR",
                {"type": int, "choices": (1, 2, 4, 8)}),
         Option("--precision", "precision", "which file of the model runs: 'fp32' (the default for the shipped "
-               "models) or 'int8', its int8 file NAME.int8.onnx (shipped beside every model): the network 1.25-1.5 "
+               "models) or 'int8', its int8 file NAME.int8.onnx (shipped for h = 2, 4, 7): the network 1.25-1.5 "
                "times as fast on AVX2 cores, at a cost in PSNR of 0.03-0.6 dB on ordinary stacks and up to 7 dB "
                "on the cleanest (docs/learned.md, section int8)", {"choices": ("int8", "fp32")}),
     ),
