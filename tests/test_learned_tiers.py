@@ -7,9 +7,10 @@ import torch
 
 from hbis_torch.cli import main
 from hbis_torch.errors import HbisInputError
-from hbis_torch.reconstruct.learned import LearnedSR, default_model_path, read_model_metadata
+from hbis_torch.reconstruct.learned import LearnedSR, default_model_path, learned_sr, read_model_metadata
 from hbis_torch.reconstruct.learned.architecture import Architecture
-from hbis_torch.reconstruct.learned.runtime import model_to_run
+from hbis_torch.reconstruct.learned.runtime import missing_model, model_to_run
+from hbis_torch.stack_io import read_stack
 from hbis_torch.training.export import load_checkpoint
 from hbis_torch.training.net import build_net, grow_net
 from tests.test_learned_cli import simulated_stack_file
@@ -62,3 +63,19 @@ def test_a_grown_network_computes_what_the_small_one_did_and_then_learns():
         grow_net(big, Architecture(4, width=32, blocks=6))
     with pytest.raises(HbisInputError, match="cannot grow"):
         grow_net(build_net(Architecture(4, 8, 1)), Architecture(7, 16, 2))
+
+
+def test_the_best_tier_runs_the_fast_model_where_it_has_none(tmp_path):
+    """h = 3 has a fast model only: --model best runs it (more than the classical image), and says so."""
+
+    assert missing_model(3, "best") is not None and missing_model(3, "fast") is None
+    stack = read_stack(simulated_stack_file(tmp_path, 3, size=16)[0])
+    notes: list = []
+    best = learned_sr(stack, registration="optics", model="best", messages=notes)
+    assert notes == ["no best model for h = 3: the fast model runs"]
+    np.testing.assert_array_equal(best, learned_sr(stack, registration="optics", model="fast"))
+    # where neither tier has a model, the classical image as before
+    notes = []
+    learned_sr(read_stack(simulated_stack_file(tmp_path, 5, size=16)[0]), registration="optics", model="best",
+               messages=notes)
+    assert len(notes) == 1 and "no best learned model for h = 5" in notes[0]

@@ -216,7 +216,8 @@ register(Method(
     threads=True,
     options=(
         Option("--model", "model", "'fast' (the default: the shipped small model for the stack's h), 'best' "
-               "(the shipped larger model: more held-out dB for more time, docs/learned.md) or an ONNX model file",
+               "(the shipped larger model: more held-out dB for more time, docs/learned.md; at h = 3, which has "
+               "none, the fast one) or an ONNX model file",
                {"type": str, "metavar": "fast|best|M.onnx"}),
         Option("--provider", "provider", "what runs the model; 'auto' (the default) and 'cpu': onnxruntime's "
                "CPU kernels; 'openvino': OpenVINO (pip install 'hbis-torch[openvino]'), no faster here in fp32 "

@@ -10,7 +10,8 @@ from hbis_torch.reconstruct.classical import classical_sr
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, estimate_noise_params, noise_params_from_meta
 from hbis_torch.reconstruct.learned.method import _runner
-from hbis_torch.reconstruct.learned.runtime import NO_MODEL_REMEDY, classical_returned, model_to_run, tier_of
+from hbis_torch.reconstruct.learned.runtime import (NO_MODEL_REMEDY, available_tier, classical_returned, model_to_run,
+                                                    tier_of)
 
 
 def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
@@ -22,6 +23,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     with a message (:func:`~hbis_torch.reconstruct.learned.runtime.classical_returned`).
 
     Returns (S H, S W) float32 in [0, 1]."""
+    model = available_tier(model, stack.h, messages)
     path, metadata, missing = model_to_run(model, stack.h, precision)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     image = classical_sr(frames, positions, stack.h, True, weights=weights, cutoff=None).numpy()

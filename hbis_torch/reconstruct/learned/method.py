@@ -12,8 +12,8 @@ from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, recons
 from hbis_torch.reconstruct.classical.method import reconstruct_classical_raw_bayer
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, estimate_noise_params, noise_params_from_meta
-from hbis_torch.reconstruct.learned.runtime import (NO_MODEL_REMEDY, LearnedSR, classical_returned, model_to_run,
-                                                    tier_of)
+from hbis_torch.reconstruct.learned.runtime import (NO_MODEL_REMEDY, LearnedSR, available_tier, classical_returned,
+                                                    model_to_run, tier_of)
 
 
 def classical_and_noise(stack, registration: str = "optics", positions=None,
@@ -78,8 +78,8 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         A model file, or the shipped model of that tier for the stack's h
         (:data:`~hbis_torch.reconstruct.learned.runtime.TIERS`); defaults to the shipped fast
         model (:func:`default_model_path`). Where none
-        is shipped (h other than 2, 3, 4 and 7; 2, 4 and 7 for "best"), the classical image is returned, with a line in
-        ``messages`` saying so.
+        is shipped (h other than 2, 3, 4 and 7), the classical image is returned, with a line in
+        ``messages`` saying so; "best" where only a fast model is (h = 3) runs that one, and says so.
     positions : array (F, H, W, 2), optional
         Sample positions in ROI-local reference LR pixels; by default the classical method's
         (:func:`~hbis_torch.reconstruct.classical.reconstruct_classical` with ``registration``).
@@ -114,6 +114,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     ndarray, shape (h H, h W), float32 in [0, 1]
     """
     # before any work; the session opens after the classical step
+    model = available_tier(model, stack.h, messages)
     path, metadata, missing = model_to_run(model, stack.h, precision)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     image, noise_params = classical_and_noise(stack, registration, positions, messages)
@@ -154,6 +155,7 @@ def reconstruct_learned_raw_bayer(stack, registration: str = "auto", *, messages
     ``raw_bayer`` path of the ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS`.
     Keywords as for :func:`reconstruct_learned`; returns (h H, h W, 3) float32.
     """
+    model = available_tier(model, stack.h, messages)
     path, _, missing = model_to_run(model, stack.h, precision)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     planes = reconstruct_classical_raw_bayer(stack, registration, messages=messages)

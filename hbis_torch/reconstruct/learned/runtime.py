@@ -85,6 +85,17 @@ def model_to_run(model, h: int, precision: str | None = None) -> tuple[Path | No
     return (*with_precision(*check_model(model, h), precision), None)
 
 
+def available_tier(model, h: int, messages: list | None = None):
+    """``model`` as given, or ``"fast"`` where it names the best tier and only a fast model is
+    shipped for ``h`` (h = 3): the user asked for the most quality there is, and the fast network
+    gives more than the classical image. The switch is said in ``messages``."""
+    if tier_of(model) == "best" and missing_model(h, "best") is not None and missing_model(h, "fast") is None:
+        if messages is not None:
+            messages.append(f"no best model for h = {h}: the fast model runs")
+        return "fast"
+    return model
+
+
 def missing_model(h: int, tier: str = "fast") -> str | None:
     """None if a model for factor ``h`` of ``tier`` is shipped, else the line that says there is none."""
     path = shipped_model_path(h, tier)
