@@ -67,7 +67,6 @@ def test_a_grown_network_computes_what_the_small_one_did_and_then_learns():
 
 def test_the_best_tier_runs_the_fast_model_where_it_has_none(tmp_path):
     """h = 3 has a fast model only: --model best runs it (more than the classical image), and says so."""
-
     assert missing_model(3, "best") is not None and missing_model(3, "fast") is None
     stack = read_stack(simulated_stack_file(tmp_path, 3, size=16)[0])
     notes: list = []
