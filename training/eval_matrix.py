@@ -80,7 +80,7 @@ def main(argv=None) -> int:
                         "looking at the held-out ones")
     parser.add_argument("--ensemble", type=int, default=None, choices=(1, 2, 4, 8),
                         help="the learned method's geometric self-ensemble (hbis reconstruct --ensemble; "
-                        "default: the learned method's, 2 at h = 7, else 1)")
+                        "default: the tier's, as hbis reconstruct's; a --models folder as the fast tier)")
     parser.add_argument("--out", type=Path, default=None, help="write every cell as JSON")
     args = parser.parse_args(argv)
     if args.out is not None and args.out.exists():

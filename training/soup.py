@@ -27,9 +27,7 @@ from hbis_torch.training.net import depth_to_space
 
 
 def mix(a: dict, b: dict, alpha: float) -> dict:
-    """``(1 - alpha) a + alpha b`` of two state dicts with the same keys and shapes."""
-    if a.keys() != b.keys() or any(a[k].shape != b[k].shape for k in a):
-        raise SystemExit("soup: the two files hold different networks")
+    """``(1 - alpha) a + alpha b`` of two state dicts of one architecture (same keys and shapes)."""
     return {k: torch.lerp(a[k].double(), b[k].double(), alpha).to(a[k].dtype) for k in a}
 
 
@@ -53,7 +51,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if any(not 0.0 <= x <= 1.0 for x in args.alphas):
         parser.error("every alpha must lie in [0, 1]")
-    model_a, ckpt_a = load_checkpoint(args.a)
+    model_a, _ = load_checkpoint(args.a)
     model_b, ckpt_b = load_checkpoint(args.b)
     if model_a.config() != model_b.config():
         raise SystemExit(f"soup: {args.a} and {args.b} are different architectures")

@@ -227,8 +227,9 @@ register(Method(
                "(a lens blurrier, or noise far lower or higher, than any it was trained on); by default such "
                "a stack gets the classical image, with a message", {"action": "store_true"}),
         Option("--ensemble", "ensemble", "average the network over this many of the square's 8 flips and "
-               "rotations (geometric self-ensemble; default 2 at h = 7, where the classical step takes most "
-               "of the time, else 1): as many times the network's time, for a small gain in PSNR",
+               "rotations (geometric self-ensemble; default: the fast models 2 at h = 3 and 7, where the classical "
+               "step takes most of the time, else 1; the best models 2): as many times the network's time, for a "
+               "small gain in PSNR",
                {"type": int, "choices": (1, 2, 4, 8)}),
         Option("--precision", "precision", "which file of the model runs: 'fp32' (the default for the shipped "
                "models) or 'int8', its int8 file NAME.int8.onnx (shipped for h = 2, 4, 7): the network 1.25-1.5 "

@@ -198,16 +198,15 @@ def run_tiled(infer, base: np.ndarray, noise: np.ndarray, h: int, tile: int = 25
 # rot90 k times; k >= 4 is the transpose, then rot90 (k - 4) times.
 ENSEMBLE_ORDER = (0, 4, 2, 6, 1, 5, 3, 7)
 ENSEMBLE_SIZES = (1, 2, 4, 8)
-# The self-ensemble the learned method uses unless told, per tier and h. Fast tier: 2 at h = 7,
-# where the classical step takes most of its time, so that averaging two symmetries costs 9 % more
-# time end to end at 128^2 (benchmarks/bench_ensemble.py) for +0.08 dB on the validation set,
-# never less on any of its stacks (+0.10 dB on the held-out matrix; docs/learned.md); 1 elsewhere
-# (at h = 4 it would cost 14 %, past the margin of the speed goal at 256^2); 2 at h = 3 too: 8 % more
-# time end to end at 128^2 for +0.08 dB on the held-out photographs (bench_ensemble.py --hs 3
-# --size 128), and the held-out matrix's worst cell rises from -0.41 to -0.35 dB. Best tier: the user
-# has chosen time for quality, and 2 symmetries at h = 2 and 4 add +0.09 / +0.08 dB on the
-# held-out matrix (docs/learned.md, "Two tiers"); 2 at h = 7 as in the fast tier (4 and 8 add
-# +0.08 and +0.11 dB there, at twice and four times the network's cost).
+# The self-ensemble the learned method uses unless told, per tier and h. Fast tier: 2 where the
+# classical step takes most of the time, so that the second pass is cheap end to end at 128^2
+# (benchmarks/bench_ensemble.py): at h = 7 9 % more time for +0.08 dB on the validation set, never
+# less on any of its stacks (+0.10 dB on the held-out matrix; docs/learned.md); at h = 3 8 % more
+# for +0.08 dB on the held-out photographs, the held-out matrix's worst cell rising from -0.41 to
+# -0.35 dB. 1 at h = 2 and 4 (at h = 4 it would cost 14 %, past the margin of the speed goal at
+# 256^2). Best tier: the user has chosen time for quality, and 2 symmetries at h = 2 and 4 add
+# +0.09 / +0.08 dB on the held-out matrix (docs/learned.md, "Two tiers"); 2 at h = 7 as in the
+# fast tier (4 and 8 add +0.08 and +0.11 dB there, at twice and four times the network's cost).
 DEFAULT_ENSEMBLE = {"fast": {3: 2, 7: 2}, "best": {2: 2, 4: 2, 7: 2}}
 
 
