@@ -14,6 +14,11 @@ larger network grown from a shipped one (:func:`hbis_torch.training.net.grow_net
     python training/train_sr.py --device cuda h=4 width=64 blocks=8 batch_size=32 bf16=True \
         init_from=hbis_torch/models/hbis_sr_h4.pt pool_workers=8 prefetch=4
 
+Quantisation-aware fine-tuning of a trained network for its int8 file (hbis_torch.training.qat;
+``quantize_int8.py`` then takes the ranges it trained with from the exported file):
+
+    python training/train_sr.py h=4 qat=True init_from=hbis_torch/models/hbis_sr_h4.pt lr=3e-4 max_minutes=6.5
+
 Any name in the config block can be overridden as ``name=value`` or ``--name value`` (Python
 literals). Killing the run and starting the same command again resumes from ``out_dir/ckpt.pt``,
 on any device: a long run can be split into sittings (``max_minutes`` counts the training time
@@ -51,6 +56,8 @@ from hbis_torch.training.burst_data import BURST_POOL_VERSION, build_burst_pool,
 from hbis_torch.training.data import (POOL_VERSION, build_pool, load_pool, make_batch, save_pool, training_domain,
                                       whole_example)
 from hbis_torch.training.net import build_net, count_parameters, depth_to_space, grow_net
+from hbis_torch.training.qat import QuantSim, observe_ranges
+from hbis_torch.training.quantize import calibration_inputs
 
 # ---------------------------------------------------------------------------- config
 h = 4  # resolution improvement factor; the model takes h*h frames
@@ -85,6 +92,9 @@ progress_bar = True
 device = "auto"  # "auto" (a GPU where torch sees one, else the CPU), "cpu" or "cuda"
 bf16 = False  # bf16 autocast of the forward pass on a GPU (the loss and the weights stay float32)
 init_from = ""  # weights (a .pt of export_onnx.py --weights, or a model.pt) of a smaller plain network to grow from
+qat = False  # quantisation-aware fine-tuning of init_from's network (same architecture) for its int8 file
+# (hbis_torch.training.qat): trained and validated as onnxruntime's int8 file computes it
+qat_calibration_count = 48  # calibration-pool examples its ranges are measured on (as the int8 file's calibration)
 pool_workers = 1  # processes that simulate a pool not yet cached (each example has its own seed: same pool)
 prefetch = 0  # batches prepared ahead in threads (0: each batch when it is needed); the same batches either way
 
@@ -174,6 +184,9 @@ def initial_model():
 
 
 model = initial_model().to(dev)
+qat_ranges = None  # the int8 file's activation ranges, fixed when quantisation-aware training starts
+if qat and not init_from:
+    raise SystemExit("train_sr: qat=True fine-tunes a trained network: give it init_from")
 optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
 step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
 ckpt_path = out / "ckpt.pt"
@@ -182,13 +195,19 @@ if resume and ckpt_path.exists():
     model.load_state_dict(ckpt["model"])
     optimizer.load_state_dict(ckpt["optimizer"])  # its state moves to the parameters' device
     step, trained_s, history = ckpt["step"], ckpt["trained_s"], ckpt["history"]
+    qat_ranges = ckpt.get("qat_ranges")
     best_psnr = max((r["val_psnr"] for r in history), default=-math.inf)
     if master:
         print(f"resumed from {ckpt_path} at step {step} ({trained_s / 60:.1f} min trained)")
-net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[dev] if use_cuda else None) if ddp else model
+if qat and qat_ranges is None:  # the float network's ranges on the int8 file's calibration pool (every rank alike)
+    qat_ranges = observe_ranges(model.cpu(), calibration_inputs(h, qat_calibration_count))
+    model.to(dev)
+trained = QuantSim(model, qat_ranges) if qat else model  # what the loss and the validation see
+net = torch.nn.parallel.DistributedDataParallel(trained, device_ids=[dev] if use_cuda else None) if ddp else trained
 if master:
     print(f"{architecture}: {count_parameters(model)} parameters, {world} process(es) on {dev}"
-          + (", bf16 autocast" if bf16 and use_cuda else "") + (f", grown from {init_from}" if init_from else ""))
+          + (", bf16 autocast" if bf16 and use_cuda else "") + (f", grown from {init_from}" if init_from else "")
+          + (", quantisation-aware (the int8 file's rounding)" if qat else ""))
 
 # ---------------------------------------------------------------------------- data
 def cached_pool(name: str, count: int, size: int, pool_seed: int, builder=build_pool) -> list[dict]:
@@ -269,7 +288,7 @@ def validate() -> tuple[float, float]:
     sums = torch.zeros(3, dtype=torch.float64)
     for base, noise, truth in val_set:
         base, noise, truth = (torch.from_numpy(a) for a in (base, noise, truth))
-        image = model(base.to(dev), noise.to(dev)).cpu()  # float32 weights, no autocast: the figure of record
+        image = trained(base.to(dev), noise.to(dev)).cpu()  # float32 weights, no autocast: the figure of record
         sums += torch.tensor([psnr(image.clamp(0, 1), truth), psnr(depth_to_space(base, h), truth), 1.0],
                              dtype=torch.float64)
     if ddp:
@@ -283,7 +302,8 @@ def validate() -> tuple[float, float]:
 def save_checkpoint(path: Path, **extra) -> None:
     state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "step": step,
              "trained_s": trained_s, "history": history, "config": config,
-             "model_config": architecture.as_dict(), "git_commit": commit, "training_domain": domain, **extra}
+             "model_config": architecture.as_dict(), "git_commit": commit, "training_domain": domain,
+             **({"qat_ranges": qat_ranges} if qat else {}), **extra}
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
 

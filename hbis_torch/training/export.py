@@ -13,7 +13,9 @@ kind; the runtime sizes its tiles' halo from it), ``val_psnr_db`` and
 model that gains less than 0.1 dB is not used,
 :func:`~hbis_torch.reconstruct.learned.domain.unhelpful_model`),
 ``training_steps``, ``training_config`` (JSON), ``training_domain`` (JSON: the optics and noise the
-training spanned, :mod:`hbis_torch.reconstruct.learned.domain`) and ``graph_rewrites``.
+training spanned, :mod:`hbis_torch.reconstruct.learned.domain`) and ``graph_rewrites``; a
+network fine-tuned for its int8 file also ``quantization_ranges`` (JSON, the activation ranges it
+trained with, :mod:`hbis_torch.training.qat`), which the int8 file then takes.
 
 :func:`check_parity` compares the raw network outputs of torch and onnxruntime on random inputs
 at a size other than the export size (:data:`CHECK_SIZE`); :data:`TOLERANCE` is the largest
@@ -32,6 +34,7 @@ import torch
 
 from hbis_torch.io_utils import atomic_path
 from hbis_torch.reconstruct.learned import MODEL_FORMAT, NORMALISATION, LearnedSR, available_providers
+from hbis_torch.training import qat
 from hbis_torch.training.data import training_domain
 from hbis_torch.training.net import HbisSRNet, build_net, count_parameters
 from hbis_torch.training.onnx_rewrite import fuse_depth_to_space
@@ -193,6 +196,8 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
         "training_domain": json.dumps(info.get("training_domain") or training_domain()),
         "graph_rewrites": f"DepthToSpace x{fused}",
     }
+    if info.get("qat_ranges"):  # trained for its int8 file's rounding: the ranges it trained with
+        metadata[qat.METADATA_KEY] = qat.ranges_metadata(info["qat_ranges"])
     del proto.metadata_props[:]
     for key, value in metadata.items():
         proto.metadata_props.add(key=key, value=value)
@@ -232,7 +237,8 @@ def training_info(ckpt: dict) -> dict:
             "val_classical_psnr": float(meta.get("val_classical_psnr_db", "nan")),
             "step": meta.get("training_steps", "unknown"),
             "config": json.loads(meta.get("training_config", "{}")),
-            "training_domain": json.loads(meta.get("training_domain", "null"))}
+            "training_domain": json.loads(meta.get("training_domain", "null")),
+            **({"qat_ranges": json.loads(meta[qat.METADATA_KEY])} if qat.METADATA_KEY in meta else {})}
 
 
 def export(checkpoint, out_path, opset: int = OPSET) -> dict:

@@ -16,6 +16,10 @@ How it is quantised, and why
   :func:`hbis_torch.training.data.build_pool` at the model's h, from a seed stream of their own,
   so neither the training's nor the held-out photographs' stacks), each activation's range to
   its 99.999th percentile (:data:`CALIBRATION_METHOD`).
+* **Ranges from quantisation-aware training** where the float file has them (its
+  ``quantization_ranges`` entry, :mod:`hbis_torch.training.qat`): the network was fine-tuned
+  through the int8 file's rounding with those ranges, so they replace the calibrated ones
+  (onnxruntime's ``TensorQuantOverrides``).
 * **The image path stays float32** (:func:`float_nodes`): the network only adds a small
   correction to its input (:mod:`hbis_torch.training.net`), so the final ``Add`` of the input
   and the correction, and the ``DepthToSpace`` after it, are left out of the quantisation, and so
@@ -36,10 +40,12 @@ import json
 import tempfile
 from pathlib import Path
 
+import numpy as np
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_path
 from hbis_torch.reconstruct.learned.runtime import check_model, int8_path
+from hbis_torch.training import qat
 
 CALIBRATION_SEED = 31_000  # a pool seed of its own: neither training's (0, 1) nor the tests'
 CALIBRATION_COUNT = 48  # pool examples
@@ -154,17 +160,25 @@ def quantize_model(model, out=None, *, count: int = CALIBRATION_COUNT, seed: int
         raise HbisInputError(f"unknown calibration method {method!r} (choose from {', '.join(methods)})")
     h = int(metadata["h"])
     feeds = calibration_inputs(h, count, seed)
+    float_model = onnx.load(str(path))
+    options = {"ActivationSymmetric": False, "WeightSymmetric": True}
+    trained_ranges = metadata.get(qat.METADATA_KEY)
+    if trained_ranges:  # the ranges the network was fine-tuned with, not the calibration's
+        ranges = qat.onnx_tensor_ranges(float_model, json.loads(trained_ranges))
+        options["TensorQuantOverrides"] = {name: [{"rmin": np.float32(lo), "rmax": np.float32(hi)}]
+                                           for name, (lo, hi) in ranges.items()}
     with tempfile.TemporaryDirectory() as tmp:
         prepared, quantized = Path(tmp) / "prepared.onnx", Path(tmp) / "int8.onnx"
         quant_pre_process(str(path), str(prepared), skip_symbolic_shape=True)
         quantize_static(str(prepared), str(quantized), _Reader(feeds), quant_format=QuantFormat.QDQ,
                         per_channel=True, activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
-                        calibrate_method=methods[method], nodes_to_exclude=float_nodes(onnx.load(str(path))),
-                        extra_options={"ActivationSymmetric": False, "WeightSymmetric": True})
+                        calibrate_method=methods[method], nodes_to_exclude=float_nodes(float_model),
+                        extra_options=options)
         result = onnx.load(str(quantized))
     del result.metadata_props[:]
     calibration = {"pool_seed": seed, "count": count, "size": int(feeds[0]["base"].shape[-1]), "method": method,
-                   "feeds": "each example with its sensor model's and its measured noise"}
+                   "feeds": "each example with its sensor model's and its measured noise",
+                   "activation_ranges": "quantisation-aware training's" if trained_ranges else "calibrated"}
     for key, value in {**metadata, "precision": "int8", "quantized_from": f"{path.name} sha256 {_sha256(path)}",
                        "calibration": json.dumps(calibration)}.items():
         result.metadata_props.add(key=key, value=str(value))
