@@ -13,6 +13,9 @@ from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
 
+# Rows of the grid spread at a time where :meth:`NodeSums.spread` writes over the sums.
+SPREAD_ROWS = 64
+
 
 def common_offset(coords: Tensor) -> float:
     """Circular mean of the fractional parts of HR coordinates, in [-0.5, 0.5)."""
@@ -145,24 +148,41 @@ class NodeSums:
         self.sums[k].index_add_(0, idx, weighted)
 
     def spread(self, k: int, release: bool = False) -> Tensor:
-        """(rows, cols): sum ``k`` spread with the 3 x 3 kernel; ``release`` frees the sum
-        (a zero sum takes its place)."""
+        """(rows, cols): sum ``k`` spread with the 3 x 3 kernel; ``release`` frees the sum (a
+        zero sum takes its place) and writes the result over its memory (a view of it, which
+        :meth:`clear` may take back)."""
         rows, cols = self.shape
-        sums = self.sums[k].view(rows + 2, cols + 2)
+        flat = self.sums[k]
+        sums = flat.view(rows + 2, cols + 2)
         if release:
             self.sums[k] = torch.zeros(0, dtype=sums.dtype)
+            # Output row i ends (flat) before sum row i + 1 starts, and needs sum rows i .. i + 2:
+            # a block of rows read into a temporary can be written over rows already read. No
+            # image-sized temporary, and no fresh pages to fault in.
+            out = flat[:rows * cols].view(rows, cols)
+            blocks = [slice(r, min(r + SPREAD_ROWS, rows)) for r in range(0, rows, SPREAD_ROWS)]
+        else:
+            out = torch.empty((rows, cols), dtype=sums.dtype)
+            blocks = [slice(0, rows)]
         a = self.a
-        # a (left + right) + centre, then the same along the columns, with one temporary each
-        across = sums[:, :-2] + sums[:, 2:]
-        across.mul_(a).add_(sums[:, 1:-1])
-        del sums
-        out = across[:-2] + across[2:]
-        return out.mul_(a).add_(across[1:-1])
+        for block in blocks:
+            # a (left + right) + centre, then the same along the columns
+            part = sums[block.start:block.stop + 2]
+            across = part[:, :-2] + part[:, 2:]
+            across.mul_(a).add_(part[:, 1:-1])
+            torch.add(across[:-2], across[2:], out=out[block]).mul_(a).add_(across[1:-1])
+        return out
 
-    def clear(self, k: int) -> None:
-        """Sum ``k`` set to zeros again."""
+    def clear(self, k: int, reuse: Tensor | None = None) -> None:
+        """Sum ``k`` set to zeros again: in the memory of ``reuse``, a result of :meth:`spread`
+        with ``release`` that is no longer needed, if given."""
         rows, cols = self.shape
-        self.sums[k] = torch.zeros((rows + 2) * (cols + 2), dtype=self.sums[k].dtype)
+        size = (rows + 2) * (cols + 2)
+        base = None if reuse is None else reuse._base
+        if base is not None and base.numel() == size and base.dtype == self.sums[k].dtype:
+            self.sums[k] = base.zero_()
+        else:
+            self.sums[k] = torch.zeros(size, dtype=self.sums[k].dtype)
 
 
 def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Tensor, Tensor, float]:
@@ -209,8 +229,8 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
         gradient = torch.empty((1, 2) + den.shape, dtype=den.dtype)  # (1, 2, rows, cols): d/dx, d/dy
         gradient_into(pilot, 1, gradient[0, 0], twice=True)
         gradient_into(pilot, 0, gradient[0, 1], twice=True)
+        sums.clear(0, reuse=pilot)  # the pilot's memory (it is not needed any more)
         del pilot
-        sums.clear(0)
         for batch, idx, w in kept or ((b, *sums.node_index(b.col, b.row, b.weights)) for b in batches()):
             sx, sy = _sample(gradient, torch.sub(batch.col, batch.dx), torch.sub(batch.row, batch.dy))
             corrected = sx.mul_(batch.dx).add_(sy.mul_(batch.dy))
