@@ -97,6 +97,9 @@ def test_qat_run_keeps_its_ranges_across_a_resume(tmp_path):
     assert [r["step"] for r in history(tmp_path)] == [0, 2, 4]
 
 
-def test_qat_needs_a_trained_network(tmp_path):
+def test_qat_needs_a_trained_network_and_float32(tmp_path):
     result = run(["qat=True", "max_steps=1"], tmp_path)
     assert result.returncode != 0 and "give it init_from" in result.stderr
+    shipped = default_model_path(2).with_suffix(".pt")
+    result = run(["qat=True", "bf16=True", f"init_from={shipped}", "max_steps=1"], tmp_path / "bf16")
+    assert result.returncode != 0 and "drop bf16=True" in result.stderr

@@ -183,10 +183,12 @@ def initial_model():
     return grow_net(source, architecture)
 
 
-model = initial_model().to(dev)
-qat_ranges = None  # the int8 file's activation ranges, fixed when quantisation-aware training starts
 if qat and not init_from:
     raise SystemExit("train_sr: qat=True fine-tunes a trained network: give it init_from")
+if qat and bf16:  # the int8 rounding is emulated in float32; bf16 would round the features again
+    raise SystemExit("train_sr: qat=True trains in float32; drop bf16=True")
+model = initial_model().to(dev)
+qat_ranges = None  # the int8 file's activation ranges, fixed when quantisation-aware training starts
 optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=weight_decay)
 step, trained_s, history, best_psnr = 0, 0.0, [], -math.inf
 ckpt_path = out / "ckpt.pt"
