@@ -24,8 +24,9 @@ How it is quantised, and why
   correction to its input (:mod:`hbis_torch.training.net`), so the final ``Add`` of the input
   and the correction, and the ``DepthToSpace`` after it, are left out of the quantisation, and so
   is the first convolution, which reads the image. An image rounded to 8 bits would lose about a
-  quarter of a dB at the 47 dB the models reach; the correction and the features, rounded to 8
-  bits of their own ranges, lose next to nothing.
+  quarter of a dB at the 47 dB the models reach. The features rounded to 8 bits of their own
+  ranges cost more than that in the cleanest stacks unless the network was fine-tuned for the
+  rounding (:mod:`hbis_torch.training.qat`).
 
 The int8 file keeps the model's ``metadata_props`` and adds ``precision`` (``int8``),
 ``quantized_from`` (the float file's name and SHA-256) and ``calibration`` (JSON: the pool's
