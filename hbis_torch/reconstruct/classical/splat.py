@@ -225,19 +225,34 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float) -> tuple[Ten
         # would add 240 MB at the peak)
         pilot = fill_holes(sums.spread(0, release=True), den, typical, in_place=True)
         # twice the gradient (central differences not halved: a pass over both less), halved
-        # per sample with the same bits (a power of two scales exactly)
-        gradient = torch.empty((1, 2) + den.shape, dtype=den.dtype)  # (1, 2, rows, cols): d/dx, d/dy
-        gradient_into(pilot, 1, gradient[0, 0], twice=True)
-        gradient_into(pilot, 0, gradient[0, 1], twice=True)
+        # per sample with the same bits (a power of two scales exactly), at every node of the
+        # sums' layout (the one-node frame repeats its border): each sample reads its node's by
+        # the index it is summed at. The gradient at the node, not at the sample (under half a
+        # node away), is the same first-order correction, without an interpolation per sample.
+        rows, cols = den.shape
+        gradient = torch.empty((2, rows + 2, cols + 2), dtype=den.dtype)  # d/dx, d/dy
+        gradient_into(pilot, 1, gradient[0, 1:-1, 1:-1], twice=True)
+        gradient_into(pilot, 0, gradient[1, 1:-1, 1:-1], twice=True)
+        _repeat_border(gradient)
         sums.clear(0, reuse=pilot)  # the pilot's memory (it is not needed any more)
         del pilot
+        gradient = gradient.view(2, -1)
         for batch, idx, w in kept or ((b, *sums.node_index(b.col, b.row, b.weights)) for b in batches()):
-            sx, sy = _sample(gradient, torch.sub(batch.col, batch.dx), torch.sub(batch.row, batch.dy))
+            sx, sy = gradient[0].index_select(0, idx), gradient[1].index_select(0, idx)
             corrected = sx.mul_(batch.dx).add_(sy.mul_(batch.dy))
             torch.add(batch.values, corrected, alpha=0.5, out=corrected)
             sums.add(0, idx, corrected if w is None else corrected.mul_(w))
         del gradient
     return sums.spread(0, release=True), den, typical
+
+
+def _repeat_border(frame: Tensor) -> None:
+    """Set the outermost rows and columns of ``frame`` (C, rows + 2, cols + 2) to their
+    neighbours inside, in place (corners included)."""
+    frame[:, 0] = frame[:, 1]
+    frame[:, -1] = frame[:, -2]
+    frame[:, :, 0] = frame[:, :, 1]
+    frame[:, :, -1] = frame[:, :, -2]
 
 
 def gradient_into(image: Tensor, dim: int, out: Tensor, twice: bool = False) -> Tensor:
@@ -257,31 +272,13 @@ def gradient_into(image: Tensor, dim: int, out: Tensor, twice: bool = False) -> 
     return out
 
 
-def _sample(image: Tensor, x: Tensor, y: Tensor) -> Tensor:
-    """Channels of ``image`` (1, C, rows, cols) at points (x, y) (N,), bilinear: (C, N) in
-    ``image``'s dtype."""
-    rows, cols = image.shape[-2:]
-    grid = torch.empty((1, 1, len(x), 2), dtype=image.dtype)
-    torch.mul(x, 2 / max(cols - 1, 1), out=grid[0, 0, :, 0]).sub_(1)
-    torch.mul(y, 2 / max(rows - 1, 1), out=grid[0, 0, :, 1]).sub_(1)
-    # grid_sample runs its batch in parallel, not the points of one: the points as a batch of
-    # one row per thread, against the same image (expanded, not copied)
-    parts = torch.get_num_threads()
-    if parts > 1 and len(x) % parts == 0 and len(x) >= 1 << 16:
-        out = torch.nn.functional.grid_sample(image.expand(parts, -1, -1, -1), grid.view(parts, 1, -1, 2),
-                                              mode="bilinear", padding_mode="border", align_corners=True)
-        return out.movedim(0, 1).reshape(image.shape[1], len(x))
-    return torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border",
-                                           align_corners=True)[0, :, 0]
-
-
 def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int], sigma: float,
                     weights: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
     """Move every sample to its nearest lattice node, correcting its value to first order.
 
     The deblurring models one sample per node. Samples a fraction of a node off it (motor
     errors, the optics' distortion) are moved there with value v + grad(Z) . (node - x), the
-    gradient taken from a first interpolation Z of all samples (smooth: it carries the pixel's
+    gradient taken at the node from a first interpolation Z of all samples (smooth: it carries the pixel's
     blur, built here from the snapped samples), so that the lattice model holds without the
     bias of snapping.
 
@@ -306,8 +303,10 @@ def snap_to_lattice(values: Tensor, x: Tensor, y: Tensor, shape: tuple[int, int]
     # The pilot's only job is the local slope; built from the snapped samples it costs no
     # Gaussian per sample, and the slope it gives is off by second-order terms only.
     gy, gx = torch.gradient(fill_holes(*splat(values, xn, yn, shape, sigma, weights)))
-    sx, sy = _sample(torch.stack((gx, gy))[None], x, y)
-    return values + sx * dx + sy * dy, xn, yn
+    # the slope at the node (a sample beyond the grid takes its border's)
+    rows, cols = shape
+    yi, xi = yn.long().clamp(0, rows - 1), xn.long().clamp(0, cols - 1)
+    return values + gx[yi, xi] * dx + gy[yi, xi] * dy, xn, yn
 
 
 def _gaussian_blur(img: Tensor, sigma: float) -> Tensor:
