@@ -40,7 +40,7 @@ LEARNED = (
     ("learned fp32 x2", None, "fp32", 2),
     ("learned fp32 x8", None, "fp32", 8),
     ("learned best fp32 x1", "hbis_sr_h{h}_best.onnx", "fp32", 1),  # the best tier (hbis reconstruct --model best)
-    ("learned best fp32 x2", "hbis_sr_h{h}_best.onnx", "fp32", 2),  # its default self-ensemble
+    ("learned best fp32 x2", "hbis_sr_h{h}_best.onnx", "fp32", 2),  # its default self-ensemble at h = 2 and 4
     ("learned best int8 x2", "hbis_sr_h{h}_best.onnx", "int8", 2),
     ("learned best fp32 x8", "hbis_sr_h{h}_best.onnx", "fp32", 8),
 )

@@ -91,9 +91,9 @@ def test_the_default_is_two_at_h3_and_h7_and_one_elsewhere(tmp_path):
             assert np.abs(chosen - learned_sr(stack, registration="optics", ensemble=1)).max() > 1e-4
 
 
-def test_the_best_tier_defaults_to_two_symmetries(tmp_path):
-    # the best models are for users who chose time for quality: 2 symmetries at every h
-    assert [default_ensemble(h, "best") for h in (2, 4, 7)] == [2, 2, 2]
+def test_the_best_tier_defaults_to_more_symmetries(tmp_path):
+    # the best models are for users who chose time for quality: 2 symmetries at h = 2 and 4, all 8 at h = 7
+    assert [default_ensemble(h, "best") for h in (2, 4, 7)] == [2, 2, 8]
     assert default_ensemble(4, None) == default_ensemble(4, "fast") == 1  # a file of no tier: as fast
     assert check_ensemble(None, 4, "best") == 2 and check_ensemble(8, 4, "best") == 8
     stack = read_stack(simulated_stack_file(tmp_path, 4, size=12)[0])

@@ -104,7 +104,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         cost (``training/eval_matrix.py --ensemble N`` measures the gain). None: the
         tier's default (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`: the fast
         models 2 at h = 3 and 7, where the classical step takes most of the time, else 1; the
-        best models 2; a model file of no tier as the fast ones).
+        best models 2, and 8 at h = 7; a model file of no tier as the fast ones).
     precision : {"int8", "fp32"} or None
         Which file of the model runs (:func:`~hbis_torch.reconstruct.learned.runtime.with_precision`;
         None: the file named, float32 for the shipped models; ``"int8"``: its int8 file).
