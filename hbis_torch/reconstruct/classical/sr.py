@@ -29,10 +29,12 @@ from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 # Samples per batch in lattice_image (whole frames, or rows of one frame where a frame has more):
 # its temporaries (some 150 bytes a sample) stay near 150 MB whatever the stack's size.
 BATCH_SAMPLES = 1 << 20
-# Rows used to find the samples' common sub-pixel offset: at most every 16th, at least 64 of a
-# frame (on a full frame at h = 4 the offset moves by 8e-5 HR px from every row's, at h = 7 on
-# 480 rows by 2e-6; every 4th row moved it by 5e-5 and cost 0.1 s).
-OFFSET_ROW_STRIDE = 16
+# Rows used to find the samples' common sub-pixel offset: every 4th, and on frames of over 512
+# rows every (rows // 64)-th, at most every 16th (on a full frame at h = 4 the offset moves by
+# 8e-5 HR px from every row's, against 5e-5 with every 4th, which cost 0.1 s more). Small frames
+# keep every 4th: a burst's random shifts leave the offset ill-defined, and changing the rows it
+# is found from moved one burst's result by 0.8 dB.
+OFFSET_ROW_STRIDE = 4
 
 
 def classical_sr(
@@ -212,7 +214,8 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     if on_lattice:
         # The samples' common offset from a subset of the rows (OFFSET_ROW_STRIDE): fewer cosines
         # to take, and where there are several batches fewer positions to interpolate.
-        offset = common_offset_of(positions, slices, h, weights, max(1, min(OFFSET_ROW_STRIDE, H // 64)))
+        row_step = OFFSET_ROW_STRIDE if H <= 512 else min(16, H // 64)
+        offset = common_offset_of(positions, slices, h, weights, row_step)
         # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2) it is
         # computed once for both passes over the samples.
         kept = [node_batch(frames, positions, slices[0], h, offset, weights)] if len(slices) == 1 else None
