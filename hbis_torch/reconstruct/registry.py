@@ -228,13 +228,13 @@ register(Method(
                "a stack gets the classical image, with a message", {"action": "store_true"}),
         Option("--ensemble", "ensemble", "average the network over this many of the square's 8 flips and "
                "rotations (geometric self-ensemble; default: the fast models 2 at h = 3 and 7, where the classical "
-               "step takes most of the time, else 1; the best models 2, and 8 at h = 7): as many times the network's "
-               "time, for a "
-               "small gain in PSNR",
+               "step takes most of the time, else 1; the best models 2, and 8 at h = 7): as many times the "
+               "network's time, for a small gain in PSNR",
                {"type": int, "choices": (1, 2, 4, 8)}),
         Option("--precision", "precision", "which file of the model runs: 'fp32' (the default for the shipped "
-               "models) or 'int8', its int8 file NAME.int8.onnx (shipped for h = 2, 3, 4, 7, both tiers): the network 1.2-1.4 "
-               "times as fast on AVX2 cores, at a cost in PSNR of 0.0-0.3 dB on average over the held-out matrix "
-               "and up to 3.7 dB in its cleanest cells (docs/learned.md, section int8)", {"choices": ("int8", "fp32")}),
+               "models) or 'int8', its int8 file NAME.int8.onnx (shipped for h = 2, 3, 4, 7, both tiers): the "
+               "network 1.2-1.4 times as fast on AVX2 cores, at a cost in PSNR of 0.0-0.3 dB on average over the "
+               "held-out matrix and up to 3.7 dB in its cleanest cells (docs/learned.md, section int8)",
+               {"choices": ("int8", "fp32")}),
     ),
 ))
