@@ -2,8 +2,8 @@
 
 Calibrated int8 (:mod:`hbis_torch.training.quantize`) loses most where the classical image is
 already clean: the network only adds a small correction, and rounding its features to 8 bits
-changed its output by about 1e-3 rms (h = 4, a calibration-pool stack). :class:`QuantSim` computes what the int8 file computes, with
-the same rounding at the same tensors, so that training through it (``qat=True`` in
+changed its output by about 1e-3 rms (h = 4, a calibration-pool stack). :class:`QuantSim`
+computes what the int8 file computes, with the same rounding at the same tensors, so that training through it (``qat=True`` in
 training/train_sr.py) teaches the network to work with that rounding; the ranges it trained
 with are then the int8 file's (:func:`ranges_metadata`, read by
 :func:`hbis_torch.training.quantize.quantize_model`).
@@ -90,9 +90,11 @@ class QuantSim(nn.Module):
             raise ValueError(f"ranges lack {sorted(missing)}")
         self.net = net
         self.ranges = {name: (float(lo), float(hi)) for name, (lo, hi) in ranges.items()}
+        # fixed with the ranges: computed once, not at every tensor of every training step
+        self.scale_zero = {name: scale_and_zero_point(*bounds) for name, bounds in self.ranges.items()}
 
     def _round(self, name: str, x: Tensor) -> Tensor:
-        scale, zero = scale_and_zero_point(*self.ranges[name])
+        scale, zero = self.scale_zero[name]
         return torch.fake_quantize_per_tensor_affine(x, scale, zero, 0, 255)
 
     def forward(self, base: Tensor, noise: Tensor) -> Tensor:

@@ -31,7 +31,7 @@ from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 BATCH_SAMPLES = 1 << 20
 # Rows used to find the samples' common sub-pixel offset: every 4th, and on frames of over 512
 # rows every (rows // 64)-th, at most every 16th (on a full frame at h = 4 the offset moves by
-# 8e-5 HR px from every row's, against 5e-5 with every 4th, which cost 0.1 s more). Small frames
+# 8e-5 HR px from every row's, against 5e-5 with every 4th, which cost 0.05 s more). Small frames
 # keep every 4th: a burst's random shifts leave the offset ill-defined, and changing the rows it
 # is found from moved one burst's result by 0.8 dB.
 OFFSET_ROW_STRIDE = 4
