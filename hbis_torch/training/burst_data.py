@@ -31,8 +31,9 @@ import torch
 from hbis_torch.config import FoveaSystem
 from hbis_torch.simulate import SceneSpec, load_scene
 
-# Bumped whenever the burst examples change, so that cached pools of another kind are not reused.
-BURST_POOL_VERSION = 1
+# Bumped whenever the burst examples change, so that cached pools of another kind are not reused
+# (2: the classical image made as the burst path makes it, burst_sr).
+BURST_POOL_VERSION = 2
 FRAMES = (4, 30)
 MAX_SHIFT_PX = (0.5, 4.0)
 MAX_ROTATION_DEG = 1.0  # in half of the bursts
@@ -84,7 +85,7 @@ def simulate_burst_example(scale: int, size: int, seed: int) -> dict:
     """
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.reconstruct.burst import burst_samples
-    from hbis_torch.reconstruct.classical import classical_sr
+    from hbis_torch.reconstruct.classical.burst import burst_sr
     from hbis_torch.reconstruct.learned.inputs import estimate_noise_params
     from hbis_torch.simulate.burst import random_motions, simulate_burst
     from hbis_torch.training.data import EXPOSURE, SCENE_WEIGHTS, TRAIN_SCENES, _log_uniform
@@ -111,7 +112,7 @@ def simulate_burst_example(scale: int, size: int, seed: int) -> dict:
                            moving_frames=moving, gains=gains, blur_px=float(rng.uniform(*BLUR_PX)))
     stack, _ = assemble_burst(burst.frames, scale)
     frames, positions, _, weights = burst_samples(stack)
-    base = classical_sr(frames, positions, scale, True, weights=weights, cutoff=None)
+    base = burst_sr(frames, positions, scale, weights)
     return {
         "base": base.numpy(),
         "truth": burst.truth,

@@ -50,6 +50,8 @@ def classical_sr(
     cutoff: float | None = None,
     strength: float = 2.0,
     noise_params_out: list | None = None,
+    noise_floor: float | None = None,
+    mixed_offsets: bool = False,
 ) -> Tensor:
     """Super-resolve frames whose samples' positions are known.
 
@@ -87,6 +89,15 @@ def classical_sr(
     noise_params_out : list, optional
         With ``deblur``, receives the frames' noise parameters (a, b) measured on the lattice
         (:func:`lattice_noise_params`), for the learned method's noise map.
+    noise_floor : float, optional
+        Without ``noise``: a floor for the noise standard deviation of one sample; the nodes'
+        noise measured on the lattice is then taken as at least
+        ``noise_floor / sqrt(samples per node)``
+        (a burst's: :func:`~hbis_torch.reconstruct.classical.burst.burst_sr`).
+    mixed_offsets : bool
+        Samples of many frames at different offsets share the lattice's nodes (a burst): the
+        first-order correction of :func:`~hbis_torch.reconstruct.classical.splat.snap_to_lattice`
+        then measures the pilot's bias.
 
     Returns
     -------
@@ -97,8 +108,9 @@ def classical_sr(
     """
     h = check_h(h)
     frames, positions, weights = _check_inputs(frames, positions, weights, fill_factor, kernel_sigma,
-                                               cutoff, strength, noise)
-    image, den, offset, typical = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur)
+                                               cutoff, strength, noise, noise_floor)
+    image, den, offset, typical = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur,
+                                                mixed_offsets=mixed_offsets)
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
         samples_per_node = typical / max(_peak_weight(kernel_sigma), 1e-12)
@@ -108,6 +120,8 @@ def classical_sr(
         # the noise's median of second differences.
         if noise is None:
             node_noise = lattice_noise(image, kernel_sigma, valid)
+            if noise_floor is not None:
+                node_noise = max(node_noise, noise_floor / math.sqrt(max(samples_per_node, 1.0)))
         else:
             node_noise = noise / math.sqrt(max(samples_per_node, 1.0))
         if noise_params_out is not None:
@@ -130,7 +144,7 @@ def _all_finite(values: Tensor) -> bool:
 
 
 def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: float,
-                  cutoff: float | None, strength: float, noise: float | None):
+                  cutoff: float | None, strength: float, noise: float | None, noise_floor: float | None = None):
     """:func:`classical_sr`'s arguments checked (HbisInputError otherwise) and converted.
 
     Returns
@@ -173,13 +187,14 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
             raise HbisInputError(f"weights must be non-negative, shape ({F},) or {(F, H, W)}")
         if not bool((weights > 0).any()):
             raise HbisInputError("every sample has weight 0: nothing to reconstruct")
-    if noise is not None and not (math.isfinite(noise) and noise >= 0):
-        raise HbisInputError(f"noise must be a number >= 0, got {noise!r}")
+    for name, level in (("noise", noise), ("noise_floor", noise_floor)):
+        if level is not None and not (math.isfinite(level) and level >= 0):
+            raise HbisInputError(f"{name} must be a number >= 0, got {level!r}")
     return frames, positions, weights
 
 
 def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float,
-                  weights: Tensor | None = None, on_lattice: bool = True):
+                  weights: Tensor | None = None, on_lattice: bool = True, mixed_offsets: bool = False):
     """Interpolate scattered samples onto an h-times grid (normalized convolution).
 
     Parameters
@@ -196,6 +211,8 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         by the samples' common sub-pixel ``offset``) and move every sample onto its node
         (:func:`snap_to_lattice`), as the deblurring needs; False interpolates onto the output
         grid itself.
+    mixed_offsets : bool
+        Samples at different offsets share the nodes (a burst; :func:`snap_to_lattice`).
 
     Returns
     -------
@@ -224,7 +241,7 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
             return kept or (node_batch(frames, positions, part, h, offset, weights) for part in slices)
 
         # snap_to_lattice, then splat: the same sums, in batches of frames (or of rows)
-        num, den, typical = splat_on_lattice(batches, shape, kernel_sigma)
+        num, den, typical = splat_on_lattice(batches, shape, kernel_sigma, mixed_offsets)
         return fill_holes(num, den, typical, in_place=True), den, offset, typical
     num = den = 0
     for part in slices:

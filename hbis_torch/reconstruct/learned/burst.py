@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from torch import Tensor
 
-from hbis_torch.reconstruct.classical import classical_sr
+from hbis_torch.reconstruct.classical.burst import burst_sr
 from hbis_torch.reconstruct.learned.domain import unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, estimate_noise_params, noise_params_from_meta
 from hbis_torch.reconstruct.learned.method import _runner
@@ -26,7 +26,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     model = available_tier(model, stack.h, messages)
     path, metadata, missing = model_to_run(model, stack.h, precision)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
-    image = classical_sr(frames, positions, stack.h, True, weights=weights, cutoff=None).numpy()
+    image = burst_sr(frames, positions, stack.h, weights).numpy()
     if missing is not None:
         return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)
     unhelpful = unhelpful_model(metadata)
