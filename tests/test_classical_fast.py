@@ -5,6 +5,7 @@ rows, the boundary spectrum of the periodic + smooth split, the 3 x 3 mean of th
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from hbis_torch.optics import NodePositions, interpolate_positions
@@ -16,7 +17,8 @@ from hbis_torch.reconstruct.classical.periodic import (
     shift_image,
     smooth_spectrum,
 )
-from hbis_torch.reconstruct.classical.wiener import _add_at, _mean_3x3, _mmse_filter, _Model, _ring_of, _ring_sums
+from hbis_torch.reconstruct.classical import wiener
+from hbis_torch.reconstruct.classical.wiener import _add_at, _mean_3x3, _Model, _ring_of, _ring_sums
 
 
 def _nodes(gen, count=3, height=40, width=56, amplitude=0.0):
@@ -49,22 +51,41 @@ def test_nodes_from_splines_match_float64_positions():
             assert float((fast.col - fast.dx.double() - x).abs().max()) < 1e-5
 
 
-def test_mirrored_rows_share_the_aliases_terms():
-    """The filter of rows at -fy from the terms of the rows at fy equals the filter computed
-    on those rows directly (an offset that is not half a pixel: the aliases' phases differ)."""
-    gen = torch.Generator().manual_seed(2)
-    rows, cols = 24, 32
+def _filter_by_definition(model, shifts, s2, beta, noise2, strength):
+    """The MMSE filter of wiener_deblur's docstring at every frequency of the half spectrum,
+    every alias on every frequency (the image's measured power below the prior's)."""
+    rows, cols = torch.arange(len(model.fy)), torch.arange(len(model.fx))
+    num = torch.zeros((len(rows), len(cols)), dtype=torch.complex128)
+    den = torch.zeros((len(rows), len(cols)), dtype=torch.float64)
+    for kx, ky in shifts:
+        prior, k_mag, w = (t.double() for t in model.terms(kx, ky, rows, cols, s2, beta))
+        gx, gy = model.fx.double()[None, :] + kx, model.fy.double()[:, None] + ky
+        phase = torch.exp(-2j * math.pi * (gx * model.offset[0] + gy * model.offset[1]))
+        num += prior * k_mag * w * phase
+        den += prior * k_mag * k_mag
+    return num / (den + strength * noise2)
+
+
+@pytest.mark.parametrize("rows, cols, h, samples, tolerance", [
+    (24, 32, 3, wiener.ALIAS_SAMPLES, 1e-5),  # every frequency evaluated; an even row count: fy = -1/2 too
+    (25, 32, 3, wiener.ALIAS_SAMPLES, 1e-5),  # odd
+    (1024, 768, 2, wiener.ALIAS_SAMPLES, 3e-4),  # the aliases on every 3rd frequency (768 / 2 / 128): 8.7e-5
+])
+def test_the_filter_by_blocks_and_coarse_aliases_matches_its_definition(monkeypatch, rows, cols, h, samples,
+                                                                         tolerance):
+    """_apply_filter (blocks of rows filtered with their mirrors, the aliases' sums interpolated
+    from a coarse grid) against the filter computed at every frequency from its definition; an
+    offset that is not half a pixel, so that the aliases' phases differ between fy and -fy."""
+    monkeypatch.setattr(wiener, "ALIAS_SAMPLES", samples)
     fy = torch.fft.fftfreq(rows, dtype=torch.float64).to(torch.float32)
     fx = torch.fft.rfftfreq(cols, dtype=torch.float64).to(torch.float32)
-    model = _Model(fx, fy, 3, 1.0, 1.5, (0.2, -0.35), 1e-4)
-    measured = torch.rand((rows, len(fx)), generator=gen) * 1e-3
-    block, mirror = slice(1, 6), torch.arange(rows - 1, rows - 6, -1)
+    model = _Model(fx, fy, h, 0.9, 1.5, (0.2, -0.35), 1e-4)
     shifts = [(kx, ky) for ky in (-1, 0, 1) for kx in (-1, 0, 1)]
-    args = (shifts, 1e-4, 2.0, 1e-5, 2.0)
-    ahead, behind = _mmse_filter(measured[block], model._replace(fy=fy[block]), *args, mirrored=measured[mirror])
-    direct = _mmse_filter(measured[mirror], model._replace(fy=fy[mirror]), *args)[0]
-    assert torch.allclose(ahead, _mmse_filter(measured[block], model._replace(fy=fy[block]), *args)[0])
-    assert float((behind - direct).abs().max()) <= 1e-6 * float(direct.abs().max())
+    terms = (shifts, 1e-4, 2.0, 1e-5, 2.0)
+    spectrum = torch.ones((rows, len(fx)), dtype=torch.complex64)
+    wiener._apply_filter(spectrum, torch.full((rows, len(fx)), 1e-12), model, terms)
+    expected = _filter_by_definition(model, *terms)
+    assert float((spectrum - expected).abs().max()) <= tolerance * float(expected.abs().max())
 
 
 def test_alias_terms_added_as_a_slice_or_by_index_add_alike():

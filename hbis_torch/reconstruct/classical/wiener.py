@@ -33,6 +33,13 @@ NOISE_FLOOR = 2e-3
 # than irfft2 from there on, and less memory.
 IN_PLACE_FFT_SIZE = 2 ** 20
 
+# The aliases' terms (k != 0) are smooth in frequency: sinc's whose period is at least the LR
+# side in frequencies of the spectrum, a power law away from its pole, the lens's OTF. They are
+# evaluated on every n-th frequency along each axis, at least this many per period, and
+# interpolated linearly in between (:class:`_AliasSums`): the filter moves by under 1e-4 of its
+# largest value (tests/test_classical_fast.py), the full frame's image at h = 4 by 3e-7.
+ALIAS_SAMPLES = 128
+
 
 def wiener_deblur(
     image: Tensor,
@@ -155,15 +162,103 @@ def _apply_filter(spectrum: Tensor, measured: Tensor, model: _Model, terms: tupl
     block, rows 0 and rows / 2 alone. ``measured`` is the power averaged over 3 x 3
     frequencies, ``terms`` :func:`_mmse_filter`'s (shifts, s2, beta, noise2, strength)."""
     rows = spectrum.shape[0]
+    aliases = _AliasSums(model, *terms[:3])
     for start in range(1, (rows + 1) // 2, BLOCK_ROWS):
         block = slice(start, min(start + BLOCK_ROWS, (rows + 1) // 2))
         mirror = torch.arange(rows - block.start, rows - block.stop, -1)
-        ahead, behind = _mmse_filter(measured[block], model._replace(fy=model.fy[block]), *terms,
-                                     mirrored=measured[mirror])
+        ahead, behind = _mmse_filter(measured[block], model._replace(fy=model.fy[block]), aliases.at(block),
+                                     *terms[1:], mirrored=measured[mirror])
         spectrum[block] *= ahead
         spectrum[mirror] *= behind
-    alone = torch.tensor([0] + ([rows // 2] if rows % 2 == 0 and rows > 1 else []))
-    spectrum[alone] *= _mmse_filter(measured[alone], model._replace(fy=model.fy[alone]), *terms)[0]
+    spectrum[0] *= _mmse_filter(measured[:1], model._replace(fy=model.fy[:1]), aliases.at(slice(0, 1)),
+                                *terms[1:])[0][0]
+    if rows % 2 == 0 and rows > 1:  # fy = -1/2: alias (kx, ky) there is (kx, -ky) at +1/2, the mirrored side
+        half = slice(rows // 2, rows // 2 + 1)
+        spectrum[half] *= _mmse_filter(measured[half], model._replace(fy=model.fy[half]), aliases.at(half, mirrored=True),
+                                       *terms[1:])[0]
+
+
+class _AliasSums:
+    """The aliases' (k != 0) sums of :func:`_mmse_filter` over the half spectrum's frequencies,
+    from a coarse grid (:data:`ALIAS_SAMPLES`): for rows i of fy = +i / rows (0 <= i <= rows / 2;
+    row rows - i, fy = -i / rows, has the same terms with ky's phase negated, the mirrored side).
+
+    Attributes
+    ----------
+    power : Tensor, shape (coarse rows, coarse columns)
+        sum_k P abs(K)^2.
+    cross : list of two (re, im) pairs of such tensors
+        sum_k P abs(K) W exp(-2 pi i k . offset) (the lattice phase's constant part), at +fy, then
+        at -fy.
+    """
+
+    def __init__(self, model: _Model, shifts, s2: float, beta: float):
+        rows, half = len(model.fy), len(model.fx)
+        stride = max(1, min(rows, 2 * (half - 1)) // model.h // ALIAS_SAMPLES)
+        self.row_nodes = _coarse(rows // 2 + 1, stride)
+        col_nodes = _coarse(half, stride)
+        fy = self.row_nodes.to(model.fx.dtype) / rows  # |fy|
+        coarse = model._replace(fx=model.fx[col_nodes], fy=fy)
+        shape = (len(fy), len(col_nodes))
+        power = torch.zeros(shape, dtype=model.fx.dtype)
+        cross = [(torch.zeros(shape, dtype=power.dtype), torch.zeros(shape, dtype=power.dtype)) for _ in (1, -1)]
+        for kx, ky in shifts:
+            if (kx, ky) == (0, 0):
+                continue
+            rows_k, cols_k = coarse.band(ky, coarse.fy), coarse.band(kx, coarse.fx)
+            if len(rows_k) == 0 or len(cols_k) == 0:
+                continue
+            prior, k_mag, w = coarse.terms(kx, ky, rows_k, cols_k, s2, beta)
+            weighted = prior.mul_(k_mag)
+            _add_at(power, rows_k, cols_k, weighted * k_mag)
+            weighted *= w
+            for (cross_re, cross_im), sign in zip(cross, (1, -1)):
+                angle = 2 * math.pi * (kx * model.offset[0] + sign * ky * model.offset[1])
+                _add_at(cross_re, rows_k, cols_k, weighted, math.cos(angle))
+                _add_at(cross_im, rows_k, cols_k, weighted, -math.sin(angle))
+        self.power, self.cross, self.along = power, cross, _interpolation(col_nodes, half)
+
+    def at(self, block: slice, mirrored: bool = False) -> tuple[Tensor, list]:
+        """(power, cross) at rows ``block`` of fy >= 0 (each (rows, cols // 2 + 1)): cross at
+        +fy and -fy, or with ``mirrored`` the -fy side alone (the row fy = -1/2)."""
+        down = _interpolation(self.row_nodes, block.stop, block.start)
+
+        def fine(values: Tensor) -> Tensor:  # rows first: the coarse grid is the smaller
+            return _lerp(_lerp(values, down, dim=0), self.along, dim=1)
+
+        pairs = self.cross[1:] if mirrored else self.cross
+        return fine(self.power), [tuple(fine(t) for t in pair) for pair in pairs]
+
+
+def _coarse(n: int, stride: int) -> Tensor:
+    """Every ``stride``-th of 0 .. n - 1, and n - 1."""
+    nodes = torch.arange(0, n, stride)
+    return nodes if int(nodes[-1]) == n - 1 else torch.cat((nodes, torch.tensor([n - 1])))
+
+
+def _interpolation(nodes: Tensor, stop: int, start: int = 0) -> tuple[Tensor, Tensor]:
+    """Linear interpolation from values at increasing ``nodes`` (from 0) to start .. stop - 1: the
+    left node's position in ``nodes`` and the weight of the right one."""
+    at = torch.arange(start, stop)
+    if len(nodes) == 1:
+        return torch.zeros(len(at), dtype=torch.long), torch.zeros(len(at))
+    left = (torch.searchsorted(nodes, at, right=True) - 1).clamp_(0, len(nodes) - 2)
+    t = (at - nodes[left]) / (nodes[left + 1] - nodes[left])
+    return left, t
+
+
+def _lerp(values: Tensor, where: tuple[Tensor, Tensor], dim: int) -> Tensor:
+    """``values`` interpolated along ``dim`` (:func:`_interpolation`'s ``where``)."""
+    left, t = where
+    if len(left) and not bool(t.any()) and len(left) == values.shape[dim]:
+        return values.clone()  # every node kept (stride 1)
+    lo = values.index_select(dim, left)
+    if values.shape[dim] == 1:
+        return lo
+    hi = values.index_select(dim, left + 1)
+    shape = [1, 1]
+    shape[dim] = -1
+    return lo.lerp_(hi, t.to(values.dtype).view(shape))
 
 
 def _add_smooth(spectrum: Tensor, smooth: Tensor, shape: tuple[int, int], offset: tuple[float, float],
@@ -291,7 +386,7 @@ class _Model(NamedTuple):
         return px, py
 
 
-def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float,
+def _mmse_filter(measured: Tensor, model: _Model, aliased: tuple[Tensor, list], s2: float, beta: float,
                  noise2: float, strength: float, mirrored: Tensor | None = None) -> list[Tensor]:
     """The MMSE filter of :func:`wiener_deblur` at the frequencies of (rows of) the half spectrum.
 
@@ -303,8 +398,10 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
     model : _Model
         The image model on those frequencies, ``fy`` (rows,), ``fx`` (cols // 2 + 1,) (its
         dtype is the filter's).
-    shifts : list of (kx, ky)
-        The aliases, (0, 0) included, a set symmetric in ky.
+    aliased : (Tensor, list of (Tensor, Tensor))
+        The aliases' sums at those rows (:meth:`_AliasSums.at`): sum_k P abs(K)^2, then
+        sum_k P abs(K) W exp(-2 pi i k . offset) as (real, imaginary), at the rows and (with
+        ``mirrored``) at the mirrored rows. They are overwritten.
     s2, beta : float
         The scene prior s^2 / abs(f)^beta (:func:`fit_spectrum`).
     noise2 : float
@@ -320,29 +417,11 @@ def _mmse_filter(measured: Tensor, model: _Model, shifts, s2: float, beta: float
         The filter at the rows, then (with ``mirrored``) at the mirrored rows.
     """
     # Alias k's lattice phase is the unaliased one times the constant exp(-2 pi i k . offset),
-    # so the numerator is phase(f) sum_k c_k P W |K|: two real sums. The aliases one at a time,
-    # each only where the optics passes it; the unaliased term last, since its prior depends on
-    # the others' sum. Every term but the phase is even in each frequency: alias (kx, ky) at -fy
-    # is alias (kx, -ky) at fy, so mirrored rows reuse the terms with ky's phase negated.
-    dtype = model.fx.dtype
+    # so the numerator is phase(f) sum_k c_k P W |K|: two real sums, the aliases' in ``aliased``
+    # (:class:`_AliasSums`). The unaliased term comes last, since its prior depends on the
+    # others' sum.
     sides = [measured] if mirrored is None else [measured, mirrored]
-    power = torch.zeros(measured.shape, dtype=dtype)  # the aliases' (the same at -fy)
-    cross = [(torch.zeros(measured.shape, dtype=dtype), torch.zeros(measured.shape, dtype=dtype)) for _ in sides]
-    for kx, ky in shifts:
-        if (kx, ky) == (0, 0):
-            continue
-        rows, cols = model.band(ky, model.fy), model.band(kx, model.fx)
-        if len(rows) == 0 or len(cols) == 0:
-            continue
-        prior, k_mag, w = model.terms(kx, ky, rows, cols, s2, beta)
-        weighted = prior.mul_(k_mag)
-        _add_at(power, rows, cols, weighted * k_mag)
-        weighted *= w
-        for (cross_re, cross_im), sign in zip(cross, (1, -1)):
-            angle = 2 * math.pi * (kx * model.offset[0] + sign * ky * model.offset[1])
-            _add_at(cross_re, rows, cols, weighted, math.cos(angle))
-            _add_at(cross_im, rows, cols, weighted, -math.sin(angle))
-        del prior, k_mag, w, weighted
+    power, cross = aliased
     # Where the image holds more power than the power law explains (a grating, a texture), the
     # prior of the unaliased frequency is raised to what is measured (power smoothed over 3 x 3
     # frequencies, less the noise and the aliases' share), as long as the aperture passes it.
