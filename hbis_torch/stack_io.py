@@ -188,15 +188,13 @@ class Stack:
             return torch.from_numpy(np.array(self.frames, dtype=np.float32))
         white = 2 ** self.bit_depth - 1
         black = self.black_level
+        # Converted by torch, on its threads: numpy's float32 division of a full frame's stack
+        # (80 MB of fresh memory) took 0.23-0.27 s, torch's 0.04 s, with the same bits.
+        x = torch.from_numpy(np.require(self.frames, requirements=("C", "W"))).to(torch.float32)
         if black == 0:
-            # One division, no float32 copy first: numpy's float32 division gives torch's bits
-            # (every uint16 value checked); only values above white (none in a valid file) need
-            # clipping, which an integer max (a cheap read) rules out.
-            x = np.divide(self.frames, np.float32(white), dtype=np.float32)
-            if self.frames.max() > white:
-                np.minimum(x, np.float32(1.0), out=x)
-            return torch.from_numpy(x)
-        x = torch.from_numpy(self.frames.astype(np.float32))
+            # only values above white (none in a valid file) need clipping
+            x.div_(white)
+            return x.clamp_(max=1.0) if float(x.max()) > 1.0 else x
         return x.sub_(black).div_(white - black).clamp_(0.0, 1.0)  # in place: a full frame's stack is 80 MB
 
 

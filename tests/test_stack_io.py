@@ -81,17 +81,25 @@ def test_to_float_uses_bit_depth_and_black_level():
 
 
 def test_to_float_without_black_level_gives_the_in_place_formulas_bits():
-    """With black level 0 the frames go to float32 in one numpy division: the same bits as
-    (x - 0) / white clipped to [0, 1] in torch, for every 8- and 16-bit value (those above a
-    12-bit white clipped)."""
+    """With black level 0 the frames go to float32 in one division: the same bits as numpy's
+    float32 division and as (x - 0) / white clipped to [0, 1], for every 8- and 16-bit value
+    (those above a 12-bit white clipped); read-only frames are converted too, without a
+    warning."""
+    import warnings
+
     for dtype, bit_depth in ((np.uint16, 12), (np.uint16, 16), (np.uint8, 8)):
         values = np.arange(np.iinfo(dtype).max + 1, dtype=dtype).reshape(1, 1, -1)
+        values.setflags(write=False)
         stack = _stack(dtype, frames=1, bit_depth=bit_depth)
         stack = Stack(values, stack.meta)
         white = 2 ** bit_depth - 1
         expected = torch.from_numpy(values.astype(np.float32)).sub_(0).div_(white).clamp_(0.0, 1.0)
-        got = stack.to_float()
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            got = stack.to_float()
         assert got.dtype == torch.float32 and torch.equal(got, expected)
+        by_numpy = np.minimum(np.divide(values, np.float32(white), dtype=np.float32), np.float32(1))
+        assert np.array_equal(got.numpy(), by_numpy)
 
 
 def test_defaults_when_optional_keys_are_absent(tmp_path):
