@@ -233,3 +233,27 @@ def test_a_fine_bursts_noise_is_floored_by_its_scale_two_lattice():
     assert psnr(floored.numpy(), burst.truth) > psnr(plain.numpy(), burst.truth) + 1.0
     with pytest.raises(HbisInputError, match="noise_floor"):
         classical_sr(frames, positions, 4, weights=weights, noise_floor=float("nan"))
+
+
+def test_a_burst_too_sparse_for_its_scale_runs_at_a_coarser_one():
+    # five frames leave most of the 16 sub-pixel phases of S = 4 empty: reconstructed at S = 2
+    # (which they fill) and enlarged, instead of the single frame the fill's blend fell back on
+    from hbis_torch.reconstruct.burst import burst_samples, scale_to_run
+
+    motions = random_motions(5, (SIZE, SIZE), np.random.default_rng(1), 1.5, 1.0)
+    burst = simulate_burst(_truth(4), 4, motions, noise=0.005, seed=1)
+    stack, _ = assemble_burst(burst.frames, 4)
+    _, positions, _, weights = burst_samples(stack)
+    assert scale_to_run(positions, weights, 4) == 2
+    single = psnr(_single(burst, 4), burst.truth)
+    for method in ("classical", "learned"):
+        notes: list = []
+        image = reconstruct(stack, method, messages=notes)
+        assert image.shape == (4 * SIZE, 4 * SIZE) and np.isfinite(image).all()
+        assert any("reconstructed at S = 2 and enlarged to S = 4" in n for n in notes), notes
+        assert psnr(image, burst.truth) > single + 1.0, method  # +1.49 dB (classical)
+    # a burst that fills its lattice runs at its own scale
+    dense = simulate_burst(_truth(4), 4, random_motions(24, (SIZE, SIZE), np.random.default_rng(2), 1.5, 1.0),
+                           noise=0.005, seed=2)
+    _, positions, _, weights = burst_samples(assemble_burst(dense.frames, 4)[0])
+    assert scale_to_run(positions, weights, 4) == 4

@@ -17,6 +17,9 @@ function of its :class:`~hbis_torch.reconstruct.registry.Method`):
 4. *fallback*: where the other frames leave (almost) nothing, the output is the single-frame
    estimate (the reference enlarged, bicubic), blended by the other frames' coverage; a
    burst whose frames are all copies of the reference gets the single-frame estimate, and says so.
+   A burst whose samples fill too little of the S-times lattice (a few frames, or many left out,
+   at S = 3 or 4) is reconstructed at the largest smaller scale they fill and enlarged to S
+   (:func:`scale_to_run`).
 
 Colour bursts are registered once (on the luminance) and go through the method per channel
 (``colour="channels"``, the default) or as luminance plus interpolated chroma (``"luma"``), as
@@ -40,7 +43,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.reconstruct.single_frame import single_frame
+from hbis_torch.reconstruct.single_frame import enlarge, single_frame
 
 # Robustness: a sample keeps weight exp(-(d / tau)^2), d the blurred difference to the reference
 # at its position, tau = NOISE_TOLERANCE x the difference's noise + CONTRAST_TOLERANCE x the local
@@ -54,6 +57,9 @@ FULL_COVERAGE = 2.0
 # Share of the output lattice's nodes near a pixel that samples land on: below NO_FILL the output is
 # the single-frame estimate, from FULL_FILL up the method's alone.
 NO_FILL, FULL_FILL = 0.4, 0.8
+# A burst is reconstructed at the largest scale (from S down to 2) where the mean of that share
+# reaches this (:func:`scale_to_run`).
+RUN_FILL = 0.5
 
 
 def corrected_frames(stack) -> Tensor:
@@ -217,16 +223,25 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
                      "is the single-frame estimate (the reference frame enlarged, bicubic)")
         return fallback
     _report_weights(weights, trusted, ref, notes)
+    run_scale = scale_to_run(positions, weights, scale)
+    target = stack
+    if run_scale != scale:
+        notes.append(f"the frames' samples fill too little of the S = {scale} lattice: reconstructed at "
+                     f"S = {run_scale} and enlarged to S = {scale} (bicubic)")
+        target = type(stack)(stack.frames, {**stack.meta, "h": run_scale})
     said: list[str] = []  # the method's lines, once each (a colour burst runs it per channel)
     if not rgb:
-        image = run(stack, frames, positions, weights, messages=said, **kw)
+        image = run(target, frames, positions, weights, messages=said, **kw)
     elif (colour or DEFAULT_MODE) == "channels":
-        image = np.stack([run(stack, frames[..., c], positions, weights, messages=said, **kw) for c in range(3)],
+        image = np.stack([run(target, frames[..., c], positions, weights, messages=said, **kw) for c in range(3)],
                          axis=-1)
     else:
-        image = _luma_and_chroma(run, stack, frames, positions, weights, said, kw)
+        image = _luma_and_chroma(run, target, frames, positions, weights, said, kw)
     notes.extend(dict.fromkeys(said))
-    alpha = np.minimum(_blend_weight(cover, scale), _lattice_fill(positions, weights, scale))
+    alpha = np.minimum(_blend_weight(cover, run_scale), _lattice_fill(positions, weights, run_scale))
+    if run_scale != scale:
+        size = fallback.shape[:2]
+        image, alpha = enlarge(image, size), enlarge(alpha, size)
     if alpha.ndim < np.ndim(image):
         alpha = alpha[..., None]
     out = alpha * np.asarray(image, dtype=np.float32) + (1 - alpha) * fallback
@@ -269,6 +284,18 @@ def _lattice_fill(positions: Tensor, weights: Tensor, scale: int) -> np.ndarray:
     fill = torch.nn.functional.avg_pool2d(hit.reshape(1, 1, scale * H, scale * W), size, 1, size // 2,
                                           count_include_pad=False)[0, 0]
     return ((fill - NO_FILL) / (FULL_FILL - NO_FILL)).clamp(0, 1).numpy()
+
+
+def scale_to_run(positions: Tensor, weights: Tensor, scale: int) -> int:
+    """The scale a burst is reconstructed at: the largest s from ``scale`` down to 2 whose lattice
+    the samples fill (the mean of :func:`_lattice_fill` at s at least :data:`RUN_FILL`), else
+    ``scale`` (the fallback's blend then leans on the single frame). A scale the samples do not
+    fill leaves whole sub-pixel phases empty; at a coarser one the same samples still add what
+    they resolve, and the image is enlarged to the scale asked for."""
+    for s in range(scale, 1, -1):
+        if float(_lattice_fill(positions, weights, s).mean()) >= RUN_FILL:
+            return s
+    return scale
 
 
 def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: list) -> None:

@@ -35,3 +35,22 @@ def single_frame(frame, h: int) -> np.ndarray:
     x = x[None, None] if x.ndim == 2 else x.permute(2, 0, 1)[None]
     up = F.interpolate(x, scale_factor=h, mode="bicubic", align_corners=False)[0].clamp_(0.0, 1.0)
     return (up[0] if np.ndim(frame) == 2 else up.permute(1, 2, 0)).numpy()
+
+
+def enlarge(image, size: tuple[int, int]) -> np.ndarray:
+    """An image on a coarser grid of the same field enlarged onto ``size`` (rows, cols) pixels by
+    bicubic interpolation, pixel centres as :func:`single_frame`'s, clipped to [0, 1].
+
+    Parameters
+    ----------
+    image : array, shape (rows, cols) or (rows, cols, C), float in [0, 1]
+    size : (int, int)
+
+    Returns
+    -------
+    np.ndarray, shape ``size`` or ``size + (C,)``, float32
+    """
+    x = torch.as_tensor(np.asarray(image, dtype=np.float32))
+    x = x[None, None] if x.ndim == 2 else x.permute(2, 0, 1)[None]
+    up = F.interpolate(x, size=tuple(size), mode="bicubic", align_corners=False)[0].clamp_(0.0, 1.0)
+    return (up[0] if np.ndim(image) == 2 else up.permute(1, 2, 0)).numpy()
