@@ -213,3 +213,18 @@ def test_no_nan_escapes_for_samples_off_the_grid():
     with pytest.raises(HbisInputError, match="no sample"):
         classical_sr(frames, positions, 2)
     assert math.isfinite(float(classical_sr(frames, np.zeros((1, 8, 8, 2)) + 3.0, 2).sum()))
+
+
+def test_the_wiener_step_follows_the_images_scale():
+    """The deblurring is linear in the image once its noise is scaled with it: a 12-bit camera's
+    values in a 16-bit file (a sixteenth of [0, 1]) or 8-bit values read as 16-bit give the same
+    image, scaled, including the noise floor (the model's own errors are a share of the signal)."""
+    from hbis_torch.reconstruct.classical.wiener import NOISE_FLOOR, wiener_deblur
+
+    gen = torch.Generator().manual_seed(4)
+    image = torch.nn.functional.avg_pool2d(torch.rand((1, 1, 96, 104), generator=gen), 3, 1, 1)[0, 0]
+    for noise in (0.01, NOISE_FLOOR / 4):  # above the floor, and below it
+        full = wiener_deblur(image.clone(), 2, (0.5, 0.5), 0.45, noise)
+        for scale in (16.0, 257.0):
+            dark = wiener_deblur(image / scale, 2, (0.5, 0.5), 0.45, noise / scale) * scale
+            assert float((dark - full).abs().max()) < 1e-4 * float(full.abs().max()), (noise, scale)

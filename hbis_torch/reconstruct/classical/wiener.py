@@ -23,9 +23,13 @@ from hbis_torch.reconstruct.classical.periodic import (
 )
 from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, splat_transfer
 
-# The deblurring never trusts the data more than this noise level (intensity units, [0, 1]):
-# below it the model's own errors (the periodic-border split, the prior, positions known to
-# ~1e-3 px) dominate, and a sharper filter would amplify them near the aperture's zeros.
+# The deblurring never trusts the data more than this noise level (intensity units, [0, 1], for
+# an image whose brightest value is 1; in proportion below that): below it the model's own errors
+# (the periodic-border split, the prior, positions known to ~1e-3 px) dominate, and a sharper
+# filter would amplify them near the aperture's zeros. Those errors are a share of the signal, so
+# the floor follows the image's level: a 12-bit camera's values in a 16-bit file without their
+# bit depth fill a sixteenth of [0, 1], and a fixed floor had blurred them (8-bit values read as
+# 16-bit: hbis validate 10.6 dB below the single frame).
 NOISE_FLOOR = 2e-3
 
 # Half spectra of at least this many frequencies (a 2048 x 2560 image has 2.6 M, a full frame
@@ -119,6 +123,7 @@ def wiener_deblur(
     work = image.to(dtype)
     own = overwrite or work.data_ptr() != image.data_ptr()  # work's memory may be reused
     shape = work.shape
+    level = min(1.0, max(float(work.max()), 1e-3))  # of NOISE_FLOOR
     smooth = smooth_spectrum(work)
     spectrum = torch.fft.rfft2(work)
     work = work if own else None  # kept for the result, or freed
@@ -144,7 +149,7 @@ def wiener_deblur(
         return _add_smooth(spectrum, smooth, shape, offset, work).to(image.dtype)
     eps2 = (0.5 / max(shape)) ** 2  # keeps the prior finite at f = 0
     shifts = [(kx, ky) for ky in range(-aliases, aliases + 1) for kx in range(-aliases, aliases + 1)]
-    noise2 = max(noise, NOISE_FLOOR) ** 2
+    noise2 = max(noise, NOISE_FLOOR * level) ** 2
     # the prior's fit evaluates the model on a subsample, in float64
     kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2)
     s2, beta = fit_spectrum(measured, fx, fy, kernel, shifts, noise2)
