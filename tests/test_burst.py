@@ -257,3 +257,18 @@ def test_a_burst_too_sparse_for_its_scale_runs_at_a_coarser_one():
                            noise=0.005, seed=2)
     _, positions, _, weights = burst_samples(assemble_burst(dense.frames, 4)[0])
     assert scale_to_run(positions, weights, 4) == 4
+
+
+def test_sixteen_bit_frames_with_few_bits_get_a_hint_and_the_same_image():
+    # 8-bit values in a 16-bit file, assembled without --bit-depth: a line says so, and the
+    # classical image is the 8-bit one's scaled (the deblurring follows the image's level)
+    burst = _burst(count=8)
+    wide = burst.frames.astype(np.uint16)
+    stack, messages = assemble_burst(wide, 2)
+    assert any("pass --bit-depth 8" in m for m in messages), messages
+    assert not any("--bit-depth" in m for m in assemble_burst(wide, 2, bit_depth=8)[1])
+    assert not any("--bit-depth" in m for m in assemble_burst(burst.frames, 2)[1])
+    dark = reconstruct(stack, "classical") * (65535 / 255)
+    plain = reconstruct(assemble_burst(burst.frames, 2)[0], "classical")
+    # 32.83 against 32.44 dB (the brightness fit differs)
+    assert psnr(np.clip(dark, 0, 1), burst.truth) > psnr(plain, burst.truth) - 0.5

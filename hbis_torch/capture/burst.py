@@ -368,6 +368,9 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
         grey = grey * ((2 ** (frames.dtype.itemsize * 8) - 1) / (2 ** bit_depth - 1))
     found = register_burst(grey, reference, motion, names)
     messages = list(found.messages)
+    hint = bit_depth_hint(frames) if bit_depth is None else None
+    if hint is not None:
+        messages.append(hint)
     if all(m == "identity" for m in found.models):
         messages.append(f"all {len(frames)} frames are identical to the reference: the burst holds no new samples "
                         "(its reconstruction is the single-frame estimate)")
@@ -376,6 +379,19 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
     frames = np.ascontiguousarray(frames)
     validate_stack(frames, meta, "assembled burst")
     return Stack(frames, meta), messages
+
+
+def bit_depth_hint(frames: np.ndarray) -> str | None:
+    """A line for 16-bit frames whose values use at most 14 bits: a camera of 10 to 14 bits
+    written to a 16-bit file, whose white the stack would otherwise put at 65535 (the
+    reconstruction follows the level, but the learned method's noise range and a viewer do not)."""
+    if frames.dtype != np.uint16:
+        return None
+    bits = max(int(frames.max()).bit_length(), 1)
+    if bits > 14:
+        return None
+    return (f"the frames' values reach {int(frames.max())}, {bits} of the 16 bits their type holds: if the camera "
+            f"records {bits} bits, pass --bit-depth {bits} (the stack maps 65535 to white)")
 
 
 def check_burst_input(frames, scale, reference, motion, roi, bit_depth) -> tuple[np.ndarray, tuple]:
