@@ -48,7 +48,7 @@ def test_every_shared_sequence(name, scale):
 
 @pytest.mark.parametrize("name, scale, least", [("Emily_small.tif", 4, 1.0), ("Book_case1_small.tif", 2, 2.5)])
 def test_classical_beats_the_single_frame_by_validate(name, scale, least):
-    # the two cells that were weakest: Emily at S = 4 (+0.47 dB before the bursts' noise floor,
+    # the two cells that were weakest: Emily at S = 4 (+0.45 dB without the bursts' noise floor,
     # +1.48 with it) and Book_case at S = 2 (+2.29 dB with the pilot's gradient read at the node,
     # +2.75 where the pilot stands)
     from hbis_torch.validate import cross_validate

@@ -45,7 +45,7 @@ def burst_sr(frames: Tensor, positions: Tensor, scale: int, weights: Tensor, deb
     where a node gets about one sample or fewer (S = 3 and 4). The empty nodes are filled
     smoothly, and the lattice's own estimate fell to a third of the noise there (Emily at
     S = 4). The floor raised classical - single frame on the shared real sequences, by
-    ``hbis validate``, from +3.33 / +2.40 to +3.51 / +2.87 dB at S = 3 / 4, and on held-out
+    ``hbis validate``, from +3.34 / +2.38 to +3.51 / +2.87 dB at S = 3 / 4, and on held-out
     simulated bursts against the truth by +0.24 / +0.20 dB (docs/real-bursts.md).
 
     Parameters

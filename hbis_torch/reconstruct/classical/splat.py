@@ -209,7 +209,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
         :func:`typical_weight` of the denominator.
     """
     # The sums in float32 (a node gets a few samples; the image is float32 in the end). At most
-    # five (rows, cols) float32 arrays live at once.
+    # five (rows, cols) float32 arrays live at once, seven with mixed_offsets (the offsets' means).
     sums = NodeSums(shape, sigma, 4 if mixed_offsets else 2, torch.float32)
     off_node = 0.0
     seen, kept = 0, None  # batches seen, and the first one (the second pass's, if it is the only one)
