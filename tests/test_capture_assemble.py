@@ -70,9 +70,12 @@ def test_assemble_files_keeps_read_back_phases_and_reference(tmp_path, capsys):
     assert assemble(tmp_path, "--roi", ",".join(map(str, ROI)), "--bit-depth", "12",
                     str(tmp_path / "cap_{index:03d}.tif")) == 0
     np.testing.assert_array_equal(read_stack(tmp_path / "stack.tif").frames, f)
+    assert "--bit-depth" not in capsys.readouterr().err  # given: no hint
     tifffile.imwrite(tmp_path / "all.tif", f, photometric="minisblack")
     assert assemble(tmp_path, "--roi", ",".join(map(str, ROI)), str(tmp_path / "all.tif")) == 0
     np.testing.assert_array_equal(read_stack(tmp_path / "stack.tif").frames, f)
+    # 12-bit values in 16-bit frames without --bit-depth: one line names it (the stack keeps 16)
+    assert "if the camera records 12 bits, pass --bit-depth 12" in capsys.readouterr().err
 
 
 def test_full_sensor_frames_are_cut_to_the_roi(tmp_path):

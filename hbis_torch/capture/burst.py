@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from hbis_torch.capture.frames import bit_depth_hint
 from hbis_torch.errors import HbisInputError
 from hbis_torch.stack_io import BURST_MIN_CONFIDENCE, Stack, make_burst_meta, validate_stack
 
@@ -379,19 +380,6 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
     frames = np.ascontiguousarray(frames)
     validate_stack(frames, meta, "assembled burst")
     return Stack(frames, meta), messages
-
-
-def bit_depth_hint(frames: np.ndarray) -> str | None:
-    """A line for 16-bit frames whose values use at most 14 bits: a camera of 10 to 14 bits
-    written to a 16-bit file, whose white the stack would otherwise put at 65535 (the
-    reconstruction follows the level, but the learned method's noise range and a viewer do not)."""
-    if frames.dtype != np.uint16:
-        return None
-    bits = max(int(frames.max()).bit_length(), 1)
-    if bits > 14:
-        return None
-    return (f"the frames' values reach {int(frames.max())}, {bits} of the 16 bits their type holds: if the camera "
-            f"records {bits} bits, pass --bit-depth {bits} (the stack maps 65535 to white)")
 
 
 def check_burst_input(frames, scale, reference, motion, roi, bit_depth) -> tuple[np.ndarray, tuple]:

@@ -468,3 +468,16 @@ def read_frames(sources, count: int | None = None) -> tuple[np.ndarray, list[str
         if frame.dtype != first.dtype:
             raise HbisInputError(f"{name}: frame of dtype {frame.dtype}, but {names[0]} has {first.dtype}")
     return np.stack(frames), names
+
+
+def bit_depth_hint(frames: np.ndarray) -> str | None:
+    """A line for 16-bit frames whose values use at most 14 bits: a camera of 10 to 14 bits
+    written to a 16-bit file, whose white the stack would otherwise put at 65535 (the
+    reconstruction follows the level, but the learned method's noise range and a viewer do not)."""
+    if frames.dtype != np.uint16:
+        return None
+    bits = max(int(frames.max()).bit_length(), 1)
+    if bits > 14:
+        return None
+    return (f"the frames' values reach {int(frames.max())}, {bits} of the 16 bits their type holds: if the camera "
+            f"records {bits} bits, pass --bit-depth {bits} (the stack maps 65535 to white)")

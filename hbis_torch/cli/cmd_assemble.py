@@ -82,7 +82,9 @@ def run(args) -> int:
         read_frames,
         read_phases,
     )
-    from hbis_torch.capture.frames import probe_frames
+    import sys
+
+    from hbis_torch.capture.frames import bit_depth_hint, probe_frames
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import write_stack
 
@@ -113,6 +115,9 @@ def run(args) -> int:
     stack = assemble_stack(frames, scan, system, roi=args.roi, bit_depth=args.bit_depth,
                            black_level=args.black_level, calibration=calibration, cfa=args.cfa)
     write_stack(args.out, stack)
+    hint = bit_depth_hint(frames) if args.bit_depth is None else None
+    if hint is not None:
+        print(f"hbis assemble: {hint}", file=sys.stderr)
     f = stack.frames
     print(f"wrote {args.out}: {f.shape[0]} frames of {f.shape[2]} x {f.shape[1]} ({f.dtype}"
           f"{', RGB' if f.ndim == 4 else ''}), h = {stack.h}, roi {list(stack.roi)}, reference frame "
