@@ -46,7 +46,7 @@ def burst_sr(frames: Tensor, positions: Tensor, scale: int, weights: Tensor, deb
     smoothly, and the lattice's own estimate fell to a third of the noise there (Emily at
     S = 4). The floor raised classical - single frame on the shared real sequences, by
     ``hbis validate``, from +3.34 / +2.38 to +3.51 / +2.87 dB at S = 3 / 4, and on held-out
-    simulated bursts against the truth by +0.24 / +0.20 dB (docs/real-bursts.md).
+    simulated bursts against the truth by +0.19 / +0.19 dB (docs/real-bursts.md).
 
     Parameters
     ----------
