@@ -244,7 +244,7 @@ def test_a_burst_too_sparse_for_its_scale_runs_at_a_coarser_one():
     burst = simulate_burst(_truth(4), 4, motions, noise=0.005, seed=1)
     stack, _ = assemble_burst(burst.frames, 4)
     _, positions, _, weights = burst_samples(stack)
-    assert scale_to_run(positions, weights, 4) == 2
+    assert scale_to_run(positions, weights, 4)[0] == 2
     single = psnr(_single(burst, 4), burst.truth)
     for method in ("classical", "learned"):
         notes: list = []
@@ -256,7 +256,7 @@ def test_a_burst_too_sparse_for_its_scale_runs_at_a_coarser_one():
     dense = simulate_burst(_truth(4), 4, random_motions(24, (SIZE, SIZE), np.random.default_rng(2), 1.5, 1.0),
                            noise=0.005, seed=2)
     _, positions, _, weights = burst_samples(assemble_burst(dense.frames, 4)[0])
-    assert scale_to_run(positions, weights, 4) == 4
+    assert scale_to_run(positions, weights, 4)[0] == 4
 
 
 def test_sixteen_bit_frames_with_few_bits_get_a_hint_and_the_same_image():

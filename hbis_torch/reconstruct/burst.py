@@ -223,7 +223,7 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
                      "is the single-frame estimate (the reference frame enlarged, bicubic)")
         return fallback
     _report_weights(weights, trusted, ref, notes)
-    run_scale = scale_to_run(positions, weights, scale)
+    run_scale, fill = scale_to_run(positions, weights, scale)
     target = stack
     if run_scale != scale:
         notes.append(f"the frames' samples fill too little of the S = {scale} lattice: reconstructed at "
@@ -238,7 +238,7 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     else:
         image = _luma_and_chroma(run, target, frames, positions, weights, said, kw)
     notes.extend(dict.fromkeys(said))
-    alpha = np.minimum(_blend_weight(cover, run_scale), _lattice_fill(positions, weights, run_scale))
+    alpha = np.minimum(_blend_weight(cover, run_scale), fill)
     if run_scale != scale:
         size = fallback.shape[:2]
         image, alpha = enlarge(image, size), enlarge(alpha, size)
@@ -286,16 +286,19 @@ def _lattice_fill(positions: Tensor, weights: Tensor, scale: int) -> np.ndarray:
     return ((fill - NO_FILL) / (FULL_FILL - NO_FILL)).clamp(0, 1).numpy()
 
 
-def scale_to_run(positions: Tensor, weights: Tensor, scale: int) -> int:
+def scale_to_run(positions: Tensor, weights: Tensor, scale: int) -> tuple[int, np.ndarray]:
     """The scale a burst is reconstructed at: the largest s from ``scale`` down to 2 whose lattice
     the samples fill (the mean of :func:`_lattice_fill` at s at least :data:`RUN_FILL`), else
-    ``scale`` (the fallback's blend then leans on the single frame). A scale the samples do not
-    fill leaves whole sub-pixel phases empty; at a coarser one the same samples still add what
-    they resolve, and the image is enlarged to the scale asked for."""
+    ``scale`` (the fallback's blend then leans on the single frame); and :func:`_lattice_fill` at
+    it. A scale the samples do not fill leaves whole sub-pixel phases empty; at a coarser one the
+    same samples still add what they resolve, and the image is enlarged to the scale asked for."""
+    first = None
     for s in range(scale, 1, -1):
-        if float(_lattice_fill(positions, weights, s).mean()) >= RUN_FILL:
-            return s
-    return scale
+        fill = _lattice_fill(positions, weights, s)
+        first = fill if first is None else first
+        if float(fill.mean()) >= RUN_FILL:
+            return s, fill
+    return scale, first
 
 
 def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: list) -> None:

@@ -31,10 +31,7 @@ def single_frame(frame, h: int) -> np.ndarray:
     >>> single_frame(np.full((3, 4), 0.25), 2).shape
     (6, 8)
     """
-    x = torch.as_tensor(np.asarray(frame, dtype=np.float32))
-    x = x[None, None] if x.ndim == 2 else x.permute(2, 0, 1)[None]
-    up = F.interpolate(x, scale_factor=h, mode="bicubic", align_corners=False)[0].clamp_(0.0, 1.0)
-    return (up[0] if np.ndim(frame) == 2 else up.permute(1, 2, 0)).numpy()
+    return _bicubic(frame, scale_factor=h)
 
 
 def enlarge(image, size: tuple[int, int]) -> np.ndarray:
@@ -50,7 +47,13 @@ def enlarge(image, size: tuple[int, int]) -> np.ndarray:
     -------
     np.ndarray, shape ``size`` or ``size + (C,)``, float32
     """
+    return _bicubic(image, size=tuple(size))
+
+
+def _bicubic(image, **scale) -> np.ndarray:
+    """``F.interpolate`` bicubic (half-pixel centres) of a (rows, cols) or (rows, cols, C) image by
+    ``scale_factor`` or to ``size``, clipped to [0, 1], float32."""
     x = torch.as_tensor(np.asarray(image, dtype=np.float32))
     x = x[None, None] if x.ndim == 2 else x.permute(2, 0, 1)[None]
-    up = F.interpolate(x, size=tuple(size), mode="bicubic", align_corners=False)[0].clamp_(0.0, 1.0)
+    up = F.interpolate(x, mode="bicubic", align_corners=False, **scale)[0].clamp_(0.0, 1.0)
     return (up[0] if np.ndim(image) == 2 else up.permute(1, 2, 0)).numpy()
