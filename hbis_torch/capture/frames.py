@@ -472,8 +472,10 @@ def read_frames(sources, count: int | None = None) -> tuple[np.ndarray, list[str
 
 def bit_depth_hint(frames: np.ndarray) -> str | None:
     """A line for 16-bit frames whose values use at most 14 bits: a camera of 10 to 14 bits
-    written to a 16-bit file, whose white the stack would otherwise put at 65535 (the
-    reconstruction follows the level, but the learned method's noise range and a viewer do not)."""
+    written to a 16-bit file, whose white the stack would otherwise put at 65535. The classical
+    step follows the level; the learned method finds the noise outside its range and returns the
+    classical image (8-bit values read as 16-bit, a simulated burst of 8 frames at S = 2: 32.83
+    against 33.75 dB with the bit depth given), and a viewer shows the frames nearly black."""
     if frames.dtype != np.uint16:
         return None
     bits = max(int(frames.max()).bit_length(), 1)

@@ -3,9 +3,9 @@
 Calibrated int8 (:mod:`hbis_torch.training.quantize`) loses most where the classical image is
 already clean: the network only adds a small correction, and rounding its features to 8 bits
 changed its output by about 1e-3 rms (h = 4, a calibration-pool stack). :class:`QuantSim`
-computes what the int8 file computes, with the same rounding at the same tensors, so that training through it (``qat=True`` in
-training/train_sr.py) teaches the network to work with that rounding; the ranges it trained
-with are then the int8 file's (:func:`ranges_metadata`, read by
+computes what the int8 file computes, with the same rounding at the same tensors, so that
+training through it (``qat=True`` in training/train_sr.py) teaches the network to work with that
+rounding; the ranges it trained with are then the int8 file's (:func:`ranges_metadata`, read by
 :func:`hbis_torch.training.quantize.quantize_model`).
 
 Which tensors are rounded, as onnxruntime's static QDQ quantisation of a plain network
