@@ -183,12 +183,14 @@ def test_colour_burst_goes_per_channel_or_as_luma():
 
 
 @pytest.mark.parametrize("options", [{"model": "best"}, {"precision": "int8"}, {"model": "best", "precision": "int8"},
-                                     {"ensemble": 2}, {"extrapolate": True}])
+                                     {"ensemble": 2}, {"extrapolate": True}, {"model": "best", "adapt": True}])
 def test_every_learned_option_reaches_the_burst_path(options):
     """Each option of the learned entry is taken on a burst as on a scan (the tiers and the int8
-    files came after the burst path; a keyword it did not know was a TypeError)."""
+    files came after the burst path; a keyword it did not know was a TypeError). The network as
+    shipped (``adapt=False``) unless the case says otherwise; tests/test_adapt.py tests the adaptation."""
+    options = {"adapt": False, **options}
     stack, _ = assemble_burst(_burst(count=4).frames, 2)
-    plain = reconstruct(stack, "learned", extrapolate=True)
+    plain = reconstruct(stack, "learned", extrapolate=True, adapt=False)
     notes: list = []
     image = reconstruct(stack, "learned", messages=notes, **options)
     assert image.shape == plain.shape and np.isfinite(image).all()

@@ -1,7 +1,7 @@
 """The learned method against the classical one on stacks the training never saw.
 
     python training/eval_matrix.py [--h 2 4 7] [--tier fast|best | --models DIR] [--ensemble 8] [--out matrix.json]
-    python training/eval_matrix.py --bursts [--h 2 3 4] [--models DIR] [--out bursts.json]
+    python training/eval_matrix.py --bursts [--h 2 3 4] [--models DIR] [--no-adapt] [--out bursts.json]
 
 Held out from training on every axis at once:
 
@@ -66,6 +66,8 @@ def main(argv=None) -> int:
     parser.add_argument("--h", type=int, nargs="+", default=None, choices=[2, 3, 4, 7],
                         help="h of the scans (default 2 4 7), or the bursts' scales S (default 2 3 4)")
     parser.add_argument("--bursts", action="store_true", help="the burst rows (hbis_torch.training.heldout_burst)")
+    parser.add_argument("--no-adapt", dest="adapt", action="store_false",
+                        help="bursts: the network as shipped, not adapted to each burst's own frames first")
     parser.add_argument("--validate", action="store_true",
                         help="bursts: also score each cell as hbis validate does, without the truth (3 frames held "
                         "out), to compare its learned - classical with the truth's")
@@ -115,6 +117,7 @@ def main(argv=None) -> int:
         cells.append(cell)
     ensembles = ", ".join(f"{check_ensemble(args.ensemble, h, tier)} at h = {h}" for h in args.h)
     which = f"models in {args.models}" if args.models is not None else f"the shipped {args.tier} models"
+    which += ", adapted to each burst" if args.adapt else ", not adapted"
     print(f"# learned ({which}) - classical, dB (PSNR vs truth, border {2} LR px), self-ensemble of {ensembles}; "
           f"{time.monotonic() - started:.0f} s")
     for h in args.h:
@@ -172,18 +175,20 @@ def burst_matrix(args) -> int:
         model = args.tier if args.models is None else str(args.models / f"hbis_sr_h{scale}.onnx")
         notes: list[str] = []
         classical = score(reconstruct(stack, "classical"), truth, scale)
-        learned = score(reconstruct(stack, "learned", model=model, messages=notes, ensemble=args.ensemble),
-                        truth, scale)
-        returned = [n for n in notes if "classical image" in n]
+        learned = score(reconstruct(stack, "learned", model=model, messages=notes, ensemble=args.ensemble,
+                                    adapt=args.adapt), truth, scale)
+        returned = [n for n in notes if "returns the classical image" in n]
         cells.append({"scale": scale, "condition": BURST_CONDITIONS[c].name, "photo": photo,
                       "classical_db": classical, "learned_db": learned, "delta_db": learned - classical,
                       "classical_returned": returned[0] if returned else None})
         if args.validate:
             from hbis_torch.validate import cross_validate
 
-            scored = cross_validate(stack, ["classical", "learned"], method_options={"learned": {"model": str(model)}})
+            scored = cross_validate(stack, ["classical", "learned"],
+                                    method_options={"learned": {"model": str(model), "adapt": args.adapt}})
             cells[-1]["validate_delta_db"] = scored.gain("learned", "classical")
     which = f"models in {args.models}" if args.models is not None else f"the shipped {args.tier} models"
+    which += ", adapted to each burst" if args.adapt else ", not adapted"
     print(f"# bursts: learned ({which}) - classical, dB (PSNR vs truth, border 2 LR px); "
           f"{time.monotonic() - started:.0f} s")
     for scale in scales:

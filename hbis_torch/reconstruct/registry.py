@@ -236,5 +236,8 @@ register(Method(
                "network 1.2-1.4 times as fast on AVX2 cores, at a cost in PSNR of 0.0-0.3 dB on average over the "
                "held-out matrix and up to 3.7 dB in its cleanest cells (docs/learned.md, section int8)",
                {"choices": ("int8", "fp32")}),
+        Option("--no-adapt", "adapt", "bursts: refine with the network as shipped, not first fine-tuned for a few "
+               "seconds to predict the burst's own left-out frames (test-time adaptation, docs/real-bursts.md)",
+               {"action": "store_false"}),
     ),
 ))

@@ -1,26 +1,41 @@
 """The learned method's burst path (the ``burst`` function of its registry entry): the classical
-burst image refined by the network for the burst's scale."""
+burst image refined by the network for the burst's scale, by default first adapted to the
+burst's own frames (:mod:`hbis_torch.reconstruct.learned.adapt`)."""
 
 from __future__ import annotations
+
+import weakref
 
 import numpy as np
 from torch import Tensor
 
 from hbis_torch.reconstruct.classical.burst import burst_sr
-from hbis_torch.reconstruct.learned.domain import unhelpful_model
+from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain, unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, estimate_noise_params, noise_params_from_meta
 from hbis_torch.reconstruct.learned.method import _runner
-from hbis_torch.reconstruct.learned.runtime import (NO_MODEL_REMEDY, available_tier, classical_returned, model_to_run,
-                                                    tier_of)
+from hbis_torch.reconstruct.learned.runtime import (NO_MODEL_REMEDY, available_tier, classical_returned,
+                                                    model_to_run, tier_of)
+
+# The last adaptation, kept for the next call on the same samples: a colour burst's channels
+# share the motion (one positions tensor), and the network adapted on the first serves all three.
+_last: dict = {}
 
 
 def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
                   model=None, threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
-                  ensemble: int | None = None, precision: str | None = None) -> np.ndarray:
+                  ensemble: int | None = None, precision: str | None = None, adapt: bool = True) -> np.ndarray:
     """The learned method's burst path: the classical burst image, refined by the network for the
     burst's scale, told the noise measured on the frames (a burst's samples lie on no regular
     lattice, where the scans' noise is measured); where no model is shipped for it, the classical image,
     with a message (:func:`~hbis_torch.reconstruct.learned.runtime.classical_returned`).
+
+    With ``adapt`` (the default) the network is first fine-tuned to predict the burst's own
+    left-out frames (:func:`~hbis_torch.reconstruct.learned.adapt.adapt_refiner`) and runs in
+    PyTorch, float32. A burst whose noise lies outside the model's training range is then
+    refined too where the adapted network predicts the left-out frames better than the classical
+    image does (else it gets the classical image, said so). A model without its PyTorch weights
+    beside it (``NAME.pt``), or a burst with fewer than two usable frames besides the reference,
+    is refined without adaptation, said so.
 
     Returns (S H, S W) float32 in [0, 1]."""
     model = available_tier(model, stack.h, messages)
@@ -33,5 +48,51 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     if unhelpful is not None and not extrapolate:
         return classical_returned(image, unhelpful, messages)
     noise = noise_params_from_meta(stack.meta) or estimate_noise_params(frames.numpy())
+    outside = None if extrapolate else outside_domain(domain_from_metadata(metadata), noise, None)
+    if adapt:
+        refined = _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages)
+        if refined is not None and precision == "int8" and messages is not None:
+            messages.append("the adapted network runs in float32 (PyTorch), not from the int8 file; "
+                            "--no-adapt runs that")
+        if refined is not None:
+            return refined
+    if outside is not None:
+        return classical_returned(image, outside, messages)
     runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider)
-    return runner(image, noise, None, messages=messages, extrapolate=extrapolate, ensemble=ensemble)
+    return runner(image, noise, None, messages=messages, extrapolate=True, ensemble=ensemble)
+
+
+def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages):
+    """The image refined by the network adapted to the burst, or None where it cannot be adapted
+    (the line saying why goes to ``messages``)."""
+    from hbis_torch.progress import progress
+    from hbis_torch.reconstruct.learned.adapt import STEPS, adapt_refiner, load_refiner, pytorch_weights, refine
+
+    notes = messages if messages is not None else []
+    weights_file = pytorch_weights(path)
+    if weights_file is None:
+        notes.append(f"no PyTorch weights beside {path.name} (NAME.pt): the network is not adapted to the burst")
+        return None
+    key = (str(weights_file), stack.h, stack.reference_index)
+    cached = _last.get("positions")
+    if cached is not None and cached() is positions and _last.get("key") == key:
+        adaptation = _last["adaptation"]
+    else:
+        with progress(total=STEPS, desc="adapting the network to the burst", unit="step") as bar:
+            adaptation = adapt_refiner(load_refiner(weights_file), frames, positions, weights, stack.h, noise,
+                                       stack.reference_index, burst_sr, on_step=bar.update)
+        _last.clear()
+        _last.update(positions=weakref.ref(positions), key=key, adaptation=adaptation)
+        if adaptation is None:
+            notes.append("fewer than two usable frames besides the reference: the network is not adapted to the burst")
+        else:
+            notes.append(f"the network was adapted to the burst's own frames (the weights of step "
+                         f"{adaptation.step} of {STEPS} kept): mean squared error of the left-out frames' "
+                         f"prediction {adaptation.error_before:.3g} unadapted, {adaptation.error_after:.3g} adapted, "
+                         f"{adaptation.error_classical:.3g} from the classical image")
+    if adaptation is None:
+        return None
+    if outside is not None and adaptation.error_after >= adaptation.error_classical:
+        return classical_returned(image, outside + ", and the adapted network did not predict the left-out frames "
+                                  "better", messages)
+    return refine(adaptation.net, image, stack.h, noise, ensemble)

@@ -137,11 +137,12 @@ def _runner(path: str, mtime_ns: int, threads: int | None, provider: str) -> Lea
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
                         threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
-                        ensemble: int | None = None, precision: str | None = None) -> np.ndarray:
+                        ensemble: int | None = None, precision: str | None = None, adapt: bool = True) -> np.ndarray:
     """The ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS` (``hbis reconstruct``).
 
     Unlike :func:`learned_sr`, the registration defaults to ``"auto"``, as for every method of
-    :func:`hbis_torch.reconstruct.reconstruct`.
+    :func:`hbis_torch.reconstruct.reconstruct`. ``adapt`` is the burst path's
+    (:func:`~hbis_torch.reconstruct.learned.burst.learned_burst`); a scan's network is never adapted.
     """
     return learned_sr(stack, model=model, threads=threads, registration=registration, messages=messages,
                       provider=provider, extrapolate=extrapolate, ensemble=ensemble, precision=precision)
@@ -149,7 +150,8 @@ def reconstruct_learned(stack, registration: str = "auto", *, model=None, messag
 
 def reconstruct_learned_raw_bayer(stack, registration: str = "auto", *, messages: list | None = None, model=None,
                                   threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
-                                  ensemble: int | None = None, precision: str | None = None) -> np.ndarray:
+                                  ensemble: int | None = None, precision: str | None = None,
+                                  adapt: bool = True) -> np.ndarray:
     """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
     refined by the network, with the noise of the sensor model or of one colour's sub-lattice: the
     ``raw_bayer`` path of the ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS`.

@@ -1,0 +1,295 @@
+"""Test-time adaptation: the refiner fine-tuned on one burst's own frames before it refines it.
+
+The shipped networks learned from simulated cameras; a real camera blurs, adds noise and
+processes its frames in ways no simulator here reproduces. A burst carries its own check of that:
+a frame left out of the reconstruction can be predicted from the others' image through the forward
+model of observation space (the pixel's box and a small blur, read where the frame's motion puts
+each sample: :mod:`hbis_torch.validate.forward`), and compared with what the camera recorded.
+:func:`adapt_refiner` fine-tunes the network for a few steps to make that prediction better:
+
+1. the frames besides the reference are dealt into :data:`FOLDS` groups (every fourth frame);
+   each group's *input* is the classical image of the other frames, its *targets* the group's
+   samples (robustness-weighted, at least :data:`BORDER_PX` inside the reference frame);
+2. the loss is the targets' weighted squared error, plus :data:`ANCHOR` times the mean squared
+   change of the output from the unadapted network's. The anchor holds what the frames cannot
+   see: without it the network learns a pixel-scale checkerboard that the pixel's box averages
+   away (on the shared Emily sequence the left-out frames' error halved in the fit and
+   ``hbis validate`` lost 1.6 dB);
+3. Adam, :data:`STEPS` steps on every group but the first, each on a window of at most
+   :data:`WINDOW_PX` LR pixels (plus the network's reach on every side); the first group is held
+   out to stop early: every :data:`CHECK_EVERY` steps its error is measured, and the weights that
+   predict it best are kept (the unadapted network's, if none beats it).
+
+Everything here is float32: the loss compares intensities in [0, 1] with errors of 1e-4 and
+more, far above float32's rounding.
+
+It is what the learned method does on a burst by default (``--no-adapt`` turns it off,
+:func:`hbis_torch.reconstruct.learned.burst.learned_burst`); a Risley scan's frames are not
+adapted to. Measured in docs/real-bursts.md.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from hbis_torch.reconstruct.learned.inputs import TILE_HALO, network_inputs, run_tiled
+from hbis_torch.validate.forward import DEFAULT_BLUR_PX, pixel_kernel
+
+FOLDS = 4
+STEPS = 60
+LEARNING_RATE = 3e-4
+ANCHOR = 1.0
+CHECK_EVERY = 5
+WINDOW_PX = 96
+BORDER_PX = 2.0
+BLUR_PX = DEFAULT_BLUR_PX
+SEED = 0
+
+
+@dataclasses.dataclass
+class Fold:
+    """One group of left-out frames: the classical image of the others and the group's samples.
+
+    Attributes
+    ----------
+    base : Tensor, shape (1, S^2, H, W)
+        The other frames' classical image, space-to-depth (the network's ``base``).
+    noise : Tensor, shape (1, 1, H, W)
+        The network's noise map.
+    points : Tensor, shape (N, 2)
+        The group's samples' (u, v) on the reference frame, LR px.
+    values, weights : Tensor, shape (N,)
+        What the camera recorded there, and each sample's robustness weight.
+    """
+
+    base: Tensor
+    noise: Tensor
+    points: Tensor
+    values: Tensor
+    weights: Tensor
+
+
+@dataclasses.dataclass
+class Adaptation:
+    """What :func:`adapt_refiner` did.
+
+    Attributes
+    ----------
+    net : torch.nn.Module
+        The kept weights (a copy: the network passed in is not changed).
+    step : int
+        The step whose weights were kept (0: the unadapted network).
+    error_before, error_after : float
+        The held-out group's weighted mean squared error with the unadapted and the kept network.
+    error_classical : float
+        The same for the classical image itself.
+    """
+
+    net: torch.nn.Module
+    step: int
+    error_before: float
+    error_after: float
+    error_classical: float
+
+
+def pytorch_weights(onnx_path) -> Path | None:
+    """The PyTorch checkpoint of an ONNX model: ``NAME.pt`` beside ``NAME.onnx`` (or
+    ``NAME.int8.onnx``); None where there is none (a model file from elsewhere)."""
+    path = Path(onnx_path)
+    stem = path.name.removesuffix(".onnx").removesuffix(".int8")
+    candidate = path.with_name(stem + ".pt")
+    return candidate if candidate.is_file() else None
+
+
+def load_refiner(checkpoint) -> torch.nn.Module:
+    """The network of a training checkpoint (read with ``weights_only``: no pickled code runs)."""
+    from hbis_torch.training.net import build_net
+
+    state = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    net = build_net(state["model_config"])
+    net.load_state_dict(state["model"])
+    return net.eval()
+
+
+def folds_of(count: int, reference: int, usable) -> list[list[int]]:
+    """The left-out groups: the usable frames besides the reference, dealt into at most
+    :data:`FOLDS` groups (every FOLDS-th frame, so that each spans the burst); [] where fewer
+    than two frames are usable (nothing to fit and check on)."""
+    others = [k for k in range(count) if k != reference and usable[k]]
+    groups = min(FOLDS, len(others))
+    return [others[i::groups] for i in range(groups)] if groups >= 2 else []
+
+
+def make_fold(held: list[int], frames: Tensor, positions: Tensor, weights: Tensor, scale: int,
+              noise_params, classical) -> Fold:
+    """A :class:`Fold`: the classical image of every frame but ``held`` and ``held``'s samples.
+
+    ``classical(frames, positions, scale, weights)`` -> (S H, S W) Tensor is the classical step
+    (:func:`hbis_torch.reconstruct.classical.burst.burst_sr`)."""
+    count, rows, cols = frames.shape
+    keep = [k for k in range(count) if k not in held]
+    image = classical(frames[keep], positions[keep], scale, weights[keep]).numpy()
+    base, noise = network_inputs(image, scale, noise_params)
+    q, w = positions[held].reshape(-1, 2), weights[held].reshape(-1)
+    inside = ((q[:, 0] >= BORDER_PX) & (q[:, 0] <= cols - 1 - BORDER_PX) & (q[:, 1] >= BORDER_PX)
+              & (q[:, 1] <= rows - 1 - BORDER_PX) & (w > 0))
+    return Fold(torch.from_numpy(base)[None], torch.from_numpy(noise)[None], q[inside].float(),
+                frames[held].reshape(-1)[inside].float(), w[inside].float())
+
+
+class _Predictor:
+    """The forward model on a window of the output: blur by the pixel's box and the lens, read at
+    the samples' positions (bicubic), as :func:`hbis_torch.validate.forward.predict_frame`."""
+
+    def __init__(self, scale: int):
+        self.scale = scale
+        self.kernel = torch.from_numpy(pixel_kernel(scale, 1.0, BLUR_PX).astype(np.float32))
+
+    def __call__(self, output: Tensor, points: Tensor) -> Tensor:
+        """output (1, 1, S h, S w) of a window whose corner is LR px (0, 0); points (N, 2) in the
+        window's LR px -> (N,)."""
+        r = len(self.kernel) // 2
+        x = F.conv2d(F.pad(output, (r, r, 0, 0), mode="replicate"), self.kernel.view(1, 1, 1, -1))
+        x = F.conv2d(F.pad(x, (0, 0, r, r), mode="replicate"), self.kernel.view(1, 1, -1, 1))
+        rows, cols = output.shape[-2] // self.scale, output.shape[-1] // self.scale
+        grid = torch.stack(((2 * points[:, 0] + 1) / cols - 1, (2 * points[:, 1] + 1) / rows - 1), -1)
+        return F.grid_sample(x, grid.view(1, 1, -1, 2), mode="bicubic", padding_mode="border",
+                             align_corners=False).view(-1)
+
+
+def _halo(net: torch.nn.Module) -> int:
+    """Context a window needs on each side for its centre to equal the whole image's, LR px."""
+    return max(TILE_HALO, getattr(getattr(net, "architecture", None), "halo", TILE_HALO))
+
+
+def _window(fold: Fold, y0: int, x0: int, size: tuple[int, int], halo: int):
+    """The fold cut to an inner window (rows y0.., cols x0.., ``size`` LR px) with ``halo`` px of
+    context: (base, noise, the inner window's samples' points in the cut's px, their values and
+    weights, the inner window's corner (row, col) in the cut, LR px)."""
+    rows, cols = fold.base.shape[-2:]
+    ya, xa = max(0, y0 - halo), max(0, x0 - halo)
+    yb, xb = min(rows, y0 + size[0] + halo), min(cols, x0 + size[1] + halo)
+    u, v = fold.points[:, 0], fold.points[:, 1]
+    inside = (u >= x0) & (u <= x0 + size[1] - 1) & (v >= y0) & (v <= y0 + size[0] - 1)
+    points = fold.points[inside] - torch.tensor([xa, ya], dtype=torch.float32)
+    return (fold.base[..., ya:yb, xa:xb], fold.noise[..., ya:yb, xa:xb], points, fold.values[inside],
+            fold.weights[inside], (y0 - ya, x0 - xa))
+
+
+def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weights: Tensor, scale: int,
+                  noise_params: tuple[float, float], reference: int, classical, *, steps: int = STEPS,
+                  seed: int = SEED, on_step=None) -> Adaptation | None:
+    """Fine-tune a copy of ``net`` to predict the burst's left-out frames (the module's recipe).
+
+    Parameters
+    ----------
+    net : HbisSRNet
+        The refiner for ``scale`` (not changed).
+    frames : Tensor, shape (F, H, W), float32 in [0, 1]
+        The brightness-corrected frames.
+    positions : Tensor, shape (F, H, W, 2), float64
+        Each sample's (u, v) on the reference frame, LR px.
+    weights : Tensor, shape (F, H, W), float64 in [0, 1]
+        The robustness weights (0: a frame left out).
+    scale : int
+        S.
+    noise_params : (float, float)
+        The frames' noise (a, b).
+    reference : int
+    classical : callable
+        ``classical(frames, positions, scale, weights)`` -> (S H, S W) Tensor.
+    steps : int
+        Adam steps.
+    seed : int
+        Seeds the windows' draw: the same burst gives the same result.
+    on_step : callable, optional
+        Called after each step (a progress bar's ``update``).
+
+    Returns
+    -------
+    Adaptation or None
+        None where fewer than two frames besides the reference carry weight.
+    """
+    usable = [bool(weights[k].sum() > 0) for k in range(len(frames))]
+    groups = folds_of(len(frames), reference, usable)
+    if not groups:
+        return None
+    folds = [make_fold(g, frames, positions, weights, scale, noise_params, classical) for g in groups]
+    check, train = folds[0], folds[1:]
+    adapted = copy.deepcopy(net).train()
+    frozen = net.eval()
+    predict = _Predictor(scale)
+    halo = _halo(net)
+    rows, cols = check.base.shape[-2:]
+    size = (min(rows, WINDOW_PX), min(cols, WINDOW_PX))
+    generator = torch.Generator().manual_seed(seed)
+
+    # the held-out group is scored on one fixed window (the centre; the whole image up to
+    # 2 x WINDOW_PX): the same samples at every check
+    check_size = (min(rows, 2 * WINDOW_PX), min(cols, 2 * WINDOW_PX))
+    check_window = _window(check, (rows - check_size[0]) // 2, (cols - check_size[1]) // 2, check_size, halo)
+
+    def error(model) -> float:
+        base, noise, points, values, w, _ = check_window
+        with torch.no_grad():
+            out = F.pixel_shuffle(base, scale) if model is None else model(base, noise)
+            return float(((predict(out, points) - values) ** 2 * w).sum() / w.sum().clamp_min(1e-12))
+
+    with torch.no_grad():  # the unadapted network's output, which the anchor holds the adapted one near
+        anchors = {id(fold): frozen(fold.base, fold.noise) for fold in train}
+    before = best_error = error(frozen)
+    best_state, best_step = None, 0
+    optimiser = torch.optim.Adam(adapted.parameters(), lr=LEARNING_RATE)
+    for step in range(1, steps + 1):
+        y0 = int(torch.randint(0, rows - size[0] + 1, (1,), generator=generator))
+        x0 = int(torch.randint(0, cols - size[1] + 1, (1,), generator=generator))
+        optimiser.zero_grad()
+        loss = torch.zeros(())
+        for fold in train:
+            base, noise, points, values, w, (iy, ix) = _window(fold, y0, x0, size, halo)
+            if len(values) == 0:
+                continue
+            out = adapted(base, noise)
+            inner = out[..., iy * scale:(iy + size[0]) * scale, ix * scale:(ix + size[1]) * scale]
+            anchor = anchors[id(fold)][..., y0 * scale:(y0 + size[0]) * scale, x0 * scale:(x0 + size[1]) * scale]
+            fit = ((predict(out, points) - values) ** 2 * w).sum() / w.sum().clamp_min(1e-12)
+            loss = loss + fit + ANCHOR * ((inner - anchor) ** 2).mean()
+        if loss.requires_grad:
+            loss.backward()
+            optimiser.step()
+        if step % CHECK_EVERY == 0 or step == steps:
+            now = error(adapted)
+            if now < best_error:
+                best_error, best_state, best_step = now, copy.deepcopy(adapted.state_dict()), step
+        if on_step is not None:
+            on_step()
+    if best_state is not None:
+        adapted.load_state_dict(best_state)
+    else:
+        adapted = copy.deepcopy(net)
+    return Adaptation(adapted.eval(), best_step, before, best_error, error(None))
+
+
+def refine(net: torch.nn.Module, image: np.ndarray, scale: int, noise_params: tuple[float, float],
+           ensemble: int | None = 1) -> np.ndarray:
+    """The classical image (S H, S W) refined by a PyTorch network, tiled as onnxruntime's runner
+    is (:func:`~hbis_torch.reconstruct.learned.inputs.super_resolve`); float32 in [0, 1]."""
+    from hbis_torch.reconstruct.learned.inputs import super_resolve
+
+    halo = _halo(net)
+
+    def infer(base: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return net(torch.from_numpy(np.ascontiguousarray(base)), torch.from_numpy(noise)).numpy()
+
+    def run_network(base: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        return run_tiled(infer, base, noise, scale, 256, halo)
+
+    return super_resolve(run_network, image, scale, noise_params, "the adapted network", None, ensemble)

@@ -1,0 +1,131 @@
+"""Test-time adaptation of the refiner to a burst (hbis_torch.reconstruct.learned.adapt)."""
+
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from skimage import data, transform
+
+from hbis_torch.capture.burst import assemble_burst
+from hbis_torch.metrics import psnr
+from hbis_torch.reconstruct.burst import burst_samples, corrected_frames
+from hbis_torch.reconstruct.classical.burst import burst_sr
+from hbis_torch.reconstruct.learned import adapt
+from hbis_torch.reconstruct.learned.runtime import shipped_model_path
+from hbis_torch.reconstruct.registry import reconstruct
+from hbis_torch.simulate.burst import random_motions, simulate_burst
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+SIZE = 32
+
+
+def _truth(scale: int, which: str = "camera", size: int = SIZE) -> np.ndarray:
+    image = getattr(data, which)()
+    image = image.mean(-1) if image.ndim == 3 else image
+    return transform.resize(image.astype(float) / 255, (size * scale, size * scale), anti_aliasing=True)
+
+
+def _stack(which="camera", blur_px=0.0, count=8, seed=5, size=SIZE):
+    motions = random_motions(count, (size, size), np.random.default_rng(seed), 1.5, 1.0)
+    burst = simulate_burst(_truth(2, which, size), 2, motions, noise=0.01, seed=seed, blur_px=blur_px)
+    stack, _ = assemble_burst(burst.frames, 2)
+    return stack, burst.truth
+
+
+def test_folds_deal_the_other_frames_and_need_two():
+    assert adapt.folds_of(9, 0, [True] * 9) == [[1, 5], [2, 6], [3, 7], [4, 8]]
+    assert adapt.folds_of(3, 1, [True] * 3) == [[0], [2]]
+    assert adapt.folds_of(4, 0, [True, True, False, True]) == [[1], [3]]
+    assert adapt.folds_of(3, 0, [True, True, False]) == []  # one frame to fit and check on: no adaptation
+
+
+def test_pytorch_weights_are_found_beside_the_onnx_file(tmp_path):
+    onnx = shipped_model_path(2)
+    assert adapt.pytorch_weights(onnx) == onnx.with_suffix(".pt")
+    assert adapt.pytorch_weights(onnx.with_name("hbis_sr_h2.int8.onnx")) == onnx.with_suffix(".pt")
+    shutil.copy(onnx, tmp_path / "mine.onnx")
+    assert adapt.pytorch_weights(tmp_path / "mine.onnx") is None
+
+
+def test_adaptation_is_deterministic_keeps_the_best_check_and_leaves_the_network_alone():
+    stack, _ = _stack(size=24)
+    frames, positions, _, weights = burst_samples(stack, corrected_frames(stack))
+    net = adapt.load_refiner(shipped_model_path(2).with_suffix(".pt"))
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    runs = [adapt.adapt_refiner(net, frames, positions, weights, 2, (0.0, 1e-4), stack.reference_index, burst_sr,
+                                steps=10) for _ in range(2)]
+    assert all(torch.equal(before[k], v) for k, v in net.state_dict().items())
+    one, two = (r.net.state_dict() for r in runs)
+    assert all(torch.equal(one[k], two[k]) for k in one)
+    assert runs[0].step in (0, 5, 10) and runs[0].error_after <= runs[0].error_before
+    assert np.isfinite([runs[0].error_after, runs[0].error_classical]).all()
+
+
+@pytest.mark.parametrize("which, blur_px", [("camera", 0.0), ("astronaut", 0.8)])
+def test_adapting_does_not_lose_where_the_network_already_fits(which, blur_px):
+    """On the simulator the network was trained on, adapting has little to gain; the anchor and
+    the held-out check keep it from losing much (measured -0.06 and +0.20 dB against the shipped
+    network)."""
+    stack, truth = _stack(which, blur_px)
+    notes: list = []
+    adapted = reconstruct(stack, "learned", messages=notes)
+    shipped = reconstruct(stack, "learned", adapt=False)
+    assert any("adapted to the burst's own frames" in n for n in notes), notes
+    assert psnr(adapted, truth) > psnr(shipped, truth) - 0.1
+
+
+def test_adaptation_gains_on_a_camera_the_network_never_saw():
+    """The held-out renderer (its own pixel integration, Poisson noise, 8 bits) is not the
+    training's: there the adapted network is closer to the truth than the shipped one."""
+    from hbis_torch.training.heldout_burst import BURST_CONDITIONS, make_burst
+
+    frames, truth, bits = make_burst(BURST_CONDITIONS[0], "camera", 2, 40, seed=2000)
+    stack, _ = assemble_burst(frames, 2, bit_depth=bits)
+    adapted = psnr(reconstruct(stack, "learned"), truth)
+    shipped = psnr(reconstruct(stack, "learned", adapt=False), truth)
+    assert adapted > shipped + 0.3, (adapted, shipped)
+
+
+def test_a_colour_burst_is_adapted_once_for_its_three_channels():
+    motions = random_motions(8, (SIZE, SIZE), np.random.default_rng(4), 1.5)
+    rgb = transform.resize(data.astronaut()[100:300, 150:350] / 255, (2 * SIZE, 2 * SIZE), anti_aliasing=True)
+    frames = np.stack([simulate_burst(rgb[..., c], 2, motions, noise=0.005, seed=c).frames for c in range(3)], -1)
+    stack, _ = assemble_burst(frames, 2)
+    notes: list = []
+    image = reconstruct(stack, "learned", messages=notes)
+    assert image.shape == (2 * SIZE, 2 * SIZE, 3) and np.isfinite(image).all()
+    assert sum("adapted to the burst's own frames" in n for n in notes) == 1, notes
+
+
+def test_without_adaptation_or_weights_the_network_runs_as_shipped(tmp_path):
+    stack, _ = _stack(size=24)
+    shutil.copy(shipped_model_path(2), tmp_path / "mine.onnx")
+    notes: list = []
+    foreign = reconstruct(stack, "learned", model=str(tmp_path / "mine.onnx"), messages=notes)
+    assert any("no PyTorch weights beside mine.onnx" in n for n in notes), notes
+    plain_notes: list = []
+    plain = reconstruct(stack, "learned", adapt=False, messages=plain_notes)
+    np.testing.assert_array_equal(foreign, plain)
+    assert not any("adapted" in n for n in plain_notes)
+    assert not np.array_equal(reconstruct(stack, "learned"), plain)
+
+
+def test_outside_the_noise_range_the_adapted_network_must_beat_the_classical_image(monkeypatch):
+    """A burst noisier than the training's gets the network only where the adapted one predicts
+    the left-out frames better than the classical image; else the classical image, said so."""
+    stack, _ = _stack(size=24)
+    stack.meta["sensor"] = {"full_well_e": 20.0}  # 16 % noise at mid-grey: outside the range
+    real = adapt.adapt_refiner
+
+    def worse(*args, **kw):
+        result = real(*args, **kw)
+        result.error_after = result.error_classical * 1.01
+        return result
+
+    monkeypatch.setattr(adapt, "adapt_refiner", worse)
+    notes: list = []
+    image = reconstruct(stack, "learned", messages=notes)
+    assert any("outside the model's training range" in n and "did not predict the left-out frames better" in n
+               for n in notes), notes
+    np.testing.assert_allclose(image, reconstruct(stack, "classical"), atol=1e-6)
