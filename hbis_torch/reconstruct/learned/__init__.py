@@ -1,7 +1,8 @@
-"""Learned multi-frame super-resolution: the network runs in onnxruntime, not torch.
+"""Learned multi-frame super-resolution: the network runs in onnxruntime, not torch (but for a
+burst's test-time adaptation, :mod:`.adapt`, which fine-tunes it in PyTorch first).
 
-The network (:mod:`hbis_torch.training.net`, built and exported on the build side,
-:mod:`hbis_torch.training`) refines the classical reconstruction: it
+The network (:mod:`.network`, trained and exported on the build side, :mod:`hbis_torch.training`)
+refines the classical reconstruction: it
 sees the classical image cut into the h^2 sub-pixel phases of the LR grid and a per-pixel map of
 the frames' noise level (:func:`network_inputs`), from the stack's sensor model or measured from
 the frames. So it takes any stack the classical method takes (any reference frame, any scan,

@@ -110,7 +110,7 @@ def pytorch_weights(onnx_path) -> Path | None:
 
 def load_refiner(checkpoint) -> torch.nn.Module:
     """The network of a training checkpoint (read with ``weights_only``: no pickled code runs)."""
-    from hbis_torch.training.net import build_net
+    from hbis_torch.reconstruct.learned.network import build_net
 
     state = torch.load(checkpoint, map_location="cpu", weights_only=True)
     net = build_net(state["model_config"])

@@ -1,6 +1,6 @@
 """The network's architecture as one small record, which travels with the model.
 
-Training builds the network from an :class:`Architecture` (:func:`hbis_torch.training.net.build_net`),
+Training builds the network from an :class:`Architecture` (:func:`hbis_torch.reconstruct.learned.network.build_net`),
 checkpoints store it (:meth:`Architecture.as_dict`), the export writes it into the ONNX file's
 ``model_config`` metadata (:meth:`Architecture.to_metadata`), and the runtime reads it back
 (:meth:`Architecture.from_metadata`) to size the tiles' halo (:attr:`Architecture.halo`). Changing

@@ -1,6 +1,6 @@
 """The learned method's inputs and glue around any runner of the network, on numpy arrays.
 
-The network refines the classical image (see :mod:`hbis_torch.training.net`), so its
+The network refines the classical image (see :mod:`hbis_torch.reconstruct.learned.network`), so its
 inputs are defined by physics, not by the order of the frames: :func:`network_inputs` cuts the
 classical image into the h^2 sub-pixel phases of the LR grid and adds the noise map, whose
 Poisson-Gaussian parameters come from the stack's sensor model (:func:`noise_params_from_meta`)
@@ -26,7 +26,7 @@ from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 # for the shipped models: head + 2 per block + tail), so that tiling does not change the result.
 TILE_HALO = 16
 # Frames' noise levels are scaled by this before the network (its ``noise`` input,
-# hbis_torch.training.net); the training pipeline takes it from here.
+# hbis_torch.reconstruct.learned.network); the training pipeline takes it from here.
 NOISE_SCALE = 10.0
 
 

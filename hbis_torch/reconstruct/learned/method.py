@@ -69,7 +69,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
 
     The learned method takes every stack the classical method takes (any reference frame, any
     scan, frames left out by the registration): the network sees only the classical image and
-    the frames' noise level (:mod:`hbis_torch.training.net`).
+    the frames' noise level (:mod:`hbis_torch.reconstruct.learned.network`).
 
     Parameters
     ----------
