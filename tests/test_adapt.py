@@ -129,3 +129,20 @@ def test_outside_the_noise_range_the_adapted_network_must_beat_the_classical_ima
     assert any("outside the model's training range" in n and "did not predict the left-out frames better" in n
                for n in notes), notes
     np.testing.assert_allclose(image, reconstruct(stack, "classical"), atol=1e-6)
+
+
+def test_the_command_line_turns_it_off(tmp_path, capsys):
+    from hbis_torch.cli import main
+    from hbis_torch.stack_io import write_stack
+
+    stack, _ = _stack(size=24)
+    path = tmp_path / "burst.tif"
+    write_stack(path, stack)
+    assert main(["-q", "reconstruct", str(path), "--method", "learned", "--no-adapt", "--out",
+                 str(tmp_path / "plain.tif")]) == 0
+    assert main(["-q", "validate", str(path), "--method", "classical,learned", "--no-adapt", "--holdout", "1"]) == 0
+    capsys.readouterr()
+    assert main(["-q", "reconstruct", str(path), "--method", "classical", "--no-adapt", "--out",
+                 str(tmp_path / "c.tif")]) == 2
+    assert "--no-adapt is only for --method learned" in capsys.readouterr().err
+    assert not (tmp_path / "c.tif").exists()
