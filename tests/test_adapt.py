@@ -146,3 +146,13 @@ def test_the_command_line_turns_it_off(tmp_path, capsys):
                  str(tmp_path / "c.tif")]) == 2
     assert "--no-adapt is only for --method learned" in capsys.readouterr().err
     assert not (tmp_path / "c.tif").exists()
+
+
+def test_an_int8_request_is_told_that_the_adapted_network_runs_in_float32():
+    stack, _ = _stack(size=24)
+    notes: list = []
+    reconstruct(stack, "learned", precision="int8", messages=notes)
+    assert sum("runs in float32" in n for n in notes) == 1, notes
+    notes.clear()
+    reconstruct(stack, "learned", precision="int8", adapt=False, messages=notes)
+    assert not any("float32" in n for n in notes), notes

@@ -50,10 +50,8 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     noise = noise_params_from_meta(stack.meta) or estimate_noise_params(frames.numpy())
     outside = None if extrapolate else outside_domain(domain_from_metadata(metadata), noise, None)
     if adapt:
-        refined = _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages)
-        if refined is not None and precision == "int8" and messages is not None:
-            messages.append("the adapted network runs in float32 (PyTorch), not from the int8 file; "
-                            "--no-adapt runs that")
+        refined = _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages,
+                           precision)
         if refined is not None:
             return refined
     if outside is not None:
@@ -62,7 +60,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     return runner(image, noise, None, messages=messages, extrapolate=True, ensemble=ensemble)
 
 
-def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages):
+def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages, precision):
     """The image refined by the network adapted to the burst, or None where it cannot be adapted
     (the line saying why goes to ``messages``)."""
     from hbis_torch.progress import progress
@@ -95,4 +93,6 @@ def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, ou
     if outside is not None and adaptation.error_after >= adaptation.error_classical:
         return classical_returned(image, outside + ", and the adapted network did not predict the left-out frames "
                                   "better", messages)
+    if precision == "int8":
+        notes.append("the adapted network runs in float32 (PyTorch), not from the int8 file; --no-adapt runs that")
     return refine(adaptation.net, image, stack.h, noise, ensemble)
