@@ -156,3 +156,13 @@ def test_an_int8_request_is_told_that_the_adapted_network_runs_in_float32():
     notes.clear()
     reconstruct(stack, "learned", precision="int8", adapt=False, messages=notes)
     assert not any("float32" in n for n in notes), notes
+
+
+def test_the_forward_model_in_float32_agrees_with_float64():
+    rng = np.random.default_rng(0)
+    output = torch.from_numpy(rng.random((1, 1, 40, 48)))
+    points = torch.from_numpy(rng.uniform(1, 18, (500, 2)))
+    predict = adapt._Predictor(2)
+    wide, narrow = predict(output, points), predict(output.float(), points.float())
+    assert wide.dtype == torch.float64 and narrow.dtype == torch.float32
+    assert float((wide - narrow.double()).abs().max()) < 1e-6
