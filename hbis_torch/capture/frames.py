@@ -478,8 +478,9 @@ def bit_depth_hint(frames: np.ndarray) -> str | None:
     against 33.75 dB with the bit depth given), and a viewer shows the frames nearly black."""
     if frames.dtype != np.uint16:
         return None
-    bits = max(int(frames.max()).bit_length(), 1)
+    top = int(frames.max())
+    bits = max(top.bit_length(), 1)
     if bits > 14:
         return None
-    return (f"the frames' values reach {int(frames.max())}, {bits} of the 16 bits their type holds: if the camera "
+    return (f"the frames' values reach {top}, {bits} of the 16 bits their type holds: if the camera "
             f"records {bits} bits, pass --bit-depth {bits} (the stack maps 65535 to white)")

@@ -179,8 +179,8 @@ def _apply_filter(spectrum: Tensor, measured: Tensor, model: _Model, terms: tupl
                                 *terms[1:])[0][0]
     if rows % 2 == 0 and rows > 1:  # fy = -1/2: alias (kx, ky) there is (kx, -ky) at +1/2, the mirrored side
         half = slice(rows // 2, rows // 2 + 1)
-        spectrum[half] *= _mmse_filter(measured[half], model._replace(fy=model.fy[half]), aliases.at(half, mirrored=True),
-                                       *terms[1:])[0]
+        spectrum[half] *= _mmse_filter(measured[half], model._replace(fy=model.fy[half]),
+                                       aliases.at(half, mirrored=True), *terms[1:])[0]
 
 
 class _AliasSums:

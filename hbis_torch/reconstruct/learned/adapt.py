@@ -275,10 +275,7 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
                 best_error, best_state, best_step = now, copy.deepcopy(adapted.state_dict()), step
         if on_step is not None:
             on_step()
-    if best_state is not None:
-        adapted.load_state_dict(best_state)
-    else:
-        adapted = copy.deepcopy(net)
+    adapted.load_state_dict(best_state if best_state is not None else net.state_dict())
     return Adaptation(adapted.eval(), best_step, before, best_error, error(None))
 
 
