@@ -17,7 +17,9 @@ every measurement is repeated ``--repeats`` times, in turn with the others, and 
   <= 1 GB at h = 4, 2 GB at h = 7).
 - ``network``: the h = 4 network alone on a 480 x 640 LR input: onnxruntime fp32 and int8 (the
   shipped ``.int8.onnx``), and OpenVINO fp32 and bf16 where the ``openvino`` package is installed
-  (goal: int8 >= 2.5 x fp32).
+  (goal: int8 >= 2.5 x fp32). Beside it, one of the network's body convolutions alone in
+  onnxruntime's float32 and integer kernels: the most int8 can gain on this CPU, which depends on
+  its int8 instruction sets (VNNI, AMX; printed beside it).
 - ``startup``: a 32 x 32 learned reconstruct against ``python -c "import torch"`` (goal <= 1.3),
   with the default provider and with ``--provider cpu`` (both onnxruntime's kernels since
   ``auto`` runs them: the two rows show the run's noise).
@@ -144,6 +146,60 @@ def network(repeats: int) -> dict:
     return {name: {"seconds": times[name], "rms_change": change[name]} for name in runners}
 
 
+def int8_ceiling(repeats: int) -> dict:
+    """Best seconds of one of the network's body convolutions alone (32 -> 32 channels, 3 x 3, a
+    480 x 640 LR input, 2 threads) in onnxruntime's float32 ``Conv`` and its integer ``QLinearConv``
+    (uint8 activations, int8 weights, as the int8 files run): their ratio bounds what any int8
+    network of this design gains on this CPU, whatever its quantisation."""
+    import numpy as np
+    import onnxruntime as ort
+    from onnx import TensorProto, helper, numpy_helper
+
+    rng = np.random.default_rng(0)
+    weights = rng.normal(0, 0.1, (32, 32, 3, 3)).astype(np.float32)
+    shape = [1, 32, 480, 640]
+
+    def model(integer: bool) -> bytes:
+        kind = TensorProto.UINT8 if integer else TensorProto.FLOAT
+        if integer:  # any scales do: the integer kernel's time does not depend on them
+            arrays = {"w": np.clip(np.round(weights / 0.01), -127, 127).astype(np.int8),
+                      "xs": np.float32(0.02), "xz": np.uint8(128), "ws": np.full(32, 0.01, np.float32),
+                      "wz": np.zeros(32, np.int8), "ys": np.float32(0.05), "yz": np.uint8(128)}
+            node = helper.make_node("QLinearConv", ["x", "xs", "xz", "w", "ws", "wz", "ys", "yz"], ["y"],
+                                    pads=[1, 1, 1, 1])
+        else:
+            arrays = {"w": weights}
+            node = helper.make_node("Conv", ["x", "w"], ["y"], pads=[1, 1, 1, 1])
+        graph = helper.make_graph([node], "conv", [helper.make_tensor_value_info("x", kind, shape)],
+                                  [helper.make_tensor_value_info("y", kind, shape)],
+                                  [numpy_helper.from_array(np.asarray(v), k) for k, v in arrays.items()])
+        return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)], ir_version=9).SerializeToString()
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 2
+    best = {}
+    for name, integer in (("fp32", False), ("int8", True)):
+        session = ort.InferenceSession(model(integer), options, providers=["CPUExecutionProvider"])
+        x = rng.integers(0, 256, shape).astype(np.uint8) if integer else rng.random(shape, dtype=np.float32)
+        session.run(None, {"x": x})
+        for _ in range(max(repeats, 10)):  # 0.02-0.04 s each
+            t0 = time.perf_counter()
+            session.run(None, {"x": x})
+            best[name] = min(best.get(name, float("inf")), time.perf_counter() - t0)
+    return best
+
+
+def cpu_flags() -> str:
+    """The CPU's instruction sets that int8 inference depends on, from /proc/cpuinfo (Linux)."""
+    try:
+        flags = next(line for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags"))
+    except (OSError, StopIteration):
+        return "unknown"
+    have = set(flags.split(":", 1)[1].split())
+    wanted = ("avx2", "avx512f", "avx512_vnni", "avx_vnni", "amx_int8")
+    return ", ".join(f"{f} {'yes' if f in have else 'no'}" for f in wanted)
+
+
 def startup(work: Path, repeats: int) -> dict:
     small = simulate(work, 4, "624,464,32,32", "small_h4.tif")
     best = {"torch": float("inf"), "learned_32": float("inf"), "learned_32_cpu": float("inf")}
@@ -200,6 +256,12 @@ def report(results: dict, hs, args) -> str:
         r = net["onnxruntime fp32"]["seconds"] / net["onnxruntime int8"]["seconds"]
         row("int8 network speed / fp32 (h = 4, 480 x 640 LR)", f"{r:.2f}x", ">= 2.5x", r >= 2.5,
             "; ".join(f"{k} {v['seconds']:.3f} s (rms change {v['rms_change']:.1e})" for k, v in net.items()))
+    if "ceiling" in results:
+        c = results["ceiling"]
+        r = c["fp32"] / c["int8"]
+        row("int8 / fp32, one body convolution alone (the most an int8 network gains here)", f"{r:.2f}x",
+            ">= 2.5x", r >= 2.5, f"Conv {c['fp32']:.4f} s, QLinearConv {c['int8']:.4f} s, 32 -> 32 channels, "
+            f"3 x 3, 480 x 640, onnxruntime's CPU kernels; this CPU: {cpu_flags()}")
     if "startup" in results:
         s = results["startup"]
         r = s["learned_32"] / s["torch"]
@@ -247,6 +309,7 @@ def main(argv=None) -> int:
             results["fullframe", h] = fullframe(work, h, args.repeats)
     if "network" not in args.skip:
         results["network"] = network(args.repeats)
+        results["ceiling"] = int8_ceiling(args.repeats)
     if "startup" not in args.skip:
         results["startup"] = startup(work, args.repeats)
     if "outdir" not in args.skip:
