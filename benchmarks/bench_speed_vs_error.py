@@ -2,6 +2,7 @@
 
     python benchmarks/bench_speed_vs_error.py                # h = 2, 4, 7; 128², 256², 960²; every photograph
     python benchmarks/bench_speed_vs_error.py --quick        # h = 4; 128² and 256²; two photographs; best of 1
+    python benchmarks/bench_speed_vs_error.py --checkpoint cells.jsonl   # resumable: a rerun skips the cells kept
 
 Every cell is a stack of the held-out matrix's first condition (F 1.4, 10,000 e-, reference frame
 0; :mod:`hbis_torch.training.heldout`) of one of its photographs, which no training pool holds,
@@ -24,6 +25,7 @@ methods within one run (the same stacks, side by side), not across runs.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -84,10 +86,16 @@ def cell(stack, truth, runners: dict, repeats: int) -> dict:
     return out
 
 
-def measure(hs, sizes, photos, repeats: int) -> list[dict]:
+def measure(hs, sizes, photos, repeats: int, checkpoint: Path | None = None) -> list[dict]:
+    """Every cell's rows; with ``checkpoint`` (JSON lines), each finished cell's rows are appended
+    to it, and the cells it already holds (measured with the same ``repeats``) are read, not run
+    again: a run stopped part way goes on where it stopped."""
     from hbis_torch.reconstruct.learned import LearnedSR, models_dir
     from hbis_torch.training.heldout import CONDITIONS, make_stack
 
+    saved = []
+    if checkpoint is not None and checkpoint.exists():
+        saved = [json.loads(line) for line in checkpoint.read_text().splitlines() if line.strip()]
     runners = {(h, label): LearnedSR(None if name is None else models_dir() / name.format(h=h), h=h,
                                      provider="cpu", precision=precision)
                for h in hs for label, name, precision, _ in LEARNED}
@@ -95,10 +103,16 @@ def measure(hs, sizes, photos, repeats: int) -> list[dict]:
     for h in hs:
         for size in sizes:
             for photo in photos:
-                stack, truth = make_stack(CONDITIONS[0], photo, h, size, seed=1000)
-                for method, (seconds, db) in cell(stack, truth, runners, repeats).items():
-                    rows.append({"h": h, "size": size, "photo": photo, "method": method, "seconds": seconds,
-                                 "psnr_db": db})
+                key = {"h": h, "size": size, "photo": photo, "repeats": repeats}
+                done = [r for r in saved if all(r.get(k) == v for k, v in key.items())]
+                if not done:
+                    stack, truth = make_stack(CONDITIONS[0], photo, h, size, seed=1000)
+                    done = [{**key, "method": method, "seconds": seconds, "psnr_db": db}
+                            for method, (seconds, db) in cell(stack, truth, runners, repeats).items()]
+                    if checkpoint is not None:
+                        with checkpoint.open("a") as file:
+                            file.writelines(json.dumps(r) + "\n" for r in done)
+                rows += done
                 print(f"h = {h}, {size}², {photo}: done", file=sys.stderr, flush=True)
     return rows
 
@@ -159,13 +173,18 @@ def main(argv=None) -> int:
     parser.add_argument("--photos", nargs="+", default=None, choices=PHOTOS)
     parser.add_argument("--repeats", type=int, default=None)
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "speed-vs-error.md")
+    parser.add_argument("--checkpoint", type=Path, default=None,
+                        help="JSON-lines file of the finished cells: a rerun with it skips them (the full frame "
+                        "at h = 7 takes minutes a cell)")
     args = parser.parse_args(argv)
-    args.argv = argv
+    # the command the report prints: a checkpoint file is where this run kept its cells, not how to rerun it
+    args.argv = [a for i, a in enumerate(argv) if not a.startswith("--checkpoint")
+                 and not (i and argv[i - 1] == "--checkpoint")]
     hs = args.hs or ([4] if args.quick else [2, 4, 7])
     sizes = args.sizes or ([128, 256] if args.quick else [128, 256, 960])
     photos = args.photos or (list(PHOTOS[:2]) if args.quick else list(PHOTOS))
     args.repeats = args.repeats or (1 if args.quick else 3)
-    rows = measure(hs, sizes, photos, args.repeats)
+    rows = measure(hs, sizes, photos, args.repeats, args.checkpoint)
     text = markdown(rows, args, hs, sizes, photos)
     args.out.write_text(text)
     plot(rows, hs, sizes, args.out.with_suffix(".png"))
