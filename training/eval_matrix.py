@@ -117,7 +117,6 @@ def main(argv=None) -> int:
         cells.append(cell)
     ensembles = ", ".join(f"{check_ensemble(args.ensemble, h, tier)} at h = {h}" for h in args.h)
     which = f"models in {args.models}" if args.models is not None else f"the shipped {args.tier} models"
-    which += ", adapted to each burst" if args.adapt else ", not adapted"
     print(f"# learned ({which}) - classical, dB (PSNR vs truth, border {2} LR px), self-ensemble of {ensembles}; "
           f"{time.monotonic() - started:.0f} s")
     for h in args.h:
