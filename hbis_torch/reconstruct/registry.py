@@ -220,8 +220,7 @@ register(Method(
                "none, the fast one) or an ONNX model file",
                {"type": str, "metavar": "fast|best|M.onnx"}),
         Option("--provider", "provider", "what runs the model; 'auto' (the default) and 'cpu': onnxruntime's "
-               "CPU kernels; 'openvino': OpenVINO (pip install 'hbis-torch[openvino]'), no faster here in fp32 "
-               "and 1-6 s to compile the model",
+               "CPU kernels; 'openvino': OpenVINO (pip install 'hbis-torch[openvino]'), no faster in fp32",
                {"choices": ("auto", "openvino", "cpu")}),
         Option("--extrapolate", "extrapolate", "run the network on a stack outside its training domain too "
                "(a lens blurrier, or noise far lower or higher, than any it was trained on); by default such "
@@ -231,11 +230,13 @@ register(Method(
                "step takes most of the time, else 1; the best models 2, and 8 at h = 7): as many times the "
                "network's time, for a small gain in PSNR",
                {"type": int, "choices": (1, 2, 4, 8)}),
-        Option("--precision", "precision", "which file of the model runs: 'fp32' (the default for the shipped "
-               "models) or 'int8', its int8 file NAME.int8.onnx (shipped for h = 2, 3, 4, 7, both tiers): the "
-               "network 1.2-1.4 times as fast on AVX2 cores, at a cost in PSNR of 0.0-0.3 dB on average over the "
-               "held-out matrix and up to 3.7 dB in its cleanest cells (docs/learned.md, section int8)",
-               {"choices": ("int8", "fp32")}),
+        Option("--precision", "precision", "how the network runs: 'fp32' (the default for the shipped models); "
+               "'int8', its int8 file NAME.int8.onnx (shipped for h = 2, 3, 4, 7, both tiers), 1.2-1.4 times as "
+               "fast on AVX2 cores, 2 times with AVX-512 VNNI; 'bf16', the float32 file in OpenVINO in bfloat16 "
+               "(pip install 'hbis-torch[openvino]'), 3 times as fast on cores with AMX or AVX-512 BF16, float32 on "
+               "others. Each loses PSNR in the held-out matrix's cleanest cells: int8 up to 3.7 dB, bf16 up to "
+               "0.33 dB, in cells above 50 dB (docs/learned.md, section int8)",
+               {"choices": ("int8", "bf16", "fp32")}),
         Option("--no-adapt", "adapt", "bursts: refine with the network as shipped, not first fine-tuned for a few "
                "seconds to predict the burst's own left-out frames (test-time adaptation, docs/real-bursts.md)",
                {"action": "store_false"}),

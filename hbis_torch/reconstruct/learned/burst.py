@@ -39,7 +39,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
 
     Returns (S H, S W) float32 in [0, 1]."""
     model = available_tier(model, stack.h, messages)
-    path, metadata, missing = model_to_run(model, stack.h, precision)
+    path, metadata, missing = model_to_run(model, stack.h, precision, provider)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     image = burst_sr(frames, positions, stack.h, weights).numpy()
     if missing is not None:
@@ -56,7 +56,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
             return refined
     if outside is not None:
         return classical_returned(image, outside, messages)
-    runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider)
+    runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider, precision)
     return runner(image, noise, None, messages=messages, extrapolate=True, ensemble=ensemble)
 
 
@@ -93,6 +93,6 @@ def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, ou
     if outside is not None and adaptation.error_after >= adaptation.error_classical:
         return classical_returned(image, outside + ", and the adapted network did not predict the left-out frames "
                                   "better", messages)
-    if precision == "int8":
-        notes.append("the adapted network runs in float32 (PyTorch), not from the int8 file; --no-adapt runs that")
+    if precision in ("int8", "bf16"):
+        notes.append(f"the adapted network runs in float32 (PyTorch), not in {precision}; --no-adapt runs that")
     return refine(adaptation.net, image, stack.h, noise, ensemble)

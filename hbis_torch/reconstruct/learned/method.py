@@ -105,9 +105,10 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         tier's default (:func:`~hbis_torch.reconstruct.learned.inputs.default_ensemble`: the fast
         models 2 at h = 3 and 7, where the classical step takes most of the time, else 1; the
         best models 2, and 8 at h = 7; a model file of no tier as the fast ones).
-    precision : {"int8", "fp32"} or None
+    precision : {"int8", "bf16", "fp32"} or None
         Which file of the model runs (:func:`~hbis_torch.reconstruct.learned.runtime.with_precision`;
-        None: the file named, float32 for the shipped models; ``"int8"``: its int8 file).
+        None: the file named, float32 for the shipped models; ``"int8"``: its int8 file;
+        ``"bf16"``: the float32 file in OpenVINO in bfloat16, on CPUs with bf16 units).
 
     Returns
     -------
@@ -115,7 +116,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     """
     # before any work; the session opens after the classical step
     model = available_tier(model, stack.h, messages)
-    path, metadata, missing = model_to_run(model, stack.h, precision)
+    path, metadata, missing = model_to_run(model, stack.h, precision, provider)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     image, noise_params = classical_and_noise(stack, registration, positions, messages)
     if missing is not None:  # no shipped network for this h: as outside the training domain
@@ -123,16 +124,17 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     unhelpful = unhelpful_model(metadata)
     if unhelpful is not None and not extrapolate:  # no session to open
         return classical_returned(image, unhelpful, messages)
-    runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider)
+    runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider, precision)
     return runner(image, noise_params, optics_cutoff(stack.system), messages=messages, extrapolate=extrapolate,
                   ensemble=ensemble)
 
 
 @functools.lru_cache(maxsize=4)
-def _runner(path: str, mtime_ns: int, threads: int | None, provider: str) -> LearnedSR:
-    """One session per model file (and its modification time), threads and provider, kept for
-    the next call: a loop over stacks does not compile the model again (30 ms with OpenVINO)."""
-    return LearnedSR(model=path, threads=threads, provider=provider)
+def _runner(path: str, mtime_ns: int, threads: int | None, provider: str, precision: str | None = None) -> LearnedSR:
+    """One session per model file (and its modification time), threads, provider and precision,
+    kept for the next call: a loop over stacks does not compile the model again (30 ms with
+    OpenVINO). ``path`` is the file :func:`model_to_run` chose for ``precision``."""
+    return LearnedSR(model=path, threads=threads, provider=provider, precision=precision)
 
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
@@ -158,12 +160,12 @@ def reconstruct_learned_raw_bayer(stack, registration: str = "auto", *, messages
     Keywords as for :func:`reconstruct_learned`; returns (h H, h W, 3) float32.
     """
     model = available_tier(model, stack.h, messages)
-    path, _, missing = model_to_run(model, stack.h, precision)
+    path, _, missing = model_to_run(model, stack.h, precision, provider)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     planes = reconstruct_classical_raw_bayer(stack, registration, messages=messages)
     if missing is not None:  # as learned_sr: the classical image, said so
         return classical_returned(planes, missing, messages, remedy=NO_MODEL_REMEDY)
-    runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider)
+    runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider, precision)
     noise = noise_params_from_meta(stack.meta)
     if noise is None:  # one colour's pixels: a plain image of one sensor's noise, no mosaic in it
         noise = estimate_noise_params(stack.to_float().numpy()[:, 0::2, 0::2])

@@ -74,10 +74,13 @@ def default_model_path(h: int, tier: str = "fast") -> Path:
 NO_MODEL_REMEDY = "--model runs a model of your own"
 
 
-def model_to_run(model, h: int, precision: str | None = None) -> tuple[Path | None, dict | None, str | None]:
+def model_to_run(model, h: int, precision: str | None = None,
+                 provider: str = "auto") -> tuple[Path | None, dict | None, str | None]:
     """:func:`check_model`'s (path, metadata, None), the file at ``precision``
-    (:func:`with_precision`); or (None, None, the line saying so) where no model is named (or a
-    tier is) and none is shipped for ``h`` (the learned method then returns the classical image)."""
+    (:func:`with_precision`) for ``provider`` (:func:`check_precision`); or (None, None, the line
+    saying so) where no model is named (or a tier is) and none is shipped for ``h`` (the learned
+    method then returns the classical image)."""
+    check_precision(precision, provider)
     tier = tier_of(model)
     missing = missing_model(h, tier) if tier is not None else None
     if missing is not None:
@@ -106,11 +109,31 @@ def missing_model(h: int, tier: str = "fast") -> str | None:
     return f"no {which}learned model for h = {h} at {path} (shipped: {', '.join(shipped) or 'none'})"
 
 
-PRECISIONS = ("int8", "fp32")
-# What runs without --precision: None, the file named (the shipped float32 ones). The int8 files run
-# the network 1.25-1.5 times as fast on AVX2 cores but lose more than 0.05 dB in some held-out cells
-# (0.5 to 6.9 dB in the cleanest ones at h = 2 and 4, export/check_int8.py, docs/learned.md), so they are not the default.
+PRECISIONS = ("int8", "bf16", "fp32")
+# What runs without --precision: None, the file named (the shipped float32 ones). The lower
+# precisions are faster but lose more than 0.05 dB in some held-out cells, the cleanest ones
+# (export/check_int8.py, docs/learned.md, section int8), so neither is the default:
+# - int8, the NAME.int8.onnx files: the network 1.25-1.5 times as fast on AVX2 cores, 2 times on
+#   cores with AVX-512 VNNI; 0.5 to 6.9 dB lost in the cleanest cells at h = 2 and 4;
+# - bf16, the float32 file run by OpenVINO in bfloat16 on cores with bf16 units (AMX or AVX-512
+#   BF16): 3 times as fast there; up to 0.33 dB lost, in cells above 50 dB (check_bf16*.md).
 DEFAULT_PRECISION = None
+
+
+def check_precision(precision: str | None, provider: str = "auto") -> None:
+    """HbisInputError, before any work, for an unknown ``precision`` or one that ``provider``
+    cannot run: bf16 runs only in OpenVINO (the ``openvino`` package), onnxruntime's CPU kernels
+    have no bf16 convolutions."""
+    if precision not in (None, *PRECISIONS):
+        raise HbisInputError(f"unknown precision {precision!r} (choose from {', '.join(PRECISIONS)})")
+    if precision != "bf16":
+        return
+    if provider == "cpu":
+        raise HbisInputError("--precision bf16 runs in OpenVINO, and --provider cpu (onnxruntime's kernels) has "
+                             "no bf16: use --provider auto or openvino")
+    if not openvino_installed():
+        raise HbisInputError("--precision bf16 runs in OpenVINO, which is not installed: "
+                             "pip install 'hbis-torch[openvino]'")
 
 
 def int8_path(model) -> Path:
@@ -129,15 +152,16 @@ def with_precision(path: Path, metadata: dict, precision: str | None = None) -> 
         A checked model file (:func:`check_model`), float32 or int8.
     metadata : dict
         Its metadata.
-    precision : {"int8", "fp32"} or None
+    precision : {"int8", "bf16", "fp32"} or None
         None (the default): the file itself (:data:`DEFAULT_PRECISION`). ``"int8"``: the int8
-        file beside a float32 model (:func:`int8_path`), which must exist. ``"fp32"``: the
-        float32 file.
+        file beside a float32 model (:func:`int8_path`), which must exist. ``"fp32"`` and
+        ``"bf16"`` (which OpenVINO runs in bfloat16): the float32 file.
 
     Raises
     ------
     HbisInputError
-        An unknown precision, ``"int8"`` where there is no int8 file, ``"fp32"`` for an int8 file.
+        An unknown precision, ``"int8"`` where there is no int8 file, ``"fp32"`` or ``"bf16"``
+        for an int8 file.
     """
     if precision not in (None, *PRECISIONS):
         raise HbisInputError(f"unknown precision {precision!r} (choose from {', '.join(PRECISIONS)})")
@@ -147,6 +171,8 @@ def with_precision(path: Path, metadata: dict, precision: str | None = None) -> 
         return path, metadata
     if own != "fp32":
         raise HbisInputError(f"{path.name} is an {own} model; --precision {precision} needs its float32 file")
+    if precision == "bf16":
+        return path, metadata
     int8 = int8_path(path)
     if not int8.is_file():
         raise HbisInputError(f"no int8 file for {path.name} ({int8} is missing; python export/quantize_int8.py "
@@ -253,16 +279,20 @@ class _OpenVINOSession:
     onnxruntime's ``InferenceSession`` interface that :class:`LearnedSR` uses (``run``).
 
     The ONNX file is read by OpenVINO's own reader; height and width stay dynamic, so a new input
-    size does not recompile. FP32 inference precision, ``threads`` inference threads, the latency
-    hint (one request at a time).
+    size does not recompile. FP32 inference precision (``bf16``: bfloat16 where the CPU has bf16
+    units, :attr:`bf16` says whether it does), ``threads`` inference threads, the latency hint
+    (one request at a time).
     """
 
-    def __init__(self, path: Path, threads: int | None):
+    def __init__(self, path: Path, threads: int | None, bf16: bool = False):
         import openvino as ov
 
-        config = {"INFERENCE_PRECISION_HINT": "f32", "INFERENCE_NUM_THREADS": default_threads(threads),
-                  "PERFORMANCE_HINT": "LATENCY"}
-        self.compiled = ov.Core().compile_model(str(path), "CPU", config)
+        core = ov.Core()
+        # Without bf16 units OpenVINO would emulate bfloat16 or refuse it: float32 is as fast there.
+        self.bf16 = bf16 and cpu_has_bf16(core)
+        config = {"INFERENCE_PRECISION_HINT": "bf16" if self.bf16 else "f32",
+                  "INFERENCE_NUM_THREADS": default_threads(threads), "PERFORMANCE_HINT": "LATENCY"}
+        self.compiled = core.compile_model(str(path), "CPU", config)
         self.request = self.compiled.create_infer_request()
 
     def run(self, names, feeds: dict) -> list:
@@ -270,14 +300,19 @@ class _OpenVINOSession:
         return [np.asarray(results[self.compiled.output(name)]) for name in names]
 
 
-def _open_session(path: Path, provider: str, threads: int | None):
+def cpu_has_bf16(core) -> bool:
+    """Whether OpenVINO (an ``openvino.Core``) finds bf16 units on this CPU (AMX or AVX-512 BF16)."""
+    return "BF16" in core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+
+
+def _open_session(path: Path, provider: str, threads: int | None, bf16: bool = False):
     """(session, short provider name); with ``"auto"``, falls back to the CPU kernels if
-    OpenVINO cannot take the model."""
+    OpenVINO cannot take the model (``bf16`` asks OpenVINO for bfloat16, :class:`_OpenVINOSession`)."""
     import onnxruntime as ort
 
     if provider in ("auto", "openvino") and openvino_installed():
         try:
-            return _OpenVINOSession(path, threads), "openvino"
+            return _OpenVINOSession(path, threads, bf16), "openvino"
         except Exception as exc:  # OpenVINO raises its own types for models it cannot compile
             if provider == "openvino":
                 raise HbisInputError(f"OpenVINO cannot load ONNX model {path}: {str(exc).splitlines()[0]}") from None
@@ -351,8 +386,9 @@ class LearnedSR:
     provider : {"auto", "openvino", "cpu"}
         What runs the model: OpenVINO or onnxruntime's CPU kernels (:func:`execution_providers`).
         ``"auto"`` (the default) runs onnxruntime's CPU kernels (:data:`AUTO_PROVIDER` says why).
-    precision : {"int8", "fp32"} or None
-        Which file of the model runs (:func:`with_precision`; None: the one named).
+    precision : {"int8", "bf16", "fp32"} or None
+        Which file of the model runs, and how (:func:`with_precision`; None: the one named;
+        ``"bf16"``: the float32 file in OpenVINO in bfloat16, :func:`check_precision`).
 
     Attributes
     ----------
@@ -362,7 +398,10 @@ class LearnedSR:
     provider : str
         ``"openvino"`` or ``"cpu"``: what took the model.
     precision : str
-        ``"int8"`` or ``"fp32"``: which file runs.
+        ``"int8"``, ``"bf16"`` or ``"fp32"``: what runs (``"fp32"`` where bf16 was asked of a CPU
+        without bf16 units; :attr:`note` then says so).
+    note : str or None
+        The line :meth:`__call__` adds to its messages: bf16 asked of a CPU without it.
     metadata : dict
         The model's ``metadata_props`` (h, frames, normalisation, training commit, ...).
     architecture : Architecture
@@ -374,17 +413,26 @@ class LearnedSR:
 
     def __init__(self, model=None, h: int | None = None, threads: int | None = None, tile: int = 256,
                  provider: str = "auto", precision: str | None = None):
+        check_precision(precision, provider)
         path, self.metadata = with_precision(*check_model(model, h), precision)
         self.tier = tier_of(model)
         self.precision = self.metadata.get("precision", "fp32")
-        if provider == "auto":
+        bf16 = precision == "bf16"
+        if bf16:
+            provider = "openvino"
+        elif provider == "auto":
             provider = AUTO_PROVIDER
         if len(onnxruntime_distributions()) > 1:
             warnings.warn("both onnxruntime and onnxruntime-openvino are installed; they write the same "
                           "onnxruntime module over each other. Keep one: pip uninstall -y onnxruntime "
                           "onnxruntime-openvino, then pip install onnxruntime (and, for OpenVINO, "
                           "pip install 'hbis-torch[openvino]')", RuntimeWarning, stacklevel=2)
-        self.session, self.provider = _open_session(path, provider, threads)
+        self.session, self.provider = _open_session(path, provider, threads, bf16)
+        self.note = None
+        if bf16 and self.session.bf16:
+            self.precision = "bf16"
+        elif bf16:
+            self.note = "this CPU has no bf16 units (AMX or AVX-512 BF16): the network ran in float32"
         self.h = int(self.metadata["h"])
         self.path = path
         self.domain = domain_from_metadata(self.metadata)
@@ -449,6 +497,8 @@ class LearnedSR:
         reason = self.unhelpful or outside_domain(self.domain, noise_params, cutoff)
         if reason is not None and not extrapolate:
             return classical_returned(image, reason, messages)
+        if self.note is not None and messages is not None:
+            messages.append(self.note)
         return super_resolve(self.run_network, image, self.h, noise_params, self.path.name, cutoff, ensemble,
                              views=True)
 
