@@ -11,6 +11,9 @@ learned method's own settings (its default self-ensemble; a stack outside the tr
 is run anyway, so that every cell compares the two networks). The table per h gives, per cell,
 int8 minus float32 PSNR (dB, against the truth); the goal is no cell below -0.05 dB. Exits 1 if
 a cell is below ``--tolerance``.
+
+``--bf16`` compares the float32 file run by OpenVINO in bfloat16 (``--precision bf16``; the
+``openvino`` package, a CPU with bf16 units) instead of the int8 files.
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ def parse(argv):
     parser.add_argument("--name", default="hbis_sr_h{h}", help="a model's file name without .onnx, {h} its factor")
     parser.add_argument("--int8", nargs="+", default=None, metavar="FILE",
                         help="int8 files to compare (each with {h}); default: NAME.int8.onnx beside the model")
+    parser.add_argument("--bf16", action="store_true",
+                        help="compare the float32 file in OpenVINO bf16 (--precision bf16) instead of the int8 files")
     parser.add_argument("--size", type=int, default=72, help="LR side of each stack (h = 7: 2/3 of it)")
     parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS)
     parser.add_argument("--conditions", type=int, nargs="+", default=None, help="indices of the conditions (default: all)")
@@ -59,7 +64,14 @@ def main(argv=None) -> int:
         model = folder / (args.name.format(h=h) + ".onnx")
         candidates = [Path(p.format(h=h)) for p in args.int8] if args.int8 else [int8_path(model)]
         fp32 = LearnedSR(model, provider="cpu")
-        int8 = [LearnedSR(p, provider="cpu") for p in candidates]
+        if args.bf16:
+            candidates = [model.with_name(model.stem + " in bf16")]
+            int8 = [LearnedSR(model, precision="bf16")]
+            if int8[0].precision != "bf16":
+                print(f"check_int8: {int8[0].note}", file=sys.stderr)
+                return 2
+        else:
+            int8 = [LearnedSR(p, provider="cpu") for p in candidates]
         for c in conditions:
             for photo in args.photos:
                 size = args.size if h < 7 else (2 * args.size) // 3
@@ -69,7 +81,7 @@ def main(argv=None) -> int:
                 reference = score(fp32(*inputs, extrapolate=True), truth, h)
                 deltas = [score(run(*inputs, extrapolate=True), truth, h) - reference for run in int8]
                 cells.append({"h": h, "condition": CONDITIONS[c].name, "photo": photo, "fp32_db": reference,
-                              "classical_db": score(image, truth, h), "int8_minus_fp32_db": deltas})
+                              "classical_db": score(image, truth, h), "low_minus_fp32_db": deltas})
         failed |= print_table(h, [x for x in cells if x["h"] == h], candidates, args)
     print(f"\n{time.monotonic() - started:.0f} s")
     if args.out is not None:
@@ -86,9 +98,9 @@ def print_table(h: int, rows: list[dict], candidates: list[Path], args) -> bool:
         print("|---" * (len(args.photos) + 2) + "|")
         for name in dict.fromkeys(x["condition"] for x in rows):
             row = [x for x in rows if x["condition"] == name]
-            print(f"| {name} | " + " | ".join(f"{x['int8_minus_fp32_db'][k]:+.3f}" for x in row)
+            print(f"| {name} | " + " | ".join(f"{x['low_minus_fp32_db'][k]:+.3f}" for x in row)
                   + f" | {np.mean([x['fp32_db'] for x in row]):.2f} |")
-        deltas = np.array([x["int8_minus_fp32_db"][k] for x in rows])
+        deltas = np.array([x["low_minus_fp32_db"][k] for x in rows])
         print(f"\nh = {h}, {path.name}: mean {deltas.mean():+.3f} dB, worst cell {deltas.min():+.3f} dB, "
               f"{int((deltas < -args.tolerance).sum())} of {deltas.size} cells below -{args.tolerance} dB")
         failed |= bool((deltas < -args.tolerance).any())
