@@ -2,6 +2,7 @@
 form in splat_on_lattice): where each sample reads the pilot's gradient, for a scan (one sample
 per node) and for a burst (many samples at different offsets share a node)."""
 
+import importlib
 import math
 
 import torch
@@ -78,3 +79,28 @@ def test_the_batched_splat_matches_snap_then_splat():
         assert torch.allclose(den.double(), want_den, rtol=1e-5, atol=1e-6)
         assert torch.allclose(num.double(), want_num, rtol=1e-4, atol=1e-5), (mixed, float((num - want_num).abs().max()))
         assert math.isfinite(float(num.sum()))
+
+
+def test_one_pass_over_a_scan_gives_the_two_passes_sums(monkeypatch):
+    # a scan's samples read the gradient at their node, so the first-order terms sum per node
+    # (one pass, the offsets' sums beside the values'); samples a node beyond the lattice land on
+    # the one-node frame, which takes its border node's gradient either way
+    splat_module = importlib.import_module("hbis_torch.reconstruct.classical.splat")  # the package names a function so
+
+    g = torch.Generator().manual_seed(3)
+    rows, cols = SHAPE
+    y, x = torch.meshgrid(torch.arange(-1, rows + 1, dtype=torch.float64),
+                          torch.arange(-1, cols + 1, dtype=torch.float64), indexing="ij")
+    x = x.reshape(-1) + 0.3 * torch.rand(x.numel(), generator=g, dtype=torch.float64) - 0.15
+    y = y.reshape(-1) + 0.3 * torch.rand(y.numel(), generator=g, dtype=torch.float64) - 0.15
+    xn, yn = torch.round(x), torch.round(y)
+    weights = 0.5 + 0.5 * torch.rand(len(x), generator=g)
+    batch = NodeBatch(scene(x, y).float(), xn.to(torch.int32), yn.to(torch.int32), (xn - x).float(), (yn - y).float(),
+                      weights, float(max((xn - x).abs().max(), (yn - y).abs().max())))
+    one = splat_on_lattice(lambda: iter([batch]), SHAPE, 0.45)
+    monkeypatch.setattr(splat_module, "ONE_PASS_NODES", 0)
+    two = splat_on_lattice(lambda: iter([batch]), SHAPE, 0.45)
+    assert torch.equal(one[1], two[1]) and one[2] == two[2]  # the same weights
+    assert torch.allclose(one[0], two[0], rtol=1e-6, atol=1e-6), float((one[0] - two[0]).abs().max())
+    moved = one[0] - splat_on_lattice(lambda: iter([batch._replace(dx=batch.dx * 0, dy=batch.dy * 0)]), SHAPE, 0.45)[0]
+    assert float(moved.abs().max()) > 1e-3  # the slope terms moved the sums (the test can fail)
