@@ -80,3 +80,20 @@ def test_cli_bf16(tmp_path):
     out = tmp_path / "sr.tif"
     assert main(["reconstruct", str(stack), "--method", "learned", "--precision", "bf16", "--out", str(out)]) == 0
     assert out.is_file()
+
+
+@needs_openvino
+def test_openvino_runs_from_several_threads_at_once():
+    # hbis reconstruct --out-dir --jobs N runs stacks on threads that share one session: each
+    # thread gets its own infer request (one request would be busy, or mix the threads' tiles)
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(0)
+    inputs = [(rng.random((1, 16, 48, 40), dtype=np.float32) - 0.5, np.full((1, 1, 48, 40), 0.05, np.float32))
+              for _ in range(8)]
+    net = LearnedSR(h=4, provider="openvino")
+    alone = [net.infer(*x) for x in inputs]
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(lambda x: net.infer(*x), inputs * 4))
+    for k, out in enumerate(together):
+        np.testing.assert_array_equal(out, alone[k % len(inputs)])

@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import threading
 import warnings
 from pathlib import Path
 
@@ -281,7 +282,8 @@ class _OpenVINOSession:
     The ONNX file is read by OpenVINO's own reader; height and width stay dynamic, so a new input
     size does not recompile. FP32 inference precision (``bf16``: bfloat16 where the CPU has bf16
     units, :attr:`bf16` says whether it does), ``threads`` inference threads, the latency hint
-    (one request at a time).
+    (one request at a time). An infer request is not thread-safe: each thread that runs the model
+    (``hbis reconstruct --out-dir --jobs N``) gets its own.
     """
 
     def __init__(self, path: Path, threads: int | None, bf16: bool = False):
@@ -293,10 +295,13 @@ class _OpenVINOSession:
         config = {"INFERENCE_PRECISION_HINT": "bf16" if self.bf16 else "f32",
                   "INFERENCE_NUM_THREADS": default_threads(threads), "PERFORMANCE_HINT": "LATENCY"}
         self.compiled = core.compile_model(str(path), "CPU", config)
-        self.request = self.compiled.create_infer_request()
+        self._local = threading.local()
 
     def run(self, names, feeds: dict) -> list:
-        results = self.request.infer(feeds)
+        request = getattr(self._local, "request", None)
+        if request is None:
+            request = self._local.request = self.compiled.create_infer_request()
+        results = request.infer(feeds)
         return [np.asarray(results[self.compiled.output(name)]) for name in names]
 
 
