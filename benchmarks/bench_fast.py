@@ -13,13 +13,15 @@ every measurement is repeated ``--repeats`` times, in turn with the others, and 
 - ``fullframe``: ``hbis reconstruct`` (a fresh process, as a user runs it) of a full 960 x 1280
   frame of ``hbis simulate --scene camera --roi full`` and of a 32 x 32 stack; the method's own
   time is the difference (start-up and fixed costs cancel), over the FFT pair
-  (goals: classical <= 6, learned <= 9). Peak RSS of the full-frame process (``wait4``; goal
+  (goals: classical <= 6, learned <= 9; the learned method with ``--precision bf16`` too, where
+  this CPU runs bf16). Peak RSS of the full-frame process (``wait4``; goal
   <= 1 GB at h = 4, 2 GB at h = 7).
 - ``network``: the h = 4 network alone on a 480 x 640 LR input: onnxruntime fp32 and int8 (the
-  shipped ``.int8.onnx``), and OpenVINO fp32 and bf16 where the ``openvino`` package is installed
-  (goal: int8 >= 2.5 x fp32). Beside it, one of the network's body convolutions alone in
-  onnxruntime's float32 and integer kernels: the most int8 can gain on this CPU, which depends on
-  its int8 instruction sets (VNNI, AMX; printed beside it).
+  shipped ``.int8.onnx``), and OpenVINO fp32, int8 and bf16 (``--precision bf16``, on CPUs with
+  bf16 units) where the ``openvino`` package is installed (goal: the faster int8 runtime >= 2.5 x
+  onnxruntime fp32). Beside it, one of the network's body
+  convolutions alone in onnxruntime's float32 and integer kernels: the most onnxruntime's int8
+  gains on this CPU, which depends on its int8 instruction sets (VNNI, AMX; printed beside it).
 - ``startup``: a 32 x 32 learned reconstruct against ``python -c "import torch"`` (goal <= 1.3),
   with the default provider and with ``--provider cpu`` (both onnxruntime's kernels since
   ``auto`` runs them: the two rows show the run's noise).
@@ -88,20 +90,35 @@ def fft_pair(h: int, repeats: int) -> float:
 
 
 def fullframe(work: Path, h: int, repeats: int) -> dict:
-    """Own times (full frame minus 32 x 32, best of ``repeats``) and peak RSS, per method."""
+    """Own times (full frame minus 32 x 32, best of ``repeats``) and peak RSS, per method (and the
+    learned method with ``--precision bf16`` where this CPU runs it)."""
     full = simulate(work, h, "full", f"full_h{h}.tif")
     small = simulate(work, h, "624,464,32,32", f"small_h{h}.tif")
+    methods = {"classical": ["--method", "classical"], "learned": ["--method", "learned"]}
+    if bf16_runs():
+        methods["learned bf16"] = ["--method", "learned", "--precision", "bf16"]
     best: dict = {}
     for _ in range(repeats):
-        for method in ("classical", "learned"):
+        for method, options in methods.items():
             for size, stack in (("full", full), ("small", small)):
-                wall, rss = run_process(hbis("reconstruct", str(stack), "--method", method,
-                                             "--out", str(work / f"out_{method}_{size}_h{h}.tif")))
+                out = work / f"out_{method.replace(' ', '_')}_{size}_h{h}.tif"
+                wall, rss = run_process(hbis("reconstruct", str(stack), *options, "--out", str(out)))
                 key = (method, size)
                 best[key] = min(best.get(key, (float("inf"), 0)), (wall, rss))
     return {method: {"full_s": best[method, "full"][0], "small_s": best[method, "small"][0],
                      "own_s": best[method, "full"][0] - best[method, "small"][0],
-                     "peak_rss_gb": best[method, "full"][1]} for method in ("classical", "learned")}
+                     "peak_rss_gb": best[method, "full"][1]} for method in methods}
+
+
+def bf16_runs() -> bool:
+    """Whether ``--precision bf16`` runs in bfloat16 here: OpenVINO installed, and bf16 units."""
+    from hbis_torch.reconstruct.learned.runtime import cpu_has_bf16, openvino_installed
+
+    if not openvino_installed():
+        return False
+    import openvino as ov
+
+    return cpu_has_bf16(ov.Core())
 
 
 def network(repeats: int) -> dict:
@@ -118,23 +135,17 @@ def network(repeats: int) -> dict:
     base, noise, _ = whole_example(build_pool(4, 1, 80, seed=99)[0], 4)
     feeds = {"base": np.ascontiguousarray(np.tile(base, (1, 1, 6, 8))),
              "noise": np.ascontiguousarray(np.tile(noise, (1, 1, 6, 8)))}
+    # the product's own sessions (LearnedSR), as --provider and --precision choose them
     runners = {"onnxruntime fp32": LearnedSR(h=4, provider="cpu", precision="fp32").session,
                "onnxruntime int8": LearnedSR(h=4, provider="cpu", precision="int8").session}
     if openvino_installed():
-        import openvino as ov
-
-        core = ov.Core()
-        for precision, model in (("f32", default_model_path(4)), ("bf16", default_model_path(4)),
-                                 ("f32", int8_path(default_model_path(4)))):
-            name = f"OpenVINO {'int8 (QDQ file)' if 'int8' in model.name else precision}"
-            try:
-                compiled = core.compile_model(str(model), "CPU", {"INFERENCE_PRECISION_HINT": precision,
-                                                                   "INFERENCE_NUM_THREADS": 2})
-            except RuntimeError as exc:  # a CPU without the precision's instructions
-                print(f"{name}: not run ({str(exc).splitlines()[0]})")
-                continue
-            request = compiled.create_infer_request()
-            runners[name] = type("R", (), {"run": lambda self, names, f, r=request: [r.infer(f)[0]]})()
+        runners["OpenVINO fp32"] = LearnedSR(h=4, provider="openvino", precision="fp32").session
+        runners["OpenVINO int8"] = LearnedSR(h=4, provider="openvino", precision="int8").session
+        bf16 = LearnedSR(h=4, precision="bf16")
+        if bf16.precision == "bf16":  # else this CPU has no bf16 units (the note says so)
+            runners["OpenVINO bf16"] = bf16.session
+        else:
+            print(f"OpenVINO bf16: not run ({bf16.note})")
     reference = runners["onnxruntime fp32"].run(["image"], feeds)[0]
     times, change = {}, {}
     for _ in range(repeats):
@@ -243,7 +254,9 @@ def report(results: dict, hs, args) -> str:
     for h in hs:
         if ("fft", h) in results and ("fullframe", h) in results:
             fft, ff = results["fft", h], results["fullframe", h]
-            for method, target in (("classical", 6), ("learned", 9)):
+            for method, target in (("classical", 6), ("learned", 9), ("learned bf16", 9)):
+                if method not in ff:
+                    continue
                 r = ff[method]["own_s"] / fft
                 row(f"{method} own time / FFT pair, h = {h}", f"{r:.1f}x", f"<= {target}x", r <= target,
                     f"full {ff[method]['full_s']:.2f} s - 32² {ff[method]['small_s']:.2f} s; FFT pair {fft:.3f} s")
@@ -253,13 +266,20 @@ def report(results: dict, hs, args) -> str:
                 ", ".join(f"{m} {ff[m]['peak_rss_gb']:.2f} GB" for m in ff))
     if "network" in results:
         net = results["network"]
-        r = net["onnxruntime fp32"]["seconds"] / net["onnxruntime int8"]["seconds"]
-        row("int8 network speed / fp32 (h = 4, 480 x 640 LR)", f"{r:.2f}x", ">= 2.5x", r >= 2.5,
-            "; ".join(f"{k} {v['seconds']:.3f} s (rms change {v['rms_change']:.1e})" for k, v in net.items()))
+        fp32 = net["onnxruntime fp32"]["seconds"]
+        int8 = min((v["seconds"], k) for k, v in net.items() if "int8" in k)
+        row("int8 network speed / fp32 (h = 4, 480 x 640 LR; the faster int8 runtime against onnxruntime fp32)",
+            f"{fp32 / int8[0]:.2f}x", ">= 2.5x", fp32 / int8[0] >= 2.5,
+            f"{int8[1]}; " + "; ".join(f"{k} {v['seconds']:.3f} s (rms change {v['rms_change']:.1e})"
+                                       for k, v in net.items()))
+        if "OpenVINO bf16" in net:
+            r = fp32 / net["OpenVINO bf16"]["seconds"]
+            row("bf16 network speed / fp32 (--precision bf16; not a goal of the issue)", f"{r:.2f}x", "-", True,
+                f"OpenVINO bf16 {net['OpenVINO bf16']['seconds']:.3f} s against onnxruntime fp32 {fp32:.3f} s")
     if "ceiling" in results:
         c = results["ceiling"]
         r = c["fp32"] / c["int8"]
-        row("int8 / fp32, one body convolution alone (the most an int8 network gains here)", f"{r:.2f}x",
+        row("int8 / fp32, one body convolution alone in onnxruntime (the most its int8 kernels gain here)", f"{r:.2f}x",
             ">= 2.5x", r >= 2.5, f"Conv {c['fp32']:.4f} s, QLinearConv {c['int8']:.4f} s, 32 -> 32 channels, "
             f"3 x 3, 480 x 640, onnxruntime's CPU kernels; this CPU: {cpu_flags()}")
     if "startup" in results:
