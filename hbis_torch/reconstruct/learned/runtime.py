@@ -114,10 +114,12 @@ PRECISIONS = ("int8", "bf16", "fp32")
 # What runs without --precision: None, the file named (the shipped float32 ones). The lower
 # precisions are faster but lose more than 0.05 dB in some held-out cells, the cleanest ones
 # (export/check_int8.py, docs/learned.md, section int8), so neither is the default:
-# - int8, the NAME.int8.onnx files: the network 1.25-1.5 times as fast on AVX2 cores, 2 times on
-#   cores with AVX-512 VNNI; 0.5 to 6.9 dB lost in the cleanest cells at h = 2 and 4;
+# - int8, the NAME.int8.onnx files: the network 1.2-1.4 times as fast on AVX2 cores, 2 times on
+#   cores with AVX-512 VNNI (3 in OpenVINO); up to 0.75 / 3.68 / 0.85 / 1.22 dB lost at h = 2 /
+#   3 / 4 / 7 (fast tier);
 # - bf16, the float32 file run by OpenVINO in bfloat16 on cores with bf16 units (AMX or AVX-512
-#   BF16): 3 times as fast there; up to 0.33 dB lost, in cells above 50 dB (check_bf16*.md).
+#   BF16): 3 to 4 times as fast there; up to 0.33 dB lost, in the cells above 50 dB
+#   (benchmarks/results/check_bf16*.md).
 DEFAULT_PRECISION = None
 
 
