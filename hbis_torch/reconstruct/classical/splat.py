@@ -219,12 +219,12 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
     so their first-order terms sum per node: sum w (v + g . d) = sum w v + g . sum w d. On a
     lattice of up to :data:`ONE_PASS_NODES` nodes one pass over the samples does, with the
     offsets' sums beside the values' (:func:`_add_slope_terms`): one image-sized array more at
-    the peak, and a full frame at h = 4 0.05-0.1 s faster than with a second pass. A burst's samples
-    read it at their own points, and larger lattices keep their memory: a second pass.
+    the peak, and a full frame at h = 4 0.05-0.1 s faster than with a second pass. A burst's
+    samples read it at their own points, and larger lattices keep their memory: a second pass.
     """
     # The sums in float32 (a node gets a few samples; the image is float32 in the end). At most
-    # five (rows, cols) float32 arrays live at once, seven with mixed_offsets (the offsets' means),
-    # one more than five in one pass (the offsets' sums, the pilot).
+    # five (rows, cols) float32 arrays live at once, seven with mixed_offsets (the offsets' means);
+    # in one pass the four sums and the pilot.
     one_pass = not mixed_offsets and shape[0] * shape[1] <= ONE_PASS_NODES
     sums = NodeSums(shape, sigma, 4 if mixed_offsets or one_pass else 2, torch.float32)
     off_node = 0.0
