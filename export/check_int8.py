@@ -40,10 +40,11 @@ def parse(argv):
     parser.add_argument("--h", type=int, nargs="+", default=[2, 3, 4, 7], choices=[2, 3, 4, 7])
     parser.add_argument("--models", type=Path, default=None, help="folder of the models (default: shipped)")
     parser.add_argument("--name", default="hbis_sr_h{h}", help="a model's file name without .onnx, {h} its factor")
-    parser.add_argument("--int8", nargs="+", default=None, metavar="FILE",
-                        help="int8 files to compare (each with {h}); default: NAME.int8.onnx beside the model")
-    parser.add_argument("--bf16", action="store_true",
-                        help="compare the float32 file in OpenVINO bf16 (--precision bf16) instead of the int8 files")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--int8", nargs="+", default=None, metavar="FILE",
+                       help="int8 files to compare (each with {h}); default: NAME.int8.onnx beside the model")
+    which.add_argument("--bf16", action="store_true",
+                       help="compare the float32 file in OpenVINO bf16 (--precision bf16) instead of the int8 files")
     parser.add_argument("--size", type=int, default=72, help="LR side of each stack (h = 7: 2/3 of it)")
     parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS)
     parser.add_argument("--conditions", type=int, nargs="+", default=None, help="indices of the conditions (default: all)")
@@ -66,12 +67,12 @@ def main(argv=None) -> int:
         fp32 = LearnedSR(model, provider="cpu")
         if args.bf16:
             candidates = [model.with_name(model.stem + " in bf16")]
-            int8 = [LearnedSR(model, precision="bf16")]
-            if int8[0].precision != "bf16":
-                print(f"check_int8: {int8[0].note}", file=sys.stderr)
+            lower = [LearnedSR(model, precision="bf16")]
+            if lower[0].precision != "bf16":
+                print(f"check_int8: {lower[0].note}", file=sys.stderr)
                 return 2
         else:
-            int8 = [LearnedSR(p, provider="cpu") for p in candidates]
+            lower = [LearnedSR(p, provider="cpu") for p in candidates]
         for c in conditions:
             for photo in args.photos:
                 size = args.size if h < 7 else (2 * args.size) // 3
@@ -79,7 +80,7 @@ def main(argv=None) -> int:
                 image, noise = classical_and_noise(stack, "optics")
                 inputs = (image, noise, optics_cutoff(stack.system))
                 reference = score(fp32(*inputs, extrapolate=True), truth, h)
-                deltas = [score(run(*inputs, extrapolate=True), truth, h) - reference for run in int8]
+                deltas = [score(run(*inputs, extrapolate=True), truth, h) - reference for run in lower]
                 cells.append({"h": h, "condition": CONDITIONS[c].name, "photo": photo, "fp32_db": reference,
                               "classical_db": score(image, truth, h), "low_minus_fp32_db": deltas})
         failed |= print_table(h, [x for x in cells if x["h"] == h], candidates, args)
