@@ -15,7 +15,9 @@ the simulator's truth without a border of 2 LR pixels (:func:`hbis_torch.trainin
 - ``classical``: the classical step (positions from the optics, splat, Wiener);
 - ``learned ... xE``: the classical step and the network, in the file's precision, over E of the
   square's symmetries (its self-ensemble). :data:`LEARNED` lists the models: a tier of models
-  (``best``, ...) is one more line there.
+  (``best``, ...) is one more line there. fp32 and int8 run on onnxruntime's CPU kernels (the
+  default provider); bf16 (``--precision bf16``) in OpenVINO, and only where this CPU has bf16
+  units (its rows are left out elsewhere, and the run says so).
 
 The table gives, per h and size, each method's median time and mean PSNR over the photographs;
 the plot, one panel per h, PSNR against time. Timings on shared cores are noisy: compare
@@ -39,11 +41,13 @@ REPO = Path(__file__).resolve().parents[1]
 LEARNED = (
     ("learned fp32 x1", None, "fp32", 1),
     ("learned int8 x1", None, "int8", 1),
+    ("learned bf16 x1", None, "bf16", 1),
     ("learned fp32 x2", None, "fp32", 2),
     ("learned fp32 x8", None, "fp32", 8),
     ("learned best fp32 x1", "hbis_sr_h{h}_best.onnx", "fp32", 1),  # the best tier (hbis reconstruct --model best)
     ("learned best fp32 x2", "hbis_sr_h{h}_best.onnx", "fp32", 2),  # its default self-ensemble at h = 2 and 4
     ("learned best int8 x2", "hbis_sr_h{h}_best.onnx", "int8", 2),
+    ("learned best bf16 x2", "hbis_sr_h{h}_best.onnx", "bf16", 2),
     ("learned best fp32 x8", "hbis_sr_h{h}_best.onnx", "fp32", 8),
 )
 
@@ -80,6 +84,8 @@ def cell(stack, truth, runners: dict, repeats: int) -> dict:
     out["classical"] = (classical_s, score(image, truth, h))
     cutoff = optics_cutoff(stack.system)
     for label, _, _, ensemble in LEARNED:
+        if (h, label) not in runners:  # bf16 on a CPU without it
+            continue
         refined, seconds = best_of(lambda r=runners[h, label], e=ensemble: r(image, noise, cutoff, ensemble=e,
                                                                           extrapolate=True), repeats)
         out[label] = (classical_s + seconds, score(refined, truth, h))
@@ -96,9 +102,15 @@ def measure(hs, sizes, photos, repeats: int, checkpoint: Path | None = None) -> 
     saved = []
     if checkpoint is not None and checkpoint.exists():
         saved = [json.loads(line) for line in checkpoint.read_text().splitlines() if line.strip()]
-    runners = {(h, label): LearnedSR(None if name is None else models_dir() / name.format(h=h), h=h,
-                                     provider="cpu", precision=precision)
-               for h in hs for label, name, precision, _ in LEARNED}
+    runners = {}
+    for h in hs:
+        for label, name, precision, _ in LEARNED:
+            runner = LearnedSR(None if name is None else models_dir() / name.format(h=h), h=h,
+                               provider="auto" if precision == "bf16" else "cpu", precision=precision)
+            if runner.precision != precision:  # bf16 asked of a CPU without it: float32 in OpenVINO
+                print(f"{label}: left out ({runner.note})", file=sys.stderr)
+                continue
+            runners[h, label] = runner
     rows = []
     for h in hs:
         for size in sizes:
@@ -141,17 +153,19 @@ def markdown(rows: list[dict], args, hs, sizes, photos) -> str:
 
 
 def plot(rows: list[dict], hs, sizes, path: Path) -> None:
+    from matplotlib import colormaps
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(5 * len(hs), 4))
     axes = fig.subplots(1, len(hs), squeeze=False)
     methods = list(dict.fromkeys(r["method"] for r in rows))
+    colours = colormaps["tab20"]  # a colour of its own for each of up to 20 methods
     for ax, h in zip(axes[0], hs):
-        for method in methods:
+        for k, method in enumerate(methods):
             pts = [(np.median([r["seconds"] for r in rows if (r["h"], r["size"], r["method"]) == (h, s, method)]),
                     np.mean([r["psnr_db"] for r in rows if (r["h"], r["size"], r["method"]) == (h, s, method)]))
                    for s in sizes]
-            ax.plot(*zip(*pts), marker="o", label=method)
+            ax.plot(*zip(*pts), marker="o", color=colours(k % 20), label=method)
         ax.set_xscale("log")
         ax.set_xlabel("time, s (one warm process)")
         ax.set_ylabel("PSNR, dB")
