@@ -170,11 +170,12 @@ def _apply_filter(spectrum: Tensor, measured: Tensor, model: _Model, terms: tupl
     aliases = _AliasSums(model, *terms[:3])
     for start in range(1, (rows + 1) // 2, BLOCK_ROWS):
         block = slice(start, min(start + BLOCK_ROWS, (rows + 1) // 2))
-        mirror = torch.arange(rows - block.start, rows - block.stop, -1)
+        # the mirror rows rows - i, ascending (a slice, not gathered): its filter flipped to them
+        mirror = slice(rows - block.stop + 1, rows - block.start + 1)
         ahead, behind = _mmse_filter(measured[block], model._replace(fy=model.fy[block]), aliases.at(block),
-                                     *terms[1:], mirrored=measured[mirror])
+                                     *terms[1:], mirrored=measured[mirror].flip(0))
         spectrum[block] *= ahead
-        spectrum[mirror] *= behind
+        spectrum[mirror] *= behind.flip(0)
     spectrum[0] *= _mmse_filter(measured[:1], model._replace(fy=model.fy[:1]), aliases.at(slice(0, 1)),
                                 *terms[1:])[0][0]
     if rows % 2 == 0 and rows > 1:  # fy = -1/2: alias (kx, ky) there is (kx, -ky) at +1/2, the mirrored side
