@@ -19,9 +19,9 @@ every measurement is repeated ``--repeats`` times, in turn with the others, and 
 - ``network``: the h = 4 network alone on a 480 x 640 LR input: onnxruntime fp32 and int8 (the
   shipped ``.int8.onnx``), and OpenVINO fp32, int8 and bf16 (``--precision bf16``, on CPUs with
   bf16 units) where the ``openvino`` package is installed (goal: the faster int8 runtime >= 2.5 x
-  onnxruntime fp32). Beside it, one of the network's body
-  convolutions alone in onnxruntime's float32 and integer kernels: the most onnxruntime's int8
-  gains on this CPU, which depends on its int8 instruction sets (VNNI, AMX; printed beside it).
+  onnxruntime fp32). Beside it, one of the network's body convolutions alone in onnxruntime's
+  float32 and integer kernels: the most onnxruntime's int8 gains on this CPU, which depends on its
+  int8 instruction sets (VNNI, AMX; printed beside it).
 - ``startup``: a 32 x 32 learned reconstruct against ``python -c "import torch"`` (goal <= 1.3),
   with the default provider and with ``--provider cpu`` (both onnxruntime's kernels since
   ``auto`` runs them: the two rows show the run's noise).
@@ -94,8 +94,10 @@ def fullframe(work: Path, h: int, repeats: int) -> dict:
     learned method with ``--precision bf16`` where this CPU runs it)."""
     full = simulate(work, h, "full", f"full_h{h}.tif")
     small = simulate(work, h, "624,464,32,32", f"small_h{h}.tif")
+    from hbis_torch.reconstruct.learned.runtime import bf16_available
+
     methods = {"classical": ["--method", "classical"], "learned": ["--method", "learned"]}
-    if bf16_runs():
+    if bf16_available():
         methods["learned bf16"] = ["--method", "learned", "--precision", "bf16"]
     best: dict = {}
     for _ in range(repeats):
@@ -110,22 +112,11 @@ def fullframe(work: Path, h: int, repeats: int) -> dict:
                      "peak_rss_gb": best[method, "full"][1]} for method in methods}
 
 
-def bf16_runs() -> bool:
-    """Whether ``--precision bf16`` runs in bfloat16 here: OpenVINO installed, and bf16 units."""
-    from hbis_torch.reconstruct.learned.runtime import cpu_has_bf16, openvino_installed
-
-    if not openvino_installed():
-        return False
-    import openvino as ov
-
-    return cpu_has_bf16(ov.Core())
-
-
 def network(repeats: int) -> dict:
     """Best seconds of the h = 4 network on a 480 x 640 LR input, per runtime and precision."""
     import numpy as np
 
-    from hbis_torch.reconstruct.learned import LearnedSR, default_model_path, int8_path
+    from hbis_torch.reconstruct.learned import LearnedSR
     from hbis_torch.reconstruct.learned.runtime import openvino_installed
 
     from hbis_torch.training.data import build_pool, whole_example

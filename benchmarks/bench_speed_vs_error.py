@@ -97,24 +97,18 @@ def measure(hs, sizes, photos, repeats: int, checkpoint: Path | None = None) -> 
     to it, and the cells it already holds (measured with the same ``repeats``) are read, not run
     again: a run stopped part way goes on where it stopped."""
     from hbis_torch.reconstruct.learned import LearnedSR, models_dir
-    from hbis_torch.reconstruct.learned.runtime import openvino_installed
+    from hbis_torch.reconstruct.learned.runtime import bf16_available
     from hbis_torch.training.heldout import CONDITIONS, make_stack
 
     saved = []
     if checkpoint is not None and checkpoint.exists():
         saved = [json.loads(line) for line in checkpoint.read_text().splitlines() if line.strip()]
-    runners = {}
-    for h in hs:
-        for label, name, precision, _ in LEARNED:
-            if precision == "bf16" and not openvino_installed():
-                print(f"{label}: left out (bf16 runs in OpenVINO, which is not installed)", file=sys.stderr)
-                continue
-            runner = LearnedSR(None if name is None else models_dir() / name.format(h=h), h=h,
-                               provider="auto" if precision == "bf16" else "cpu", precision=precision)
-            if runner.precision != precision:  # bf16 asked of a CPU without it: float32 in OpenVINO
-                print(f"{label}: left out ({runner.note})", file=sys.stderr)
-                continue
-            runners[h, label] = runner
+    bf16 = bf16_available()
+    if not bf16:
+        print("the bf16 rows are left out: bf16 needs the openvino package and a CPU with bf16 units", file=sys.stderr)
+    runners = {(h, label): LearnedSR(None if name is None else models_dir() / name.format(h=h), h=h,
+                                     provider="auto" if precision == "bf16" else "cpu", precision=precision)
+               for h in hs for label, name, precision, _ in LEARNED if precision != "bf16" or bf16}
     rows = []
     for h in hs:
         for size in sizes:

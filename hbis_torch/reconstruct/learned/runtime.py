@@ -118,7 +118,7 @@ PRECISIONS = ("int8", "bf16", "fp32")
 #   cores with AVX-512 VNNI (3 in OpenVINO); up to 0.75 / 3.68 / 0.85 / 1.22 dB lost at h = 2 /
 #   3 / 4 / 7 (fast tier);
 # - bf16, the float32 file run by OpenVINO in bfloat16 on cores with bf16 units (AMX or AVX-512
-#   BF16): 3 to 4 times as fast there; up to 0.33 dB lost, in the cells above 50 dB
+#   BF16): 3 to 4.5 times as fast there; up to 0.33 dB lost, in the cells above 50 dB
 #   (benchmarks/results/check_bf16*.md).
 DEFAULT_PRECISION = None
 
@@ -310,6 +310,16 @@ class _OpenVINOSession:
 def cpu_has_bf16(core) -> bool:
     """Whether OpenVINO (an ``openvino.Core``) finds bf16 units on this CPU (AMX or AVX-512 BF16)."""
     return "BF16" in core.get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+
+
+def bf16_available() -> bool:
+    """Whether ``--precision bf16`` runs in bfloat16 here: the ``openvino`` package is installed
+    and finds bf16 units on this CPU (else it is refused, or runs in float32)."""
+    if not openvino_installed():
+        return False
+    import openvino as ov
+
+    return cpu_has_bf16(ov.Core())
 
 
 def _open_session(path: Path, provider: str, threads: int | None, bf16: bool = False):
