@@ -63,7 +63,6 @@ def main(argv=None) -> int:
     cells, started, failed = [], time.monotonic(), False
     for h in args.h:
         model = folder / (args.name.format(h=h) + ".onnx")
-        candidates = [Path(p.format(h=h)) for p in args.int8] if args.int8 else [int8_path(model)]
         fp32 = LearnedSR(model, provider="cpu")
         if args.bf16:
             candidates = [model.with_name(model.stem + " in bf16")]
@@ -72,6 +71,7 @@ def main(argv=None) -> int:
                 print(f"check_int8: {lower[0].note}", file=sys.stderr)
                 return 2
         else:
+            candidates = [Path(p.format(h=h)) for p in args.int8] if args.int8 else [int8_path(model)]
             lower = [LearnedSR(p, provider="cpu") for p in candidates]
         for c in conditions:
             for photo in args.photos:
