@@ -238,7 +238,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
             sums.add(2, idx, batch.dx if w is None else w * batch.dx)
             sums.add(3, idx, batch.dy if w is None else w * batch.dy)
         seen += 1
-        kept = [(batch, idx, w)] if seen == 1 else None
+        kept = [(batch, idx, w)] if seen == 1 and not one_pass else None
     den = sums.spread(1, release=True)
     typical = typical_weight(den)
     if one_pass and off_node >= 1e-3:
