@@ -277,5 +277,9 @@ def interpolate_displacements(nodes: NodePositions, rows=None, cols=None) -> tup
         bu = bu[torch.from_numpy(np.asarray(cols))]
     if rows is not None:
         bv = bv[torch.from_numpy(np.asarray(rows))]
-    # the narrow pass (along u, on n_v rows) first: fewer flops than along v first
-    return bv @ (shift @ bu.T), mean
+    # the pass that costs fewer flops first: along u on the n_v node rows for many rows, along v
+    # for a few rows (a band of a stack's rows, as the classical splat asks for)
+    (rows_out, n_v), (cols_out, n_u) = bv.shape, bu.shape
+    if n_v * n_u * cols_out + rows_out * n_v * cols_out <= rows_out * n_v * n_u + rows_out * n_u * cols_out:
+        return bv @ (shift @ bu.T), mean
+    return (bv @ shift) @ bu.T, mean

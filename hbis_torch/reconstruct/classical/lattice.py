@@ -49,10 +49,26 @@ class NodeBatch(NamedTuple):
 
 def batch_slices(count: int, height: int, width: int, samples: int) -> list[tuple[slice, slice]]:
     """(frames, rows) slices of a (count, height, width) stack, of about ``samples`` samples at
-    most: whole frames, or rows of one frame where a frame has more."""
-    step = max(1, samples // (height * width))
-    rows = min(height, max(1, samples // width))
-    return [(slice(k, k + step), slice(r, r + rows)) for k in range(0, count, step) for r in range(0, height, rows)]
+    most: a band of rows of every frame, or where one row of every frame has more, one row of a
+    few frames at a time.
+
+    Bands, not whole frames: the frames of a scan or a burst overlay the same scene, so a band's
+    samples meet the same few rows of the lattice, which the splat's scatter-adds then find in
+    the cache. A full frame at h = 7, in process: the scatter-adds took 0.29 s against 0.76 s
+    frame by frame, the gathers 0.23 s against 0.44 s, the classical method 4.4-4.6 s against
+    5.3-5.5 s.
+    """
+    if count * width <= samples:
+        rows = min(height, samples // (count * width))
+        return [(slice(0, count), slice(r, r + rows)) for r in range(0, height, rows)]
+    step = max(1, samples // width)
+    return [(slice(k, k + step), slice(r, r + 1)) for r in range(height) for k in range(0, count, step)]
+
+
+def every_nth_row(part: tuple[slice, slice], row_step: int) -> slice:
+    """The rows of ``part`` (frames, rows) whose index in the frame is a multiple of ``row_step``,
+    as a slice of the part's rows: the same rows whichever way the stack is cut in batches."""
+    return slice((-(part[1].start or 0)) % row_step, None, row_step)
 
 
 class _Axis(NamedTuple):
@@ -69,9 +85,9 @@ class _Axis(NamedTuple):
 def _spline_parts(positions: NodePositions, part: tuple[slice, slice], h: int, offset: tuple[float, float],
                   row_step: int = 1) -> list[_Axis]:
     """Frames and rows ``part`` of the nodes' splines, per axis (x, then y), on the lattice whose
-    nodes sit at ``offset`` (HR px) from the output grid's. Rows: every ``row_step``-th of
-    ``part[1]``."""
-    rows = np.arange(positions.height)[part[1]][::row_step]
+    nodes sit at ``offset`` (HR px) from the output grid's. Rows: those of ``part[1]`` that are
+    multiples of ``row_step`` (:func:`every_nth_row`)."""
+    rows = np.arange(positions.height)[part[1]][every_nth_row(part, row_step)]
     variation, mean = interpolate_displacements(positions._replace(values=positions.values[part[0]]), rows=rows)
     out = []
     for axis, first in enumerate((float(positions.u[0]), float(positions.v[0]))):
@@ -118,10 +134,13 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
     ``row_step``-th row of the batches ``part_list``: the circular mean of the coordinates'
     fractional parts (:func:`~hbis_torch.reconstruct.classical.splat.offset_from_sums`)."""
     sums = [[0.0, 0.0, 0], [0.0, 0.0, 0]]
+    height = positions.height if isinstance(positions, NodePositions) else positions.shape[1]
     for part in part_list:
+        if not range(height)[part[1]][every_nth_row(part, row_step)]:
+            continue  # a batch of rows none of which is taken
         keep = None
         if weights is not None:
-            keep = weights[part][:, ::row_step].reshape(-1) > 0
+            keep = weights[part][:, every_nth_row(part, row_step)].reshape(-1) > 0
         spline = None
         if isinstance(positions, NodePositions):
             spline = _spline_parts(positions, part, h, (0.0, 0.0), row_step)
@@ -130,7 +149,7 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
                 rest = spline[axis].rest.reshape(-1)
                 rest = rest.sub_(torch.round(rest))  # the integer part adds nothing to the angle
             else:
-                coord = ((positions[part][:, ::row_step, :, axis].reshape(-1) + 0.5) * h - 0.5)
+                coord = ((positions[part][:, every_nth_row(part, row_step), :, axis].reshape(-1) + 0.5) * h - 0.5)
                 rest = coord.sub_(torch.round(coord)).to(torch.float32)
             if keep is not None:
                 rest = rest[keep]

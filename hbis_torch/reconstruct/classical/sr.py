@@ -26,7 +26,7 @@ from hbis_torch.reconstruct.classical.splat import (
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
 from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 
-# Samples per batch in lattice_image (whole frames, or rows of one frame where a frame has more):
+# Samples per batch in lattice_image (a band of rows of every frame: lattice.batch_slices):
 # its temporaries (some 150 bytes a sample) stay near 150 MB whatever the stack's size.
 BATCH_SAMPLES = 1 << 20
 # Rows used to find the samples' common sub-pixel offset: every 4th, and on frames of over 512
