@@ -13,7 +13,10 @@ int8 minus float32 PSNR (dB, against the truth); the goal is no cell below -0.05
 a cell is below ``--tolerance``.
 
 ``--bf16`` compares the float32 file run by OpenVINO in bfloat16 (``--precision bf16``; the
-``openvino`` package, a CPU with bf16 units) instead of the int8 files.
+``openvino`` package, a CPU with bf16 units) instead of the int8 files. ``--float-activations``
+adds, beside each int8 file, its twin without the activations' rounding
+(:func:`hbis_torch.training.quantize.float_activations`): what the twin loses comes from the int8
+file's weights, the rest of the int8 file's loss from the rounding at run time.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -31,7 +35,7 @@ from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR, models_dir
 from hbis_torch.reconstruct.learned.method import classical_and_noise
 from hbis_torch.training.heldout import CONDITIONS, PHOTOS, make_stack, score
-from hbis_torch.training.quantize import int8_path
+from hbis_torch.training.quantize import float_activations, int8_path
 
 
 def parse(argv):
@@ -45,6 +49,8 @@ def parse(argv):
                        help="int8 files to compare (each with {h}); default: NAME.int8.onnx beside the model")
     which.add_argument("--bf16", action="store_true",
                        help="compare the float32 file in OpenVINO bf16 (--precision bf16) instead of the int8 files")
+    parser.add_argument("--float-activations", action="store_true",
+                        help="also compare each int8 file's twin without the activations' rounding")
     parser.add_argument("--size", type=int, default=72, help="LR side of each stack (h = 7: 2/3 of it)")
     parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS)
     parser.add_argument("--conditions", type=int, nargs="+", default=None, help="indices of the conditions (default: all)")
@@ -58,7 +64,16 @@ def main(argv=None) -> int:
     if args.out is not None and args.out.exists():
         print(f"check_int8: {args.out} exists; choose another --out", file=sys.stderr)
         return 2
+    if args.bf16 and args.float_activations:
+        print("check_int8: --float-activations is for the int8 files, not --bf16", file=sys.stderr)
+        return 2
     folder = args.models or models_dir()
+    with tempfile.TemporaryDirectory() as twins:
+        return compare(args, folder, Path(twins))
+
+
+def compare(args, folder: Path, twins: Path) -> int:
+    """Every cell of every h (main's), the float-activation twins written into ``twins``."""
     conditions = args.conditions if args.conditions is not None else range(len(CONDITIONS))
     cells, started, failed = [], time.monotonic(), False
     for h in args.h:
@@ -72,6 +87,9 @@ def main(argv=None) -> int:
                 return 2
         else:
             candidates = [Path(p.format(h=h)) for p in args.int8] if args.int8 else [int8_path(model)]
+            if args.float_activations:
+                candidates += [float_activations(p, twins / f"{k}" / f"{p.stem} float activations.onnx")
+                               for k, p in enumerate(candidates)]
             lower = [LearnedSR(p, provider="cpu") for p in candidates]
         for c in conditions:
             for photo in args.photos:

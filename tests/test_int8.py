@@ -14,7 +14,7 @@ from hbis_torch.reconstruct.learned import LearnedSR, default_model_path, int8_p
 from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.reconstruct.learned.runtime import check_model, with_precision
 from hbis_torch.training.data import build_pool, whole_example
-from hbis_torch.training.quantize import float_nodes, quantize_model
+from hbis_torch.training.quantize import float_activations, float_nodes, quantize_model
 
 
 @pytest.mark.parametrize("h, tier", [(2, "fast"), (3, "fast"), (4, "fast"), (7, "fast"), (2, "best"), (4, "best"),
@@ -55,6 +55,34 @@ def test_int8_output_is_near_the_float_one():
     diff = int8.infer(base, noise) - fp32
     assert np.isfinite(diff).all()
     assert 0 < np.sqrt(np.mean(diff**2)) < 5e-3  # it is quantised (not the float graph), and close
+
+
+def test_float_activations_twin_clips_without_rounding(tmp_path):
+    """The twin of an int8 file runs its weights and its activations' clips in float: no
+    QuantizeLinear left; near the int8 file's output, but not equal to it (the rounding is
+    gone); and its activations are clipped (the pairs stand for the ReLUs too): with no clip,
+    the output moves far from the int8 file's."""
+    int8 = int8_path(default_model_path(4))
+    twin = float_activations(int8, tmp_path / "twin.onnx")
+    graph = onnx.load(str(twin)).graph
+    assert not [n for n in graph.node if n.op_type == "QuantizeLinear"]
+    assert len([n for n in graph.node if n.op_type == "Clip"]) == len(
+        [n for n in onnx.load(str(int8)).graph.node if n.op_type == "QuantizeLinear"])
+    base, noise, _ = whole_example(build_pool(4, 1, 40, seed=99)[0], 4)
+    rounded = LearnedSR(int8, provider="cpu").infer(base, noise)
+    diff = LearnedSR(twin, provider="cpu").infer(base, noise) - rounded
+    assert np.isfinite(diff).all() and 0 < np.sqrt(np.mean(diff**2)) < 2e-3
+    unclipped = onnx.load(str(twin))
+    for node in unclipped.graph.node:
+        if node.op_type == "Clip":
+            del node.input[1:]
+    onnx.save(unclipped, str(tmp_path / "unclipped.onnx"))
+    far = LearnedSR(tmp_path / "unclipped.onnx", provider="cpu").infer(base, noise) - rounded
+    assert np.sqrt(np.mean(far**2)) > 10 * np.sqrt(np.mean(diff**2))
+    with pytest.raises(HbisInputError, match="exists"):
+        float_activations(int8, twin)
+    with pytest.raises(HbisInputError, match="not an int8 file"):
+        float_activations(default_model_path(4), tmp_path / "other.onnx")
 
 
 def test_precision_picks_the_file_or_refuses(tmp_path):

@@ -31,7 +31,10 @@ How it is quantised, and why
 The int8 file keeps the model's ``metadata_props`` and adds ``precision`` (``int8``),
 ``quantized_from`` (the float file's name and SHA-256) and ``calibration`` (JSON: the pool's
 seed, count, size and method). export/quantize_int8.py is the command line;
-export/check_int8.py checks a model against its int8 file on the held-out matrix, cell by cell.
+export/check_int8.py checks a model against its int8 file on the held-out matrix, cell by cell;
+:func:`float_activations` writes an int8 file's twin without the activations' rounding, which
+splits its loss between the rounding at run time and its weights (``check_int8.py
+--float-activations``).
 """
 
 from __future__ import annotations
@@ -185,4 +188,63 @@ def quantize_model(model, out=None, *, count: int = CALIBRATION_COUNT, seed: int
         result.metadata_props.add(key=key, value=str(value))
     with atomic_path(out) as tmp:
         onnx.save(result, str(tmp))
+    return out
+
+
+def float_activations(model, out) -> Path:
+    """Write the twin of an int8 QDQ file whose activations are not rounded: each activation's
+    QuantizeLinear/DequantizeLinear pair becomes a Clip to the range the pair represents,
+    ``[(q_min - zero point) scale, (q_max - zero point) scale]`` (0 and 255 for uint8).
+
+    The twin computes what the int8 file does but in float32 between the clips: its weights
+    (int8, per channel), the clipping of its activations (the pairs also stand for the ReLUs,
+    which the quantiser folds into them), not the 8-bit steps. Its loss against the float
+    model is the weights' part of the int8 file's; the rest is the rounding's.
+
+    Parameters
+    ----------
+    model : path
+        An int8 file (:func:`quantize_model`'s).
+    out : path
+        Where to write the twin (an existing file is refused).
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    import onnx
+    from onnx import helper, numpy_helper
+
+    path, metadata = check_model(model)
+    if metadata.get("precision") != "int8":
+        raise HbisInputError(f"{path} is not an int8 file")
+    out = Path(out)
+    if out.exists():
+        raise HbisInputError(f"{out} exists; choose another path")
+    graph = (int8 := onnx.load(str(path))).graph
+    constants = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+    dequantize = {n.input[0]: n for n in graph.node if n.op_type == "DequantizeLinear"}
+    nodes, paired = [], set()
+    for node in graph.node:
+        if node.op_type == "QuantizeLinear":  # activations only: the weights are stored quantised
+            pair = dequantize[node.output[0]]
+            paired.add(pair.name)
+            scale, zero = float(constants[node.input[1]]), constants[node.input[2]]
+            steps = np.iinfo(zero.dtype)
+            limits = [f"{node.name}_min", f"{node.name}_max"]
+            for name, value in zip(limits, ((steps.min - int(zero)) * scale, (steps.max - int(zero)) * scale)):
+                graph.initializer.append(numpy_helper.from_array(np.array(value, np.float32), name))
+            nodes.append(helper.make_node("Clip", [node.input[0], *limits], [pair.output[0]], name=f"{node.name}_clip"))
+        elif node.name not in paired:
+            nodes.append(node)
+    nodes = [node for node in nodes if node.name not in paired]
+    used = {name for node in nodes for name in node.input}
+    kept = [t for t in graph.initializer if t.name in used]  # not the pairs' scales and zero points
+    del graph.node[:], graph.initializer[:]
+    graph.node.extend(nodes)
+    graph.initializer.extend(kept)
+    onnx.checker.check_model(int8)
+    with atomic_path(out) as tmp:
+        onnx.save(int8, str(tmp))
     return out
