@@ -481,20 +481,26 @@ def _ring_sums(power: Tensor, fx: Tensor, fy: Tensor, edges: Tensor) -> tuple[Te
     temporaries of a few MB). ``power`` (rows, cols // 2 + 1) is on the half spectrum's
     frequencies ``fx`` (1, cols // 2 + 1) and ``fy`` (rows, 1) (``fftfreq``'s order): rows i and
     rows - i (fy and -fy) lie in the same rings, so the rings are found for rows 0 .. rows // 2
-    only, the mirrored rows' power added to theirs."""
+    only, the mirrored rows' power added to theirs.
+
+    Along a row, abs(f) grows with fx, so each ring is a run of columns: the row's columns with
+    abs(f) <= edges[j] are the first ``searchsorted(fx^2, edges[j]^2 - fy^2)``, and a ring's sum
+    is the difference of the row's running sums at its two ends (no ring index per frequency:
+    a quarter of bincount's time on a full frame)."""
     rows = power.shape[0]
-    rings = len(edges) - 1
-    count = torch.zeros(rings, dtype=torch.int64)
-    total = torch.zeros(rings, dtype=torch.float64)
+    fx2, edges2 = fx[0] * fx[0], edges * edges  # fx: rfftfreq's, ascending
+    count = torch.zeros(len(edges) - 1, dtype=torch.int64)
+    total = torch.zeros(len(edges) - 1, dtype=torch.float64)
     for block in _row_blocks(rows // 2 + 1):
-        bins = _ring_of(fx, fy[block], edges).add_(1)  # 0 and len(edges): outside the rings, dropped after
         row = torch.arange(block.start, block.stop)
         mirrored = (row > 0) & (2 * row != rows)  # rows with a mirror of their own
         weight = power[block].to(torch.float64, copy=True)  # power itself stays as it is
         weight[mirrored] += power[rows - row[mirrored]].double()
-        count += (torch.bincount(bins.reshape(-1), minlength=rings + 2)
-                  + torch.bincount(bins[mirrored].reshape(-1), minlength=rings + 2))[1:rings + 1]
-        total += torch.bincount(bins.reshape(-1), weight.reshape(-1), minlength=rings + 2)[1:rings + 1]
+        running = torch.zeros((len(row), weight.shape[1] + 1), dtype=torch.float64)
+        torch.cumsum(weight, dim=1, out=running[:, 1:])
+        ends = torch.searchsorted(fx2, edges2 - fy[block] * fy[block], right=True)  # (rows, len(edges))
+        total += running.gather(1, ends).diff(dim=1).sum(0)
+        count += (ends.diff(dim=1) * (1 + mirrored.long())[:, None]).sum(0)
     return count, total
 
 
