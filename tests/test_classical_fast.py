@@ -1,6 +1,7 @@
 """The classical method's faster steps against the plain forms they replace: the lattice's
 nodes from the float32 node splines against float64 positions, the Wiener filter's mirrored
-rows, the boundary spectrum of the periodic + smooth split, the 3 x 3 mean of the power."""
+rows, the boundary spectrum of the periodic + smooth split, the 3 x 3 mean of the power, the
+holes found row by row."""
 
 import math
 
@@ -18,6 +19,7 @@ from hbis_torch.reconstruct.classical.periodic import (
     smooth_spectrum,
 )
 from hbis_torch.reconstruct.classical import wiener
+from hbis_torch.reconstruct.classical.splat import _holes
 from hbis_torch.reconstruct.classical.wiener import _add_at, _mean_3x3, _Model, _ring_of, _ring_sums
 
 
@@ -97,6 +99,20 @@ def test_alias_terms_added_as_a_slice_or_by_index_add_alike():
         _add_at(got, rows, torch.arange(2, 6), values, 0.5)
         expected[:, 2:6].index_add_(0, rows, values, alpha=0.5)
         assert torch.equal(got, expected)
+
+
+def test_holes_found_row_by_row_match_every_node_compared():
+    """fill_holes' holes from the rows whose least weight is below the bound: the same nodes, in
+    the same (row-major) order, as comparing every node; none, a few, whole rows and columns."""
+    gen = torch.Generator().manual_seed(3)
+    den = 0.5 + torch.rand((60, 45), generator=gen)
+    assert _holes(den, 0.25)[0].numel() == 0
+    den[7, 3] = den[7, 40] = den[59, 0] = 0.0
+    den[20] = 0.1
+    den[:, 44] = 0.2
+    for cases in (den, torch.rand((1, 9), generator=gen), torch.rand((9, 1), generator=gen)):
+        rows, cols = _holes(cases, 0.25)
+        assert torch.equal(torch.stack((rows, cols), 1), torch.nonzero(cases < 0.25))
 
 
 def test_ring_sums_from_half_the_rows_match_every_row():
