@@ -1,7 +1,7 @@
 """The classical method's faster steps against the plain forms they replace: the lattice's
 nodes from the float32 node splines against float64 positions, the Wiener filter's mirrored
 rows, the boundary spectrum of the periodic + smooth split, the 3 x 3 mean of the power, the
-holes found row by row."""
+holes found in NumPy."""
 
 import math
 
@@ -101,9 +101,9 @@ def test_alias_terms_added_as_a_slice_or_by_index_add_alike():
         assert torch.equal(got, expected)
 
 
-def test_holes_found_row_by_row_match_every_node_compared():
-    """fill_holes' holes from the rows whose least weight is below the bound: the same nodes, in
-    the same (row-major) order, as comparing every node; none, a few, whole rows and columns."""
+def test_holes_found_in_numpy_match_torch_nonzero():
+    """fill_holes' holes: the same nodes, in the same (row-major) order, as torch's nonzero of
+    the comparison; none, a few, whole rows and columns, one row, one column."""
     gen = torch.Generator().manual_seed(3)
     den = 0.5 + torch.rand((60, 45), generator=gen)
     assert _holes(den, 0.25)[0].numel() == 0
