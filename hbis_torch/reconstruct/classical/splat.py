@@ -464,7 +464,8 @@ def typical_weight(den: Tensor) -> float:
     """The median of the splat weights' sums ``den`` (rows, cols) over the nodes that have any
     (0 if none has); on :func:`every_other` node of a large lattice."""
     den = every_other(den)
-    return lower_median(den, den > 0) if bool((den > 0).any()) else 0.0
+    positive = den > 0
+    return lower_median(den, positive) if bool(positive.any()) else 0.0
 
 
 def lower_median(values: Tensor, where: Tensor) -> float:

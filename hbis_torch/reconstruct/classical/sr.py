@@ -114,7 +114,7 @@ def classical_sr(
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
         samples_per_node = typical / max(_peak_weight(kernel_sigma), 1e-12)
-        valid = den > 0.5 * typical
+        valid = torch.from_numpy(den.numpy() > 0.5 * typical)  # NumPy's comparison: a third of torch's time
         del den
         # The deblurring works in float32 (wiener_deblur), as does the lattice image: so does
         # the noise's median of second differences.
