@@ -264,24 +264,27 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
         # sums' layout (the one-node frame repeats its border). Where each sample reads it:
         # snap_to_lattice's docstring.
         rows, cols = den.shape
-        gradient = torch.empty((2, rows + 2, cols + 2), dtype=den.dtype)  # d/dx, d/dy
-        gradient_into(pilot, 1, gradient[0, 1:-1, 1:-1], twice=True)
-        gradient_into(pilot, 0, gradient[1, 1:-1, 1:-1], twice=True)
-        _repeat_border(gradient)
-        sums.clear(0, reuse=pilot)  # the pilot's memory (it is not needed any more)
-        del pilot
-        gradient = gradient.view(2, -1)
+        gradient = None
+        if bias is None:  # read by the index the sample is summed at, a batch's rows at a time
+            sums.clear(0)
+        else:  # read anywhere: the whole gradient image, in the framed layout
+            gradient = torch.empty((2, rows + 2, cols + 2), dtype=den.dtype)  # d/dx, d/dy
+            gradient_into(pilot, 1, gradient[0, 1:-1, 1:-1], twice=True)
+            gradient_into(pilot, 0, gradient[1, 1:-1, 1:-1], twice=True)
+            _repeat_border(gradient)
+            sums.clear(0, reuse=pilot)  # the pilot's memory (it is not needed any more)
+            pilot = None
         for batch, idx, w in kept or ((b, *sums.node_index(b.col, b.row, b.weights)) for b in batches()):
-            if bias is None:  # by the index the sample is summed at
-                sx, sy = gradient[0].index_select(0, idx), gradient[1].index_select(0, idx)
+            if bias is None:
+                sx, sy = _gradient_at(pilot, idx)
             else:  # at the node moved by the pilot's bias less the sample's offset, framed layout
                 x = batch.col + 1 + bias[0].index_select(0, idx).sub_(batch.dx)
                 y = batch.row + 1 + bias[1].index_select(0, idx).sub_(batch.dy)
-                sx, sy = _sample(gradient.view(1, 2, rows + 2, cols + 2), x, y)
+                sx, sy = _sample(gradient[None], x, y)
             corrected = sx.mul_(batch.dx).add_(sy.mul_(batch.dy))
             torch.add(batch.values, corrected, alpha=0.5, out=corrected)
             sums.add(0, idx, corrected if w is None else corrected.mul_(w))
-        del gradient
+        del gradient, pilot
     return sums.spread(0, release=True), den, typical
 
 
@@ -295,18 +298,47 @@ def _add_slope_terms(num: Tensor, pilot: Tensor, sum_dx: Tensor, sum_dy: Tensor)
     num, sum_dx, sum_dy = num.view(framed), sum_dx.view(framed), sum_dy.view(framed)
     for start in range(0, rows + 2, SPREAD_ROWS):
         stop = min(start + SPREAD_ROWS, rows + 2)
-        inner = torch.arange(start - 1, stop - 1).clamp_(0, rows - 1)  # each framed row's node row
-        first, last = int(inner[0]), int(inner[-1])
-        # the rows around them: central differences inside, one-sided only at the pilot's own ends
-        low, high = max(first - 1, 0), min(last + 2, rows)
-        slab = pilot[low:high]
-        gy = gradient_into(slab, 0, torch.empty_like(slab), twice=True).index_select(0, inner - low)
-        gx = gradient_into(slab, 1, torch.empty_like(slab), twice=True).index_select(0, inner - low)
+        gx, gy = _gradient_rows(pilot, start, stop)
         for part, node in ((0, 0), (-1, -1)):  # the frame's columns, before gx and gy are overwritten
             terms = torch.addcmul(gx[:, node] * sum_dx[start:stop, part], gy[:, node], sum_dy[start:stop, part])
             num[start:stop, part].add_(terms, alpha=0.5)
         terms = gx.mul_(sum_dx[start:stop, 1:-1]).addcmul_(gy, sum_dy[start:stop, 1:-1])
         num[start:stop, 1:-1].add_(terms, alpha=0.5)
+
+
+def _gradient_rows(pilot: Tensor, start: int, stop: int) -> tuple[Tensor, Tensor]:
+    """Twice ``pilot``'s (rows, cols) gradient (:func:`gradient_into`), d/dx and d/dy, each
+    (stop - start, cols), at rows ``start`` .. ``stop`` of :class:`NodeSums`' framed layout (its
+    row i is the pilot's row i - 1; the one-node frame takes its border row's), from a slab of
+    the pilot's rows: the same values as the whole image's gradient."""
+    rows = pilot.shape[0]
+    inner = torch.arange(start - 1, stop - 1).clamp_(0, rows - 1)  # each framed row's node row
+    first, last = int(inner[0]), int(inner[-1])
+    # the rows around them: central differences inside, one-sided only at the pilot's own ends
+    low, high = max(first - 1, 0), min(last + 2, rows)
+    slab = pilot[low:high]
+    gy = gradient_into(slab, 0, torch.empty_like(slab), twice=True).index_select(0, inner - low)
+    gx = gradient_into(slab, 1, torch.empty_like(slab), twice=True).index_select(0, inner - low)
+    return gx, gy
+
+
+def _gradient_at(pilot: Tensor, idx: Tensor) -> tuple[Tensor, Tensor]:
+    """Twice ``pilot``'s gradient (d/dx, d/dy), each (N,), at flat indices ``idx`` (N,) of
+    :class:`NodeSums`' framed layout (the one-node frame repeating its border's), from the
+    gradient of the rows ``idx`` spans alone: a band of a scan's rows meets a band of the
+    lattice, so no gradient image is made."""
+    cols = pilot.shape[1]
+    low, high = torch.aminmax(idx)
+    start, stop = int(low) // (cols + 2), int(high) // (cols + 2) + 1
+    gx, gy = _gradient_rows(pilot, start, stop)
+    local = idx - start * (cols + 2)
+    out = []
+    for inner in (gx, gy):
+        framed = torch.empty((stop - start, cols + 2), dtype=pilot.dtype)
+        framed[:, 1:-1] = inner
+        framed[:, 0], framed[:, -1] = inner[:, 0], inner[:, -1]
+        out.append(framed.view(-1).index_select(0, local))
+    return out[0], out[1]
 
 
 def _framed(image: Tensor) -> Tensor:
