@@ -222,7 +222,8 @@ def float_activations(model, out) -> Path:
     out = Path(out)
     if out.exists():
         raise HbisInputError(f"{out} exists; choose another path")
-    graph = (int8 := onnx.load(str(path))).graph
+    int8 = onnx.load(str(path))
+    graph = int8.graph
     constants = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
     dequantize = {n.input[0]: n for n in graph.node if n.op_type == "DequantizeLinear"}
     nodes, paired = [], set()
@@ -235,10 +236,11 @@ def float_activations(model, out) -> Path:
             limits = [f"{node.name}_min", f"{node.name}_max"]
             for name, value in zip(limits, ((steps.min - int(zero)) * scale, (steps.max - int(zero)) * scale)):
                 graph.initializer.append(numpy_helper.from_array(np.array(value, np.float32), name))
-            nodes.append(helper.make_node("Clip", [node.input[0], *limits], [pair.output[0]], name=f"{node.name}_clip"))
-        elif node.name not in paired:
+            nodes.append(helper.make_node("Clip", [node.input[0], *limits], [pair.output[0]],
+                                          name=f"{node.name}_clip"))
+        else:
             nodes.append(node)
-    nodes = [node for node in nodes if node.name not in paired]
+    nodes = [node for node in nodes if node.name not in paired]  # the pairs' DequantizeLinear
     used = {name for node in nodes for name in node.input}
     kept = [t for t in graph.initializer if t.name in used]  # not the pairs' scales and zero points
     del graph.node[:], graph.initializer[:]

@@ -149,7 +149,8 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
                 rest = spline[axis].rest.reshape(-1)
                 rest = rest.sub_(torch.round(rest))  # the integer part adds nothing to the angle
             else:
-                coord = ((positions[part][:, every_nth_row(part, row_step), :, axis].reshape(-1) + 0.5) * h - 0.5)
+                taken = positions[part][:, every_nth_row(part, row_step), :, axis]
+                coord = (taken.reshape(-1) + 0.5) * h - 0.5
                 rest = coord.sub_(torch.round(coord)).to(torch.float32)
             if keep is not None:
                 rest = rest[keep]
