@@ -1,5 +1,6 @@
 """The command-line conventions every subcommand keeps (docs/design.md, section 2)."""
 
+import gc
 import logging
 import os
 import subprocess
@@ -8,7 +9,8 @@ import sys
 import pytest
 
 import hbis_torch
-from hbis_torch.cli import COMMANDS, build_parser, configure_logging, main
+import hbis_torch.cli as cli
+from hbis_torch.cli import COMMANDS, GC_THRESHOLDS, build_parser, configure_logging, main
 from hbis_torch.progress import progress, progress_enabled, set_progress
 
 
@@ -34,6 +36,31 @@ def test_version(capsys):
         main(["--version"])
     assert exc.value.code == 0
     assert capsys.readouterr().out.strip() == f"hbis {hbis_torch.__version__}"
+
+
+def test_a_command_runs_under_the_start_up_collector_thresholds_and_restores_them(monkeypatch):
+    """main runs the command with GC_THRESHOLDS (fewer collections while the imports make their
+    objects) and gives the caller's thresholds back, also when the command ends by SystemExit."""
+    seen = []
+
+    def command(argv):
+        seen.append(gc.get_threshold())
+        if argv:
+            raise SystemExit(2)
+        return 0
+
+    monkeypatch.setattr(cli, "_main", command)
+    before = gc.get_threshold()
+    try:
+        gc.set_threshold(123, 4, 5)
+        assert main([]) == 0
+        assert gc.get_threshold() == (123, 4, 5)
+        with pytest.raises(SystemExit):
+            main(["--version"])
+        assert gc.get_threshold() == (123, 4, 5)
+    finally:
+        gc.set_threshold(*before)
+    assert seen == [GC_THRESHOLDS, GC_THRESHOLDS] and GC_THRESHOLDS[0] > 700
 
 
 def test_a_closed_pipe_ends_quietly():

@@ -14,6 +14,7 @@ the top and its heavy ones (torch, matplotlib, pyserial) inside the function tha
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import os
 import pkgutil
@@ -157,7 +158,26 @@ def _quiet_broken_pipe() -> int:
     return 141
 
 
+# The garbage collector's thresholds while a command runs. Start-up is mostly imports, and torch
+# alone makes objects by the hundred thousand that live as long as the process: Python's defaults
+# (700, 10, 10) scan them over and over (a 32 x 32 learned reconstruct: 431 collections, 0.13 s
+# of 1.1 s in process), these make it 6 collections and 0.05 s. Cycles are still collected, later.
+GC_THRESHOLDS = (50_000, 20, 20)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one ``hbis`` command line (``argv``, default ``sys.argv[1:]``); returns the exit code.
+    The collector's thresholds are :data:`GC_THRESHOLDS` meanwhile, and restored after (main may
+    run in another program's process)."""
+    before = gc.get_threshold()
+    gc.set_threshold(*GC_THRESHOLDS)
+    try:
+        return _main(argv)
+    finally:
+        gc.set_threshold(*before)
+
+
+def _main(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)
     parser.argv = argv
