@@ -1,5 +1,3 @@
-import sys
+from hbis_torch.cli import entry_point
 
-from hbis_torch.cli import main
-
-sys.exit(main())
+entry_point()

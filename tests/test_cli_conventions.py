@@ -63,6 +63,21 @@ def test_a_command_runs_under_the_start_up_collector_thresholds_and_restores_the
     assert seen == [GC_THRESHOLDS, GC_THRESHOLDS] and GC_THRESHOLDS[0] > 700
 
 
+def test_the_program_exits_with_main_s_code_after_freezing_the_collector(monkeypatch):
+    """entry_point (the hbis script, python -m hbis_torch) exits with main's code, having frozen
+    the objects alive so that the interpreter's last collection skips them; for real: a bad
+    input exits 2 through python -m hbis_torch."""
+    frozen = []
+    monkeypatch.setattr(cli, "main", lambda: 3)
+    monkeypatch.setattr(gc, "freeze", lambda: frozen.append(True))
+    with pytest.raises(SystemExit) as exit_:
+        cli.entry_point()
+    assert exit_.value.code == 3 and frozen == [True]
+    run = subprocess.run([sys.executable, "-m", "hbis_torch", "reconstruct", "no-such-stack.tif", "--out", "x.tif"],
+                         capture_output=True, text=True)
+    assert run.returncode == 2 and "no such file" in run.stderr
+
+
 def test_a_closed_pipe_ends_quietly():
     read, write = os.pipe()
     os.close(read)  # the reader is gone before the first byte

@@ -177,6 +177,19 @@ def main(argv: list[str] | None = None) -> int:
         gc.set_threshold(*before)
 
 
+def entry_point():
+    """The ``hbis`` program (and ``python -m hbis_torch``): :func:`main`, then exit with its code.
+
+    Before exiting, the objects alive are frozen (``gc.freeze``), so that the interpreter's
+    last collection at shutdown skips them: torch's objects by the hundred thousand took it
+    0.3 s (a 32 x 32 learned reconstruct: 1.47-1.54 s end to end, 1.20-1.23 s frozen). The
+    atexit handlers still run, and everything the commands write is closed by then.
+    """
+    code = main()
+    gc.freeze()
+    sys.exit(code)
+
+
 def _main(argv: list[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)
@@ -202,4 +215,4 @@ def _main(argv: list[str] | None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry_point()
