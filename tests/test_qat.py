@@ -97,7 +97,20 @@ def test_qat_run_keeps_its_ranges_across_a_resume(tmp_path):
     assert [r["step"] for r in history(tmp_path)] == [0, 2, 4]
 
 
+def test_qat_with_the_float_network_as_teacher_runs(tmp_path):
+    """qat_teacher=True: the loss's target is init_from's float network's output; the run trains
+    and validates as a plain quantisation-aware one does."""
+    shipped = default_model_path(2).with_suffix(".pt")
+    result = run(["width=32", "blocks=4", "qat=True", "qat_teacher=True", "qat_calibration_count=1",
+                  f"init_from={shipped}", "eval_interval=2", "max_steps=2"], tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert [r["step"] for r in history(tmp_path)] == [0, 2]
+    assert json.loads((tmp_path / "history.json").read_text())["config"]["qat_teacher"] is True
+
+
 def test_qat_needs_a_trained_network_and_float32(tmp_path):
+    result = run(["qat_teacher=True", "max_steps=1"], tmp_path / "teacher")
+    assert result.returncode != 0 and "qat_teacher=True is for qat=True" in result.stderr
     result = run(["qat=True", "max_steps=1"], tmp_path)
     assert result.returncode != 0 and "give it init_from" in result.stderr
     shipped = default_model_path(2).with_suffix(".pt")

@@ -19,6 +19,8 @@ Quantisation-aware fine-tuning of a trained network for its int8 file (hbis_torc
 
     python training/train_sr.py h=4 qat=True init_from=hbis_torch/models/hbis_sr_h4.pt lr=3e-4 max_minutes=6.5
 
+(``qat_teacher=True``: the target is the float network's output, not the truth.)
+
 Any name in the config block can be overridden as ``name=value`` or ``--name value`` (Python
 literals). Killing the run and starting the same command again resumes from ``out_dir/ckpt.pt``,
 on any device: a long run can be split into sittings (``max_minutes`` counts the training time
@@ -95,6 +97,8 @@ init_from = ""  # weights (a .pt of export_onnx.py --weights, or a model.pt) of 
 qat = False  # quantisation-aware fine-tuning of init_from's network (same architecture) for its int8 file
 # (hbis_torch.training.qat): trained and validated as onnxruntime's int8 file computes it
 qat_calibration_count = 48  # calibration-pool examples its ranges are measured on (as the int8 file's calibration)
+qat_teacher = False  # with qat: the loss's target is init_from's float network's output, not the truth (distillation:
+# the int8 file learns to compute what the float file does)
 pool_workers = 1  # processes that simulate a pool not yet cached (each example has its own seed: same pool)
 prefetch = 0  # batches prepared ahead in threads (0: each batch when it is needed); the same batches either way
 
@@ -205,6 +209,9 @@ if qat and qat_ranges is None:  # the float network's ranges on the int8 file's 
     qat_ranges = observe_ranges(model.cpu(), calibration_inputs(h, qat_calibration_count))
     model.to(dev)
 trained = QuantSim(model, qat_ranges) if qat else model  # what the loss and the validation see
+if qat_teacher and not qat:
+    raise SystemExit("train_sr: qat_teacher=True is for qat=True")
+teacher = initial_model().to(dev).eval().requires_grad_(False) if qat_teacher else None  # init_from's, untrained on
 net = torch.nn.parallel.DistributedDataParallel(trained, device_ids=[dev] if use_cuda else None) if ddp else trained
 if master:
     print(f"{architecture}: {count_parameters(model)} parameters, {world} process(es) on {dev}"
@@ -394,6 +401,9 @@ def train() -> None:
         base, noise, truth = train_batch(step)
         with torch.autocast("cuda", dtype=torch.bfloat16, enabled=bf16 and use_cuda):
             image = net(base, noise)
+        if teacher is not None:
+            with torch.no_grad():
+                truth = teacher(base, noise)
         loss = crop_loss(image.float(), depth_to_space(base, h), truth)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
