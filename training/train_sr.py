@@ -189,6 +189,8 @@ def initial_model():
 
 if qat and not init_from:
     raise SystemExit("train_sr: qat=True fine-tunes a trained network: give it init_from")
+if qat_teacher and not qat:
+    raise SystemExit("train_sr: qat_teacher=True is for qat=True")
 if qat and bf16:  # the int8 rounding is emulated in float32; bf16 would round the features again
     raise SystemExit("train_sr: qat=True trains in float32; drop bf16=True")
 model = initial_model().to(dev)
@@ -209,8 +211,6 @@ if qat and qat_ranges is None:  # the float network's ranges on the int8 file's 
     qat_ranges = observe_ranges(model.cpu(), calibration_inputs(h, qat_calibration_count))
     model.to(dev)
 trained = QuantSim(model, qat_ranges) if qat else model  # what the loss and the validation see
-if qat_teacher and not qat:
-    raise SystemExit("train_sr: qat_teacher=True is for qat=True")
 teacher = initial_model().to(dev).eval().requires_grad_(False) if qat_teacher else None  # init_from's, untrained on
 net = torch.nn.parallel.DistributedDataParallel(trained, device_ids=[dev] if use_cuda else None) if ddp else trained
 if master:
