@@ -20,7 +20,8 @@ SPREAD_ROWS = 64
 # the samples (:func:`splat_on_lattice`'s notes); larger ones in two, which keeps one image-sized
 # array off the peak. A full frame's hbis reconstruct, in process: at h = 4 one pass 1.63-1.67 s
 # and 0.80-0.82 GB, two 1.68-1.78 s and 0.75-0.78 GB; at h = 7 one pass 1.85 GB, two 1.57 GB,
-# for no time off (5.3-6.3 s against 5.4-5.7 s).
+# for no time off (5.3-6.3 s against 5.4-5.7 s; with the batches in bands of rows, through the
+# CLI in process, 5.90-5.95 s and 1.84-1.86 GB against 5.18-5.72 s and 1.61-1.62 GB).
 ONE_PASS_NODES = 1 << 25
 
 
