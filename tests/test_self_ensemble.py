@@ -6,7 +6,8 @@ import pytest
 from hbis_torch.cli import main
 from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
-from hbis_torch.reconstruct.learned import default_ensemble, learned_sr, self_ensemble
+from hbis_torch.reconstruct.learned import (LearnedSR, default_ensemble, default_model_path, learned_sr,
+                                           network_inputs, run_tiled, self_ensemble, tile_ensemble)
 from hbis_torch.stack_io import read_stack
 from hbis_torch.reconstruct.learned.inputs import (ENSEMBLE_ORDER, _transform_image, _transform_phases,
                                                    _untransform_image, check_ensemble, space_to_depth)
@@ -63,6 +64,21 @@ def test_a_network_that_sees_direction_is_averaged_over_the_symmetries():
     # all eight: columns and rows, each counted forwards and backwards
     expected = (cols + (11 - cols) + rows + (7 - rows)) / 4
     np.testing.assert_allclose(self_ensemble(run, h, 8)(base, noise), expected, atol=1e-5)
+
+
+@pytest.mark.parametrize("count", [2, 8])
+def test_the_mean_a_tile_at_a_time_is_the_mean_of_the_tiled_network(count):
+    # LearnedSR averages each tile over the symmetries (tile_ensemble); the halo spans the
+    # receptive field, so that equals averaging the whole tiled image, bit for bit
+    h = 3
+    runner = LearnedSR(default_model_path(h), provider="cpu", tile=16)
+    image = np.random.default_rng(count).random((h * 40, h * 53)).astype(np.float32)
+    base, noise = network_inputs(image, h, (1e-4, 1e-6))
+    whole = self_ensemble(lambda b, n: run_tiled(runner.infer, b, n, h, runner.tile, runner.halo), h, count)
+    tiled = runner.run_network(base, noise, count)
+    np.testing.assert_array_equal(tiled, whole(base, noise))
+    assert np.abs(tiled - runner.run_network(base, noise)).max() > 1e-4  # and it is not one pass
+    assert tile_ensemble(runner.infer, h, 1) == runner.infer  # one symmetry: the network itself
 
 
 @pytest.mark.parametrize("bad", [0, 3, 16, True, 2.0, "8"])

@@ -25,7 +25,8 @@ Modules
 :mod:`.inputs`
     Numpy glue around any runner of the network: the noise model
     (:func:`noise_params_from_meta`, :func:`estimate_noise_params`), :func:`network_inputs`,
-    :func:`run_tiled`, :func:`self_ensemble` (:func:`default_ensemble`), :func:`super_resolve`.
+    :func:`run_tiled`, :func:`self_ensemble` and :func:`tile_ensemble` (:func:`default_ensemble`),
+    :func:`super_resolve`.
 :mod:`.runtime`
     onnxruntime: model discovery (:func:`models_dir`, :func:`default_model_path`), session
     options and execution providers, :class:`LearnedSR`, model metadata. onnxruntime and onnx
@@ -55,6 +56,7 @@ from hbis_torch.reconstruct.learned.inputs import (
     self_ensemble,
     sensor_noise_params,
     super_resolve,
+    tile_ensemble,
 )
 from hbis_torch.reconstruct.learned.method import learned_sr, reconstruct_learned
 from hbis_torch.reconstruct.learned.runtime import (

@@ -250,6 +250,29 @@ def check_ensemble(count, h: int | None = None, tier: str | None = "fast") -> in
     return int(count)
 
 
+def _mean_over_symmetries(run_network, phases: np.ndarray, noise: np.ndarray, h: int, count: int,
+                          views: bool) -> np.ndarray:
+    """The mean of ``run_network`` over the first ``count`` symmetries of :data:`ENSEMBLE_ORDER`.
+
+    ``phases`` (h, h, H, W) and ``noise`` (H, W) are the input; ``run_network`` takes base
+    (h^2, H', W') (a strided (h, h, H', W') view where ``views``) and noise (1, H', W') and returns
+    (hH', hW'). Returns a new (hH, hW) float32 array, summed in the order of the symmetries."""
+    total = None
+    for k in ENSEMBLE_ORDER[:count]:
+        b = _transform_phases(phases, k)
+        if not views:
+            b = np.ascontiguousarray(b).reshape(h * h, *b.shape[2:])
+        n = np.ascontiguousarray(_transform_image(noise, k))[None]
+        out = _untransform_image(run_network(b, n), k)
+        if total is None:
+            total = np.array(out, dtype=np.float32)  # a new, C-ordered array
+        else:
+            total += out
+        del b, n, out
+    total /= np.float32(count)
+    return total
+
+
 def self_ensemble(run_network, h: int, count: int | None, views: bool = False):
     """``run_network`` averaged over ``count`` of the square's 8 symmetries (geometric self-ensemble).
 
@@ -273,27 +296,53 @@ def self_ensemble(run_network, h: int, count: int | None, views: bool = False):
     -------
     callable
         With the signature of ``run_network``.
+
+    See Also
+    --------
+    tile_ensemble : the same mean, a tile at a time (what :class:`~hbis_torch.reconstruct.learned.LearnedSR` runs).
     """
     count = check_ensemble(count, h)
     if count == 1:
         return run_network
 
     def run(base: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        return _mean_over_symmetries(run_network, base.reshape(h, h, *base.shape[-2:]), noise[0], h, count, views)
+
+    return run
+
+
+def tile_ensemble(infer, h: int, count: int | None):
+    """``infer`` averaged over ``count`` of the square's symmetries, one tile at a time.
+
+    :func:`self_ensemble` of a tile: given to :func:`run_tiled`, it gives what
+    :func:`self_ensemble` of the tiled network gives (the network is translation-equivariant and
+    each tile's halo spans its receptive field), but each symmetry moves a tile, not the whole
+    image: a full frame at h = 7 is 240 MB, which the image-wide mean transposed once per
+    symmetry and held twice.
+
+    Parameters
+    ----------
+    infer : callable
+        (1, h^2, H, W), (1, 1, H, W) float32 arrays -> (1, 1, hH, hW), one network pass.
+    h : int
+    count : {1, 2, 4, 8} or None
+        As :func:`self_ensemble`'s.
+
+    Returns
+    -------
+    callable
+        With the signature of ``infer``.
+    """
+    count = check_ensemble(count, h)
+    if count == 1:
+        return infer
+
+    def run_one(base: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        return infer(base.reshape(1, *base.shape), noise[None])[0, 0]
+
+    def run(base: np.ndarray, noise: np.ndarray) -> np.ndarray:
         phases = base.reshape(h, h, *base.shape[-2:])
-        total = None
-        for k in ENSEMBLE_ORDER[:count]:
-            b = _transform_phases(phases, k)
-            if not views:
-                b = np.ascontiguousarray(b).reshape(h * h, *b.shape[2:])
-            n = np.ascontiguousarray(_transform_image(noise[0], k))[None]
-            out = _untransform_image(run_network(b, n), k)
-            if total is None:
-                total = np.array(out, dtype=np.float32)  # a new, C-ordered array
-            else:
-                total += out
-            del b, n, out
-        total /= np.float32(count)
-        return total
+        return _mean_over_symmetries(run_one, phases, noise[0, 0], h, count, views=False)[None, None]
 
     return run
 

@@ -21,7 +21,7 @@ import numpy as np
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain, unhelpful_model
-from hbis_torch.reconstruct.learned.inputs import TILE_HALO, check_ensemble, run_tiled, super_resolve
+from hbis_torch.reconstruct.learned.inputs import TILE_HALO, check_ensemble, run_tiled, super_resolve, tile_ensemble
 
 MODEL_FORMAT = "hbis-sr-onnx/2"
 NORMALISATION = (
@@ -462,17 +462,21 @@ class LearnedSR:
         """One network pass: (1, h^2, H, W), (1, 1, H, W) float32 -> (1, 1, hH, hW)."""
         return self.session.run(["image"], {"base": base, "noise": noise})[0]
 
-    def run_network(self, base: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    def run_network(self, base: np.ndarray, noise: np.ndarray, ensemble: int = 1) -> np.ndarray:
         """Raw network output, tiled; base (h^2, H, W) or (h, h, H, W), noise (1, H, W) -> (hH, hW).
 
-        A progress bar counts the tiles (:mod:`hbis_torch.progress`)."""
+        ``ensemble`` (1, 2, 4 or 8) averages each tile over as many symmetries
+        (:func:`~hbis_torch.reconstruct.learned.inputs.tile_ensemble`). A progress bar counts
+        the tiles (:mod:`hbis_torch.progress`)."""
         from hbis_torch.progress import progress
 
         rows, cols = base.shape[-2:]
         tiles = 1 if rows <= self.tile and cols <= self.tile else -(-rows // self.tile) * -(-cols // self.tile)
         with progress(total=tiles, desc=f"learned SR ({self.provider})", unit="tile") as bar:
+            average = tile_ensemble(self.infer, self.h, ensemble)
+
             def infer(b, n):
-                image = self.infer(b, n)
+                image = average(b, n)
                 bar.update()
                 return image
 
@@ -516,8 +520,8 @@ class LearnedSR:
             return classical_returned(image, reason, messages)
         if self.note is not None and messages is not None:
             messages.append(self.note)
-        return super_resolve(self.run_network, image, self.h, noise_params, self.path.name, cutoff, ensemble,
-                             views=True)
+        return super_resolve(lambda base, noise: self.run_network(base, noise, ensemble), image, self.h,
+                             noise_params, self.path.name, cutoff, views=True)
 
 
 def classical_returned(image, reason: str, messages: list | None = None,
