@@ -3,6 +3,7 @@
 import gc
 import logging
 import os
+import platform
 import subprocess
 import sys
 
@@ -67,15 +68,40 @@ def test_the_program_exits_with_main_s_code_after_freezing_the_collector(monkeyp
     """entry_point (the hbis script, python -m hbis_torch) exits with main's code, having frozen
     the objects alive so that the interpreter's last collection skips them; for real: a bad
     input exits 2 through python -m hbis_torch."""
-    frozen = []
+    frozen, kept = [], []
     monkeypatch.setattr(cli, "main", lambda: 3)
+    monkeypatch.setattr(cli, "keep_freed_memory", lambda: kept.append(not frozen))  # (not in pytest's process)
     monkeypatch.setattr(gc, "freeze", lambda: frozen.append(True))
     with pytest.raises(SystemExit) as exit_:
         cli.entry_point()
-    assert exit_.value.code == 3 and frozen == [True]
+    assert exit_.value.code == 3 and frozen == [True] and kept == [True]
     run = subprocess.run([sys.executable, "-m", "hbis_torch", "reconstruct", "no-such-stack.tif", "--out", "x.tif"],
                          capture_output=True, text=True)
     assert run.returncode == 2 and "no such file" in run.stderr
+
+
+KEEPS = """
+import sys, numpy as np
+from hbis_torch.cli import keep_freed_memory
+applied = keep_freed_memory() if sys.argv[1] == "keep" else None
+def rss(): return int(open("/proc/self/statm").read().split()[1]) * 4096 / 2**20
+before = rss()
+block = np.ones(2**25, np.float32)  # 128 MB
+del block
+print(applied, rss() - before)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc", reason="glibc only")
+def test_the_program_keeps_freed_memory_for_the_next_array():
+    """The hbis program keeps freed memory in its heap (keep_freed_memory): a 128 MB array freed
+    stays resident for the next, where by default it goes back to the system at once."""
+    grown = {}
+    for mode in ("default", "keep"):
+        run = subprocess.run([sys.executable, "-c", KEEPS, mode], capture_output=True, text=True, check=True)
+        applied, grown[mode] = run.stdout.split()
+    assert applied == "True"
+    assert float(grown["keep"]) > 120 and float(grown["default"]) < 20
 
 
 def test_a_closed_pipe_ends_quietly():
