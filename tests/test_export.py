@@ -135,6 +135,9 @@ def test_tiled_inference_equals_one_pass(exported):
     with torch.no_grad():
         whole = model(base, noise)[0, 0].numpy()
     assert np.abs(tiled - whole).max() <= TOLERANCE
+    # the halo is the receptive field's radius plus one: the tiles give the one pass's bits
+    one_pass = LearnedSR(path, tile=64).run_network(base[0].numpy(), noise[0].numpy())
+    assert runner.halo == runner.architecture.halo and np.array_equal(tiled, one_pass)
 
 
 def test_space_to_depth_survives_the_dynamo_exporter(tmp_path):
@@ -239,7 +242,7 @@ def test_the_exported_model_carries_its_architecture_and_the_runtime_sizes_its_h
     metadata = export_model(model, path)
     assert json.loads(metadata["model_config"]) == {"h": 2, "width": 8, "blocks": 9, "kind": "ir"}
     runner = LearnedSR(path, provider="cpu")
-    assert runner.architecture == arch and runner.halo == max(16, arch.halo)  # 16: TILE_HALO
+    assert runner.architecture == arch and runner.halo == arch.halo == 12  # the receptive field's radius, plus one
     deep = Architecture(2, width=4, blocks=8)
     export_model(build_net(deep).eval(), tmp_path / "deep.onnx")
     assert LearnedSR(tmp_path / "deep.onnx", provider="cpu").halo == deep.halo == 19

@@ -171,7 +171,7 @@ class _Predictor:
 
 def _halo(net: torch.nn.Module) -> int:
     """Context a window needs on each side for its centre to equal the whole image's, LR px."""
-    return max(TILE_HALO, getattr(getattr(net, "architecture", None), "halo", TILE_HALO))
+    return getattr(getattr(net, "architecture", None), "halo", TILE_HALO)
 
 
 def _window(fold: Fold, y0: int, x0: int, size: tuple[int, int], halo: int):

@@ -21,7 +21,7 @@ import numpy as np
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain, unhelpful_model
-from hbis_torch.reconstruct.learned.inputs import TILE_HALO, check_ensemble, run_tiled, super_resolve, tile_ensemble
+from hbis_torch.reconstruct.learned.inputs import check_ensemble, run_tiled, super_resolve, tile_ensemble
 
 MODEL_FORMAT = "hbis-sr-onnx/2"
 NORMALISATION = (
@@ -424,8 +424,8 @@ class LearnedSR:
     architecture : Architecture
         The network's, from ``metadata`` (:mod:`~hbis_torch.reconstruct.learned.architecture`).
     halo : int
-        Context each tile gets on every side, LR pixels: the network's receptive field, at least
-        :data:`TILE_HALO`.
+        Context each tile gets on every side, LR pixels: the network's receptive field radius
+        plus one (:attr:`Architecture.halo`), so that the tiles give the whole image's output.
     """
 
     def __init__(self, model=None, h: int | None = None, threads: int | None = None, tile: int = 256,
@@ -456,7 +456,7 @@ class LearnedSR:
         self.unhelpful = unhelpful_model(self.metadata)
         self.tile = int(tile)
         self.architecture = Architecture.from_metadata(self.metadata)
-        self.halo = max(TILE_HALO, self.architecture.halo)
+        self.halo = self.architecture.halo
 
     def infer(self, base: np.ndarray, noise: np.ndarray) -> np.ndarray:
         """One network pass: (1, h^2, H, W), (1, 1, H, W) float32 -> (1, 1, hH, hW)."""
