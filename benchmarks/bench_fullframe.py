@@ -56,7 +56,7 @@ from hbis_torch.reconstruct.registry import reconstruct
 t_imports = time.perf_counter()
 result = {}
 if mode == "network":
-    from hbis_torch.reconstruct.learned import LearnedSR, default_ensemble, network_inputs, self_ensemble
+    from hbis_torch.reconstruct.learned import LearnedSR, default_ensemble, network_inputs
     from hbis_torch.reconstruct.learned.method import classical_and_noise
     stack = read_stack(stack_path)
     image, noise_params = classical_and_noise(stack, "optics")
@@ -64,9 +64,8 @@ if mode == "network":
     h = stack.h
     del image, stack
     runner = LearnedSR(h=h)  # opened after the classical step, as the learned method does
-    run = self_ensemble(runner.run_network, h, default_ensemble(h))  # as often as the learned method runs it
     t0, c0 = time.perf_counter(), time.process_time()
-    run(base, noise)
+    runner.run_network(base, noise, default_ensemble(h))  # as often as the learned method runs it
     result.update(seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0)
 else:
     import tifffile
