@@ -187,9 +187,9 @@ def keep_freed_memory() -> bool:
     By default a block of 32 MB or more is a fresh mapping of its own, returned to the system
     when freed, so each image-sized array (78 MB at h = 4, 240 MB at h = 7 for a full frame) is
     paid for again in page faults, which are slow on virtual machines. Kept in the heap, the
-    memory of one step serves the next: a full-frame learned reconstruct at h = 7 spent 0.9 s
-    of system time against 2.1 s, and took 9.2-9.3 s against 10.0-10.3 s (2 cores, a VM); its
-    peak RSS stayed under 2 GB. The process keeps its peak until it exits, which is why only
+    memory of one step serves the next: a full-frame learned reconstruct at h = 7 spent 0.85-0.96 s
+    of system time against 2.13-2.16 s, and took 9.16-9.28 s against 10.05-10.32 s (2 cores, a
+    VM); its peak RSS stayed under 2 GB. The process keeps its peak until it exits, which is why only
     the ``hbis`` program asks for this (:func:`entry_point`), not :func:`main` or the library.
 
     Returns
