@@ -173,7 +173,7 @@ def test_depth_to_space_is_one_onnx_node_and_only_the_exact_pattern_is_rewritten
     (node,) = [n for n in proto.graph.node if n.op_type == "DepthToSpace"]
     attrs = {a.name: onnx.helper.get_attribute_value(a) for a in node.attribute}
     assert attrs == {"blocksize": 3, "mode": b"CRD"}
-    assert read_model_metadata(path)["graph_rewrites"] == "DepthToSpace x1"
+    assert read_model_metadata(path)["graph_rewrites"] == "DepthToSpace x1"  # h = 3: no split head
     # Without the rewrite the exporter's reshape/transpose is there; a wrong block size leaves it.
     plain = tmp_path / "plain.onnx"
     export_model(model, plain, rewrite=False)
@@ -182,6 +182,54 @@ def test_depth_to_space_is_one_onnx_node_and_only_the_exact_pattern_is_rewritten
     assert fuse_depth_to_space(proto, 2) == 0 and fuse_depth_to_space(proto, 4) == 0
     assert fuse_depth_to_space(proto, 3) == 1
     onnx.checker.check_model(proto)
+
+
+@pytest.mark.parametrize("h", [4, 7])
+def test_the_first_convolution_is_split_from_h_4_with_the_same_outputs(h, tmp_path):
+    torch.manual_seed(h)
+    model = HbisSRNet(h, width=16, blocks=1).eval()
+    torch.nn.init.normal_(model.tail.weight, std=0.1)
+    path = tmp_path / "net.onnx"
+    assert export_model(model, path)["graph_rewrites"] == "DepthToSpace x1, split head"
+    graph = onnx.load(str(path)).graph
+    weights = {t.name: t.dims for t in graph.initializer}
+    heads = [list(weights[n.input[1]])[:2] for n in graph.node if n.op_type == "Conv" and n.name.startswith("head_")]
+    main = h * h - h * h % 16  # 16 of 16 image channels at h = 4, 48 of 49 at h = 7
+    assert heads == [[16, main], [16, h * h - main + 1]]
+    assert "head.weight" not in weights and [n.op_type for n in graph.node].count("Split") == (h * h > main)
+    for size in (CHECK_SIZE, (9, 130)):
+        assert check_parity(path, model, size=size, provider="cpu") <= TOLERANCE
+
+
+def test_the_split_head_keeps_onnxruntimes_blocked_layout_through_the_residual_sums(tmp_path):
+    """Why the head is split: with it, the residual sums run fused into the convolutions in the
+    blocked channel layout; without it, each block's input is reordered in and out of it."""
+    import onnxruntime as ort
+
+    from hbis_torch.training.onnx_rewrite import fuse_depth_to_space
+
+    torch.manual_seed(0)
+    model = HbisSRNet(4, width=32, blocks=3).eval()
+    plain, split = tmp_path / "plain.onnx", tmp_path / "split.onnx"
+    export_model(model, plain, rewrite=False)
+    proto = onnx.load(str(plain))
+    assert fuse_depth_to_space(proto, 4) == 1  # the only difference left is the split
+    onnx.save(proto, str(plain))
+    export_model(model, split)
+
+    def optimised_ops(path):
+        options = ort.SessionOptions()
+        options.optimized_model_filepath = str(path.with_suffix(".optimised.onnx"))
+        ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        return [n.op_type for n in onnx.load(options.optimized_model_filepath).graph.node]
+
+    before, after = optimised_ops(plain), optimised_ops(split)
+    reorders = ("ReorderInput", "ReorderOutput")
+    if not any(op in reorders for op in before):
+        pytest.skip("onnxruntime has no blocked-layout kernels on this CPU")
+    assert sum(op in reorders for op in after) == 2  # the image in, the correction out
+    assert sum(op in reorders for op in before) >= 2 * 3  # one in and one out for each block
+    assert after.count("Add") < before.count("Add")  # the residual sums fused into the convolutions
 
 
 def test_reexport_from_a_weights_file_keeps_the_training_metadata(tmp_path):

@@ -3,7 +3,8 @@
 :func:`export_model` writes a trained :class:`~hbis_torch.training.net.HbisSRNet` to ONNX
 (opset :data:`OPSET`, dynamic batch, height and width; self-contained: weights inside, no .data
 file), with the exporter's depth-to-space replaced by one ``DepthToSpace`` node
-(:func:`hbis_torch.training.onnx_rewrite.fuse_depth_to_space`) and ``metadata_props``
+(:func:`hbis_torch.training.onnx_rewrite.fuse_depth_to_space`), the first convolution split in
+two from h = 4 (:func:`~hbis_torch.training.onnx_rewrite.split_head_conv`) and ``metadata_props``
 carrying what a user of the model needs: ``format``, ``h``, ``frames`` (= h^2),
 ``normalisation``, ``training_commit`` (git HEAD when the checkpoint was trained),
 ``export_commit``, ``opset``, ``parameters``, ``model_config`` (the network's
@@ -37,7 +38,7 @@ from hbis_torch.reconstruct.learned import MODEL_FORMAT, NORMALISATION, LearnedS
 from hbis_torch.training import qat
 from hbis_torch.training.data import training_domain
 from hbis_torch.training.net import HbisSRNet, build_net, count_parameters
-from hbis_torch.training.onnx_rewrite import fuse_depth_to_space
+from hbis_torch.training.onnx_rewrite import fuse_depth_to_space, split_head_conv
 
 OPSET = 18
 EXPORT_SIZE = (32, 40)  # (H, W) of the example inputs traced at export; any size runs after
@@ -146,8 +147,9 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     ``training_domain``; missing entries are recorded as unknown (the
     domain as the current pipeline's, :func:`~hbis_torch.training.data.training_domain`).
     ``rewrite``: replace the exporter's reshape/transpose depth-to-space with ONNX DepthToSpace
-    (:func:`hbis_torch.training.onnx_rewrite.fuse_depth_to_space`; same outputs,
-    faster in onnxruntime).
+    (:func:`hbis_torch.training.onnx_rewrite.fuse_depth_to_space`) and, from h = 4, split the
+    first convolution (:func:`~hbis_torch.training.onnx_rewrite.split_head_conv`); same outputs,
+    faster in onnxruntime.
 
     Parameters
     ----------
@@ -179,6 +181,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
     )
     proto = program.model_proto
     fused = fuse_depth_to_space(proto, model.h) if rewrite else 0
+    split = split_head_conv(proto) if rewrite else 0
     metadata = {
         "format": MODEL_FORMAT,
         "h": str(model.h),
@@ -194,7 +197,7 @@ def export_model(model: HbisSRNet, out_path, info: dict | None = None, opset: in
         "training_steps": str(info.get("step", "unknown")),
         "training_config": json.dumps(info.get("config", {})),
         "training_domain": json.dumps(info.get("training_domain") or training_domain()),
-        "graph_rewrites": f"DepthToSpace x{fused}",
+        "graph_rewrites": f"DepthToSpace x{fused}" + (", split head" if split else ""),
     }
     if info.get("qat_ranges"):  # trained for its int8 file's rounding: the ranges it trained with
         metadata[qat.METADATA_KEY] = qat.ranges_metadata(info["qat_ranges"])

@@ -36,6 +36,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from hbis_torch.training.net import HbisSRNet, depth_to_space
+from hbis_torch.training.onnx_rewrite import SPLIT_HEAD_ADD
 
 PERCENTILE = 99.999  # as CALIBRATION_METHOD "percentile" of hbis_torch.training.quantize
 METADATA_KEY = "quantization_ranges"  # the float file's metadata entry: JSON of tensor name -> [rmin, rmax]
@@ -163,7 +164,8 @@ def onnx_tensor_ranges(model, ranges: dict) -> dict[str, tuple[float, float]]:
     ----------
     model : onnx.ModelProto
         The float file of a plain network (exported by :mod:`hbis_torch.training.export`, whose
-        convolutions read initializers named ``head.weight``, ``body.{i}.conv1.weight``, ...).
+        convolutions read initializers named ``head.weight``, ``body.{i}.conv1.weight``, ...; a
+        first convolution split in two is found by its sum, ``SPLIT_HEAD_ADD``).
     ranges : dict of str to (float, float)
         As :func:`observe_ranges`.
 
@@ -193,6 +195,9 @@ def onnx_tensor_ranges(model, ranges: dict) -> dict[str, tuple[float, float]]:
                 i = weight.split(".")[1]
                 producer_of[f"conv{i}"] = node.output[0]
                 conv_out[node.output[0]] = f"conv{i}"
+        elif node.op_type == "Add" and node.name == SPLIT_HEAD_ADD:  # the split first convolution's sum
+            producer_of["head"] = node.output[0]
+            conv_out[node.output[0]] = "head"
         elif node.op_type == "Relu" and conv_out.get(node.input[0], "").startswith("conv1_"):
             producer_of[f"relu{conv_out[node.input[0]].split('_')[1]}"] = node.output[0]
         elif node.op_type == "Add":

@@ -50,6 +50,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_path
 from hbis_torch.reconstruct.learned.runtime import check_model, int8_path
 from hbis_torch.training import qat
+from hbis_torch.training.onnx_rewrite import SPLIT_HEAD_ADD
 
 CALIBRATION_SEED = 31_000  # a pool seed of its own: neither training's (0, 1) nor the tests'
 CALIBRATION_COUNT = 48  # pool examples
@@ -85,20 +86,23 @@ def calibration_inputs(h: int, count: int = CALIBRATION_COUNT, seed: int = CALIB
 def float_nodes(model) -> list[str]:
     """Names of the nodes kept in float32.
 
-    * The first convolution and everything before it: its input holds the classical image and
-      the noise map in one tensor, and one 8-bit scale over both would round the image to steps
-      of several hundredths (activations have one scale per tensor). It is the cheapest
-      convolution (h^2 + 1 input channels), so keeping it float costs little.
+    * The first convolution (both halves and their sum where it is split,
+      :func:`~hbis_torch.training.onnx_rewrite.split_head_conv`) and everything before it: its
+      input holds the classical image and the noise map in one tensor, and one 8-bit scale over
+      both would round the image to steps of several hundredths (activations have one scale per
+      tensor). It is the cheapest convolution (h^2 + 1 input channels), so keeping it float costs
+      little.
     * The ``Add`` that takes the graph input ``base`` directly (the residual sum of the input and
       the correction) and every node after it.
     """
     graph = model.graph
     keep, after = [], set()
     head_seen = False
+    split = any(node.name == SPLIT_HEAD_ADD for node in graph.node)  # the head is two convolutions and their sum
     for node in graph.node:  # the graph is topologically sorted
         if not head_seen:
             keep.append(node.name)
-            head_seen = node.op_type == "Conv"
+            head_seen = node.name == SPLIT_HEAD_ADD if split else node.op_type == "Conv"
         elif (node.op_type == "Add" and "base" in node.input) or any(name in after for name in node.input):
             keep.append(node.name)
             after.update(node.output)
