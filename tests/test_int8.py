@@ -41,7 +41,8 @@ def test_image_path_stays_float():
     model = onnx.load(str(default_model_path(4)))
     kept = float_nodes(model)
     ops = {node.name: node.op_type for node in model.graph.node}
-    assert [ops[name] for name in kept] == ["Sub", "Concat", "Conv", "Add", "DepthToSpace"]
+    # the image's Sub, the split first convolution and its sum, the residual Add, DepthToSpace
+    assert [ops[name] for name in kept] == ["Sub", "Conv", "Conv", "Add", "Add", "DepthToSpace"]
     quantized = onnx.load(str(int8_path(default_model_path(4))))
     residual = [n for n in quantized.graph.node if n.op_type == "Add" and "base" in n.input]
     assert len(residual) == 1  # the input itself, not a dequantised copy, is added to the correction
