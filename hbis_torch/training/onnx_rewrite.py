@@ -163,12 +163,8 @@ def split_head_conv(model: onnx.ModelProto, block: int = SPLIT_BLOCK) -> int:
     int
     """
     graph = model.graph
-    readers: dict[str, list] = {}
-    for node in graph.node:
-        for name in node.input:
-            readers.setdefault(name, []).append(node)
     cat = next((n for n in graph.node if n.op_type == "Concat" and len(n.input) == 2 and n.input[1] == "noise"), None)
-    conv = readers.get(cat.output[0], []) if cat is not None else []
+    conv = [n for n in graph.node if cat.output[0] in n.input] if cat is not None else []
     if len(conv) != 1 or conv[0].op_type != "Conv" or len(conv[0].input) != 3:
         return 0
     conv = conv[0]
