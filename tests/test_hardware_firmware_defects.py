@@ -218,8 +218,9 @@ def test_model_stores_steps_per_degree_as_grbl_reads_them():
     for text, stored in [("80.5", 80.5), ("0", 0.0), ("0.0000000001", 0.0), ("1" + "0" * 39, math.inf)]:
         m.receive(f"$100={text}\n".encode(), 0.0)
         assert m.take_output() == b"ok\r\n" and m.settings[100] == stored
-    m.receive(b"$101=-1\n", 0.0)
-    assert m.take_output() == b"error:4\r\n"
+    m.receive(b"$101=-1\n$101=1e5\n$" + b"1" * 40 + b"=1\n", 0.0)  # GRBL reads no exponent, no N > 255
+    assert m.take_output() == b"error:4\r\nerror:3\r\nerror:3\r\n" and m.settings[101] == PRISM_STEPS_PER_DEG
+    assert setting_write("$0000000101=0") == (100, 0.0) and setting_write("$" + "1" * 40 + "=1") is None
 
 
 def test_steps_per_degree_grbl_would_hold_as_zero_or_inf_are_refused_before_sending():

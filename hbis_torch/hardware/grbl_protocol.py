@@ -233,7 +233,12 @@ def grbl_number(text: str) -> float | None:
             exponent -= point
         else:
             exponent += not point  # an integer digit dropped still scales the value
-    value = 0.0 if digits == 0 else float(digits * 10 ** exponent) if exponent >= 0 else digits / 10 ** -exponent
+    if digits == 0:
+        value = 0.0
+    elif exponent >= 0:
+        value = math.inf if exponent > 38 else float(digits * 10 ** exponent)
+    else:
+        value = digits / 10 ** -exponent
     if value > FLOAT32_MAX:
         value = math.inf
     return -value if m.group(1) == "-" else value
@@ -243,12 +248,15 @@ def setting_write(line: str) -> tuple[int, float] | None:
     """``(N, value)`` when ``line``, cleaned as GRBL cleans it, writes setting ``$N``; else None.
 
     N and the value are read as GRBL reads numbers (:func:`grbl_number`); N is then truncated
-    (``$013=1`` and ``$13.5=1`` both write ``$13``).
+    (``$013=1`` and ``$13.5=1`` both write ``$13``); an N above 255 writes nothing (error:3).
     """
     m = _SETTING_WRITE_RE.match(clean_line(line))
     if not m:
         return None
-    return int(grbl_number(m.group(1))), grbl_number(m.group(2))
+    n = grbl_number(m.group(1))
+    if n > 255:
+        return None
+    return int(n), grbl_number(m.group(2))
 
 
 def _number(value: float) -> str:

@@ -430,14 +430,15 @@ class GrblMachineModel:
             return self._gcode(line[3:], now, jog=True)
         elif re.fullmatch(r"\$[-+]?(\d+\.?\d*|\.\d+)=.*", line):
             n_text, value_text = line[1:].split("=", 1)
-            n = int(grbl_number(n_text))  # GRBL reads N as a number and truncates it
+            number = grbl_number(n_text)  # GRBL reads N as a number and truncates it
+            n = int(number) if number <= 255 else None
             if n not in self.settings:
                 return "error:3"
             if self.state not in ("Idle", "Alarm"):
                 return "error:8"
             value = grbl_number(value_text)  # 8 digits kept; beyond a 32-bit float: inf
-            if value is None:
-                return "error:2"
+            if value is None:  # no number (error:2), or one followed by more (error:3: "1e5")
+                return "error:3" if re.match(r"[-+]?\.?\d", value_text) else "error:2"
             if value < 0:
                 return "error:4"
             if n == 20 and value and not self._homing_enabled():
