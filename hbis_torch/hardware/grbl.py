@@ -54,13 +54,13 @@ _DEFAULT_ACCEL_DEG_PER_S2 = 10.0
 
 
 def _never_a_serial_port(url: str) -> str | None:
-    """Why the file at ``url`` can never be a serial port (a directory, a regular file, a
-    character device that is not a terminal...), or None when it may be one or is missing
-    (an unplugged adapter) or ``url`` is a pyserial URL such as ``socket://``.
+    """Why the file at ``url`` can never be a serial port (a directory, a regular file, a FIFO...:
+    anything but a character device), or None when it may be one, is missing (an unplugged
+    adapter) or ``url`` is a pyserial URL such as ``socket://``.
 
-    Only a path that is not a character device is judged before it is opened; whether a character
-    device is a terminal is asked (:func:`os.isatty`) only after pyserial failed to open it, so a
-    real serial port is never opened twice.
+    Judged from :func:`os.stat` alone, before anything is opened. Whether a character device is a
+    terminal (:func:`_not_a_terminal`) is asked only after pyserial failed to open it, so a real
+    serial port is never opened twice.
     """
     if "://" in url:
         return None
