@@ -191,8 +191,14 @@ def motion_error(burst, motions: np.ndarray) -> float:
     return worst
 
 
-def provenance(argv) -> dict:
-    """Command, commit, dirty, date, machine of this run."""
+def provenance(argv, script: str = "training/eval_handheld.py") -> dict:
+    """Command, commit, dirty, date, machine of this run (hbis_torch.provenance's where it exists)."""
+    try:
+        from hbis_torch.provenance import provenance as shared
+    except ImportError:
+        pass
+    else:
+        return shared(argv=list(argv))
     import datetime
     import platform
     import subprocess
@@ -204,28 +210,41 @@ def provenance(argv) -> dict:
             return ""
     import os
 
-    return {"command": "python training/eval_handheld.py " + " ".join(argv), "commit": git("rev-parse", "HEAD"),
+    return {"command": f"python {script} " + " ".join(argv), "commit": git("rev-parse", "HEAD"),
             "dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "machine": f"{platform.node()} {platform.machine()} {platform.processor() or ''} "
-                       f"{os.cpu_count()} CPUs (shared with other jobs)".replace("  ", " "),
+            "machine": f"{_cpu_name() or platform.machine()}, {os.cpu_count()} CPUs (shared with other jobs), "
+                       f"{platform.system()} {platform.release()}",
             "python": platform.python_version()}
 
 
-def load_results(args) -> dict:
-    """The results so far in ``--out`` (resumed), or a fresh record; exits 2 where the file's
-    settings differ from these."""
+def _cpu_name() -> str | None:
+    try:
+        with open("/proc/cpuinfo") as f:
+            return next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
+    except OSError:
+        return None
+
+
+def _machine(p: dict) -> str:
+    m = p.get("machine", "")
+    return m if isinstance(m, str) else f"{m.get('cpu')}, {m.get('cores')} cores"
+
+
+def load_results(args) -> tuple[dict | None, str | None]:
+    """(the results so far in ``--out`` (resumed) or a fresh record, None), or (None, one line
+    saying why the file cannot be resumed: not this script's, or other settings)."""
     fresh = {"settings": settings_of(args), "provenance": [], "cells": {}}
     if not args.out.exists():
-        return fresh
+        return fresh, None
     try:
         old = json.loads(args.out.read_text())
-    except (OSError, ValueError) as exc:
-        raise SystemExit(_refuse(f"--out {args.out} exists but is not a results file of this script ({exc})"))
-    if old.get("settings") != settings_of(args):
-        raise SystemExit(_refuse(f"--out {args.out} holds a run with other settings ({old.get('settings')}); "
-                                 "give another --out to start afresh"))
-    return old
+        settings = old.get("settings")
+    except (OSError, ValueError, AttributeError) as exc:
+        return None, f"--out {args.out} exists but is not a results file of this script ({exc})"
+    if settings != settings_of(args):
+        return None, f"--out {args.out} holds a run with other settings ({settings}); give another --out to start afresh"
+    return old, None
 
 
 def _refuse(line: str) -> int:
@@ -247,7 +266,9 @@ def main(argv=None) -> int:
         if not available():
             print("eval_handheld: vidsr is not installed: its row is skipped", file=sys.stderr)
             rows.remove("vidsr")
-    results = load_results(args)
+    results, problem = load_results(args)
+    if problem:
+        return _refuse(problem)
     results["provenance"].append(provenance(argv))
     from hbis_torch.io_utils import atomic_write_text
     from hbis_torch.training.handheld_render import render_burst
@@ -310,7 +331,7 @@ def table(results: dict) -> str:
              "", "## Provenance", ""]
     for i, p in enumerate(results["provenance"]):
         lines.append(f"- run {i}: `{p['command']}`, commit {p['commit'][:10]}{' (dirty)' if p['dirty'] else ''}, "
-                     f"{p['date']}, {p['machine']}")
+                     f"{p['date']}, {_machine(p)}")
     cells = list(results["cells"].values())
     for S, F in sorted({(c["scale"], c["frames"]) for c in cells}):
         group = [c for c in cells if c["scale"] == S and c["frames"] == F]

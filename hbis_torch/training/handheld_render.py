@@ -35,6 +35,7 @@ the project and its peer on these bursts against the truth.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -123,8 +124,13 @@ class HandheldBurst:
         src = np.stack((u.ravel(), v.ravel()), -1).astype(np.float64)
         for k in range(1, len(out)):
             dst = self.flow(k)[0:H:8, 0:W:8].reshape(-1, 2)
-            fit = ProjectiveTransform()
-            if fit.estimate(src, dst):
+            if hasattr(ProjectiveTransform, "from_estimate"):  # scikit-image >= 0.26
+                fit = ProjectiveTransform.from_estimate(src, dst)
+                ok = bool(fit)
+            else:  # pragma: no cover - older scikit-image
+                fit = ProjectiveTransform()
+                ok = fit.estimate(src, dst)
+            if ok:
                 out[k] = fit.params / fit.params[2, 2]
         return out
 
@@ -138,6 +144,18 @@ def _apply(m: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.
     """Homography ``m`` applied to points (u, v) (any equal shapes)."""
     w = m[2, 0] * u + m[2, 1] * v + m[2, 2]
     return (m[0, 0] * u + m[0, 1] * v + m[0, 2]) / w, (m[1, 0] * u + m[1, 1] * v + m[1, 2]) / w
+
+
+@functools.lru_cache(maxsize=8)
+def _enlarged(name: str) -> np.ndarray:
+    """The photograph ``name`` enlarged :data:`PHOTO_PX` times (cubic spline), float64 in [0, 1]."""
+    from skimage.transform import rescale
+
+    from hbis_torch.simulate.rasters import photo
+
+    out = np.clip(rescale(photo(name).astype(np.float64), PHOTO_PX, order=3, anti_aliasing=False), 0, 1)
+    out.flags.writeable = False
+    return out
 
 
 def collage(height: int, width: int, rng: np.random.Generator, photos=None) -> np.ndarray:
@@ -156,13 +174,9 @@ def collage(height: int, width: int, rng: np.random.Generator, photos=None) -> n
     -------
     np.ndarray, shape (height, width), float64 in [0, 1]
     """
-    from skimage.transform import rescale
+    from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS
 
-    from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS, photo
-
-    names = list(photos or HELD_OUT_PHOTOS)
-    big = [np.clip(rescale(photo(n).astype(np.float64), PHOTO_PX, order=3, anti_aliasing=False), 0, 1)
-           for n in names]
+    big = [_enlarged(n) for n in (photos or HELD_OUT_PHOTOS)]
     row_h = min(min(b.shape[0] for b in big), height)
     out = np.empty((height, width))
     y = 0
