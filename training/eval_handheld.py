@@ -15,6 +15,8 @@ image without a border of ``--border`` LR px (4 by default: S x 4 output px). Th
 * **classical**: what ``hbis assemble --burst --scale S`` then ``hbis reconstruct --method
   classical`` do, by their library calls: :func:`~hbis_torch.capture.burst.assemble_burst` with
   its defaults, then :func:`~hbis_torch.reconstruct.registry.reconstruct` (``"classical"``);
+* **classical_lens**: the same stack, the lens's blur given as a calibration would give it
+  (``hbis reconstruct --psf-sigma``: the render's sigma);
 * **learned**: the same stack through ``reconstruct(stack, "learned")`` (``--no-learned`` skips it);
 * **oracle**: classical given the true motion: the stack built with the true homographies
   (:meth:`~hbis_torch.training.handheld_render.HandheldBurst.oracle_motions`: for the rolling
@@ -40,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-ROWS = ("bicubic", "vidsr", "classical", "learned", "oracle")
+ROWS = ("bicubic", "vidsr", "classical", "classical_lens", "learned", "oracle")
 #: The goals of the issue: classical within ORACLE_GAP of the oracle, never more than PEER_GAP behind
 #: vidsr, at least BICUBIC_GAIN over bicubic with BICUBIC_FRAMES frames or more.
 ORACLE_GAP, PEER_GAP, BICUBIC_GAIN, BICUBIC_FRAMES = 0.3, 0.3, 2.0, 8
@@ -148,7 +150,7 @@ def run_row(row: str, burst, cache: dict) -> dict:
 
         image = vidsr_sr(burst.frames, S)
         out["vidsr_version"] = version()
-    elif row in ("classical", "learned"):
+    elif row in ("classical", "classical_lens", "learned"):
         if "stack" not in cache:
             from hbis_torch.capture.burst import assemble_burst
 
@@ -162,7 +164,10 @@ def run_row(row: str, burst, cache: dict) -> dict:
             out.update(cache["assemble"])
         stack = cache["stack"]
         notes: list[str] = []
-        image = reconstruct(stack, row, messages=notes)
+        if row == "classical_lens":
+            image = reconstruct(stack, "classical", messages=notes, lens_sigma=burst.blur_sigma_px)
+        else:
+            image = reconstruct(stack, row, messages=notes)
         out["messages"] = notes
         out["motion_error_px"] = motion_error(burst, stack.motions)
     elif row == "oracle":
