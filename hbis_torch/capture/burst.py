@@ -68,6 +68,9 @@ class BurstMotion:
     gain_offset : np.ndarray, shape (F, 2), float64
     messages : list of str
         One line per frame that was rejected or needed a second start, naming it.
+    local : np.ndarray, shape (F, rows, cols, 2), float64, or None
+        Local shifts on top of each motion (:mod:`hbis_torch.registration.local`), LR px; None
+        for frames too small to tile.
     """
 
     motions: np.ndarray
@@ -75,6 +78,7 @@ class BurstMotion:
     models: list
     gain_offset: np.ndarray
     messages: list = field(default_factory=list)
+    local: np.ndarray | None = None
 
 
 def luminance(frames: np.ndarray) -> torch.Tensor:
@@ -186,8 +190,13 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     for k in todo:
         if confidence[k] > 0:
             gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k])
+    local = None
+    if start is not None:  # frames large enough for a pyramid are large enough to tile
+        from hbis_torch.registration.local import local_offsets
+
+        local = local_offsets(grey, reference, motions, gain_offset, [k for k in todo if confidence[k] > 0])
     bar.close()
-    return BurstMotion(motions, confidence, models, gain_offset, messages)
+    return BurstMotion(motions, confidence, models, gain_offset, messages, local)
 
 
 def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: list) -> dict:
@@ -485,8 +494,13 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
     if all(m == "identity" for m in found.models):
         messages.append(f"all {len(frames)} frames are identical to the reference: the burst holds no new samples "
                         "(its reconstruction is the single-frame estimate)")
+    extra = {}
+    if found.local is not None:
+        from hbis_torch.registration.local import TILE_PX
+
+        extra["local_motion"] = {"tile_px": TILE_PX, "offsets": found.local.round(5).tolist()}
     meta = make_burst_meta(scale, roi, found.motions, found.confidence, found.models, found.gain_offset,
-                           reference_index=reference, bit_depth=bit_depth)
+                           reference_index=reference, bit_depth=bit_depth, **extra)
     frames = np.ascontiguousarray(frames)
     validate_stack(frames, meta, "assembled burst")
     return Stack(frames, meta), messages
