@@ -142,7 +142,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         "scanning, simulation and super-resolution. Numbers default to the paper's Table 1.",
         epilog="exit codes: 0 success; 2 bad arguments or bad input (one line on stderr); 3 a device "
         "failed (the motor controller timed out, vanished, went silent, is held or raised an alarm: "
-        "fix the bench and retry); 1 anything else",
+        "fix the bench and retry); 1 anything else\n\n"
+        + examples("hbis demo --out hbis-out", "hbis simulate --scene camera --h 4 --out stack.tif",
+                   "hbis reconstruct stack.tif --method learned --out sr.tif", "hbis COMMAND --help"),
     )
     parser.add_argument("--version", action="version", version=f"hbis {__version__}")
     _add_verbosity(parser, None)
