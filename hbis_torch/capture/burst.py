@@ -32,6 +32,7 @@ import torch
 
 from hbis_torch.capture.frames import bit_depth_hint
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 from hbis_torch.stack_io import BURST_MIN_CONFIDENCE, Stack, make_burst_meta, validate_stack
 
 log = logging.getLogger(__name__)
@@ -492,8 +493,9 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
     if hint is not None:
         messages.append(hint)
     if all(m == "identity" for m in found.models):
-        messages.append(f"all {len(frames)} frames are identical to the reference: the burst holds no new samples "
-                        "(its reconstruction is the single-frame estimate)")
+        messages.append(act(f"all {len(frames)} frames are identical to the reference: the burst holds no new "
+                            "samples (its reconstruction is the single-frame estimate); capture it again, moving "
+                            "the camera a little between frames"))
     extra = {}
     if found.local is not None:
         from hbis_torch.registration.local import TILE_PX
