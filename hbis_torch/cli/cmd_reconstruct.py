@@ -57,10 +57,17 @@ def register(sub) -> None:
     from hbis_torch.budget import add_force_arg
 
     add_force_arg(p)
+    from hbis_torch.cluster.cli import add_scheduler_argument
+
+    add_scheduler_argument(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.scheduler is not None:  # many stacks on a Dask cluster (hbis_torch.cluster)
+        from hbis_torch.cluster.cli import run_reconstruct
+
+        return run_reconstruct(args, prepare)
     if args.out_dir is not None:
         from hbis_torch.cli.reconstruct_batch import run_batch
 
