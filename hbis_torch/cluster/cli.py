@@ -92,7 +92,7 @@ def _execute(job, sources, outputs, args, *, desc: str, prefix: str, threads: in
     if args.scheduler is None:
         return run_tasks(job, sources, outputs, desc=desc, prefix=prefix, out_dir=args.out_dir)
     with connect(args.scheduler) as client:
-        client.register_plugin(worker_plugin(threads))
+        client.register_plugin(worker_plugin(threads, getattr(job, "warm", None)))  # waits for every worker
         link = dashboard_link(client)
         if link:
             print(f"{prefix}: Dask dashboard at {link}", file=sys.stderr)

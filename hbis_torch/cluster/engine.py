@@ -323,7 +323,8 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
     sources, outputs : list of Path
         One output per source, distinct; outputs that exist are skipped.
     client : distributed.Client or None
-        Where to run; None: here, in order.
+        Where to run; None: in this process, one task per CPU at once, each on one torch thread
+        (as on a worker of one thread, so that the outputs are the same bit for bit).
     desc : str
         The progress bar's label.
     prefix : str
@@ -357,10 +358,8 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
 
         with progress(total=len(sources), desc=desc, unit="task") as bar:
             if client is None:
-                for i, (source, out) in enumerate(zip(sources, outputs)):
-                    report(i, run_task(job, source, out))
-                    bar.update()
-                where = "in this process"
+                jobs = _run_here(job, sources, outputs, report, bar)
+                where = f"in this process, {jobs} at once"
             else:
                 _run_on(client, job, sources, outputs, report, bar)
                 where = f"{worker_count(client)} Dask workers"
@@ -370,6 +369,29 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
     finally:
         if lock is not None:
             lock.close()
+
+
+def _run_here(job, sources, outputs, report, bar) -> int:
+    """Run the tasks in this process, as many at once as it has CPUs (threads: torch and the
+    runtimes release the interpreter lock), each with one torch thread as on a worker; the number
+    run at once."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    import torch
+
+    jobs = max(1, min(len(os.sched_getaffinity(0)), len(sources)))
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)  # as each worker: the same threads, the same sums, the same bits
+    try:
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            futures = {pool.submit(run_task, job, source, out): i
+                       for i, (source, out) in enumerate(zip(sources, outputs))}
+            for future in as_completed(futures):
+                report(futures[future], future.result())
+                bar.update()
+    finally:
+        torch.set_num_threads(before)
+    return jobs
 
 
 def _run_on(client, job, sources, outputs, report, bar) -> None:

@@ -2,7 +2,8 @@
 
 Each is a small picklable object (the command's options, nothing heavy) called as
 ``job(source, staging) -> messages`` by :func:`hbis_torch.cluster.engine.run_task`, on a Dask
-worker or in this process. Each does what the command does for one input, with the same
+worker or in this process; ``job.warm()`` imports what it needs, once per worker, before the
+first task (:func:`hbis_torch.cluster.engine.worker_plugin`). Each does what the command does for one input, with the same
 library calls, so that the outputs are the same bit for bit.
 """
 
@@ -32,6 +33,11 @@ class ReconstructJob:
     prepared: tuple
     threads: int
 
+    def warm(self) -> None:
+        """Import what a task needs (once per worker, before the first task)."""
+        import hbis_torch.cli.cmd_reconstruct  # noqa: F401
+        import hbis_torch.reconstruct.registry  # noqa: F401
+
     def __call__(self, source, staging) -> list[str]:
         from hbis_torch.cli.cmd_reconstruct import reconstruct_one
         from hbis_torch.stack_io import write_image
@@ -48,6 +54,10 @@ class BurstJob:
     burst stack."""
 
     args: argparse.Namespace
+
+    def warm(self) -> None:
+        """Import what a task needs (once per worker, before the first task)."""
+        import hbis_torch.capture.burst  # noqa: F401
 
     def __call__(self, source, staging) -> list[str]:
         from hbis_torch.capture import read_frames
@@ -72,6 +82,11 @@ class ValidateJob:
     args: argparse.Namespace
     names: list
     options: dict
+
+    def warm(self) -> None:
+        """Import what a task needs (once per worker, before the first task)."""
+        import hbis_torch.reconstruct.registry  # noqa: F401
+        import hbis_torch.validate.cross  # noqa: F401
 
     def __call__(self, source, staging) -> list[str]:
         from hbis_torch.stack_io import read_stack
