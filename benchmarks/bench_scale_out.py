@@ -247,13 +247,20 @@ def main(argv=None) -> dict:
     p.add_argument("--repeats", type=int, default=2, help="rounds, the two ways alternated in each")
     p.add_argument("--tasks", type=int, default=400, help="empty tasks for the per-task overhead")
     p.add_argument("--json", type=Path, help="write the results here")
+    p.add_argument("--work", type=Path, help="keep the inputs in this folder and reuse them (default: a temporary one)")
     args = p.parse_args(argv)
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), "HBIS_PROGRESS": "0"}
     result = {"provenance": provenance(argv)}
     with tempfile.TemporaryDirectory(prefix="bench-scale-out-") as tmp:
-        work = Path(tmp)
+        work = args.work or Path(tmp)
         t = time.perf_counter()
-        inputs = make_inputs(work, args.stacks)
+        listing = work / f"inputs-{args.stacks}.json"
+        if listing.exists():
+            inputs = {k: [Path(p) for p in v] for k, v in json.loads(listing.read_text()).items()}
+        else:
+            work.mkdir(parents=True, exist_ok=True)
+            inputs = make_inputs(work, args.stacks)
+            listing.write_text(json.dumps({k: [str(p) for p in v] for k, v in inputs.items()}))
         print(f"inputs made in {time.perf_counter() - t:.0f} s", flush=True)
         result["reconstruct"] = side_by_side(
             "reconstruct", ["reconstruct", *map(str, inputs["stacks"]), "--method", "classical"], True, args.workers, args.repeats, work, len(inputs["stacks"]), env)

@@ -34,9 +34,19 @@ class ReconstructJob:
     threads: int
 
     def warm(self) -> None:
-        """Import what a task needs (once per worker, before the first task)."""
-        import hbis_torch.cli.cmd_reconstruct  # noqa: F401
-        import hbis_torch.reconstruct.registry  # noqa: F401
+        """Import what a task needs (once per worker, before the first task): the method's
+        modules, the registration's, kornia; a second or more per worker on a cold start."""
+        import importlib
+
+        from hbis_torch.reconstruct.registry import METHODS
+
+        method = METHODS[self.args.method]
+        for target in (method.run, method.raw_bayer, getattr(method, "burst", None)):
+            if isinstance(target, str):
+                importlib.import_module(target.partition(":")[0])
+        for name in ("hbis_torch.cli.cmd_reconstruct", "hbis_torch.stack_io", "hbis_torch.registration.stack",
+                     "hbis_torch.capture.calibration", "kornia", "tifffile"):
+            importlib.import_module(name)
 
     def __call__(self, source, staging) -> list[str]:
         from hbis_torch.cli.cmd_reconstruct import reconstruct_one
