@@ -229,8 +229,11 @@ def projection(measured: dict, stacks: int = 10_000, nodes: int = 100, cores: in
                                   "nodes_before_io_bound": bw * per_core_s / (cores * (in_mb + out_mb) / 1e3)}
         rows[method] = {"cpu_s_per_stack": cpu_s, "wall_s_per_stack_2_threads": wall_2, "peak_rss_gb": rss,
                         "compute_bound_s": compute_s, "io_demand_gb_s": demand_gb_s, "file_system": fs,
-                        "scheduler_s": stacks * over["dask"]["per_task_ms"] / 1e3,
-                        "scheduler_share": stacks * over["overhead_per_task_ms"] / 1e3 / (nodes * cores) / per_core_s,
+                        # the scheduler must hand out this many tasks a second, against what it
+                        # sustained here for empty tasks on 2 workers
+                        "tasks_per_s_needed": stacks / compute_s,
+                        # each task's own latency (one at a time, empty task) against its compute
+                        "overhead_share": over["overhead_per_task_ms"] / 1e3 / per_core_s,
                         "model_open_s_per_worker": measured["model_open_s"] if method == "learned" else 0.0}
     return {"stacks": stacks, "nodes": nodes, "cores_per_node": cores, "h": h, "frame": [H, W],
             "input_mb_per_stack": in_mb, "output_mb_per_stack": out_mb,

@@ -323,7 +323,7 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
     sources, outputs : list of Path
         One output per source, distinct; outputs that exist are skipped.
     client : distributed.Client or None
-        Where to run; None: in this process, one task after the other.
+        Where to run; None: in this process, one task after the other, on one torch thread.
     desc : str
         The progress bar's label.
     prefix : str
@@ -358,7 +358,7 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
         with progress(total=len(sources), desc=desc, unit="task") as bar:
             if client is None:
                 _run_here(job, sources, outputs, report, bar)
-                where = "in this process, one at a time"
+                where = "in this process, one at a time on one thread"
             else:
                 _run_on(client, job, sources, outputs, report, bar)
                 where = f"{worker_count(client)} Dask workers"
@@ -370,19 +370,26 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
             lock.close()
 
 
-def _run_here(job, sources, outputs, report, bar) -> int:
-    """Run the tasks in this process, one after the other, each on torch's threads as a single
-    command runs; returns 1 (run at once).
+def _run_here(job, sources, outputs, report, bar) -> None:
+    """Run the tasks in this process, one after the other, each on one torch thread as on a worker
+    (the same sums in the same order: the same bits; ``--scheduler local`` is the way to use more
+    cores).
 
     Not side by side on threads: two bursts assembled at once in one process were measured to
     differ, for 1 to 3 bursts in 25, in their last bits (gain and offset) from the same bursts
     assembled alone, with torch and BLAS on one thread each, so something under
     :func:`hbis_torch.capture.burst.assemble_burst` is not safe to run concurrently in one process.
     Dask's workers are processes."""
-    for i, (source, out) in enumerate(zip(sources, outputs)):
-        report(i, run_task(job, source, out))
-        bar.update()
-    return 1
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        for i, (source, out) in enumerate(zip(sources, outputs)):
+            report(i, run_task(job, source, out))
+            bar.update()
+    finally:
+        torch.set_num_threads(before)
 
 
 def _run_on(client, job, sources, outputs, report, bar) -> None:
