@@ -355,12 +355,19 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
             for line in outcome.messages:
                 print(f"{prefix}: {sources[i]}: {line}", file=sys.stderr)
 
+        # Outputs done before are skipped here, without a task (each task checks again).
+        todo = [i for i, out in enumerate(outputs) if not os.path.lexists(out)]
+        for i in sorted(set(range(len(sources))) - set(todo)):
+            outcomes[i] = Outcome(skipped=True)
+        some = ([sources[i] for i in todo], [outputs[i] for i in todo], lambda k, outcome: report(todo[k], outcome))
         with progress(total=len(sources), desc=desc, unit="task") as bar:
+            bar.update(len(sources) - len(todo))
             if client is None:
-                _run_here(job, sources, outputs, report, bar)
+                _run_here(job, *some, bar)
                 where = "in this process, one at a time on one thread"
             else:
-                _run_on(client, job, sources, outputs, report, bar)
+                if todo:
+                    _run_on(client, job, *some, bar)
                 where = f"{worker_count(client)} Dask workers"
         if out_dir is not None:
             remove_temp_files(out_dir)  # what killed workers left
