@@ -194,9 +194,23 @@ def test_an_output_is_published_once(tmp_path):
 
 
 def test_a_lost_scheduler_exits_3_and_a_rerun_resumes(cluster, inputs, tmp_path, capsys):
-    # A scheduler with no workers: the tasks wait on it until it is killed.
+    scans = [str(p) for p in inputs["scans"]]
+    out = tmp_path / "out"
+    out.mkdir()
+    done = out / "scan1.classical.tif"  # what an earlier, interrupted run finished
+    assert main(["-q", "reconstruct", scans[0], "--out", str(done), "--registration", "optics"]) == 0
+    # A scheduler with no workers: the tasks wait on it until it is killed, a second after the
+    # command has taken its output folder's lock (connected, submitting).
     proc = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
                              "--port", "0", "--no-dashboard"], stderr=subprocess.PIPE, text=True)
+
+    def kill_when_running():
+        deadline = time.monotonic() + 60
+        while not (out / ".lock").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)
+        proc.kill()
+
     try:
         address = None
         for line in proc.stderr:
@@ -204,12 +218,7 @@ def test_a_lost_scheduler_exits_3_and_a_rerun_resumes(cluster, inputs, tmp_path,
                 address = line.split("Scheduler at:")[1].strip()
                 break
         assert address
-        threading.Timer(3.0, proc.kill).start()
-        scans = [str(p) for p in inputs["scans"]]
-        out = tmp_path / "out"
-        out.mkdir()
-        done = out / "scan1.classical.tif"  # what an earlier, interrupted run finished
-        assert main(["-q", "reconstruct", scans[0], "--out", str(done), "--registration", "optics"]) == 0
+        threading.Thread(target=kill_when_running, daemon=True).start()
         started = time.monotonic()
         code = main(["-q", "reconstruct", *scans, "--out-dir", str(out), "--registration", "optics",
                      "--scheduler", address])
@@ -235,7 +244,8 @@ def test_learned_model_opened_once_per_worker(cluster, inputs, tmp_path, capsys)
         info = _runner.cache_info()
         return info.misses, info.hits
 
-    counts = distributed.Client(cluster).run(opened)
+    with distributed.Client(cluster) as client:
+        counts = client.run(opened)
     assert sum(m + h for m, h in counts.values()) >= 3 and all(m <= 1 for m, _ in counts.values())
 
 
