@@ -5,8 +5,9 @@ Measured here (docs/scale-out.md):
 * the same 50 small stacks (half HBIS scans, half bursts) reconstructed (classical) by
   ``hbis reconstruct --out-dir`` in one process and by ``--scheduler local:N``; 25 bursts assembled
   by ``hbis assemble --burst --out-dir`` in one process and on ``local:N``; each command in its own
-  process, the two ways alternated in each round (the machine is shared: a ratio is only fair
-  between runs made side by side); the tasks' time is the summary line's ("in X s": after start-up
+  process with ``OMP_NUM_THREADS=1`` (as Dask's nanny starts its workers), the two ways
+  alternated in each round (the machine is shared: a ratio is only fair between runs made side
+  by side); the tasks' time is the summary line's ("in X s": after start-up
   and, on Dask, after the cluster is up), the command's time is the process's wall time;
   the outputs of the two ways are compared byte for byte;
 * the engine's own cost per task: empty tasks (each writes and publishes a 1-byte file) through
@@ -252,7 +253,11 @@ def main(argv=None) -> dict:
     p.add_argument("--json", type=Path, help="write the results here")
     p.add_argument("--work", type=Path, help="keep the inputs in this folder and reuse them (default: a temporary one)")
     args = p.parse_args(argv)
-    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), "HBIS_PROGRESS": "0"}
+    # Both ways with OpenMP and BLAS pools of one thread, as Dask's nanny starts each worker: the
+    # same threads on both sides, and the in-process burst assembly reproducible (with 2 threads the
+    # same bursts assembled twice in one process differed in one burst's last bits in 25).
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), "HBIS_PROGRESS": "0",
+           "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     result = {"provenance": provenance(argv)}
     with tempfile.TemporaryDirectory(prefix="bench-scale-out-") as tmp:
         work = args.work or Path(tmp)
