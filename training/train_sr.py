@@ -133,6 +133,8 @@ for arg in _as_overrides(sys.argv[1:]):
     if type(parsed) is not type(globals()[key]) and not (isinstance(globals()[key], float) and isinstance(parsed, int)):
         raise SystemExit(f"{key} must be {type(globals()[key]).__name__}, got {value!r}")
     globals()[key] = type(globals()[key])(parsed)
+if pool_scheduler.startswith("local"):  # before any work
+    raise SystemExit("pool_scheduler takes a running scheduler's address; on this machine use pool_workers=N")
 config = {k: globals()[k] for k in config_keys}
 architecture = Architecture(h, width=width, blocks=blocks, kind=kind)  # the net; checkpoints, export, runtime read it
 
@@ -249,8 +251,6 @@ def cached_pool(name: str, count: int, size: int, pool_seed: int, builder=build_
 def simulate(count: int, size: int, pool_seed: int, indices: range, builder=build_pool) -> list[dict]:
     """``builder`` (:func:`build_pool`, or :func:`build_burst_pool`) of ``indices``, over
     ``pool_workers`` processes (the same examples, in order)."""
-    if pool_scheduler.startswith("local"):
-        raise SystemExit("pool_scheduler takes a running scheduler's address; on this machine use pool_workers=N")
     if pool_scheduler:  # on a Dask cluster (the [cluster] extra): example i is the same everywhere
         from hbis_torch.cluster.pool import build_pool_on
 
