@@ -60,11 +60,18 @@ def register(sub) -> None:
     from hbis_torch.cli.common import add_overwrite_arg
 
     add_overwrite_arg(p)
+    from hbis_torch.cluster.cli import add_scheduler_argument
+
+    add_scheduler_argument(p)
     add_method_options(p, METHODS)  # last: the general options come first in --help
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.scheduler is not None:  # many stacks on a Dask cluster (hbis_torch.cluster)
+        from hbis_torch.cluster.cli import run_reconstruct
+
+        return run_reconstruct(args, prepare)
     if args.out_dir is not None:
         from hbis_torch.cli.reconstruct_batch import run_batch
 

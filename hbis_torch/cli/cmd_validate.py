@@ -59,6 +59,9 @@ def register(sub) -> None:
                    help="the forward model's Gaussian blur, standard deviation in frame pixels (default 0.2)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     add_method_options(p, METHODS)
+    from hbis_torch.cluster.cli import add_scheduler_argument
+
+    add_scheduler_argument(p, many="stack")  # --out-dir DIR: many stacks (hbis_torch.cluster)
     p.set_defaults(func=run)
 
 
@@ -75,6 +78,10 @@ def method_names(given) -> list[str]:
 
 
 def run(args) -> int:
+    from hbis_torch.cluster.cli import run_many
+
+    if (code := run_many(args, "validate")) is not None:  # many stacks, --out-dir (hbis_torch.cluster)
+        return code
     from hbis_torch.cli.method_options import keywords_for_methods
     from hbis_torch.reconstruct.registry import METHODS
 
