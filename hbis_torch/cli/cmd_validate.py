@@ -111,13 +111,19 @@ def run(args) -> int:
     for name, scores in result.methods.items():
         tell("validate", scores.messages, about=name)
     if args.json:
-        report = result.to_dict()
-        if stack.kind == "burst":  # a burst's factor is its scale S (hbis assemble --burst --scale S)
-            report = {("scale" if k == "h" else k): v for k, v in report.items()}
-        print(json.dumps({"stack": args.stack.name, "kind": stack.kind, **report}, indent=1))
+        print(json.dumps(json_report(result, args.stack.name, stack.kind), indent=1))
     else:
         print(table(result, args.stack.name, stack.kind))
     return 0
+
+
+def json_report(result, name: str, kind: str) -> dict:
+    """The object ``--json`` prints (and ``--out-dir`` writes per stack): the stack's file name,
+    its kind and the scores; a burst's factor under ``scale`` (hbis assemble --burst --scale S)."""
+    report = result.to_dict()
+    if kind == "burst":
+        report = {("scale" if k == "h" else k): v for k, v in report.items()}
+    return {"stack": name, "kind": kind, **report}
 
 
 def table(result, name: str, kind: str) -> str:

@@ -116,6 +116,8 @@ class ValidateJob:
                                 blur_px=DEFAULT_BLUR_PX if a.blur is None else a.blur,
                                 method_options=self.options, messages=messages)
         messages += [f"{name}: {line}" for name, scores in result.methods.items() for line in scores.messages]
-        report = {"stack": Path(source).name, "kind": stack.kind, **result.to_dict()}
+        from hbis_torch.cli.cmd_validate import json_report
+
+        report = json_report(result, Path(source).name, stack.kind)
         Path(staging).write_text(json.dumps(report, indent=1) + "\n")
         return messages
