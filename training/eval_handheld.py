@@ -300,11 +300,35 @@ def main(argv=None) -> int:
                     cell["rows"][row] = got
                     save()
                     print(f"{key:32s} {row:9s} {got['psnr_db']:6.2f} dB  {got['seconds']:6.1f} s", flush=True)
+    results["summary"] = summary(results)
     save()
     md = args.out.with_suffix(".md")
     atomic_write_text(md, table(results))
     print(f"wrote {args.out} and {md}")
     return 0
+
+
+def summary(results: dict) -> dict:
+    """Per S and frame count: each row's mean PSNR over the motions, the gaps the issue's goals
+    speak of (classical minus the oracle, vidsr and bicubic: mean and worst cell) and how many
+    cells miss a goal; keyed ``"S=2|F=16"``."""
+    out = {}
+    cells = list(results["cells"].values())
+    for S, F in sorted({(c["scale"], c["frames"]) for c in cells}):
+        group = [c for c in cells if c["scale"] == S and c["frames"] == F]
+        entry = {"cells": len(group), "missing_a_goal": sum(bool(misses(c)) for c in group), "mean_db": {}}
+        for row in ROWS:
+            values = [c["rows"][row]["psnr_db"] for c in group if row in c["rows"]]
+            if values:
+                entry["mean_db"][row] = float(np.mean(values))
+        for row in ("classical", "classical_lens"):
+            for other in ("oracle", "vidsr", "bicubic"):
+                gaps = [c["rows"][row]["psnr_db"] - c["rows"][other]["psnr_db"] for c in group
+                        if row in c["rows"] and other in c["rows"]]
+                if gaps:
+                    entry[f"{row}_minus_{other}"] = {"mean_db": float(np.mean(gaps)), "worst_db": float(np.min(gaps))}
+        out[f"S={S}|F={F}"] = entry
+    return out
 
 
 def misses(cell: dict) -> list[str]:
