@@ -1,0 +1,511 @@
+"""Raw bursts: joint demosaicking and super-resolution of Bayer frames with measured motion.
+
+No frame is ever demosaicked (Wronski et al., SIGGRAPH 2019 [1]_): every frame's samples of one
+colour are placed where the frame's motion puts them on the reference's grid, and each colour's
+plane of the output, S times finer (S = 1: a burst demosaick), is the normalised-convolution
+interpolation of that colour's samples from every frame (green; then red and blue as green plus
+the interpolation of their samples' differences from green, which are smoother than the colours
+themselves: :func:`joint_demosaick_sr`): the classical method's splat
+(:func:`~hbis_torch.reconstruct.classical.classical_sr` without its Wiener step, as for raw Bayer
+scans: :func:`~hbis_torch.reconstruct.classical.method.reconstruct_classical_raw_bayer`).
+
+Per sample, the weight is
+
+* the robustness weight of :func:`hbis_torch.reconstruct.burst.robustness_weights`, computed on
+  the luminance of each 2 x 2 cell after a generalised Anscombe transform with the raw noise
+  model (:func:`stabilise`), so that one noise level holds in shadows and highlights alike; a
+  cell's weight goes to its four samples;
+* 0 for a clipped sample (at the white level): a clipped sample says only "at least this", so it
+  never pulls its colour; where a colour has (almost) only clipped samples nearby, that colour is
+  set to the clip level (:func:`joint_demosaick_sr`);
+* 0 for the frames the registration did not trust.
+
+The raw noise (variance ``S x + O`` of a normalised sample x, per colour) is the DNG's
+NoiseProfile where the files have one, else measured on the reference frame's four colour planes
+(:func:`estimate_noise`). It sets the robustness transform and the splat's width
+(:func:`kernel_for_noise`), and is reported.
+
+The output is the camera's linear RGB (not white-balanced; 1 = the white level),
+(S H, S W, 3) float32; :func:`camera_to_srgb` applies the white balance and colour matrix, and
+:func:`write_raw_outputs` writes a linear 16-bit TIFF, an sRGB preview PNG and, for ``.dng``,
+a linear DNG through pidng.
+
+References
+----------
+.. [1] B. Wronski et al., "Handheld multi-frame super-resolution", ACM Transactions on Graphics
+   38(4), SIGGRAPH 2019.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from hbis_torch.errors import HbisInputError
+from hbis_torch.sensor.cfa import bayer_masks
+
+# A colour whose unclipped samples weigh less than this share near an output pixel is taken as
+# clipped there (set to the clip level).
+CLIPPED_SHARE = 0.5
+KERNEL_SIGMA = 0.5  # joint_demosaick_sr's default
+# The splat's width follows the noise (kernel_for_noise): SHARP_SIGMA at a noise of SHARP_NOISE
+# (of a normalised green sample at x = 0.2) and below, SMOOTH_SIGMA from SMOOTH_NOISE up, log-linear
+# between. Chosen on simulated bursts of astronaut and coffee (GRBG, seed 3): 0.35 gained 1.7 to
+# 2.0 dB over 0.5 at S = 1 in bright light (20,000 e-) and lost 0.7 to 1.3 dB in dim light (300 e-);
+# the held-out matrix (training/eval_raw.py) scores other photographs and seeds.
+SHARP_SIGMA, SMOOTH_SIGMA = 0.35, 0.5
+SHARP_NOISE, SMOOTH_NOISE = 0.003, 0.03
+# The share of a colour plane's pixels (the flattest) the noise is measured on.
+FLAT_SHARE = 0.2
+
+
+def is_raw_burst_stack(stack) -> bool:
+    """Whether a stack is a raw burst (``hbis assemble --burst`` of raw files)."""
+    return getattr(stack, "kind", "hbis") == "burst" and stack.meta.get("cfa") is not None \
+        and isinstance(stack.meta.get("raw"), dict)
+
+
+def estimate_noise(values: np.ndarray, cfa: str) -> np.ndarray:
+    """Shot and read noise of one normalised mosaic, per colour: variance ``S x + O``.
+
+    Each colour's plane (every other row and column) is taken alone; Immerkaer's operator (its
+    output's standard deviation is 6 times the noise on smooth content), on the flattest fifth of
+    the plane, is binned by the local mean (3 x 3), the median absolute value of each bin gives its noise, and a line is fitted to
+    the variances (least squares, both terms at least 0).
+
+    Parameters
+    ----------
+    values : np.ndarray, shape (H, W), float
+        Normalised samples of one frame.
+    cfa : str
+
+    Returns
+    -------
+    np.ndarray, shape (3, 2): (S, O) for R, G, B
+    """
+    from scipy.ndimage import uniform_filter
+
+    from hbis_torch.sensor.noise import immerkaer
+
+    fits = {}
+    planes: dict[str, list] = {"R": [], "G": [], "B": []}
+    for k, colour in enumerate(cfa):
+        planes[colour].append(np.asarray(values[k // 2::2, k % 2::2], dtype=np.float64))
+    for colour, parts in planes.items():
+        levels, noise = [], []
+        for plane in parts:
+            if min(plane.shape) < 5:
+                continue
+            residual = immerkaer(plane) / 6.0
+            mean = uniform_filter(plane, 3)[1:-1, 1:-1]
+            # the flattest fifth of the plane (smallest local spread of a 5 x 5 smoothing): a
+            # colour plane is aliased, and texture would pass for noise
+            smooth = uniform_filter(plane, 5)
+            spread = np.sqrt(np.maximum(uniform_filter(smooth * smooth, 5) - uniform_filter(smooth, 5) ** 2, 0))
+            flat = spread[1:-1, 1:-1] <= np.quantile(spread, FLAT_SHARE)
+            levels.append(mean[flat])
+            noise.append(residual[flat])
+        if not levels:
+            fits[colour] = (0.0, 1e-6)
+            continue
+        level, residual = np.concatenate(levels), np.concatenate(noise)
+        edges = np.quantile(level, np.linspace(0, 1, 9))
+        xs, vs = [], []
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            inside = (level >= lo) & (level <= hi)
+            if inside.sum() < 16:
+                continue
+            xs.append(float(np.median(level[inside])))
+            vs.append((1.4826 * float(np.median(np.abs(residual[inside])))) ** 2)
+        xs, vs = np.asarray(xs), np.asarray(vs)
+        if len(xs) < 2 or np.ptp(xs) < 1e-6:
+            fits[colour] = (0.0, float(np.median(vs)) if len(vs) else 1e-6)
+            continue
+        slope, offset = np.polyfit(xs, vs, 1)
+        if offset < 0:
+            slope, offset = max(float(np.sum(xs * vs) / np.sum(xs * xs)), 0.0), 0.0
+        elif slope < 0:
+            slope, offset = 0.0, float(np.mean(vs))
+        fits[colour] = (float(slope), float(max(offset, 1e-10)))
+    return np.array([fits[c] for c in "RGB"], dtype=np.float64)
+
+
+def stabilise(grey: np.ndarray, noise: np.ndarray, balance) -> np.ndarray:
+    """The generalised Anscombe transform of cell luminances, with the raw noise model: their noise
+    becomes (about) 1 at every level.
+
+    A cell's luminance is the mean of its four white-balanced samples (R, G, G, B), so its
+    variance is ``a L + b`` with ``a = sum(wb_c S_c) / 16`` and ``b = sum(wb_c^2 O_c) / 16`` (a
+    grey scene's samples are ``L / wb_c``).
+
+    Parameters
+    ----------
+    grey : np.ndarray, shape (F, h, w)
+        Cell luminances (:func:`hbis_torch.capture.raw.cell_luminance`).
+    noise : np.ndarray, shape (3, 2)
+    balance : sequence of 3 floats
+
+    Returns
+    -------
+    np.ndarray, shape (F, h, w), float32
+    """
+    wb = np.asarray(balance, dtype=np.float64)
+    count = np.array([1.0, 2.0, 1.0])
+    a = float(np.sum(count * wb * noise[:, 0]) / 16)
+    b = float(np.sum(count * wb * wb * noise[:, 1]) / 16)
+    if a <= 1e-12:
+        return (grey / np.sqrt(max(b, 1e-12))).astype(np.float32)
+    return (2.0 / a * np.sqrt(np.maximum(a * grey + 0.375 * a * a + b, 0.0))).astype(np.float32)
+
+
+def kernel_for_noise(noise: np.ndarray) -> float:
+    """The splat's Gaussian (output px) for the raw noise (3, 2): narrow where the samples are
+    clean, wide where they are noisy (the constants above, log-linear between)."""
+    sigma_n = float(np.sqrt(max(noise[1, 0] * 0.2 + noise[1, 1], 1e-12)))
+    t = np.clip(np.log(sigma_n / SHARP_NOISE) / np.log(SMOOTH_NOISE / SHARP_NOISE), 0, 1)
+    return float(SHARP_SIGMA + t * (SMOOTH_SIGMA - SHARP_SIGMA))
+
+
+def _positions(motions: np.ndarray, height: int, width: int) -> Tensor:
+    """Every pixel (u, v) of every frame moved by its homography: (F, H, W, 2) float64."""
+    from hbis_torch.registration import apply_homography
+
+    motions = torch.as_tensor(np.asarray(motions, dtype=np.float64))
+    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
+                          indexing="ij")
+    grid = torch.stack((u, v), -1).reshape(1, -1, 2).expand(motions.shape[0], -1, -1)
+    return apply_homography(motions, grid).reshape(motions.shape[0], height, width, 2)
+
+
+def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: np.ndarray, reference: int,
+                   balance, noise: np.ndarray, robust: bool = True) -> Tensor:
+    """The robustness weight of every sample (module docstring), (F, H, W) float64.
+
+    Parameters
+    ----------
+    values : np.ndarray, shape (F, H, W), float32
+        Normalised samples; H, W even.
+    cfa : str
+    motions : np.ndarray, shape (F, 3, 3)
+        Frame px -> reference px (full resolution).
+    trusted : np.ndarray, shape (F,), bool
+    reference : int
+    balance : sequence of 3 floats
+    noise : np.ndarray, shape (3, 2)
+    robust : bool
+        False: every trusted sample gets 1 (for comparisons).
+    """
+    from hbis_torch.capture.raw import cell_luminance, pixels_to_cells
+    from hbis_torch.reconstruct.burst import robustness_weights
+
+    F, H, W = values.shape
+    trusted_t = torch.as_tensor(np.asarray(trusted, dtype=bool))
+    if not robust:
+        return trusted_t[:, None, None].to(torch.float64).expand(F, H, W).clone()
+    grey = stabilise(cell_luminance(values, cfa, balance), noise, balance)
+    cells = _positions(pixels_to_cells(motions), H // 2, W // 2)
+    weights = robustness_weights(torch.from_numpy(grey), cells, trusted_t, reference)
+    return weights.repeat_interleave(2, 1).repeat_interleave(2, 2)
+
+
+def _bilinear(image: np.ndarray, positions: Tensor, scale: int) -> Tensor:
+    """Values of an output-grid image (S H, S W) at sample positions (..., 2) in reference LR px
+    (bilinear, border-clamped), float64."""
+    rows, cols = image.shape
+    x = (positions[..., 0] + 0.5) * scale - 0.5
+    y = (positions[..., 1] + 0.5) * scale - 0.5
+    grid = torch.stack((2 * x / max(cols - 1, 1) - 1, 2 * y / max(rows - 1, 1) - 1), -1).reshape(1, -1, 1, 2)
+    out = torch.nn.functional.grid_sample(torch.from_numpy(np.ascontiguousarray(image, dtype=np.float64))[None, None],
+                                          grid.to(torch.float64), mode="bilinear", padding_mode="border",
+                                          align_corners=True)
+    return out.reshape(positions.shape[:-1])
+
+
+def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motions: np.ndarray, scale: int,
+                       weights: Tensor, kernel_sigma: float = KERNEL_SIGMA, differences: bool = True) -> np.ndarray:
+    """Each colour's plane from its own samples of every frame (module docstring).
+
+    Green first (half the samples); then, with ``differences``, red and blue as green plus the
+    splat of their samples' differences from green at their own positions (the difference of
+    colours is smoother than either, so the splat blurs less of it); without, each plane alone.
+
+    Parameters
+    ----------
+    values : np.ndarray, shape (F, H, W), float32
+        Normalised samples (the reference's exposure).
+    clipped : np.ndarray, shape (F, H, W), bool
+    cfa : str
+    motions : np.ndarray, shape (F, 3, 3)
+        Frame px -> reference px.
+    scale : int
+        S (1: a burst demosaick).
+    weights : Tensor, shape (F, H, W), float64
+        Per-sample weights in [0, 1] (:func:`sample_weights`).
+    kernel_sigma : float
+        The splat Gaussian, output px (0.2 to 0.6).
+    differences : bool
+
+    Returns
+    -------
+    np.ndarray, shape (S H, S W, 3), float32 in [0, 1]
+        Camera RGB, linear; 1 at the clip level.
+    """
+    from hbis_torch.reconstruct.classical.sr import classical_sr
+
+    F, H, W = values.shape
+    positions = _positions(motions, H, W)
+    masks = torch.from_numpy(bayer_masks(cfa, H, W)).to(torch.float64)
+    frames = torch.from_numpy(np.ascontiguousarray(values, dtype=np.float32))
+    unclipped_mask = ~np.asarray(clipped, dtype=bool)
+    unclipped = torch.from_numpy(unclipped_mask).to(torch.float64)
+    any_clipped = not bool(unclipped_mask.all())
+
+    def splat(data, w):
+        return classical_sr(data, positions, scale, False, weights=w, kernel_sigma=kernel_sigma,
+                            mixed_offsets=True).numpy().astype(np.float64)
+
+    planes = [None, None, None]
+    planes[1] = splat(frames, weights * masks[1][None] * unclipped)
+    if differences:
+        green = _bilinear(planes[1], positions, scale).to(torch.float32)
+        diff = (frames - green) * 0.5 + 0.5  # classical_sr clamps to [0, 1]: differences of -1..1 fit
+    for c in (0, 2):
+        w = weights * masks[c][None] * unclipped
+        planes[c] = planes[1] + (splat(diff, w) - 0.5) * 2.0 if differences else splat(frames, w)
+    if any_clipped:
+        for c in range(3):
+            share = splat(unclipped.to(torch.float32), weights * masks[c][None])
+            planes[c] = np.where(share < CLIPPED_SHARE, 1.0, planes[c])
+    return np.clip(np.stack(planes, -1), 0, 1).astype(np.float32)
+
+
+def raw_inputs(stack) -> dict:
+    """What the joint path takes from a raw burst stack: normalised samples (with the
+    registration's gain and offset), clipped samples, motions, trust, balance and the noise."""
+    from hbis_torch.capture.raw import normalised
+    from hbis_torch.stack_io import BURST_MIN_CONFIDENCE
+
+    raw = stack.meta["raw"]
+    values, clipped = normalised(np.asarray(stack.frames), raw)
+    trusted = np.asarray(stack.confidence) >= BURST_MIN_CONFIDENCE
+    trusted[stack.reference_index] = True
+    cfa = stack.meta["cfa"]
+    balance = np.asarray(raw["white_balance"], dtype=np.float64)
+    go = np.asarray(stack.gain_offset, dtype=np.float64)
+    top = float(raw.get("grey_scale", 1.0))
+    if not np.allclose(go, [1.0, 0.0]):
+        per_colour = np.array([1.0 / balance["RGB".index(c)] for c in cfa], dtype=np.float64).reshape(2, 2)
+        H, W = values.shape[1:]
+        tile = np.tile(per_colour, ((H + 1) // 2, (W + 1) // 2))[:H, :W]
+        values = (go[:, 0, None, None] * values + go[:, 1, None, None] * top * tile[None]).astype(np.float32)
+    if raw.get("noise_profile") is not None:
+        noise, source = np.asarray(raw["noise_profile"], dtype=np.float64), "the DNG noise profile"
+    else:
+        noise, source = estimate_noise(values[stack.reference_index], cfa), "measured on the reference frame"
+    return {"values": values, "clipped": clipped, "cfa": cfa, "motions": np.asarray(stack.motions),
+            "trusted": trusted, "reference": stack.reference_index, "balance": balance, "noise": noise,
+            "noise_source": source}
+
+
+def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messages: list | None = None,
+                          colour: str | None = None, robust: bool = True,
+                          kernel_sigma: float | None = None, **kw) -> np.ndarray:
+    """Jointly demosaick and super-resolve a raw burst stack (module docstring).
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+        A raw burst (:func:`is_raw_burst_stack`).
+    method : hbis_torch.reconstruct.registry.Method, optional
+        The method asked for; only the classical splat is joint, so the learned method's name is
+        met with a message.
+    registration : {"auto", "data"}
+    messages : list, optional
+    colour : None
+        Refused otherwise (the planes are joint).
+    robust : bool
+        Robustness weights (True) or every trusted sample at 1.
+    kernel_sigma : float, optional
+        The splat's Gaussian, output px; default from the noise (:func:`kernel_for_noise`).
+    **kw
+        Refused if any (the classical method's ``deblur`` is accepted: the joint splat has no
+        Wiener step).
+
+    Returns
+    -------
+    np.ndarray, shape (S H, S W, 3), float32 in [0, 1]
+        Linear camera RGB (:func:`camera_to_srgb` makes it linear sRGB).
+    """
+    notes = messages if messages is not None else []
+    if registration == "optics":
+        raise HbisInputError("a burst stack has no optics: its motion was measured by 'hbis assemble --burst' "
+                             "(use --registration auto)")
+    if colour is not None:
+        raise HbisInputError("the colour option (--colour) does not apply to raw bursts: their colours are "
+                             "demosaicked jointly")
+    kw.pop("deblur", None)  # the classical method's option: the joint splat has no Wiener step
+    for key in ("threads", "model", "provider", "extrapolate", "ensemble", "precision"):
+        kw.pop(key, None)
+    if kw:
+        raise HbisInputError(f"option(s) {', '.join(sorted(kw))} do not apply to raw bursts")
+    if method is not None and getattr(method, "name", "classical") != "classical":
+        notes.append(f"raw bursts are demosaicked and super-resolved jointly by the classical splat; the "
+                     f"{method.name} method has no raw burst path of its own, so its output is that")
+    inputs = raw_inputs(stack)
+    notes.append(f"raw noise ({inputs['noise_source']}): variance S x + O per colour, "
+                 + ", ".join(f"{c} S={s:.2e} O={o:.2e}" for c, (s, o) in zip("RGB", inputs["noise"])))
+    left_out = [k for k, t in enumerate(inputs["trusted"]) if not t]
+    if left_out:
+        notes.append(f"left out {len(left_out)} frame(s) whose motion is not trusted: {left_out}")
+    if int(inputs["clipped"].sum()):
+        share = float(inputs["clipped"].mean())
+        notes.append(f"{100 * share:.2f} % of the samples are clipped: left out of their colour, which is set to "
+                     "the clip level where only clipped samples remain")
+    weights = sample_weights(inputs["values"], inputs["cfa"], inputs["motions"], inputs["trusted"],
+                             inputs["reference"], inputs["balance"], inputs["noise"], robust)
+    if kernel_sigma is None:
+        kernel_sigma = kernel_for_noise(inputs["noise"])
+    return joint_demosaick_sr(inputs["values"], inputs["clipped"], inputs["cfa"], inputs["motions"], stack.h,
+                              weights, kernel_sigma)
+
+
+ORIENT_TIFF = {0: 1, 3: 3, 5: 8, 6: 6}
+
+
+def orient(image: np.ndarray, flip: int) -> np.ndarray:
+    """Turn an image (H, W, ...) as LibRaw's ``flip`` says (0 as recorded, 3: 180 deg, 5: 90 deg
+    counter-clockwise, 6: 90 deg clockwise)."""
+    if flip == 3:
+        return image[::-1, ::-1]
+    if flip == 5:
+        return np.rot90(image, 1)
+    if flip == 6:
+        return np.rot90(image, -1)
+    return image
+
+
+def camera_to_srgb(image: np.ndarray, raw: dict) -> np.ndarray:
+    """Linear camera RGB (H, W, 3) -> linear sRGB (H, W, 3) float32 in [0, 1]: the white
+    balance (the green multiplier 1), then the colour matrix, then clipped to [0, 1]."""
+    balance = np.asarray(raw["white_balance"], dtype=np.float32)
+    matrix = np.asarray(raw["colour_matrix"], dtype=np.float32)
+    out = (image * balance) @ matrix.T
+    return np.clip(out, 0, 1).astype(np.float32)
+
+
+def srgb_gamma(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve (IEC 61966-2-1) of linear values in [0, 1]."""
+    linear = np.clip(linear, 0, 1)
+    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+
+
+def preview_path(path) -> Path:
+    """Where the sRGB preview of an output goes: beside it, ``NAME.preview.png``."""
+    path = Path(path)
+    return path.with_name(path.stem + ".preview.png")
+
+
+def write_raw_outputs(path, image: np.ndarray, meta: dict) -> list:
+    """Write a raw burst's result: ``path`` (a linear 16-bit TIFF in linear sRGB, or with ``.dng``
+    a linear DNG in the camera's RGB with its colour matrix and white balance) and the sRGB
+    preview PNG beside it (:func:`preview_path`), both turned as the reference frame was.
+
+    Parameters
+    ----------
+    path : str or Path
+    image : np.ndarray, shape (S H, S W, 3), float32 in [0, 1]
+        Linear camera RGB (:func:`reconstruct_raw_burst`).
+    meta : dict
+        The output's JSON; its ``raw`` block (the stack's) gives the colour.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    from hbis_torch.io_utils import atomic_path
+    from hbis_torch.optional import import_cv2
+
+    path = Path(path)
+    raw = meta["raw"]
+    flip = int(raw.get("orientation", 0))
+    srgb = camera_to_srgb(image, raw)
+    written = []
+    if path.suffix.lower() == ".dng":
+        _write_dng(path, orient(image, flip), raw)
+    else:
+        import tifffile
+
+        info = {**meta, "colour_space": "linear sRGB (IEC 61966-2-1 primaries, D65), white-balanced; "
+                "1 = the white level", "transfer": "linear"}
+        data = np.round(orient(srgb, flip) * 65535).astype(np.uint16)
+        with atomic_path(path) as tmp:
+            tifffile.imwrite(tmp, np.ascontiguousarray(data), photometric="rgb", metadata=None,
+                             description=json.dumps(info, default=float), software="hbis-torch",
+                             extratags=_camera_tags(raw))
+    written.append(path)
+    cv2 = import_cv2("writing the sRGB preview PNG")
+    preview = np.round(srgb_gamma(orient(srgb, flip)) * 255).astype(np.uint8)
+    target = preview_path(path)
+    with atomic_path(target) as tmp:
+        ok, encoded = cv2.imencode(".png", np.ascontiguousarray(preview[..., ::-1]))
+        if not ok:
+            raise RuntimeError(f"{target}: OpenCV could not encode the preview")
+        Path(tmp).write_bytes(encoded.tobytes())
+    written.append(target)
+    return written
+
+
+def _camera_tags(raw: dict) -> list:
+    """TIFF Make/Model (as one text) for the linear TIFF, where the files named a camera."""
+    camera = raw.get("camera")
+    return [(271, "s", 0, str(camera), True)] if camera else []
+
+
+def _write_dng(path: Path, image: np.ndarray, raw: dict) -> None:
+    """A linear DNG (PhotometricInterpretation LinearRaw, 16 bits, 3 samples) of camera RGB,
+    with the colour matrix (sRGB from camera, inverted into DNG's XYZ-to-camera ColorMatrix1),
+    the as-shot white balance and the noise profile, through pidng."""
+    try:
+        from pidng.core import RAW2DNG, DNGTags, Tag
+        from pidng.defs import CalibrationIlluminant, DNGVersion, PhotometricInterpretation
+    except ImportError:
+        raise HbisInputError("writing a DNG needs pidng: pip install 'hbis-torch[raw]'") from None
+    from hbis_torch.io_utils import atomic_path
+
+    H, W, _ = image.shape
+    data = np.ascontiguousarray(np.round(image * 65535).astype(np.uint16))
+    # ColorMatrix1 maps XYZ (D65) to camera RGB: inverse of (sRGB <- XYZ)^-1 ... composed with the balance.
+    srgb_from_xyz = np.array([[3.2404542, -1.5371385, -0.4985314], [-0.9692660, 1.8760108, 0.0415560],
+                              [0.0556434, -0.2040259, 1.0572252]])
+    srgb_from_cam = np.asarray(raw["colour_matrix"], dtype=np.float64) @ np.diag(raw["white_balance"])
+    cam_from_xyz = np.linalg.inv(srgb_from_cam) @ srgb_from_xyz
+    cam_from_xyz /= cam_from_xyz[1].sum() if abs(cam_from_xyz[1].sum()) > 1e-9 else 1.0
+    t = DNGTags()
+    t.set(Tag.ImageWidth, W)
+    t.set(Tag.ImageLength, H)
+    t.set(Tag.TileWidth, W)
+    t.set(Tag.TileLength, H)
+    t.set(Tag.Orientation, 1)
+    t.set(Tag.PhotometricInterpretation, PhotometricInterpretation.Linear_Raw)
+    t.set(Tag.SamplesPerPixel, 3)
+    t.set(Tag.BitsPerSample, [16, 16, 16])
+    t.set(Tag.BlackLevel, [0, 0, 0])
+    t.set(Tag.WhiteLevel, 65535)
+    t.set(Tag.ColorMatrix1, [[int(round(v * 10000)), 10000] for v in cam_from_xyz.ravel()])
+    t.set(Tag.CalibrationIlluminant1, CalibrationIlluminant.D65)
+    t.set(Tag.AsShotNeutral, [[int(round(10000 / v)), 10000] for v in raw["white_balance"]])
+    t.set(Tag.Make, str(raw.get("camera") or "unknown"))
+    t.set(Tag.Model, str(raw.get("camera") or "unknown"))
+    t.set(Tag.UniqueCameraModel, str(raw.get("camera") or "hbis-torch raw burst"))
+    t.set(Tag.DNGVersion, DNGVersion.V1_4)
+    t.set(Tag.DNGBackwardVersion, DNGVersion.V1_2)
+    converter = RAW2DNG()
+    with atomic_path(path) as tmp:
+        converter.options(t, path="", compress=False)
+        buffer = converter.convert(data)
+        Path(tmp).write_bytes(bytes(buffer))
