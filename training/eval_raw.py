@@ -152,7 +152,8 @@ def summarise(cells: list) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scales", type=int, nargs="+", default=[1, 2])
-    p.add_argument("--photos", nargs="+", default=list(RAW_PHOTOS[:2]), choices=RAW_PHOTOS)
+    # chelsea and rocket by default: the splat width was chosen on astronaut and coffee
+    p.add_argument("--photos", nargs="+", default=["chelsea", "rocket"], choices=RAW_PHOTOS)
     p.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=PATTERNS)
     p.add_argument("--lights", nargs="+", default=[name for name, _, _ in LIGHT_LEVELS],
                    choices=[name for name, _, _ in LIGHT_LEVELS])
