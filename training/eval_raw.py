@@ -121,11 +121,16 @@ def run_cell(photo: str, cfa: str, light: str, scale: int, size: int, seed: int)
     image = reconstruct_raw_burst(stack)
     times["joint"] = time.perf_counter() - t
     cells[ROWS[3]] = score(image, burst.truth)
-    true = burst.motions[:, :2, 2]
-    found = stack.motions[:, :2, 2]
+    from hbis_torch.registration import apply_homography
+    import torch
+
+    grid = torch.stack(torch.meshgrid(torch.arange(0.0, size, 8, dtype=torch.float64),
+                                      torch.arange(0.0, size, 8, dtype=torch.float64), indexing="xy"), -1).reshape(1, -1, 2)
+    true = apply_homography(torch.from_numpy(burst.motions), grid.expand(frames, -1, -1))
+    found = apply_homography(torch.from_numpy(stack.motions), grid.expand(frames, -1, -1))
     return {"photo": photo, "cfa": cfa, "light": light, "scale": scale, "frames": frames, "size": size,
             "seed": seed, "rows": cells, "seconds": times,
-            "motion_error_px": float(np.sqrt(np.mean(np.sum((true - found) ** 2, -1))))}
+            "motion_error_px": float((true - found).square().sum(-1).mean().sqrt())}
 
 
 def summarise(cells: list) -> dict:

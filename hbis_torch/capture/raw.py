@@ -403,12 +403,20 @@ def pixels_to_cells(motions: np.ndarray) -> np.ndarray:
     return np.linalg.inv(A) @ np.asarray(motions, dtype=np.float64) @ A
 
 
-def registration_grey(values: np.ndarray, cfa: str, balance, reference: int = 0) -> tuple[np.ndarray, float]:
+def registration_grey(values: np.ndarray, cfa: str, balance, reference: int = 0,
+                      clipped: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """:func:`cell_luminance` scaled into [0, 1] for the registration: (F, H/2, W/2) float32,
-    the reference's 99.9th percentile at 1, clipped; and that scale (luminance units)."""
+    the reference's 99.9th percentile at 1, clipped; and that scale (luminance units). A cell
+    with a clipped sample (``clipped`` (F, H, W) bool) is set to 1, saturated, so that the
+    registration's brightness fit leaves it out (a clipped sample, scaled by its frame's exposure
+    gain, is darker than the scene)."""
     grey = cell_luminance(values, cfa, balance)
     top = max(float(np.percentile(grey[reference], 99.9)), 1e-6)
-    return np.clip(grey / top, 0, 1).astype(np.float32), top
+    grey = np.clip(grey / top, 0, 1)
+    if clipped is not None:
+        F, H, W = clipped.shape
+        grey[clipped.reshape(F, H // 2, 2, W // 2, 2).any(axis=(2, 4))] = 1.0
+    return grey.astype(np.float32), top
 
 
 def assemble_raw_burst(paths, scale: int, reference: int = 0, motion: str = "auto", roi=None,
@@ -506,8 +514,8 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
 
     F, H, W = mosaics.shape
     raw = dict(raw)
-    values, _ = normalised(mosaics, raw)
-    grey, raw["grey_scale"] = registration_grey(values, cfa, raw["white_balance"], reference)
+    values, clipped = normalised(mosaics, raw)
+    grey, raw["grey_scale"] = registration_grey(values, cfa, raw["white_balance"], reference, clipped)
     found = register_burst(torch.from_numpy(grey), reference, motion, names)
     motions = cell_to_pixels(found.motions)
     meta = make_burst_meta(scale, roi or (0, 0, W, H), motions, found.confidence, found.models, found.gain_offset,

@@ -141,7 +141,12 @@ def _one(reconstruct_one, args, stack: Path, out: Path, prepared) -> int:
         image, messages, meta, pixel_um = reconstruct_one(args, stack, prepared)
         for line in messages:
             print(f"hbis reconstruct: {stack}: {line}", file=sys.stderr)
-        write_image(out, image, meta, pixel_size_um=pixel_um)
+        if "raw" in meta:  # a raw burst: linear 16-bit TIFF and an sRGB preview, as with --out
+            from hbis_torch.reconstruct.raw_burst import write_raw_outputs
+
+            write_raw_outputs(out, image, meta)
+        else:
+            write_image(out, image, meta, pixel_size_um=pixel_um)
         return 0
     except HbisInputError as exc:
         print(f"hbis reconstruct: {stack}: {exc}", file=sys.stderr)
