@@ -54,9 +54,9 @@ CLIPPED_SHARE = 0.5
 KERNEL_SIGMA = 0.5  # joint_demosaick_sr's default
 # The splat's width follows the noise (kernel_for_noise): SHARP_SIGMA at a noise of SHARP_NOISE
 # (of a normalised green sample at x = 0.2) and below, SMOOTH_SIGMA from SMOOTH_NOISE up, log-linear
-# between. Chosen on simulated bursts of astronaut and coffee (GRBG, seed 3): 0.35 gained 1.7 to
-# 2.0 dB over 0.5 at S = 1 in bright light (20,000 e-) and lost 0.7 to 1.3 dB in dim light (300 e-);
-# the held-out matrix (training/eval_raw.py) scores other photographs and seeds.
+# between. Chosen by hand on simulated bursts of astronaut and coffee (GRBG, seed 3), where the narrow
+# kernel won in bright light (20,000 e-) and the wide one in dim light (300 e-); the held-out matrix
+# (training/eval_raw.py) scores other photographs and seeds.
 SHARP_SIGMA, SMOOTH_SIGMA = 0.35, 0.5
 SHARP_NOISE, SMOOTH_NOISE = 0.003, 0.03
 # The share of a colour plane's pixels (the flattest) the noise is measured on.
