@@ -218,12 +218,13 @@ def test_mixed_orientations_warn_and_take_the_reference(tmp_path, capsys):
 
     burst = make_raw_burst("astronaut", "BGGR", "bright", 1, 64, 4, BurstCondition("raw", frames=4))
     mosaics = burst.mosaics[:, :, :48]  # 48 wide, 64 tall: the turn shows in the output's shape
-    paths = [str(write_mosaic_dng(tmp_path / f"f{k}.dng", m, "BGGR", BLACK, WHITE, orientation=6 if k != 2 else 1))
-             for k, m in enumerate(mosaics)]
+    paths = [str(write_mosaic_dng(tmp_path / f"f{k}.dng", m, "BGGR", BLACK, WHITE, orientation=6 if k != 2 else 1,
+                                  noise_profile=[5e-5, 1e-8])) for k, m in enumerate(mosaics)]
     stack_path = tmp_path / "b.tif"
     assert main(["assemble", "--burst", "--scale", "1", "--out", str(stack_path), *paths]) == 0
     assert "another orientation" in capsys.readouterr().err
     assert main(["reconstruct", str(stack_path), "--out", str(tmp_path / "sr.tif")]) == 0
+    assert "raw noise (the DNG noise profile)" in capsys.readouterr().err  # the files' own, not measured
     assert tifffile.imread(tmp_path / "sr.tif").shape == (48, 64, 3)  # turned 90 degrees as the reference says
     assert cv2.imread(str(tmp_path / "sr.preview.png")).shape == (48, 64, 3)
 

@@ -357,7 +357,8 @@ def normalised(mosaics: np.ndarray, raw: dict) -> tuple[np.ndarray, np.ndarray]:
     tiled = np.tile(black, (1, (H + 1) // 2, (W + 1) // 2))[:, :H, :W]
     span = white[:, None, None] - tiled
     values = (mosaics.astype(np.float32) - tiled) / span
-    clipped = (values >= float(raw.get("clip_level", CLIP_LEVEL))) | (mosaics.astype(np.float32) >= white[:, None, None])
+    clipped = (values >= float(raw.get("clip_level", CLIP_LEVEL))) \
+        | (mosaics.astype(np.float32) >= white[:, None, None])
     return values * gain[:, None, None], clipped
 
 

@@ -163,6 +163,7 @@ def run_burst(args) -> int:
     trusted = int((stack.confidence >= 0.5).sum())
     f = stack.frames
     print(f"wrote {args.out}: burst of {f.shape[0]} frames of {f.shape[2]} x {f.shape[1]} ({f.dtype}"
-          f"{', RGB' if f.ndim == 4 else ''}{', raw ' + stack.meta['cfa'] if 'raw' in stack.meta else ''}), scale {stack.h}, reference frame {stack.reference_index}, "
+          f"{', RGB' if f.ndim == 4 else ''}{', raw ' + stack.meta['cfa'] if 'raw' in stack.meta else ''}), "
+          f"scale {stack.h}, reference frame {stack.reference_index}, "
           f"{trusted} frame(s) trusted; motion models: {counts}")
     return 0

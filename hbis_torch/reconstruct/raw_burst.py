@@ -5,9 +5,11 @@ colour are placed where the frame's motion puts them on the reference's grid, an
 plane of the output, S times finer (S = 1: a burst demosaick), is the normalised-convolution
 interpolation of that colour's samples from every frame (green; then red and blue as green plus
 the interpolation of their samples' differences from green, which are smoother than the colours
-themselves: :func:`joint_demosaick_sr`): the classical method's splat
-(:func:`~hbis_torch.reconstruct.classical.classical_sr` without its Wiener step, as for raw Bayer
-scans: :func:`~hbis_torch.reconstruct.classical.method.reconstruct_classical_raw_bayer`).
+themselves: :func:`joint_demosaick_sr`): the classical method's splat and hole filling
+(:func:`splat_plane`: :func:`~hbis_torch.reconstruct.classical.classical_sr` without its Wiener
+step, as for raw Bayer scans,
+:func:`~hbis_torch.reconstruct.classical.method.reconstruct_classical_raw_bayer`), on each
+colour's samples alone.
 
 Per sample, the weight is
 
@@ -46,7 +48,6 @@ import torch
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
-from hbis_torch.sensor.cfa import bayer_masks
 
 # A colour whose unclipped samples weigh less than this share near an output pixel is taken as
 # clipped there (set to the clip level).
@@ -74,8 +75,8 @@ def estimate_noise(values: np.ndarray, cfa: str) -> np.ndarray:
 
     Each colour's plane (every other row and column) is taken alone; Immerkaer's operator (its
     output's standard deviation is 6 times the noise on smooth content), on the flattest fifth of
-    the plane, is binned by the local mean (3 x 3), the median absolute value of each bin gives its noise, and a line is fitted to
-    the variances (least squares, both terms at least 0).
+    the plane, is binned by the local mean (3 x 3), the median absolute value of each bin gives
+    its noise, and a line is fitted to the variances (least squares, both terms at least 0).
 
     Parameters
     ----------
@@ -225,6 +226,49 @@ def _bilinear(image: np.ndarray, positions: Tensor, scale: int) -> Tensor:
     return out.reshape(positions.shape[:-1])
 
 
+def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, shape: tuple, sigma: float,
+                batch: int = 1 << 20) -> np.ndarray:
+    """Scattered samples -> one plane of the output grid: the classical method's Gaussian splat
+    and hole filling (:func:`~hbis_torch.reconstruct.classical.splat.splat`,
+    :func:`~hbis_torch.reconstruct.classical.splat.fill_holes`: what
+    :func:`~hbis_torch.reconstruct.classical.classical_sr` does without its Wiener step), on
+    samples in any arrangement, values not clamped.
+
+    Parameters
+    ----------
+    values : Tensor, shape (N,)
+    positions : Tensor, shape (N, 2), float64
+        (u, v) in reference LR px.
+    weights : Tensor, shape (N,)
+        0 leaves a sample out (it is not splatted at all).
+    scale : int
+    shape : (rows, cols)
+        The output grid, (S H, S W).
+    sigma : float
+        The Gaussian, output px (at most 0.6: the splat's 3 x 3 footprint).
+    batch : int
+        Samples splatted at a time.
+
+    Returns
+    -------
+    np.ndarray, shape (rows, cols), float64
+    """
+    from hbis_torch.reconstruct.classical.splat import fill_holes, splat
+
+    keep = weights > 0
+    values, positions, weights = values[keep], positions[keep], weights[keep].to(torch.float64)
+    num = den = 0
+    for start in range(0, len(values), batch):
+        part = slice(start, start + batch)
+        x = (positions[part, 0] + 0.5) * scale - 0.5
+        y = (positions[part, 1] + 0.5) * scale - 0.5
+        n, d = splat(values[part].to(torch.float64), x, y, shape, sigma, weights[part])
+        num, den = num + n, den + d
+    if isinstance(num, int):
+        raise HbisInputError("no sample falls on the output grid")
+    return fill_holes(num, den).numpy()
+
+
 def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motions: np.ndarray, scale: int,
                        weights: Tensor, kernel_sigma: float = KERNEL_SIGMA, differences: bool = True) -> np.ndarray:
     """Each colour's plane from its own samples of every frame (module docstring).
@@ -254,32 +298,35 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     np.ndarray, shape (S H, S W, 3), float32 in [0, 1]
         Camera RGB, linear; 1 at the clip level.
     """
-    from hbis_torch.reconstruct.classical.sr import classical_sr
-
     F, H, W = values.shape
     positions = _positions(motions, H, W)
-    masks = torch.from_numpy(bayer_masks(cfa, H, W)).to(torch.float64)
     frames = torch.from_numpy(np.ascontiguousarray(values, dtype=np.float32))
-    unclipped_mask = ~np.asarray(clipped, dtype=bool)
-    unclipped = torch.from_numpy(unclipped_mask).to(torch.float64)
-    any_clipped = not bool(unclipped_mask.all())
+    unclipped = torch.from_numpy(~np.asarray(clipped, dtype=bool))
+    weights = torch.as_tensor(weights, dtype=torch.float64)
+    out = (scale * H, scale * W)
 
-    def splat(data, w):
-        return classical_sr(data, positions, scale, False, weights=w, kernel_sigma=kernel_sigma,
-                            mixed_offsets=True).numpy().astype(np.float64)
+    def samples(colour, *arrays):
+        """One colour's samples only, flattened: the splat touches a quarter (red, blue) or half
+        (green) of the burst."""
+        where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == colour]
+        return [torch.cat([a[:, dv::2, du::2].reshape(-1, *a.shape[3:]) for dv, du in where]) for a in arrays]
 
-    planes = [None, None, None]
-    planes[1] = splat(frames, weights * masks[1][None] * unclipped)
-    if differences:
-        green = _bilinear(planes[1], positions, scale).to(torch.float32)
-        diff = (frames - green) * 0.5 + 0.5  # classical_sr clamps to [0, 1]: differences of -1..1 fit
-    for c in (0, 2):
-        w = weights * masks[c][None] * unclipped
-        planes[c] = planes[1] + (splat(diff, w) - 0.5) * 2.0 if differences else splat(frames, w)
-    if any_clipped:
-        for c in range(3):
-            share = splat(unclipped.to(torch.float32), weights * masks[c][None])
-            planes[c] = np.where(share < CLIPPED_SHARE, 1.0, planes[c])
+    planes = {}
+    for colour in "GRB":  # green first: red and blue are splatted as differences from it
+        data, where, w, ok = samples(colour, frames, positions, weights, unclipped)
+        kept = w * ok
+        if not bool((kept > 0).any()):  # clipped everywhere: at the clip level
+            planes[colour] = np.ones(out)
+            continue
+        if colour == "G" or not differences:
+            planes[colour] = splat_plane(data, where, kept, scale, out, kernel_sigma)
+        else:
+            green = _bilinear(planes["G"], where, scale).to(torch.float32)
+            planes[colour] = planes["G"] + splat_plane(data - green, where, kept, scale, out, kernel_sigma)
+        if not bool(ok.all()):
+            share = splat_plane(ok.to(torch.float32), where, w, scale, out, kernel_sigma)
+            planes[colour] = np.where(share < CLIPPED_SHARE, 1.0, planes[colour])
+    planes = [planes[c] for c in "RGB"]
     return np.clip(np.stack(planes, -1), 0, 1).astype(np.float32)
 
 
@@ -356,6 +403,12 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
         notes.append(f"raw bursts are demosaicked and super-resolved jointly by the classical splat; the "
                      f"{method.name} method has no raw burst path of its own, so its output is that")
     inputs = raw_inputs(stack)
+    if bool(inputs["clipped"].all()):
+        raise HbisInputError("every sample of the burst is clipped (at the white level): there is nothing to "
+                             "reconstruct")
+    if all(m == "identity" for m in stack.meta.get("motion_models", [])):
+        notes.append(f"all {len(stack.frames)} frames are identical to the reference: the output is the "
+                     "reference frame demosaicked by the same splat")
     notes.append(f"raw noise ({inputs['noise_source']}): variance S x + O per colour, "
                  + ", ".join(f"{c} S={s:.2e} O={o:.2e}" for c, (s, o) in zip("RGB", inputs["noise"])))
     left_out = [k for k, t in enumerate(inputs["trusted"]) if not t]
