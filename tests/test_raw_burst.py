@@ -131,6 +131,7 @@ def test_clipped_samples_never_pull_a_colour():
     size, cfa, F = 64, "RGGB", 8
     scene = np.full((size, size, 3), 0.2)
     scene[20:44, 20:44] = (0.9, 0.6, 0.4)
+    scene[4:14, 40:60] = (1.5, 0.5, 0.3)  # red clipped in every frame
     scene += rng.normal(0, 0.02, scene.shape)  # texture to register
     from hbis_torch.sensor.cfa import mosaic
 
@@ -148,6 +149,8 @@ def test_clipped_samples_never_pull_a_colour():
     out = reconstruct_raw_burst(stack)
     patch = out[26:38, 26:38].reshape(-1, 3).mean(0)
     assert np.allclose(patch, (0.9, 0.6, 0.4), atol=0.03), patch
+    bright = out[7:11, 44:56].reshape(-1, 3).mean(0)  # red at the clip level, the others their own
+    assert np.allclose(bright, (1.0, 0.5, 0.3), atol=0.03), bright
     # the same samples, clipped ones kept (and no robustness weights, which catch some): the colour is pulled
     values, clipped = normalised(mosaics, raw)
     weights = sample_weights(values, cfa, stack.motions, np.ones(F, bool), 0, [1, 1, 1], np.array(raw["noise_profile"]),

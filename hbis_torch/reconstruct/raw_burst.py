@@ -227,7 +227,7 @@ def _bilinear(image: np.ndarray, positions: Tensor, scale: int) -> Tensor:
 
 
 def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, shape: tuple, sigma: float,
-                batch: int = 1 << 20) -> np.ndarray:
+                batch: int = 1 << 20, sums: bool = False):
     """Scattered samples -> one plane of the output grid: the classical method's Gaussian splat
     and hole filling (:func:`~hbis_torch.reconstruct.classical.splat.splat`,
     :func:`~hbis_torch.reconstruct.classical.splat.fill_holes`: what
@@ -248,6 +248,8 @@ def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, 
         The Gaussian, output px (at most 0.6: the splat's 3 x 3 footprint).
     batch : int
         Samples splatted at a time.
+    sums : bool
+        Return the splat's sums (numerator, denominator) (rows, cols) float64 Tensors instead.
 
     Returns
     -------
@@ -265,7 +267,11 @@ def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, 
         n, d = splat(values[part].to(torch.float64), x, y, shape, sigma, weights[part])
         num, den = num + n, den + d
     if isinstance(num, int):
+        if sums:
+            return torch.zeros(shape, dtype=torch.float64), torch.zeros(shape, dtype=torch.float64)
         raise HbisInputError("no sample falls on the output grid")
+    if sums:
+        return num, den
     return fill_holes(num, den).numpy()
 
 
@@ -298,6 +304,8 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     np.ndarray, shape (S H, S W, 3), float32 in [0, 1]
         Camera RGB, linear; 1 at the clip level.
     """
+    from hbis_torch.reconstruct.classical.splat import fill_holes
+
     F, H, W = values.shape
     positions = _positions(motions, H, W)
     frames = torch.from_numpy(np.ascontiguousarray(values, dtype=np.float32))
@@ -318,13 +326,17 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         if not bool((kept > 0).any()):  # clipped everywhere: at the clip level
             planes[colour] = np.ones(out)
             continue
-        if colour == "G" or not differences:
-            planes[colour] = splat_plane(data, where, kept, scale, out, kernel_sigma)
-        else:
-            green = _bilinear(planes["G"], where, scale).to(torch.float32)
-            planes[colour] = planes["G"] + splat_plane(data - green, where, kept, scale, out, kernel_sigma)
+        if colour != "G" and differences:
+            data = data - _bilinear(planes["G"], where, scale).to(torch.float32)
+        num, den = splat_plane(data, where, kept, scale, out, kernel_sigma, sums=True)
+        planes[colour] = fill_holes(num, den).numpy()
+        if colour != "G" and differences:
+            planes[colour] = planes[colour] + planes["G"]
         if not bool(ok.all()):
-            share = splat_plane(ok.to(torch.float32), where, w, scale, out, kernel_sigma)
+            # the unclipped samples' share of the splat's weight (holes filled from around them),
+            # from a second splat of the (few) clipped samples alone
+            _, lost = splat_plane(torch.ones(len(ok)), where, w * ~ok, scale, out, kernel_sigma, sums=True)
+            share = fill_holes(den, den + lost).numpy()
             planes[colour] = np.where(share < CLIPPED_SHARE, 1.0, planes[colour])
     planes = [planes[c] for c in "RGB"]
     return np.clip(np.stack(planes, -1), 0, 1).astype(np.float32)
