@@ -11,6 +11,9 @@ step, as for raw Bayer scans,
 :func:`~hbis_torch.reconstruct.classical.method.reconstruct_classical_raw_bayer`), on each
 colour's samples alone.
 
+Green then goes through the classical burst path's Wiener deblurring of the pixel area where its
+samples fill the output grid (:func:`sharp_green`), and red and blue move with it.
+
 Per sample, the weight is
 
 * the robustness weight of :func:`hbis_torch.reconstruct.burst.robustness_weights`, computed on
@@ -60,6 +63,10 @@ KERNEL_SIGMA = 0.5  # joint_demosaick_sr's default
 # (training/eval_raw.py) scores other photographs and seeds.
 SHARP_SIGMA, SMOOTH_SIGMA = 0.35, 0.5
 SHARP_NOISE, SMOOTH_NOISE = 0.003, 0.03
+# Green goes through the Wiener deblurring where its samples of weight above 0.5 number at least
+# this many per output pixel (a lattice left half empty loses more to deblurring than it gains:
+# docs/real-bursts.md, the few-frame case).
+DEBLUR_SAMPLES_PER_NODE = 1.0
 # The share of a colour plane's pixels (the flattest) the noise is measured on.
 FLAT_SHARE = 0.2
 
@@ -275,8 +282,49 @@ def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, 
     return fill_holes(num, den).numpy()
 
 
+def sharp_green(values: Tensor, positions: Tensor, weights: Tensor, cfa: str, scale: int,
+                kernel_sigma: float) -> np.ndarray | None:
+    """The green plane through the classical burst path with its Wiener deblurring
+    (:func:`~hbis_torch.reconstruct.classical.burst.burst_sr`), or None where the green samples
+    are too few for it (fewer than :data:`DEBLUR_SAMPLES_PER_NODE` of weight above 0.5 per
+    output pixel).
+
+    The green samples of each pattern position form a grid of half the frames' size, pitch 2 px:
+    they go to ``burst_sr`` as frames of that grid (positions in its pixels, scale 2 S, so that
+    its output is the S-times grid of the full frames), with a fill factor of 1/4 (the pixel is
+    1 px of the 2 px pitch).
+
+    Parameters
+    ----------
+    values : Tensor, shape (F, H, W), float32
+    positions : Tensor, shape (F, H, W, 2), float64
+        Full-resolution reference px.
+    weights : Tensor, shape (F, H, W), float64
+        Already 0 for clipped samples.
+    cfa : str
+    scale : int
+    kernel_sigma : float
+
+    Returns
+    -------
+    np.ndarray, shape (S H, S W), float64, or None
+    """
+    from hbis_torch.reconstruct.classical.burst import burst_sr
+
+    where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == "G"]
+    F, H, W = values.shape
+    w = torch.cat([weights[:, dv::2, du::2] for dv, du in where])
+    if float((w > 0.5).sum()) < DEBLUR_SAMPLES_PER_NODE * scale * scale * H * W:
+        return None
+    data = torch.cat([values[:, dv::2, du::2] for dv, du in where]).contiguous()
+    half = (torch.cat([positions[:, dv::2, du::2] for dv, du in where]) + 0.5) / 2 - 0.5
+    return burst_sr(data, half.contiguous(), 2 * scale, w.contiguous(), True, fill_factor=0.25,
+                    kernel_sigma=min(max(kernel_sigma, 0.2), 0.6)).numpy().astype(np.float64)
+
+
 def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motions: np.ndarray, scale: int,
-                       weights: Tensor, kernel_sigma: float = KERNEL_SIGMA, differences: bool = True) -> np.ndarray:
+                       weights: Tensor, kernel_sigma: float = KERNEL_SIGMA, differences: bool = True,
+                       deblur: bool = True) -> np.ndarray:
     """Each colour's plane from its own samples of every frame (module docstring).
 
     Green first (half the samples); then, with ``differences``, red and blue as green plus the
@@ -298,6 +346,9 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     kernel_sigma : float
         The splat Gaussian, output px (0.2 to 0.6).
     differences : bool
+    deblur : bool
+        Green through the classical burst path's Wiener deblurring (:func:`sharp_green`), where
+        its samples suffice; red and blue follow it (they are green plus their differences).
 
     Returns
     -------
@@ -320,6 +371,9 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         return [torch.cat([a[:, dv::2, du::2].reshape(-1, *a.shape[3:]) for dv, du in where]) for a in arrays]
 
     planes = {}
+    sharp = None
+    if deblur:
+        sharp = sharp_green(frames, positions, weights * unclipped, cfa, scale, kernel_sigma)
     for colour in "GRB":  # green first: red and blue are splatted as differences from it
         data, where, w, ok = samples(colour, frames, positions, weights, unclipped)
         kept = w * ok
@@ -338,6 +392,10 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
             _, lost = splat_plane(torch.ones(len(ok)), where, w * ~ok, scale, out, kernel_sigma, sums=True)
             share = fill_holes(den, den + lost).numpy()
             planes[colour] = np.where(share < CLIPPED_SHARE, 1.0, planes[colour])
+    if sharp is not None:  # the sharpened green, and red and blue moved with it
+        change = sharp - planes["G"]
+        for colour in "RGB":  # a colour at the clip level stays there
+            planes[colour] = np.where(planes[colour] >= 1.0, planes[colour], planes[colour] + change)
     planes = [planes[c] for c in "RGB"]
     return np.clip(np.stack(planes, -1), 0, 1).astype(np.float32)
 
