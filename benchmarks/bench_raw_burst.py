@@ -42,7 +42,7 @@ def run_case(case: str, side: int, frames: int, scale: int) -> dict:
     torch.set_num_threads(1)
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.capture.raw import normalised, raw_burst_stack
-    from hbis_torch.reconstruct.raw_burst import reconstruct_raw_burst
+    from hbis_torch.reconstruct.classical.raw_burst import reconstruct_raw_burst
     from hbis_torch.reconstruct.registry import reconstruct
     from hbis_torch.training.heldout_burst import BurstCondition
     from hbis_torch.training.heldout_raw import make_raw_burst
@@ -93,8 +93,7 @@ def main(argv=None) -> int:
             print(f"S={scale} {case:14s} cpu {row['cpu_s']:7.2f} s  wall {row['wall_s']:7.2f} s  peak "
                   f"{row['peak_before_mib']:6.0f} -> {row['peak_mib']:6.0f} MiB", flush=True)
     if args.json:
-        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "training"))
-        from eval_raw import provenance
+        from hbis_torch.training.heldout_raw import provenance
 
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"provenance": provenance(), "rows": rows}, indent=1) + "\n")

@@ -13,7 +13,7 @@ pytest.importorskip("cv2")
 
 from hbis_torch.capture.raw import normalised, raw_burst_stack, read_raw, write_mosaic_dng  # noqa: E402
 from hbis_torch.cli import main  # noqa: E402
-from hbis_torch.reconstruct.raw_burst import (  # noqa: E402
+from hbis_torch.reconstruct.classical.raw_burst import (  # noqa: E402
     estimate_noise,
     joint_demosaick_sr,
     reconstruct_raw_burst,

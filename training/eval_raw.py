@@ -17,7 +17,7 @@ and every row uses those same measured motions:
   demosaickers on the reference frame, cell by cell (an oracle choice);
 * ``demosaick every frame + RGB burst``: every frame demosaicked (edge-aware), then the RGB burst
   path of ``hbis reconstruct`` (classical: robustness, splat, Wiener deblurring, per channel);
-* ``joint``: :func:`hbis_torch.reconstruct.raw_burst.reconstruct_raw_burst`.
+* ``joint``: :func:`hbis_torch.reconstruct.classical.raw_burst.reconstruct_raw_burst`.
 
 Scores: PSNR (data range 1) and the RMS error of each colour (R, G, B) against the truth, in
 camera RGB, without a border of 4 output px. S = 1 uses 8 frames, S >= 2 uses 12.
@@ -28,37 +28,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import subprocess
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
 from hbis_torch.training.heldout_burst import BurstCondition
-from hbis_torch.training.heldout_raw import LIGHT_LEVELS, PATTERNS, RAW_PHOTOS, make_raw_burst
+from hbis_torch.training.heldout_raw import LIGHT_LEVELS, PATTERNS, RAW_PHOTOS, make_raw_burst, provenance
 
 BORDER = 4
 ROWS = ("demosaick + bicubic", "best single-frame demosaick", "demosaick every frame + RGB burst", "joint")
-
-
-def provenance() -> dict:
-    """Command, commit, whether the tree was dirty, date and machine."""
-    root = Path(__file__).resolve().parents[1]
-
-    def git(*args):
-        try:
-            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True,
-                                  timeout=30).stdout.strip()
-        except (OSError, subprocess.SubprocessError):
-            return ""
-    return {"command": " ".join(["python", *sys.argv]), "commit": git("rev-parse", "HEAD"),
-            "dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
-            "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "machine": f"{platform.node()} {platform.machine()} {platform.processor() or ''}".strip()
-            + f", {__import__('os').cpu_count()} CPUs (shared)"}
 
 
 def score(image: np.ndarray, truth: np.ndarray) -> dict:
@@ -88,7 +68,7 @@ def run_cell(photo: str, cfa: str, light: str, scale: int, size: int, seed: int)
     import cv2
 
     from hbis_torch.capture.raw import normalised, raw_burst_stack
-    from hbis_torch.reconstruct.raw_burst import reconstruct_raw_burst
+    from hbis_torch.reconstruct.classical.raw_burst import reconstruct_raw_burst
     from hbis_torch.reconstruct.registry import reconstruct
     from hbis_torch.sensor.cfa import demosaic
     from hbis_torch.stack_io import Stack, make_burst_meta

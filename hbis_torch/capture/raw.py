@@ -20,7 +20,7 @@ levels are normalised to the reference's and said so.
 of the pixels, one value per cell: the white-balanced mean of its four samples) with
 :func:`~hbis_torch.capture.burst.register_burst`, and writes the mosaics unchanged (uint16) in a
 burst stack with a ``cfa`` key and a ``raw`` block (docs/raw-bursts.md), which
-:mod:`hbis_torch.reconstruct.raw_burst` demosaicks and super-resolves jointly.
+:mod:`hbis_torch.reconstruct.classical.raw_burst` demosaicks and super-resolves jointly.
 
 Units: a *normalised* sample is ``gain * (raw - black) / (white - black)`` (1 at the white
 level for the reference's exposure); positions and motions in full-resolution pixels, frame px

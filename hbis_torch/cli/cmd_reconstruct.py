@@ -79,7 +79,7 @@ def run(args) -> int:
     for line in messages:
         print(f"hbis reconstruct: {line}", file=sys.stderr)
     if "raw" in meta:  # a raw burst: linear 16-bit TIFF (or DNG) and an sRGB preview (docs/raw-bursts.md)
-        from hbis_torch.reconstruct.raw_burst import write_raw_outputs
+        from hbis_torch.reconstruct.raw_output import write_raw_outputs
 
         written = write_raw_outputs(args.out, image, meta)
         print(f"wrote {', '.join(map(str, written))} ({image.shape[1]} x {image.shape[0]} px, linear 16-bit)")

@@ -142,7 +142,7 @@ def _one(reconstruct_one, args, stack: Path, out: Path, prepared) -> int:
         for line in messages:
             print(f"hbis reconstruct: {stack}: {line}", file=sys.stderr)
         if "raw" in meta:  # a raw burst: linear 16-bit TIFF and an sRGB preview, as with --out
-            from hbis_torch.reconstruct.raw_burst import write_raw_outputs
+            from hbis_torch.reconstruct.raw_output import write_raw_outputs
 
             write_raw_outputs(out, image, meta)
         else:

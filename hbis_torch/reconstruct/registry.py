@@ -176,9 +176,9 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     """
     entry = get_method(method)
     if getattr(stack, "kind", "hbis") == "burst" and isinstance(stack.meta.get("raw"), dict):  # raw Bayer burst
-        from hbis_torch.reconstruct.raw_burst import reconstruct_raw_burst
-
-        return reconstruct_raw_burst(stack, entry, registration=registration, **kw)
+        # named, not imported: the classical package imports this one
+        joint = _resolve("hbis_torch.reconstruct.classical.raw_burst:reconstruct_raw_burst")
+        return joint(stack, entry, registration=registration, **kw)
     if getattr(stack, "kind", "hbis") == "burst" and entry.burst is not None:  # measured motion, robustness
         from hbis_torch.reconstruct.burst import reconstruct_burst
 

@@ -13,6 +13,7 @@ in a 16-bit container (white level 4095). training/eval_raw.py scores the recons
 from __future__ import annotations
 
 import dataclasses
+import sys
 
 import numpy as np
 
@@ -100,3 +101,27 @@ def make_raw_burst(photo_name: str, cfa: str, light: str, scale: int, size: int,
            "white_balance": [1.0, 1.0, 1.0], "colour_matrix": np.eye(3).tolist(), "orientation": 0,
            "camera": "simulated", "exposure_s": None, "iso": None, "noise_profile": None, "clip_level": 0.99}
     return RawBurst(np.stack(frames), truth.astype(np.float32), motions, noise, raw)
+
+
+def provenance() -> dict:
+    """Where a result came from: the command line, the checkout's commit and whether its tracked
+    files were changed, the date (UTC) and the machine (for training/eval_raw.py and
+    benchmarks/bench_raw_burst.py; the project-wide helper may replace it)."""
+    import os
+    import platform
+    import subprocess
+    from datetime import datetime, timezone
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+
+    def git(*args):
+        try:
+            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True,
+                                  timeout=30).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            return ""
+    return {"command": " ".join(["python", *sys.argv]), "commit": git("rev-parse", "HEAD"),
+            "dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
+            "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "machine": f"{platform.node()} {platform.machine()}, {os.cpu_count()} CPUs (shared)"}
