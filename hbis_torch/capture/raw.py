@@ -259,7 +259,8 @@ def check_raw_frames(frames: list, reference: int = 0) -> tuple[dict, np.ndarray
         The stack's ``raw`` block: ``black`` (F, 2, 2) and ``white`` (F,) of each frame,
         ``gain`` (F,) (each frame's exposure x ISO relative to the reference's, 1 where unknown),
         ``white_balance`` (3,), ``colour_matrix`` (3, 3), ``orientation``, ``camera``,
-        ``exposure_s``, ``iso``, ``noise_profile`` ((3, 2) or None), ``clip_level``.
+        ``exposure_s``, ``iso``, ``noise_profile`` ((3, 2) or None), ``clip_level``, ``files``;
+        :func:`raw_burst_stack` adds ``grey_scale`` (the registration luminance's unit).
     gain : np.ndarray, shape (F,)
     messages : list of str
         The warnings (each naming the default used) and the normalisations.
