@@ -91,7 +91,12 @@ def test_dng_burst_end_to_end_beats_demosaick_and_bicubic(tmp_path, small_burst,
                                                      "white": small_burst.raw["white"][:1], "gain": [1.0]})
     bicubic = cv2.resize(demosaic(values, "GRBG")[0], None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
     assert _psnr(joint, small_burst.truth) > _psnr(bicubic, small_burst.truth) + 2.0
-    assert main(["reconstruct", str(stack_path), "--out", str(tmp_path / "sr.dng")]) == 0
+    # sr.dng's preview would be sr.preview.png again: refused before any work, kept as it was
+    before = (tmp_path / "sr.preview.png").read_bytes()
+    capsys.readouterr()
+    _one_line_exit_2(capsys, ["reconstruct", str(stack_path), "--out", str(tmp_path / "sr.dng")], "--overwrite")
+    assert not (tmp_path / "sr.dng").exists() and (tmp_path / "sr.preview.png").read_bytes() == before
+    assert main(["reconstruct", str(stack_path), "--out", str(tmp_path / "sr.dng"), "--overwrite"]) == 0
     import rawpy
 
     with rawpy.imread(str(tmp_path / "sr.dng")) as dng:  # a linear DNG LibRaw reads back, balance kept
@@ -226,7 +231,7 @@ def test_mixed_orientations_warn_and_take_the_reference(tmp_path, capsys):
     stack_path = tmp_path / "b.tif"
     assert main(["assemble", "--burst", "--scale", "1", "--out", str(stack_path), *paths]) == 0
     assert "another orientation" in capsys.readouterr().err
-    assert main(["reconstruct", str(stack_path), "--out", str(tmp_path / "sr.tif")]) == 0
+    assert main(["-v", "reconstruct", str(stack_path), "--out", str(tmp_path / "sr.tif")]) == 0
     assert "raw noise (the DNG noise profile)" in capsys.readouterr().err  # the files' own, not measured
     assert tifffile.imread(tmp_path / "sr.tif").shape == (48, 64, 3)  # turned 90 degrees as the reference says
     assert cv2.imread(str(tmp_path / "sr.preview.png")).shape == (48, 64, 3)
@@ -239,3 +244,19 @@ def test_without_rawpy_one_line_says_how_to_install(tmp_path, monkeypatch, capsy
     monkeypatch.setitem(sys.modules, "rawpy", None)
     _one_line_exit_2(capsys, ["assemble", "--burst", "--scale", "2", "--out", str(tmp_path / "b.tif"), *paths],
                      "hbis-torch[raw]")
+
+
+def test_local_shifts_from_the_cells_move_the_pixels_by_twice_as_much():
+    """[handheld]'s local shifts are measured on the 2 x 2 cells: a cell shift s is a pixel shift
+    2 s, and the joint path applies the pixel field to every sample (and the cell field to the
+    robustness map)."""
+    from hbis_torch.reconstruct.classical.raw_burst import _cell_local, _positions
+
+    motions = np.repeat(np.eye(3)[None], 2, 0)
+    cells = np.zeros((2, 2, 2, 2))
+    cells[1, ..., 0] = 0.125  # frame 1: a shift of 1/8 cell to the right, everywhere
+    local = {"tile_px": 2 * 32, "offsets": (2 * cells).tolist()}  # as raw_burst_stack stores it
+    moved = _positions(motions, 8, 8, local) - _positions(motions, 8, 8)
+    assert np.allclose(moved[0], 0) and np.allclose(moved[1, ..., 0], 0.25) and np.allclose(moved[1, ..., 1], 0)
+    back = _cell_local(local)
+    assert back["tile_px"] == 32 and np.allclose(back["offsets"], cells)

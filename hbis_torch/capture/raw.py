@@ -18,7 +18,10 @@ levels are normalised to the reference's and said so.
 
 :func:`assemble_raw_burst` registers the frames on the luminance of each 2 x 2 cell (a quarter
 of the pixels, one value per cell: the white-balanced mean of its four samples) with
-:func:`~hbis_torch.capture.burst.register_burst`, and writes the mosaics unchanged (uint16) in a
+:func:`~hbis_torch.capture.burst.register_burst` (its homographies and, on frames large enough,
+its local shifts, both carried from the cells' grid to the pixels': cell (x, y) is pixel
+(2 x + 0.5, 2 y + 0.5), so a shift doubles and so does a tile), and writes the mosaics unchanged
+(uint16) in a
 burst stack with a ``cfa`` key and a ``raw`` block (docs/raw-bursts.md), which
 :mod:`hbis_torch.reconstruct.classical.raw_burst` demosaicks and super-resolves jointly.
 
@@ -37,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 
 #: File name endings taken as raw frames (LibRaw's formats); any other file goes the usual way.
 RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf",
@@ -284,8 +288,8 @@ def check_raw_frames(frames: list, reference: int = 0) -> tuple[dict, np.ndarray
                                  "frames of different cameras are not one burst")
     levels = [k for k, f in enumerate(frames) if f.white != ref.white or not np.array_equal(f.black, ref.black)]
     if levels:
-        messages.append(f"frame(s) {levels} have black or white levels of their own: each frame is normalised by "
-                        "its own levels")
+        messages.append(act(f"frame(s) {levels} have black or white levels of their own: each frame is normalised by "
+                        "its own levels"))
     gain = np.ones(len(frames))
     known = all(f.exposure_s and f.iso for f in frames)
     if known:
@@ -293,36 +297,36 @@ def check_raw_frames(frames: list, reference: int = 0) -> tuple[dict, np.ndarray
         gain = product[reference] / product
         if not np.allclose(gain, 1.0, rtol=1e-3):
             differ = [k for k in range(len(frames)) if abs(gain[k] - 1) > 1e-3]
-            messages.append(f"frame(s) {differ} were exposed differently (exposure x ISO): each is scaled to the "
-                            "reference's exposure; their clipped samples are left out")
+            messages.append(act(f"frame(s) {differ} were exposed differently (exposure x ISO): each is scaled to the "
+                            "reference's exposure; their clipped samples are left out"))
     elif any(f.exposure_s for f in frames) and len({f.exposure_s for f in frames}) > 1:
-        messages.append("some frames do not record their exposure: brightness differences are matched from the "
-                        "data (the registration's gain and offset)")
+        messages.append(act("some frames do not record their exposure: brightness differences are matched from the "
+                        "data (the registration's gain and offset)"))
     balance = ref.white_balance
     if balance is None:
         if ref.daylight_balance is not None:
             balance = ref.daylight_balance
-            messages.append(f"the reference frame ({ref.name}) records no white balance: the camera's daylight "
-                            f"balance {np.round(balance, 3).tolist()} is used")
+            messages.append(act(f"the reference frame ({ref.name}) records no white balance: the camera's daylight "
+                            f"balance {np.round(balance, 3).tolist()} is used"))
         else:
             balance = np.ones(3)
-            messages.append(f"the reference frame ({ref.name}) records no white balance: none is applied "
-                            "(multipliers 1, 1, 1)")
+            messages.append(act(f"the reference frame ({ref.name}) records no white balance: none is applied "
+                            "(multipliers 1, 1, 1)"))
     matrix = ref.colour_matrix
     if matrix is None:
         matrix = np.eye(3)
-        messages.append(f"the reference frame ({ref.name}) records no colour matrix: the camera's RGB is taken as "
-                        "linear sRGB (the identity), so colours are the sensor's own")
+        messages.append(act(f"the reference frame ({ref.name}) records no colour matrix: the camera's RGB is taken as "
+                        "linear sRGB (the identity), so colours are the sensor's own"))
     flips = sorted({f.orientation for f in frames})
     if len(flips) > 1:
         odd = [k for k, f in enumerate(frames) if f.orientation != ref.orientation]
-        messages.append(f"frame(s) {odd} record another orientation than the reference's "
+        messages.append(act(f"frame(s) {odd} record another orientation than the reference's "
                         f"({ORIENTATIONS.get(ref.orientation, ref.orientation)}): the mosaics are all as the sensor "
-                        "recorded them, so they are registered as they are and the output takes the reference's")
+                        "recorded them, so they are registered as they are and the output takes the reference's"))
     over = [k for k, f in enumerate(frames) if int(f.mosaic.max()) > f.white]
     if over:
-        messages.append(f"frame(s) {over} hold values above their white level ({frames[over[0]].white:g}): those "
-                        "samples are taken as clipped")
+        messages.append(act(f"frame(s) {over} hold values above their white level ({frames[over[0]].white:g}): those "
+                        "samples are taken as clipped"))
     raw = {"black": np.stack([f.black for f in frames]).tolist(), "white": [float(f.white) for f in frames],
            "gain": gain.tolist(), "white_balance": np.asarray(balance, dtype=np.float64).tolist(),
            "colour_matrix": np.asarray(matrix, dtype=np.float64).tolist(), "orientation": int(ref.orientation),
@@ -520,8 +524,13 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     grey, raw["grey_scale"] = registration_grey(values, cfa, raw["white_balance"], reference, clipped)
     found = register_burst(torch.from_numpy(grey), reference, motion, names)
     motions = cell_to_pixels(found.motions)
+    extra = {}
+    if getattr(found, "local", None) is not None:  # [handheld]'s local shifts, from cells to pixels
+        from hbis_torch.registration.local import TILE_PX
+
+        extra["local_motion"] = {"tile_px": 2 * TILE_PX, "offsets": (2 * np.asarray(found.local)).round(5).tolist()}
     meta = make_burst_meta(scale, roi or (0, 0, W, H), motions, found.confidence, found.models, found.gain_offset,
-                           reference_index=reference, bit_depth=16, cfa=cfa, raw=raw)
+                           reference_index=reference, bit_depth=16, cfa=cfa, raw=raw, **extra)
     mosaics = np.ascontiguousarray(mosaics, dtype=np.uint16)
     validate_stack(mosaics, meta, "assembled raw burst")
     return Stack(mosaics, meta), list(found.messages)

@@ -145,3 +145,33 @@ def _write_dng(path: Path, image: np.ndarray, raw: dict) -> None:
         converter.options(t, path="", compress=False)
         buffer = converter.convert(data)
         Path(tmp).write_bytes(bytes(buffer))
+
+
+def check_raw_outputs(stack_path, out, overwrite: bool = False) -> None:
+    """Before any work: where ``stack_path`` is a raw burst stack, refuse in one line a preview
+    (:func:`preview_path` of ``out``) that exists already (unless ``overwrite``, the rule of
+    ``--out``), a ``.dng`` output without pidng, and a preview without OpenCV. Other stacks:
+    nothing to check. Only the file's JSON description is read (no pixels)."""
+    import os
+
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(stack_path) as tif:
+            meta = json.loads(tif.pages[0].description or "{}")
+    except Exception:  # not readable here: read_stack says why, in its own line
+        return
+    if not (isinstance(meta, dict) and meta.get("kind") == "burst" and isinstance(meta.get("raw"), dict)):
+        return
+    preview = preview_path(out)
+    if os.path.lexists(preview) and not (overwrite and os.path.isfile(preview)):
+        how = "it is not a regular file" if overwrite else "pass --overwrite to replace it"
+        raise HbisInputError(f"--out: the preview {preview} exists already ({how})")
+    from hbis_torch.optional import import_cv2
+
+    import_cv2("writing the sRGB preview PNG of a raw burst")
+    if Path(out).suffix.lower() == ".dng":
+        try:
+            import pidng  # noqa: F401
+        except ImportError:
+            raise HbisInputError("writing a DNG needs pidng: pip install 'hbis-torch[raw]'") from None

@@ -48,6 +48,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 
 # A colour whose unclipped samples weigh less than this share near an output pixel is taken as
 # clipped there (set to the clip level).
@@ -175,19 +176,34 @@ def kernel_for_noise(noise: np.ndarray) -> float:
     return float(SHARP_SIGMA + t * (SMOOTH_SIGMA - SHARP_SIGMA))
 
 
-def _positions(motions: np.ndarray, height: int, width: int) -> Tensor:
-    """Every pixel (u, v) of every frame moved by its homography: (F, H, W, 2) float64."""
+def _positions(motions: np.ndarray, height: int, width: int, local: dict | None = None) -> Tensor:
+    """Every pixel (u, v) of every frame moved by its homography, plus the local shifts there
+    (``local``: a stack's ``local_motion``, :mod:`hbis_torch.registration.local`), (F, H, W, 2)
+    float64."""
     from hbis_torch.registration import apply_homography
 
     motions = torch.as_tensor(np.asarray(motions, dtype=np.float64))
     v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
                           indexing="ij")
     grid = torch.stack((u, v), -1).reshape(1, -1, 2).expand(motions.shape[0], -1, -1)
-    return apply_homography(motions, grid).reshape(motions.shape[0], height, width, 2)
+    positions = apply_homography(motions, grid).reshape(motions.shape[0], height, width, 2)
+    if local is not None:
+        from hbis_torch.registration.local import sample_offsets
+
+        offsets = torch.as_tensor(np.asarray(local["offsets"], dtype=np.float64))
+        positions = positions + sample_offsets(offsets, positions, int(local["tile_px"]))
+    return positions
+
+
+def _cell_local(local: dict | None) -> dict | None:
+    """A stack's ``local_motion`` (pixels) on the 2 x 2 cells' grid: shifts and tiles halved."""
+    if local is None:
+        return None
+    return {"tile_px": int(local["tile_px"]) // 2, "offsets": np.asarray(local["offsets"], dtype=np.float64) / 2}
 
 
 def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: np.ndarray, reference: int,
-                   balance, noise: np.ndarray, robust: bool = True) -> Tensor:
+                   balance, noise: np.ndarray, robust: bool = True, local: dict | None = None) -> Tensor:
     """The robustness weight of every sample (module docstring), (F, H, W) float64.
 
     Parameters
@@ -203,6 +219,8 @@ def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: n
     noise : np.ndarray, shape (3, 2)
     robust : bool
         False: every trusted sample gets 1 (for comparisons).
+    local : dict, optional
+        The stack's ``local_motion`` (pixels), if any.
     """
     from hbis_torch.capture.raw import cell_luminance, pixels_to_cells
     from hbis_torch.reconstruct.burst import robustness_weights
@@ -212,7 +230,7 @@ def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: n
     if not robust:
         return trusted_t[:, None, None].to(torch.float64).expand(F, H, W).clone()
     grey = stabilise(cell_luminance(values, cfa, balance), noise, balance)
-    cells = _positions(pixels_to_cells(motions), H // 2, W // 2)
+    cells = _positions(pixels_to_cells(motions), H // 2, W // 2, _cell_local(local))
     weights = robustness_weights(torch.from_numpy(grey), cells, trusted_t, reference)
     return weights.repeat_interleave(2, 1).repeat_interleave(2, 2)
 
@@ -321,7 +339,7 @@ def sharp_green(values: Tensor, positions: Tensor, weights: Tensor, cfa: str, sc
 
 def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motions: np.ndarray, scale: int,
                        weights: Tensor, kernel_sigma: float = KERNEL_SIGMA, differences: bool = True,
-                       deblur: bool = True) -> np.ndarray:
+                       deblur: bool = True, local: dict | None = None) -> np.ndarray:
     """Each colour's plane from its own samples of every frame (module docstring).
 
     Green first (half the samples); then, with ``differences``, red and blue as green plus the
@@ -346,6 +364,8 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     deblur : bool
         Green through the classical burst path's Wiener deblurring (:func:`sharp_green`), where
         its samples suffice; red and blue follow it (they are green plus their differences).
+    local : dict, optional
+        The stack's ``local_motion`` (pixels), if any.
 
     Returns
     -------
@@ -355,7 +375,7 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     from hbis_torch.reconstruct.classical.splat import fill_holes
 
     F, H, W = values.shape
-    positions = _positions(motions, H, W)
+    positions = _positions(motions, H, W, local)
     frames = torch.from_numpy(np.ascontiguousarray(values, dtype=np.float32))
     unclipped = torch.from_numpy(~np.asarray(clipped, dtype=bool))
     weights = torch.as_tensor(weights, dtype=torch.float64)
@@ -422,7 +442,7 @@ def raw_inputs(stack) -> dict:
         noise, source = estimate_noise(values[stack.reference_index], cfa), "measured on the reference frame"
     return {"values": values, "clipped": clipped, "cfa": cfa, "motions": np.asarray(stack.motions),
             "trusted": trusted, "reference": stack.reference_index, "balance": balance, "noise": noise,
-            "noise_source": source}
+            "noise_source": source, "local": stack.meta.get("local_motion")}
 
 
 def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messages: list | None = None,
@@ -468,15 +488,15 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
     if kw:
         raise HbisInputError(f"option(s) {', '.join(sorted(kw))} do not apply to raw bursts")
     if method is not None and getattr(method, "name", "classical") != "classical":
-        notes.append(f"raw bursts are demosaicked and super-resolved jointly by the classical splat; the "
-                     f"{method.name} method has no raw burst path of its own, so its output is that")
+        notes.append(act(f"raw bursts are demosaicked and super-resolved jointly by the classical splat; the "
+                         f"{method.name} method has no raw burst path of its own, so its output is that"))
     inputs = raw_inputs(stack)
     if bool(inputs["clipped"].all()):
         raise HbisInputError("every sample of the burst is clipped (at the white level): there is nothing to "
                              "reconstruct")
     if all(m == "identity" for m in stack.meta.get("motion_models", [])):
-        notes.append(f"all {len(stack.frames)} frames are identical to the reference: the output is the "
-                     "reference frame demosaicked by the same splat")
+        notes.append(act(f"all {len(stack.frames)} frames are identical to the reference: the output is the "
+                         "reference frame demosaicked by the same splat"))
     notes.append(f"raw noise ({inputs['noise_source']}): variance S x + O per colour, "
                  + ", ".join(f"{c} S={s:.2e} O={o:.2e}" for c, (s, o) in zip("RGB", inputs["noise"])))
     left_out = [k for k, t in enumerate(inputs["trusted"]) if not t]
@@ -487,8 +507,8 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
         notes.append(f"{100 * share:.2f} % of the samples are clipped: left out of their colour, which is set to "
                      "the clip level where only clipped samples remain")
     weights = sample_weights(inputs["values"], inputs["cfa"], inputs["motions"], inputs["trusted"],
-                             inputs["reference"], inputs["balance"], inputs["noise"], robust)
+                             inputs["reference"], inputs["balance"], inputs["noise"], robust, inputs["local"])
     if kernel_sigma is None:
         kernel_sigma = kernel_for_noise(inputs["noise"])
     return joint_demosaick_sr(inputs["values"], inputs["clipped"], inputs["cfa"], inputs["motions"], stack.h,
-                              weights, kernel_sigma)
+                              weights, kernel_sigma, local=inputs["local"])
