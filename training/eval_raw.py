@@ -1,6 +1,7 @@
 """The held-out raw matrix: raw bursts against the truth, three ways.
 
-    python training/eval_raw.py [--scales 1 2] [--photos astronaut coffee] [--size 96] [--out raw.json]
+    python training/eval_raw.py [--scales 1 2] [--photos chelsea rocket] [--size 96] [--motion homography]
+                                [--out raw.json]
 
 Cells (:mod:`hbis_torch.training.heldout_raw`): colour photographs (camera RGB by assumption),
 each frame's pixels averaged over their footprint through [handheld]'s held-out motions
@@ -64,7 +65,7 @@ def single_frame_demosaicks(values: np.ndarray, cfa: str) -> dict:
     return out
 
 
-def run_cell(photo: str, cfa: str, light: str, scale: int, size: int, seed: int) -> dict:
+def run_cell(photo: str, cfa: str, light: str, scale: int, size: int, seed: int, motion: str | None = None) -> dict:
     import cv2
 
     from hbis_torch.capture.raw import normalised, raw_burst_stack
@@ -74,7 +75,7 @@ def run_cell(photo: str, cfa: str, light: str, scale: int, size: int, seed: int)
     from hbis_torch.stack_io import Stack, make_burst_meta
 
     frames = 8 if scale == 1 else 12
-    burst = make_raw_burst(photo, cfa, light, scale, size, seed, BurstCondition("raw", frames=frames))
+    burst = make_raw_burst(photo, cfa, light, scale, size, seed, BurstCondition("raw", frames=frames), motion)
     times = {}
     t = time.perf_counter()
     stack, _ = raw_burst_stack(burst.mosaics, cfa, burst.raw, scale)
@@ -109,6 +110,7 @@ def run_cell(photo: str, cfa: str, light: str, scale: int, size: int, seed: int)
     true = apply_homography(torch.from_numpy(burst.motions), grid.expand(frames, -1, -1))
     found = apply_homography(torch.from_numpy(stack.motions), grid.expand(frames, -1, -1))
     return {"photo": photo, "cfa": cfa, "light": light, "scale": scale, "frames": frames, "size": size,
+            "motion": motion or "heldout_burst shifts to 1.5 px",
             "seed": seed, "rows": cells, "seconds": times,
             "motion_error_px": float((true - found).square().sum(-1).mean().sqrt())}
 
@@ -144,6 +146,9 @@ def main(argv=None) -> int:
                    choices=[name for name, _, _ in LIGHT_LEVELS])
     p.add_argument("--size", type=int, default=96, help="frame side, px (even)")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--motion", choices=("translation", "similarity", "homography"),
+                   help="[handheld]'s renderer's motion (handheld_render.draw_motion: shifts to 2 px, turns to "
+                   "1 deg, perspective to 2 px) instead of heldout_burst's shifts to 1.5 px")
     p.add_argument("--out", type=Path, default=Path("training/results/eval_raw.json"))
     args = p.parse_args(argv)
     import torch
@@ -155,7 +160,7 @@ def main(argv=None) -> int:
             for cfa in args.patterns:
                 for light in args.lights:
                     seed = args.seed + len(cells)
-                    cell = run_cell(photo, cfa, light, scale, args.size, seed)
+                    cell = run_cell(photo, cfa, light, scale, args.size, seed, args.motion)
                     cells.append(cell)
                     r = cell["rows"]
                     print(f"S={scale} {photo:9s} {cfa} {light:6s} " + "  ".join(

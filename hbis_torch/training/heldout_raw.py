@@ -64,7 +64,7 @@ def truth_rgb(photo_name: str, scale: int, size: int) -> np.ndarray:
 
 
 def make_raw_burst(photo_name: str, cfa: str, light: str, scale: int, size: int, seed: int,
-                   condition: BurstCondition | None = None) -> RawBurst:
+                   condition: BurstCondition | None = None, motion: str | None = None) -> RawBurst:
     """The raw frames and truth of one cell (module docstring).
 
     Parameters
@@ -80,12 +80,24 @@ def make_raw_burst(photo_name: str, cfa: str, light: str, scale: int, size: int,
     seed : int
     condition : BurstCondition, optional
         The motion (frames, shifts, rotation, zoom); default 12 frames, shifts to 1.5 px.
+    motion : str, optional
+        Instead of the condition's motion, [handheld]'s renderer's
+        (:func:`hbis_torch.training.handheld_render.draw_motion`): ``"translation"``,
+        ``"similarity"`` or ``"homography"`` (its homographies only; the condition still gives
+        the number of frames).
     """
     cond = condition or BurstCondition("raw", frames=12)
     full_well, read = {name: (fw, rn) for name, fw, rn in LIGHT_LEVELS}[light]
     rng = np.random.default_rng(seed)
     truth = truth_rgb(photo_name, scale, size)
-    motions = motions_for(cond, size, rng)
+    if motion is None:
+        motions = motions_for(cond, size, rng)
+    else:
+        from hbis_torch.training.handheld_render import draw_motion
+
+        if motion not in ("translation", "similarity", "homography"):
+            raise ValueError(f"motion must be translation, similarity or homography, got {motion!r}")
+        motions = draw_motion(motion, cond.frames, size, size, rng)[0]
     span = WHITE - BLACK
     frames = []
     for motion in motions:
