@@ -24,19 +24,16 @@ import argparse
 import tempfile
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import tifffile
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import tifffile  # noqa: E402
-
-from hbis_torch.capture.burst import assemble_burst  # noqa: E402
-from hbis_torch.metrics import psnr  # noqa: E402
-from hbis_torch.reconstruct import reconstruct  # noqa: E402
-from hbis_torch.reconstruct.single_frame import single_frame  # noqa: E402
-from hbis_torch.stack_io import write_stack  # noqa: E402
-from hbis_torch.training.handheld_render import MOTIONS, render_burst  # noqa: E402
+from hbis_torch.capture.burst import assemble_burst
+from hbis_torch.metrics import psnr
+from hbis_torch.reconstruct import reconstruct
+from hbis_torch.reconstruct.single_frame import single_frame
+from hbis_torch.stack_io import write_stack
+from hbis_torch.training.handheld_render import MOTIONS, render_burst
 
 
 def main() -> None:

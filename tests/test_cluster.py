@@ -173,12 +173,12 @@ def test_a_worker_killed_mid_write_costs_no_output_and_duplicates_none(cluster, 
     import cloudpickle
 
     from hbis_torch.cli import build_parser
-    from hbis_torch.cli.cmd_reconstruct import prepare
-    from hbis_torch.cluster.jobs import ReconstructJob, plain_args
+    from hbis_torch.cli.cmd_reconstruct import prepare, reconstruct_one
+    from hbis_torch.cli.jobs import ReconstructJob, plain_args
 
     cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import this file
     args = build_parser().parse_args(["reconstruct", "x", "--out-dir", str(tmp_path), "--registration", "optics"])
-    job = ReconstructJob(plain_args(args), prepare(args), threads=1)
+    job = ReconstructJob(plain_args(args), prepare(args), threads=1, reconstruct_one=reconstruct_one)
     sources = inputs["scans"] * 2  # six tasks, three outputs twice over: each published once
     outs = [tmp_path / "out" / f"{p.stem}.{k}.tif" for k in (0, 1) for p in inputs["scans"]]
     marker = tmp_path / "killed"

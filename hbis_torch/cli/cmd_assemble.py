@@ -73,14 +73,14 @@ def register(sub) -> None:
     add_system_file_args(p)
     add_force_arg(p)
     add_overwrite_arg(p)
-    from hbis_torch.cluster.cli import add_scheduler_argument
+    from hbis_torch.cli.many import add_scheduler_argument
 
     add_scheduler_argument(p, many="frames")  # --burst --out-dir DIR: many bursts (hbis_torch.cluster)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from hbis_torch.cluster.cli import run_many
+    from hbis_torch.cli.many import run_many
 
     if (code := run_many(args, "assemble")) is not None:  # many bursts, --out-dir (hbis_torch.cluster)
         return code

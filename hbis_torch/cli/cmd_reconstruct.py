@@ -60,7 +60,7 @@ def register(sub) -> None:
     from hbis_torch.cli.common import add_overwrite_arg
 
     add_overwrite_arg(p)
-    from hbis_torch.cluster.cli import add_scheduler_argument
+    from hbis_torch.cli.many import add_scheduler_argument
 
     add_scheduler_argument(p)
     add_method_options(p, METHODS)  # last: the general options come first in --help
@@ -69,9 +69,9 @@ def register(sub) -> None:
 
 def run(args) -> int:
     if args.scheduler is not None:  # many stacks on a Dask cluster (hbis_torch.cluster)
-        from hbis_torch.cluster.cli import run_reconstruct
+        from hbis_torch.cli.many import run_reconstruct
 
-        return run_reconstruct(args, prepare)
+        return run_reconstruct(args, prepare, reconstruct_one)
     if args.out_dir is not None:
         from hbis_torch.cli.reconstruct_batch import run_batch
 

@@ -4,9 +4,9 @@ whole outputs published once, resumable reruns and the failures named (docs/scal
 
 * :mod:`hbis_torch.cluster.engine`: scheduler connection, one task per input, atomic
   publication, the run's summary; needs Dask only when a scheduler is used.
-* :mod:`hbis_torch.cluster.jobs`: what ``hbis reconstruct``, ``hbis assemble --burst`` and
+* :mod:`hbis_torch.cli.jobs`: what ``hbis reconstruct``, ``hbis assemble --burst`` and
   ``hbis validate`` do to one input.
-* :mod:`hbis_torch.cluster.cli`: ``--scheduler`` and the commands' many-input paths.
+* :mod:`hbis_torch.cli.many`: ``--scheduler`` and the commands' many-input paths.
 * :mod:`hbis_torch.cluster.pool`: a training pool simulated on the cluster, example for example
   the pool the local run builds.
 """

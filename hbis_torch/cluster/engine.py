@@ -205,9 +205,6 @@ def prepare_worker(threads: int, warm=None) -> None:
 
     torch.set_num_threads(threads)
     set_progress(False)
-    from hbis_torch.cli import keep_freed_memory
-
-    keep_freed_memory()
     if warm is not None:
         try:
             warm()

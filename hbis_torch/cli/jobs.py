@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +33,7 @@ class ReconstructJob:
     args: argparse.Namespace
     prepared: tuple
     threads: int
+    reconstruct_one: Callable  # cmd_reconstruct.reconstruct_one (passed in: the command imports this module)
 
     def warm(self) -> None:
         """Import what a task needs (once per worker, before the first task): the method's
@@ -49,10 +51,9 @@ class ReconstructJob:
             importlib.import_module(name)
 
     def __call__(self, source, staging) -> list[str]:
-        from hbis_torch.cli.cmd_reconstruct import reconstruct_one
         from hbis_torch.stack_io import write_image
 
-        image, messages, meta, pixel_um = reconstruct_one(self.args, Path(source), self.prepared, threads=self.threads)
+        image, messages, meta, pixel_um = self.reconstruct_one(self.args, Path(source), self.prepared, threads=self.threads)
         write_image(staging, image, meta, pixel_size_um=pixel_um)
         return messages
 
@@ -116,7 +117,7 @@ class ValidateJob:
                                 blur_px=DEFAULT_BLUR_PX if a.blur is None else a.blur,
                                 method_options=self.options, messages=messages)
         messages += [f"{name}: {line}" for name, scores in result.methods.items() for line in scores.messages]
-        from hbis_torch.cli.cmd_validate import json_report
+        from hbis_torch.cli.validate_report import json_report
 
         report = json_report(result, Path(source).name, stack.kind)
         Path(staging).write_text(json.dumps(report, indent=1) + "\n")

@@ -22,6 +22,7 @@ input that fails is named in one line and the others go on; the exit code is the
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 
@@ -62,6 +63,16 @@ def add_scheduler_argument(parser: argparse.ArgumentParser, many: str | None = N
                         "one line and the others go on")
 
 
+def _warm_worker(warm=None) -> None:
+    """A worker's set-up before its first task: freed memory kept in the heap, as the ``hbis``
+    program keeps it (:func:`hbis_torch.cli.keep_freed_memory`), then the job's imports."""
+    from hbis_torch.cli import keep_freed_memory
+
+    keep_freed_memory()
+    if warm is not None:
+        warm()
+
+
 def _inputs_and_outputs(items, out_dir: Path, suffix: str) -> tuple[list[Path], list[Path]]:
     """The inputs (paths, globs, @LIST) and ``out_dir/STEM.SUFFIX`` for each, checked."""
     from hbis_torch.cli.reconstruct_batch import expand_stacks
@@ -92,7 +103,7 @@ def _execute(job, sources, outputs, args, *, desc: str, prefix: str, threads: in
     if args.scheduler is None:
         return run_tasks(job, sources, outputs, desc=desc, prefix=prefix, out_dir=args.out_dir)
     with connect(args.scheduler) as client:
-        client.register_plugin(worker_plugin(threads, getattr(job, "warm", None)))  # waits for every worker
+        client.register_plugin(worker_plugin(threads, functools.partial(_warm_worker, getattr(job, "warm", None))))
         link = dashboard_link(client)
         if link:
             print(f"{prefix}: Dask dashboard at {link}", file=sys.stderr)
@@ -105,9 +116,10 @@ def _finish(summary, verb: str, noun: str, out_dir) -> int:
     return summary.code
 
 
-def run_reconstruct(args, prepare) -> int:
-    """``hbis reconstruct ... --out-dir DIR --scheduler S`` (``prepare``: ``cmd_reconstruct.prepare``)."""
-    from hbis_torch.cluster.jobs import ReconstructJob, plain_args
+def run_reconstruct(args, prepare, reconstruct_one) -> int:
+    """``hbis reconstruct ... --out-dir DIR --scheduler S`` (``prepare`` and ``reconstruct_one``:
+    :mod:`hbis_torch.cli.cmd_reconstruct`'s)."""
+    from hbis_torch.cli.jobs import ReconstructJob, plain_args
     from hbis_torch.reconstruct.registry import METHODS
 
     if args.out_dir is None:
@@ -119,7 +131,7 @@ def run_reconstruct(args, prepare) -> int:
     threads = args.threads or 1  # a worker has one thread: as each stack in the in-process pool
     if METHODS[args.method].threads and "threads" not in kw:
         kw["threads"] = threads
-    job = ReconstructJob(plain_args(args), (kw, calibration), threads)
+    job = ReconstructJob(plain_args(args), (kw, calibration), threads, reconstruct_one)
     summary = _execute(job, sources, outputs, args, desc="reconstruct", prefix="hbis reconstruct", threads=threads)
     return _finish(summary, "reconstructed", "stacks", args.out_dir)
 
@@ -144,7 +156,7 @@ def run_many(args, command: str) -> int | None:
 
 
 def _run_bursts(args) -> int:
-    from hbis_torch.cluster.jobs import BurstJob, plain_args
+    from hbis_torch.cli.jobs import BurstJob, plain_args
 
     if not args.burst:
         raise HbisInputError("--out-dir is for bursts (--burst --scale S): each FRAME one burst file")
@@ -164,9 +176,9 @@ def _run_bursts(args) -> int:
 
 
 def _run_validate(args) -> int:
-    from hbis_torch.cli.cmd_validate import method_names
+    from hbis_torch.cli.validate_report import method_names
     from hbis_torch.cli.method_options import keywords_for_methods
-    from hbis_torch.cluster.jobs import ValidateJob, plain_args
+    from hbis_torch.cli.jobs import ValidateJob, plain_args
     from hbis_torch.reconstruct.registry import METHODS
 
     if args.json:
