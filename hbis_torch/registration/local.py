@@ -5,8 +5,8 @@ lens. A hand-held burst breaks each a little: the rolling shutter reads rows at 
 moments (a shift that changes down the frame), near and far objects move apart (parallax), and
 the lens's distortion bends what a homography keeps straight. What is left after the global
 motion is small and smooth, so it is measured as one shift per tile of the reference grid by
-Lucas-Kanade on the blurred images (a few Gauss-Newton steps of a translation, as HDR+ and
-Wronski et al. align tiles), shrunk towards zero where the tile's texture does not pin it down,
+Lucas-Kanade on the blurred images (a few Gauss-Newton steps of a translation, as HDR+ [1]_ and
+Wronski et al. [2]_ align tiles), shrunk towards zero where the tile's texture does not pin it down,
 and interpolated bilinearly between the tiles' centres. What no motion explains (a moving
 object) stays the robustness weights' to handle.
 

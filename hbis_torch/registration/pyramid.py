@@ -5,7 +5,7 @@ real size turns by tenths of a degree, which moves a 640 x 480 frame's corners b
 pixels while its centre barely moves, so no translation start (phase correlation) is within
 reach. Halving the frames until they are small brings every motion within reach at the coarsest
 level; each finer level then starts from the coarser one's answer, where it is off by about a
-pixel of that level (Bouguet's pyramidal Lucas-Kanade; Baker and Matthews' fitter at each
+pixel of that level (Bouguet's pyramidal Lucas-Kanade [1]_; Baker and Matthews' fitter at each
 level, :func:`~hbis_torch.registration.register_stack`).
 
 Frames are (F, H, W) float32; homographies (F, 3, 3) float64 map frame px -> reference px, pixel
