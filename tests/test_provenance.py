@@ -1,0 +1,58 @@
+"""The results writer records where a result came from, atomically, in both kinds of file."""
+
+import json
+
+import pytest
+
+from hbis_torch import provenance as pv
+
+
+def test_json_results_carry_command_commit_date_machine(tmp_path):
+    out = tmp_path / "r.json"
+    prov = pv.write_results(out, {"psnr": 31.5}, argv=["--quick", "a b"])
+    data = json.loads(out.read_text())
+    assert data["psnr"] == 31.5
+    assert data["provenance"] == prov == pv.read_provenance(out)
+    assert prov["command"].endswith("--quick 'a b'")
+    assert len(prov["commit"]) == 40 or prov["commit"] == "unknown"
+    assert prov["dirty"] in (True, False, None)
+    assert prov["date"][:2] == "20" and prov["date"].endswith("+00:00")
+    assert prov["machine"]["cores"] >= 1 and prov["machine"]["cpu"]
+    assert set(prov["machine"]["flags"]) <= set(pv.CPU_FLAGS)
+    assert "python" in prov["versions"] and "torch" in prov["versions"]
+
+
+def test_list_payload_is_wrapped(tmp_path):
+    out = tmp_path / "cells.json"
+    pv.write_results(out, [1, 2], argv=[])
+    assert json.loads(out.read_text())["results"] == [1, 2]
+
+
+def test_markdown_header_round_trips_and_is_replaced_not_stacked(tmp_path):
+    out = tmp_path / "table.md"
+    pv.write_results(out, "| a | b |\n| 1 | 2 |\n", argv=["x"])
+    first = out.read_text()
+    assert first.splitlines()[1].startswith("_Made by `")
+    assert pv.read_provenance(out)["command"].endswith(" x")
+    # Rewriting a file that already has a header keeps one header and the body.
+    pv.write_results(out, first, argv=["y"])
+    text = out.read_text()
+    assert text.count("<!-- provenance: ") == 1 and text.endswith("| 1 | 2 |\n")
+    assert pv.read_provenance(out)["command"].endswith(" y")
+
+
+def test_older_results_say_what_is_unknown(tmp_path):
+    out = tmp_path / "old.txt"
+    prov = pv.older_provenance("python benchmarks/bench_x.py", note="load 1.2")
+    pv.write_results(out, "42 s\n", prov=prov)
+    back = pv.read_provenance(out)
+    assert back["recorded_before_provenance"] and back["commit"] == "unknown"
+    assert "commit, date and machine unknown" in out.read_text()
+
+
+def test_failed_write_leaves_the_old_file(tmp_path):
+    out = tmp_path / "r.json"
+    out.write_text("old\n")
+    with pytest.raises(TypeError):
+        pv.write_results(out, {1j: 1}, argv=[])  # a key JSON cannot hold
+    assert out.read_text() == "old\n"
