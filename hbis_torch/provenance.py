@@ -22,7 +22,9 @@ Examples
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
+import io
 import json
 import os
 import platform
@@ -36,7 +38,7 @@ from pathlib import Path
 
 from hbis_torch.io_utils import atomic_write_text
 
-__all__ = ["provenance", "write_results", "read_provenance", "older_provenance", "machine", "REPO"]
+__all__ = ["provenance", "write_results", "read_provenance", "older_provenance", "record_printed", "machine", "REPO"]
 
 #: The repository (or installed tree) holding this package.
 REPO = Path(__file__).resolve().parents[1]
@@ -257,3 +259,35 @@ def read_provenance(path) -> dict | None:
     first = text.partition("\n")[0]
     match = re.fullmatch(re.escape(_MARK) + r"(.*) -->", first)
     return json.loads(match.group(1)) if match else None
+
+
+class _Tee(io.TextIOBase):
+    def __init__(self, *streams):
+        self.streams = streams
+
+    def write(self, text):
+        for stream in self.streams:
+            stream.write(text)
+        return len(text)
+
+    def flush(self):
+        for stream in self.streams:
+            stream.flush()
+
+
+@contextlib.contextmanager
+def record_printed(path, argv=None):
+    """Print as usual and, when the block ends without an error, write what was printed to ``path``.
+
+    For benchmarks whose result is the text they print: ``with record_printed(args.out, argv):``.
+    ``path`` None records nothing. A ``.json`` path gets ``{"provenance": ..., "printed": text}``;
+    any other the text under the provenance header (:func:`write_results`).
+    """
+    if path is None:
+        yield
+        return
+    kept = io.StringIO()
+    with contextlib.redirect_stdout(_Tee(sys.stdout, kept)):
+        yield
+    text = kept.getvalue()
+    write_results(path, {"printed": text} if Path(path).suffix == ".json" else text, argv=argv)

@@ -56,3 +56,16 @@ def test_failed_write_leaves_the_old_file(tmp_path):
     with pytest.raises(TypeError):
         pv.write_results(out, {1j: 1}, argv=[])  # a key JSON cannot hold
     assert out.read_text() == "old\n"
+
+
+def test_printed_text_is_recorded_only_on_success(tmp_path, capsys):
+    out = tmp_path / "printed.txt"
+    with pv.record_printed(out, argv=["--n", "3"]):
+        print("median 1.5 ms")
+    assert "median 1.5 ms" in capsys.readouterr().out  # still printed
+    assert out.read_text().endswith("median 1.5 ms\n") and pv.read_provenance(out)["command"].endswith("--n 3")
+    failed = tmp_path / "failed.txt"
+    with pytest.raises(RuntimeError), pv.record_printed(failed, argv=[]):
+        print("half")
+        raise RuntimeError
+    assert not failed.exists()

@@ -42,8 +42,6 @@ learned minus classical for every cell, its row means, and the classical PSNR fo
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import sys
 import time
 from pathlib import Path
@@ -51,7 +49,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hbis_torch.provenance import write_results
+from hbis_torch.provenance import record_printed, write_results
 from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
 from hbis_torch.reconstruct.learned.inputs import check_ensemble
@@ -95,24 +93,8 @@ def main(argv=None) -> int:
         if path is not None and path.exists():
             print(f"eval_matrix: {path} exists; choose another {flag}", file=sys.stderr)
             return 2
-    printed = io.StringIO()
-    with contextlib.redirect_stdout(_Tee(sys.stdout, printed)):
-        code = burst_matrix(args) if args.bursts else scan_matrix(args)
-    if code == 0 and args.md is not None:
-        write_results(args.md, printed.getvalue(), argv=args.argv)
-    return code
-
-
-class _Tee(io.TextIOBase):
-    """Writes to several text streams at once (the terminal and the markdown kept for ``--md``)."""
-
-    def __init__(self, *streams):
-        self.streams = streams
-
-    def write(self, text):
-        for stream in self.streams:
-            stream.write(text)
-        return len(text)
+    with record_printed(args.md, argv=args.argv):
+        return burst_matrix(args) if args.bursts else scan_matrix(args)
 
 
 def scan_matrix(args) -> int:
