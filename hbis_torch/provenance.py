@@ -190,7 +190,8 @@ def _header(prov: dict) -> str:
         versions = ", ".join(f"{k} {v}" for k, v in prov["versions"].items())
         line = (f"_Made by `{prov['command']}` at commit {prov['commit'][:10]}{dirty}, {prov['date']}, "
                 f"on {m['cpu']} ({m['cores_usable']} of {m['cores']} cores; {flags}); {versions}._")
-    return _MARK + json.dumps(prov, sort_keys=True) + " -->\n" + line + "\n\n"
+    # ">" only ever sits inside JSON strings: escaped, no value can close the HTML comment early.
+    return _MARK + json.dumps(prov, sort_keys=True).replace(">", "\\u003e") + " -->\n" + line + "\n\n"
 
 
 def _strip_header(text: str) -> str:

@@ -91,3 +91,10 @@ def test_every_benchmark_writes_its_results_through_the_provenance_writer():
             for n in ast.walk(fn):
                 if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in raw:
                     assert (script.name, fn.name) in allowed_raw, f"{script.name}:{n.lineno} writes {n.func.attr} directly"
+
+
+def test_a_command_holding_an_html_comment_end_cannot_break_the_header(tmp_path):
+    out = tmp_path / "r.md"
+    pv.write_results(out, "body\n", prov=pv.older_provenance("python x.py > a.txt -->"))
+    assert out.read_text().splitlines()[0].count("-->") == 1
+    assert pv.read_provenance(out)["command"] == "python x.py > a.txt -->"
