@@ -59,3 +59,10 @@ def test_wrong_or_unmarked_figures_fail(results, text, expected):
 
 def test_dimensions_and_exponents_are_not_figures(results):
     assert _problems(results, "A 3 x 3 array of 960 x 1280 sensors, K R K^-1.\n") == []
+
+
+def test_no_docs_page_over_500_lines():
+    # a page a user reads through; history goes to dated notes (docs/notes/)
+    long = {str(p.relative_to(df.REPO)): n for p in df.pages()
+            if (n := len(p.read_text().splitlines())) > 500}
+    assert not long, long
