@@ -154,6 +154,23 @@ def _in_text(digits: str, text: str) -> bool:
     return re.search(r"(?<![\d.])" + re.escape(digits) + r"(?![\d])", text) is not None
 
 
+def _json_numbers(data) -> list[float]:
+    if isinstance(data, dict):
+        return [v for x in data.values() for v in _json_numbers(x)]
+    if isinstance(data, list):
+        return [v for x in data for v in _json_numbers(x)]
+    if isinstance(data, (int, float)) and not isinstance(data, bool):
+        return [abs(float(data))]
+    return []
+
+
+def _in_json(digits: str, data) -> bool:
+    """Whether some number of a JSON results file, rounded as ``digits`` shows, is ``digits``
+    (a table copied from a JSON file: weaker than a key per figure, so kept for tables)."""
+    shown, tol = _value("", digits), 0.5 * 10 ** -_decimals(digits) + 1e-9
+    return any(abs(v - shown) <= tol for v in _json_numbers(data))
+
+
 def check_page(path: Path, sources: Sources | None = None) -> list[Problem]:
     """Every problem with the figures of one markdown page."""
     sources = sources or Sources()
@@ -187,10 +204,11 @@ def check_page(path: Path, sources: Sources | None = None) -> list[Problem]:
         if is_table and table_source:
             if re.fullmatch(r"[\s|:-]*", line):
                 continue
-            text, _, err = sources.get(table_source)
+            text, data, err = sources.get(table_source)
             if text is not None:
                 for _, _, digits, _ in numbers(_blank(line, MARKER)):
-                    if not _in_text(digits, text):
+                    found = _in_json(digits, data) if data is not None else _in_text(digits, text)
+                    if not found:
                         problems.append(Problem(rel, lineno, f"{digits} is not in {table_source}"))
             continue
         start = 0

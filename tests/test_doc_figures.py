@@ -8,7 +8,8 @@ import doc_figures as df
 from hbis_torch.provenance import write_results
 
 #: Pages whose every figure is marked and checked. The others are listed in docs/figures.md.
-ENFORCED = ["docs/stack-format.md"]
+ENFORCED = ["README.md", "docs/architecture.md", "docs/design.md", "docs/hardware.md", "docs/speed-vs-error.md",
+            "docs/stack-format.md", "docs/system.md"]
 
 
 @pytest.mark.parametrize("page", ENFORCED)
@@ -39,7 +40,8 @@ def test_marked_figures_pass(results):
         "<!-- src: r.json: rows.[h=4].psnr - rows.[h=7].psnr -->, best/fast 1.3x<!-- src: r.json: t.best / t.fast -->"
         " and 1.29x<!-- src: t.md -->; a 2 s<!-- setting --> timeout.\n"
         "```\n99 dB in a code block\n```\n`7 s` in a span\n"
-        "<!-- src-table: t.md -->\n| h | speed |\n|---|---|\n| 4 | 1.29x |\n")) == []
+        "<!-- src-table: t.md -->\n| h | speed |\n|---|---|\n| 4 | 1.29x |\n"
+        "\n<!-- src-table: r.json -->\n| h | PSNR |\n|---|---|\n| 4 | 31.50 dB |\n")) == []
 
 
 @pytest.mark.parametrize("text, expected", [
@@ -51,6 +53,7 @@ def test_marked_figures_pass(results):
     ("1.0 dB<!-- src: gone.json: a -->\n", "does not exist"),
     ("1.0 dB<!-- src: r.json: rows.[h=5].psnr -->\n", "0 elements match"),
     ("<!-- src-table: t.md -->\n| 4 | 1.31x |\n", "1.31 is not in t.md"),
+    ("<!-- src-table: r.json -->\n| 31.6 dB |\n", "31.6 is not in r.json"),
 ])
 def test_wrong_or_unmarked_figures_fail(results, text, expected):
     problems = _problems(results, text)
