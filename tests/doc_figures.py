@@ -25,7 +25,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 MARKER = re.compile(r"<!--\s*(src|setting|src-table)\b:?\s*(.*?)\s*-->")
-NUMBER = re.compile(r"(?<![\w.])([+\u2212-]?)(\d+(?:,\d{3})*(?:\.\d+)?)")
+NUMBER = re.compile(r"(?<![\w.])([+\u2212-]?)(\d+(?:,\d{3})*(?:\.\d+)?(?:e[+-]?\d+)?)(?![\w.]*\d)")
 UNIT = re.compile(r"\s?(dB|(?:x|\u00d7)(?!\s?\d)|s|ms|\u00b5s|us|min|%|times|fps|kB|MB|GB|KiB|MiB|GiB)(?![\w])")
 CODE_SPAN = re.compile(r"`[^`]*`")
 LINK_TARGET = re.compile(r"\]\([^)]*\)")
@@ -65,8 +65,11 @@ def _value(sign: str, digits: str) -> float:
     return -v if sign in ("-", "\u2212") else v
 
 
-def _decimals(digits: str) -> int:
-    return len(digits.split(".")[1]) if "." in digits else 0
+def _tolerance(digits: str) -> float:
+    """Half a unit of the last digit shown (``5.9e-05``: 5e-07), plus rounding slack."""
+    mantissa, _, exponent = digits.partition("e")
+    decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
+    return 0.5 * 10 ** (int(exponent or 0) - decimals) * (1 + 1e-9) + 1e-12
 
 
 def _part(node, part: str):
@@ -167,7 +170,7 @@ def _json_numbers(data) -> list[float]:
 def _in_json(digits: str, data) -> bool:
     """Whether some number of a JSON results file, rounded as ``digits`` shows, is ``digits``
     (a table copied from a JSON file: weaker than a key per figure, so kept for tables)."""
-    shown, tol = _value("", digits), 0.5 * 10 ** -_decimals(digits) + 1e-9
+    shown, tol = _value("", digits), _tolerance(digits)
     return any(abs(v - shown) <= tol for v in _json_numbers(data))
 
 
@@ -254,7 +257,7 @@ def check_page(path: Path, sources: Sources | None = None) -> list[Problem]:
                     shown = _value(sign, digits)
                     if not sign:  # an unsigned figure may quote a magnitude ("lost 0.30 dB")
                         value = abs(value) if shown >= 0 else value
-                    if abs(value - shown) > 0.5 * 10 ** -_decimals(digits) + 1e-9:
+                    if abs(value - shown) > _tolerance(digits):
                         problems.append(Problem(rel, lineno, f"{sign}{digits} but {file}: {expr.strip()} = {value:.6g}"))
             else:
                 targets = [n for n in nums if n[3]] or nums[-1:]
