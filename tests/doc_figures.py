@@ -7,7 +7,8 @@ docs/figures.md):
   separated, for the last numbers of the span; a key may be ``a - b``, ``a / b``, ...);
 * ``1.29x<!-- src: benchmarks/results/x.md -->`` (text: the figure appears in the file);
 * ``<!-- src-table: benchmarks/results/x.md -->`` on the line above a table;
-* ``2 s<!-- setting -->`` for a number that is an input, not a result.
+* ``2 s<!-- setting -->`` for a number that is an input, not a result;
+* ``> 80 %<!-- paper -->`` for a figure quoted from the paper the project reproduces.
 
 Run ``python tests/doc_figures.py FILE...`` to list the problems of some pages.
 """
@@ -24,7 +25,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 
-MARKER = re.compile(r"<!--\s*(src|setting|src-table)\b:?\s*(.*?)\s*-->")
+MARKER = re.compile(r"<!--\s*(src|setting|paper|src-table)\b:?\s*(.*?)\s*-->")
 NUMBER = re.compile(r"(?<![\w.])([+\u2212-]?)(\d+(?:,\d{3})*(?:\.\d+)?(?:e[+-]?\d+)?)(?![\w.]*\d)")
 UNIT = re.compile(r"\s?(dB|(?:x|\u00d7)(?!\s?\d)|s|ms|\u00b5s|us|min|%|times|fps|kB|MB|GB|KiB|MiB|GiB)(?![\w])")
 CODE_SPAN = re.compile(r"`[^`]*`")
@@ -221,7 +222,7 @@ def check_page(path: Path, sources: Sources | None = None) -> list[Problem]:
             nums = [n for n in numbers(span) if n[0] >= start]
             kind, arg = marker.group(1), marker.group(2)
             start = marker.end()
-            if kind == "setting":
+            if kind in ("setting", "paper"):
                 covered.update(n[0] for n in nums)
                 continue
             if kind != "src" or not arg:
