@@ -92,18 +92,23 @@ def _part(node, part: str):
 
 
 def lookup(data, path: str):
-    """The value at a key path such as ``results.[method=learned,h=7].psnr`` (dots between parts)."""
-    parts = re.findall(r"\[[^\]]*\]|[^.\[\]]+", path)
+    """The value at a key path such as ``results.[method=learned,h=7].psnr`` (dots between parts;
+    a part in double quotes may hold dots, spaces and operators: ``summary."rgb / classical"``)."""
+    parts = re.findall(r'"[^"]*"|\[[^\]]*\]|[^.\[\]"]+', path)
     node = data
     for part in parts:
-        node = _part(node, part)
+        node = _part(node, part[1:-1] if part.startswith('"') else part)
     return node
 
 
 def evaluate(data, expr: str) -> float:
     """A key path, or arithmetic (``+ - * /`` with spaces around) of key paths and numbers."""
     names = {}
-    tokens = re.split(r"\s+([-+*/])\s+", expr.strip())
+    quoted = re.findall(r'"[^"]*"', expr)  # a quoted key part may hold " / " or " - "
+    for i, q in enumerate(quoted):
+        expr = expr.replace(q, f"\0{i}\0", 1)
+    tokens = [re.sub(r"\0(\d+)\0", lambda m: quoted[int(m.group(1))], t)
+              for t in re.split(r"\s+([-+*/])\s+", expr.strip())]
     code = []
     for i, token in enumerate(tokens):
         if i % 2:
@@ -274,10 +279,10 @@ def check_page(path: Path, sources: Sources | None = None) -> list[Problem]:
 
 
 def _rejoin_selectors(parts: list[str]) -> list[str]:
-    """Comma-split keys glued back where the comma sat inside ``[k=v,k2=v2]``."""
+    """Comma-split keys glued back where the comma sat inside ``[k=v,k2=v2]`` or a quoted part."""
     out: list[str] = []
     for part in parts:
-        if out and out[-1].count("[") > out[-1].count("]"):
+        if out and (out[-1].count("[") > out[-1].count("]") or out[-1].count('"') % 2):
             out[-1] += "," + part
         else:
             out.append(part)

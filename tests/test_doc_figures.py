@@ -9,7 +9,7 @@ from hbis_torch.provenance import write_results
 
 #: Pages whose every figure is marked and checked. The others are listed in docs/figures.md.
 ENFORCED = ["README.md", "docs/architecture.md", "docs/design.md", "docs/hardware.md", "docs/speed-vs-error.md",
-            "docs/data.md", "docs/reproduction.md", "docs/stack-format.md", "docs/system.md", "docs/validate.md"]
+            "docs/capture.md", "docs/data.md", "docs/reproduction.md", "docs/stack-format.md", "docs/system.md", "docs/validate.md"]
 
 
 @pytest.mark.parametrize("page", ENFORCED)
@@ -22,7 +22,7 @@ def test_enforced_page_figures_match_their_results(page):
 def results(tmp_path, monkeypatch):
     monkeypatch.setattr(df, "REPO", tmp_path)
     write_results(tmp_path / "r.json", {"rows": [{"h": 4, "psnr": 31.504}, {"h": 7, "psnr": 30.0}],
-                                        "t": {"fast": 2.0, "best": 2.6}}, argv=[])
+                                        "t": {"fast": 2.0, "best": 2.6}, "s": {"a / b": 3.0}}, argv=[])
     write_results(tmp_path / "t.md", "| h | x |\n| 4 | 1.29 |\n", argv=[])
     (tmp_path / "bare.json").write_text(json.dumps({"a": 1.0}))
     return tmp_path
@@ -38,7 +38,7 @@ def test_marked_figures_pass(results):
     assert _problems(results, (
         "At h = 4 it gives 31.50 dB<!-- src: r.json: rows.[h=4].psnr -->, +1.50 dB over h = 7"
         "<!-- src: r.json: rows.[h=4].psnr - rows.[h=7].psnr -->, best/fast 1.3x<!-- src: r.json: t.best / t.fast -->"
-        " and 1.29x<!-- src: t.md -->; a 2 s<!-- setting --> timeout.\n"
+        " and 1.29x<!-- src: t.md -->; a 2 s<!-- setting --> timeout; +1.0 dB<!-- src: r.json: s.\"a / b\" - t.best + 0.6 -->.\n"
         "```\n99 dB in a code block\n```\n`7 s` in a span\n"
         "<!-- src-table: t.md -->\n| h | speed |\n|---|---|\n| 4 | 1.29x |\n"
         "\n<!-- src-table: r.json -->\n| h | PSNR |\n|---|---|\n| 4 | 31.50 dB |\n")) == []
