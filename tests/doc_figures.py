@@ -5,7 +5,8 @@ docs/figures.md):
 
 * ``+0.50 dB<!-- src: benchmarks/results/x.json: key.path -->`` (JSON; several keys, comma
   separated, for the last numbers of the span; a key may be ``a - b``, ``a / b``, ...);
-* ``1.29x<!-- src: benchmarks/results/x.md -->`` (text: the figure appears in the file);
+* ``1.29x<!-- src: benchmarks/results/x.md -->`` (text: the figure appears in the file; several
+  files, space separated: in one of them);
 * ``<!-- src-table: benchmarks/results/x.md -->`` on the line above a table;
 * ``2 s<!-- setting -->`` for a number that is an input, not a result;
 * ``> 80 %<!-- paper -->`` for a figure quoted from the paper the project reproduces.
@@ -158,6 +159,15 @@ class Sources:
                 self.cache[rel] = (text, data, None if prov else f"{rel} records no provenance")
         return self.cache[rel]
 
+    def holds(self, digits: str, names) -> bool:
+        """Whether one of the files ``names`` holds the figure: as written in a text file, or
+        as some number rounded to it in a JSON one."""
+        for name in names:
+            text, data, _ = self.get(name)
+            if text is not None and (_in_json(digits, data) if data is not None else _in_text(digits, text)):
+                return True
+        return False
+
 
 def _in_text(digits: str, text: str) -> bool:
     return re.search(r"(?<![\d.])" + re.escape(digits) + r"(?![\d])", text) is not None
@@ -197,12 +207,13 @@ def check_page(path: Path, sources: Sources | None = None) -> list[Problem]:
             continue
         if in_code:
             continue
-        m = re.fullmatch(r"\s*<!--\s*src-table:\s*(\S+)\s*-->\s*", raw)
+        m = re.fullmatch(r"\s*<!--\s*src-table:\s*(.+?)\s*-->\s*", raw)
         if m:
             table_source = m.group(1)
-            text, _, err = sources.get(table_source)
-            if err:
-                problems.append(Problem(rel, lineno, err))
+            for name in table_source.split():
+                err = sources.get(name)[2]
+                if err:
+                    problems.append(Problem(rel, lineno, err))
             continue
         is_table = raw.lstrip().startswith("|")
         if not is_table:
@@ -213,12 +224,9 @@ def check_page(path: Path, sources: Sources | None = None) -> list[Problem]:
         if is_table and table_source:
             if re.fullmatch(r"[\s|:-]*", line):
                 continue
-            text, data, err = sources.get(table_source)
-            if text is not None:
-                for _, _, digits, _ in numbers(_blank(line, MARKER)):
-                    found = _in_json(digits, data) if data is not None else _in_text(digits, text)
-                    if not found:
-                        problems.append(Problem(rel, lineno, f"{digits} is not in {table_source}"))
+            for _, _, digits, _ in numbers(_blank(line, MARKER)):
+                if not sources.holds(digits, table_source.split()):
+                    problems.append(Problem(rel, lineno, f"{digits} is not in {table_source}"))
             continue
         start = 0
         covered: set[int] = set()
@@ -235,11 +243,12 @@ def check_page(path: Path, sources: Sources | None = None) -> list[Problem]:
                 continue
             file, _, keys = arg.partition(":")
             file = file.strip()
-            text, data, err = sources.get(file)
-            if err:
-                problems.append(Problem(rel, lineno, err))
+            errors = [e for e in (sources.get(name)[2] for name in file.split()) if e]
+            if errors:
+                problems.extend(Problem(rel, lineno, e) for e in errors)
                 covered.update(n[0] for n in nums)
                 continue
+            text, data, _ = sources.get(file.split()[0])
             if keys.strip():
                 if data is None:
                     problems.append(Problem(rel, lineno, f"keys given for {file}, which is not JSON"))
@@ -269,7 +278,7 @@ def check_page(path: Path, sources: Sources | None = None) -> list[Problem]:
                 targets = [n for n in nums if n[3]] or nums[-1:]
                 for pos, _, digits, _ in targets:
                     covered.add(pos)
-                    if not _in_text(digits, text):
+                    if not sources.holds(digits, file.split()):
                         problems.append(Problem(rel, lineno, f"{digits} is not in {file}"))
         bare = _blank(line, MARKER)
         for pos, sign, digits, is_figure in numbers(bare):

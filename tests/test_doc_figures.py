@@ -49,6 +49,7 @@ def test_marked_figures_pass(results):
     ("It takes 3.2 s.\n", "no source marker"),  # no source
     ("+0.35 better\n", "no source marker"),  # a signed decimal is a figure
     ("1.30x<!-- src: t.md -->\n", "1.30 is not in t.md"),
+    ("1.30x and 31.50 dB<!-- src: t.md r.json -->\n", "1.30 is not in t.md r.json"),
     ("1.0 dB<!-- src: bare.json: a -->\n", "records no provenance"),
     ("1.0 dB<!-- src: gone.json: a -->\n", "does not exist"),
     ("1.0 dB<!-- src: r.json: rows.[h=5].psnr -->\n", "0 elements match"),
