@@ -90,7 +90,7 @@ def make_stacks(work: Path, hs) -> dict:
             if not (stack.exists() and truth.exists()):
                 roi = ["--roi", "full"] if size == "full" else []
                 subprocess.run([sys.executable, "-m", "hbis_torch", "simulate", "--scene", "camera",
-                                "--h", str(h), *roi, "--out", str(stack), "--truth", str(truth)],
+                                "--h", str(h), *roi, "--out", str(stack), "--truth", str(truth), "--overwrite"],
                                check=True, cwd=REPO, env=child_env())
             paths[h, size] = (stack, truth)
     return paths

@@ -53,7 +53,8 @@ def stack_for(work: Path, h: int) -> tuple[Path, Path]:
     if not (stack.exists() and truth.exists()):
         work.mkdir(parents=True, exist_ok=True)
         subprocess.run([sys.executable, "-m", "hbis_torch", "simulate", "--scene", "camera", "--h", str(h),
-                        "--out", str(stack), "--truth", str(truth)], check=True, cwd=REPO, env=env())
+                        "--out", str(stack), "--truth", str(truth), "--overwrite"], check=True, cwd=REPO,
+                       env=env())
     return stack, truth
 
 

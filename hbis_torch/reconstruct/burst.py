@@ -43,6 +43,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 from hbis_torch.reconstruct.single_frame import enlarge, single_frame
 
 # Robustness: a sample keeps weight exp(-(d / tau)^2), d the blurred difference to the reference
@@ -213,8 +214,9 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     fallback = single_frame(frames[ref].numpy(), scale)
     notes = messages if messages is not None else []
     if all(torch.equal(frames[k], frames[ref]) for k in range(len(frames))):
-        notes.append(f"all {len(frames)} frames are identical: no new samples, so the output is the single-frame "
-                     "estimate (the reference frame enlarged, bicubic)")
+        notes.append(act(f"all {len(frames)} frames are identical: no new samples, so the output is the "
+                         "single-frame estimate (the reference frame enlarged, bicubic); capture the burst "
+                         "again, moving the camera a little between frames"))
         return fallback
     frames, positions, trusted, weights = burst_samples(stack, frames)
     cover = coverage(positions, weights, ref)

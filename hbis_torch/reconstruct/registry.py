@@ -25,6 +25,7 @@ import dataclasses
 import importlib
 from typing import TYPE_CHECKING, Any, Callable
 
+from hbis_torch.checks import bounded_float
 from hbis_torch.errors import HbisInputError
 
 if TYPE_CHECKING:
@@ -204,6 +205,10 @@ register(Method(
     options=(
         Option("--no-deblur", "deblur", "interpolation only, without the Wiener deblurring",
                {"action": "store_false"}),
+        Option("--psf-sigma", "lens_sigma", "a Gaussian lens blur (standard deviation, LR px, from a calibration "
+               "such as a slanted edge) that the deblurring undoes beyond the pixel's area and the optics' "
+               "diffraction; default 0: none. Too large a value rings and costs more than too small a one "
+               "(docs/real-bursts.md)", {"type": bounded_float(0.0, 3.0), "metavar": "PX"}),
     ),
 ))
 

@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 from hbis_torch.validate.baseline import ALIASES, SINGLE_FRAME, single_frame
 from hbis_torch.observation.forward import DEFAULT_BLUR_PX, predict_frame
 from hbis_torch.validate.frames import holdout_frames, select_frames
@@ -240,8 +241,9 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     held = holdout_frames(count, stack.reference_index, holdout, trusted)
     doubtful = [k for k in held if not trusted[k]]
     if doubtful and messages is not None:
-        messages.append(f"held-out frame(s) {doubtful}: their motion is not trusted (too few trusted frames to hold "
-                        "out instead), so their predictions, and scores, are doubtful for every method")
+        messages.append(act(f"held-out frame(s) {doubtful}: their motion is not trusted (too few trusted frames to "
+                            "hold out instead), so their predictions, and scores, are doubtful for every method; "
+                            "read the scores with care or validate a burst with more trusted frames"))
     score = _Scorer(stack, observed, positions, border_px, blur_px)
     results = {}
     for name in names:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain, unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, run_tiled, super_resolve, tile_ensemble
@@ -530,7 +531,7 @@ def classical_returned(image, reason: str, messages: list | None = None,
     saying ``reason`` (and ``remedy``) appended to ``messages``. A float32 image already in
     [0, 1] is returned as it is, not copied (a full frame's is 240 MB at h = 7)."""
     if messages is not None:
-        messages.append(f"{reason}: the learned method returns the classical image ({remedy})")
+        messages.append(act(f"{reason}: the learned method returns the classical image ({remedy})"))
     image = np.asarray(image, dtype=np.float32)
     return image if image.size == 0 or (image.min() >= 0 and image.max() <= 1) else np.clip(image, 0.0, 1.0)
 

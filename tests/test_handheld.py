@@ -1,0 +1,129 @@
+"""hbis_torch.training.handheld_render (hand-held bursts at real sizes) and training/eval_handheld.py:
+the frames move as the true motion says, the truth lies on frame 0's grid, and the eval resumes."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.ndimage import map_coordinates
+
+from hbis_torch.training.handheld_render import MOTIONS, render_burst
+
+SCRIPT = Path(__file__).resolve().parents[1] / "training" / "eval_handheld.py"
+W, H = 96, 72
+INNER = (slice(12, -12), slice(12, -12))
+
+
+def reference_at_flow(burst, k, flow=None):
+    """The noise-free reference frame read (cubic spline) where frame k's pixels lie in it."""
+    flow = burst.flow(k) if flow is None else flow
+    return map_coordinates(burst.clean[0].astype(np.float64), [flow[..., 1], flow[..., 0]], order=3)
+
+
+@pytest.mark.parametrize("motion", ["similarity", "homography", "rolling_shutter", "brightness"])
+def test_a_frame_is_the_reference_seen_through_its_true_motion(motion):
+    burst = render_burst(motion, 2, 4, W, H, noise=False, keep_clean=True, seed=3)
+    assert burst.frames.shape == (4, H, W) and burst.frames.dtype == np.uint16
+    assert burst.truth.shape == (2 * H, 2 * W) and burst.truth.dtype == np.float32
+    np.testing.assert_array_equal(burst.motions[0], np.eye(3))
+    for k in range(1, 4):
+        g, o = burst.gain_offset[k]
+        frame = burst.clean[k].astype(np.float64)
+        through = g * reference_at_flow(burst, k) + o
+        # the other way round (reference px -> frame px) puts the samples elsewhere
+        wrong = burst.flow(k) - 2 * (burst.flow(k) - np.stack(np.mgrid[0:H, 0:W][::-1], -1))
+        error = np.abs(through - frame)[INNER].mean()
+        assert error < 3e-3  # well under the noise (1 % at mid grey): what resampling an aliased frame leaves
+        assert error < 0.5 * np.abs(g * reference_at_flow(burst, k, wrong) + o - frame)[INNER].mean()
+        assert error < 0.5 * np.abs(burst.clean[0] - frame)[INNER].mean()
+    if motion == "rolling_shutter":  # one homography cannot hold it, the oracle's comes nearest
+        assert np.abs(burst.row_shift[1:]).max() > 0.2
+        fit = burst.oracle_motions()
+        assert not np.allclose(fit[1:], burst.motions[1:])
+    if motion == "brightness":
+        g, o = burst.stack_gain_offset()[1]
+        assert g * (burst.gain_offset[1, 0] * 0.5 + burst.gain_offset[1, 1]) + o == pytest.approx(0.5)
+
+
+def test_the_truth_lies_on_frame_0s_grid():
+    """Frame 0 before noise (no lens blur) is the truth averaged over S x S blocks; the truth moved
+    by one output pixel is not."""
+    S = 3
+    burst = render_burst("translation", S, 2, W, H, blur_sigma_px=0.0, noise=False, keep_clean=True, seed=5)
+    blocks = burst.truth.reshape(H, S, W, S).mean((1, 3))
+    moved = np.roll(burst.truth, 1, axis=1).reshape(H, S, W, S).mean((1, 3))
+    error = np.abs(blocks - burst.clean[0])[INNER].mean()
+    assert error < 2e-3
+    assert error < 0.2 * np.abs(moved - burst.clean[0])[INNER].mean()
+    # and the noisy 16-bit frame is that signal with about 1 % noise at mid grey
+    noisy = render_burst("translation", S, 2, W, H, blur_sigma_px=0.0, seed=5).frames[0] / 65535.0
+    assert 0.003 < np.std(noisy - burst.clean[0]) < 0.02
+
+
+def test_the_lens_blur_and_the_moving_object_show():
+    sharp = render_burst("moving_object", 2, 3, W, H, blur_sigma_px=0.0, noise=False, keep_clean=True, seed=1)
+    soft = render_burst("moving_object", 2, 3, W, H, blur_sigma_px=0.8, noise=False, keep_clean=True, seed=1)
+    assert soft.blur_sigma_px == 0.8
+    assert np.abs(np.diff(soft.clean[0], axis=1)).mean() < 0.8 * np.abs(np.diff(sharp.clean[0], axis=1)).mean()
+    assert sharp.object_box is not None and np.abs(sharp.object_offset[1:]).max() >= 2
+    # the object moves on its own: the frame is not the reference through the camera's motion there
+    x0, y0, side = (v // 2 for v in sharp.object_box)
+    where = (slice(y0, y0 + side), slice(x0, x0 + side))
+    outside = np.abs(sharp.clean[1] - reference_at_flow(sharp, 1))
+    assert outside[where].mean() > 5 * np.median(outside[INNER])
+
+
+def test_every_motion_renders():
+    for motion in MOTIONS:
+        burst = render_burst(motion, 2, 2, 48, 40, seed=0)
+        assert burst.frames.shape == (2, 40, 48) and burst.motion == motion
+
+
+@pytest.fixture(scope="module")
+def eh():
+    spec = importlib.util.spec_from_file_location("eval_handheld", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_eval_resumes_where_it_stopped(eh, tmp_path, capsys):
+    out = tmp_path / "cells.json"
+    args = ["--out", str(out), "--motions", "translation", "--scales", "2", "--frames", "3", "--size", "64x48",
+            "--no-vidsr", "--no-learned"]
+    assert eh.main(args) == 0
+    done = json.loads(out.read_text())
+    cell = done["cells"]["translation|S=2|F=3"]
+    assert set(cell["rows"]) == {"bicubic", "classical", "oracle"}
+    assert cell["rows"]["classical"]["psnr_db"] > cell["rows"]["bicubic"]["psnr_db"] - 3
+    # a run stopped before its oracle row: the rerun keeps what was there and adds only that row
+    cell["rows"]["bicubic"]["psnr_db"] = 99.0
+    del cell["rows"]["oracle"]
+    out.write_text(json.dumps(done))
+    assert eh.main(args) == 0
+    again = json.loads(out.read_text())["cells"]["translation|S=2|F=3"]["rows"]
+    assert again["bicubic"]["psnr_db"] == 99.0 and again["oracle"]["run"] == 1
+    assert "translation" in out.with_suffix(".md").read_text()
+    # other settings are refused in one line, the file untouched
+    before = out.read_text()
+    assert eh.main(args[:-2] + ["--no-learned", "--blur", "0.5"]) == 2
+    assert "other settings" in capsys.readouterr().err and out.read_text() == before
+    assert eh.main(["--out", str(out), "--motions", "spin"]) == 2
+
+
+def test_the_vidsr_peer_gives_an_image_on_the_truths_grid(eh):
+    pytest.importorskip("vidsr")
+    import sys
+
+    sys.path.insert(0, str(SCRIPT.parents[1] / "benchmarks" / "peers"))
+    from vidsr_peer import vidsr_sr
+
+    burst = render_burst("translation", 2, 6, W, H, seed=2)
+    image = vidsr_sr(burst.frames, 2)
+    assert image.shape == burst.truth.shape and image.dtype == np.float32
+    # on the truth's grid: better than the reference enlarged, and worse moved by one output pixel
+    score = eh.psnr(image, burst.truth, 4, 2)
+    assert score > eh.psnr(eh.bicubic(burst.frames[0], 2), burst.truth, 4, 2)
+    assert score > eh.psnr(np.roll(image, 1, axis=1), burst.truth, 4, 2) + 1

@@ -1,0 +1,367 @@
+"""Hand-held bursts at real sizes, against the truth: the project, its peer and the true motion.
+
+    python training/eval_handheld.py --out benchmarks/results/eval_handheld.json
+        [--motions translation similarity ...] [--scales 2 3 4] [--frames 8 16] [--size 640x480]
+        [--no-learned] [--no-vidsr] [--blur 0.3] [--border 4] [--seed 0]
+
+Every cell is a motion (:data:`hbis_torch.training.handheld_render.MOTIONS`) x S x F: one burst
+of :func:`~hbis_torch.training.handheld_render.render_burst` (frames W x H, 16-bit, lens blur,
+Poisson-Gaussian noise of about 1 %), scored against its truth by PSNR (scikit-image) over the
+image without a border of ``--border`` LR px (4 by default: S x 4 output px). The rows:
+
+* **bicubic**: the reference frame enlarged S times (torch, bicubic, pixel centres kept);
+* **vidsr**: the peer, in its best setting for fidelity (benchmarks/peers/vidsr_peer.py; skipped
+  where vidsr is not installed);
+* **classical**: what ``hbis assemble --burst --scale S`` then ``hbis reconstruct --method
+  classical`` do, by their library calls: :func:`~hbis_torch.capture.burst.assemble_burst` with
+  its defaults, then :func:`~hbis_torch.reconstruct.registry.reconstruct` (``"classical"``);
+* **classical_lens**: the same stack, the lens's blur given as a calibration would give it
+  (``hbis reconstruct --psf-sigma``: the render's sigma);
+* **learned**: the same stack through ``reconstruct(stack, "learned")`` (``--no-learned`` skips it);
+* **oracle**: classical given the true motion: the stack built with the true homographies
+  (:meth:`~hbis_torch.training.handheld_render.HandheldBurst.oracle_motions`: for the rolling
+  shutter, the homography nearest the true per-row flow, as a stack holds one homography a frame),
+  confidence 1, and the true gain and offset where the brightness changes (1 and 0 elsewhere).
+
+Each finished row of each cell is written at once to ``--out`` (JSON, atomically): a run that
+stops resumes where it stopped when run again with the same ``--out`` and settings, and a run
+with more rows or cells adds to it. At the end the table goes to the same path with ``.md``: each
+cell's rows and which goals of the issue it misses (classical within 0.3 dB of the oracle;
+classical no more than 0.3 dB behind vidsr; classical 2 dB or more over bicubic with 8 frames or
+more).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+ROWS = ("bicubic", "vidsr", "classical", "classical_lens", "learned", "oracle")
+#: The goals of the issue: classical within ORACLE_GAP of the oracle, never more than PEER_GAP behind
+#: vidsr, at least BICUBIC_GAIN over bicubic with BICUBIC_FRAMES frames or more.
+ORACLE_GAP, PEER_GAP, BICUBIC_GAIN, BICUBIC_FRAMES = 0.3, 0.3, 2.0, 8
+
+
+def parse_args(argv=None):
+    from hbis_torch.training.handheld_render import MOTIONS
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, required=True, help="results JSON (resumed if it exists); the table goes "
+                   "beside it as .md")
+    p.add_argument("--motions", nargs="+", default=list(MOTIONS), metavar="MOTION",
+                   help=f"motions (default all: {', '.join(MOTIONS)})")
+    p.add_argument("--scales", nargs="+", type=int, default=[2, 3, 4], help="S (default 2 3 4)")
+    p.add_argument("--frames", nargs="+", type=int, default=[8, 16], help="frames per burst (default 8 16)")
+    p.add_argument("--size", default="640x480", help="frame size WxH (default 640x480)")
+    p.add_argument("--no-learned", action="store_true", help="skip the learned row (the slowest)")
+    p.add_argument("--no-vidsr", action="store_true", help="skip the vidsr row")
+    p.add_argument("--blur", type=float, default=0.3, help="the lens's Gaussian sigma, LR px (default 0.3)")
+    p.add_argument("--border", type=int, default=4, help="border left out of the score, LR px (default 4)")
+    p.add_argument("--seed", type=int, default=0)
+    return p.parse_args(argv)
+
+
+def check_args(args) -> str | None:
+    """One line saying what is wrong with the arguments, or None."""
+    from hbis_torch.training.handheld_render import MOTIONS
+
+    bad = [m for m in args.motions if m not in MOTIONS]
+    if bad:
+        return f"unknown motion(s) {', '.join(bad)}; choose from {', '.join(MOTIONS)}"
+    if any(not 1 <= s <= 8 for s in args.scales):
+        return f"--scales must lie in 1..8, got {args.scales}"
+    if any(f < 2 for f in args.frames):
+        return f"--frames must be 2 or more, got {args.frames}"
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        return f"--size must be WxH, e.g. 640x480, got {args.size!r}"
+    if w < 32 or h < 32:
+        return f"--size {args.size}: frames must be 32 x 32 px or more"
+    if not 0 <= args.blur <= 3:
+        return f"--blur must lie in 0..3 LR px, got {args.blur}"
+    if not 0 <= 2 * args.border < min(w, h):
+        return f"--border {args.border} leaves nothing of {args.size} frames"
+    if not args.out.parent.is_dir():
+        return f"--out {args.out}: the folder {args.out.parent} does not exist"
+    args.width, args.height = w, h
+    return None
+
+
+def settings_of(args) -> dict:
+    """What a resumed run must share with the file it resumes."""
+    return {"size": [args.width, args.height], "blur_sigma_px": args.blur, "border_px": args.border,
+            "seed": args.seed}
+
+
+def cell_key(motion: str, scale: int, frames: int) -> str:
+    return f"{motion}|S={scale}|F={frames}"
+
+
+def psnr(image, truth, border_lr: int, scale: int) -> float:
+    """PSNR (dB, scikit-image, data range 1) of ``image`` against ``truth`` (both (S H, S W)),
+    without a border of ``border_lr`` LR px."""
+    from skimage.metrics import peak_signal_noise_ratio
+
+    b = border_lr * scale
+    inner = (slice(b, -b or None), slice(b, -b or None))
+    return float(peak_signal_noise_ratio(np.asarray(truth, np.float64)[inner],
+                                         np.clip(np.asarray(image, np.float64), 0, 1)[inner], data_range=1.0))
+
+
+def bicubic(frame: np.ndarray, scale: int) -> np.ndarray:
+    """The frame (H, W) uint16 enlarged S times, bicubic (torch; pixel centres kept), float32."""
+    import torch
+
+    x = torch.from_numpy(frame.astype(np.float32) / 65535.0)[None, None]
+    return torch.nn.functional.interpolate(x, scale_factor=scale, mode="bicubic", align_corners=False)[0, 0].numpy()
+
+
+def oracle_stack(burst):
+    """The burst's stack with the true motion (module docstring), validated."""
+    from hbis_torch.stack_io import Stack, make_burst_meta
+
+    F, H, W = burst.frames.shape
+    motions = burst.oracle_motions()
+    models = ["identity"] + ["homography"] * (F - 1)
+    meta = make_burst_meta(burst.scale, (0, 0, W, H), motions, np.ones(F), models, burst.stack_gain_offset(),
+                           reference_index=0, bit_depth=16)
+    return Stack(np.ascontiguousarray(burst.frames), meta).validate("oracle burst")
+
+
+def run_row(row: str, burst, cache: dict) -> dict:
+    """One row of one cell: its image's PSNR is added by the caller; here the image, time and notes."""
+    from hbis_torch.reconstruct import reconstruct
+
+    S = burst.scale
+    started = time.perf_counter()
+    out: dict = {}
+    if row == "bicubic":
+        image = bicubic(burst.frames[0], S)
+    elif row == "vidsr":
+        sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
+        from vidsr_peer import vidsr_sr, version
+
+        image = vidsr_sr(burst.frames, S)
+        out["vidsr_version"] = version()
+    elif row in ("classical", "classical_lens", "learned"):
+        if "stack" not in cache:
+            from hbis_torch.capture.burst import assemble_burst
+
+            t = time.perf_counter()
+            stack, messages = assemble_burst(burst.frames, S)
+            cache["stack"], cache["assemble"] = stack, {"assemble_s": time.perf_counter() - t,
+                                                        "assemble_messages": messages,
+                                                        "models": list(stack.meta["motion_models"]),
+                                                        "rejected": int(np.sum(stack.confidence == 0))}
+            started = time.perf_counter()  # the assemble's time is its own
+            out.update(cache["assemble"])
+        stack = cache["stack"]
+        notes: list[str] = []
+        if row == "classical_lens":
+            image = reconstruct(stack, "classical", messages=notes, lens_sigma=burst.blur_sigma_px)
+        else:
+            image = reconstruct(stack, row, messages=notes)
+        out["messages"] = notes
+        out["motion_error_px"] = motion_error(burst, stack.motions)
+    elif row == "oracle":
+        notes = []
+        image = reconstruct(oracle_stack(burst), "classical", messages=notes)
+        out["messages"] = notes
+    else:  # pragma: no cover - checked before
+        raise ValueError(row)
+    out["seconds"] = time.perf_counter() - started
+    out["image"] = image
+    return out
+
+
+def motion_error(burst, motions: np.ndarray) -> float:
+    """Largest distance (LR px) over frames and a grid of every 16th pixel between where the found
+    motions and the true flow put a frame's pixels (frames with confidence 0 too)."""
+    F, H, W = burst.frames.shape
+    v, u = np.mgrid[0:H:16, 0:W:16].astype(np.float64)
+    worst = 0.0
+    for k in range(1, F):
+        m = motions[k]
+        w = m[2, 0] * u + m[2, 1] * v + m[2, 2]
+        x, y = (m[0, 0] * u + m[0, 1] * v + m[0, 2]) / w, (m[1, 0] * u + m[1, 1] * v + m[1, 2]) / w
+        true = burst.flow(k)[0:H:16, 0:W:16]
+        worst = max(worst, float(np.hypot(x - true[..., 0], y - true[..., 1]).max()))
+    return worst
+
+
+def provenance(argv, script: str = "training/eval_handheld.py") -> dict:
+    """Command, commit, dirty, date, machine of this run (hbis_torch.provenance's where it exists)."""
+    try:
+        from hbis_torch.provenance import provenance as shared
+    except ImportError:
+        pass
+    else:
+        return shared(argv=list(argv))
+    import datetime
+    import platform
+    import subprocess
+
+    def git(*a):
+        try:
+            return subprocess.run(["git", "-C", str(ROOT), *a], capture_output=True, text=True, timeout=30).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            return ""
+    import os
+
+    return {"command": f"python {script} " + " ".join(argv), "commit": git("rev-parse", "HEAD"),
+            "dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "machine": f"{_cpu_name() or platform.machine()}, {os.cpu_count()} CPUs (shared with other jobs), "
+                       f"{platform.system()} {platform.release()}",
+            "python": platform.python_version()}
+
+
+def _cpu_name() -> str | None:
+    try:
+        with open("/proc/cpuinfo") as f:
+            return next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
+    except OSError:
+        return None
+
+
+def _machine(p: dict) -> str:
+    m = p.get("machine", "")
+    return m if isinstance(m, str) else f"{m.get('cpu')}, {m.get('cores')} cores"
+
+
+def load_results(args) -> tuple[dict | None, str | None]:
+    """(the results so far in ``--out`` (resumed) or a fresh record, None), or (None, one line
+    saying why the file cannot be resumed: not this script's, or other settings)."""
+    fresh = {"settings": settings_of(args), "provenance": [], "cells": {}}
+    if not args.out.exists():
+        return fresh, None
+    try:
+        old = json.loads(args.out.read_text())
+        settings = old.get("settings")
+    except (OSError, ValueError, AttributeError) as exc:
+        return None, f"--out {args.out} exists but is not a results file of this script ({exc})"
+    if settings != settings_of(args):
+        return None, f"--out {args.out} holds a run with other settings ({settings}); give another --out to start afresh"
+    return old, None
+
+
+def _refuse(line: str) -> int:
+    print(f"eval_handheld: {line}", file=sys.stderr)
+    return 2
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = parse_args(argv)
+    problem = check_args(args)
+    if problem:
+        return _refuse(problem)
+    rows = [r for r in ROWS if not (r == "learned" and args.no_learned) and not (r == "vidsr" and args.no_vidsr)]
+    if "vidsr" in rows:
+        sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
+        from vidsr_peer import available
+
+        if not available():
+            print("eval_handheld: vidsr is not installed: its row is skipped", file=sys.stderr)
+            rows.remove("vidsr")
+    results, problem = load_results(args)
+    if problem:
+        return _refuse(problem)
+    results["provenance"].append(provenance(argv))
+    from hbis_torch.io_utils import atomic_write_text
+    from hbis_torch.training.handheld_render import render_burst
+
+    def save():
+        atomic_write_text(args.out, json.dumps(results, indent=1) + "\n")
+
+    for S in args.scales:
+        for F in args.frames:
+            for motion in args.motions:
+                key = cell_key(motion, S, F)
+                cell = results["cells"].setdefault(key, {"motion": motion, "scale": S, "frames": F, "rows": {}})
+                todo = [r for r in rows if r not in cell["rows"]]
+                if not todo:
+                    continue
+                t = time.perf_counter()
+                burst = render_burst(motion, S, F, args.width, args.height, blur_sigma_px=args.blur, seed=args.seed)
+                cell["render_s"] = time.perf_counter() - t
+                cache: dict = {}
+                for row in todo:
+                    got = run_row(row, burst, cache)
+                    got["psnr_db"] = psnr(got.pop("image"), burst.truth, args.border, S)
+                    got["run"] = len(results["provenance"]) - 1
+                    cell["rows"][row] = got
+                    save()
+                    print(f"{key:32s} {row:9s} {got['psnr_db']:6.2f} dB  {got['seconds']:6.1f} s", flush=True)
+    save()
+    md = args.out.with_suffix(".md")
+    atomic_write_text(md, table(results))
+    print(f"wrote {args.out} and {md}")
+    return 0
+
+
+def misses(cell: dict) -> list[str]:
+    """The goals of the issue that the cell's classical row misses."""
+    r = {k: v["psnr_db"] for k, v in cell["rows"].items()}
+    out = []
+    if "classical" not in r:
+        return out
+    c = r["classical"]
+    if "oracle" in r and c < r["oracle"] - ORACLE_GAP:
+        out.append(f"oracle {c - r['oracle']:+.2f}")
+    if "vidsr" in r and c < r["vidsr"] - PEER_GAP:
+        out.append(f"vidsr {c - r['vidsr']:+.2f}")
+    if "bicubic" in r and cell["frames"] >= BICUBIC_FRAMES and c < r["bicubic"] + BICUBIC_GAIN:
+        out.append(f"bicubic {c - r['bicubic']:+.2f}")
+    return out
+
+
+def table(results: dict) -> str:
+    """The results as a Markdown page: provenance, settings, one table per (S, F), goals missed."""
+    s = results["settings"]
+    lines = ["# Hand-held bursts against the truth (training/eval_handheld.py)", "",
+             f"Frames {s['size'][0]} x {s['size'][1]}, 16-bit, lens blur sigma {s['blur_sigma_px']} LR px, "
+             f"Poisson-Gaussian noise (5000 e- full well, 3 e- read), seed {s['seed']}; PSNR (dB) against the truth "
+             f"without a border of {s['border_px']} LR px. hbis_torch/training/handheld_render.py renders the "
+             "bursts; training/eval_handheld.py's docstring says what each row is. A cell misses a goal of the "
+             f"issue where classical is more than {ORACLE_GAP} dB below the oracle, more than {PEER_GAP} dB "
+             f"below vidsr, or (with {BICUBIC_FRAMES} frames or more) less than {BICUBIC_GAIN} dB above bicubic.",
+             "", "## Provenance", ""]
+    for i, p in enumerate(results["provenance"]):
+        lines.append(f"- run {i}: `{p['command']}`, commit {p['commit'][:10]}{' (dirty)' if p['dirty'] else ''}, "
+                     f"{p['date']}, {_machine(p)}")
+    cells = list(results["cells"].values())
+    for S, F in sorted({(c["scale"], c["frames"]) for c in cells}):
+        group = [c for c in cells if c["scale"] == S and c["frames"] == F]
+        present = [r for r in ROWS if any(r in c["rows"] for c in group)]
+        lines += ["", f"## S = {S}, {F} frames", "",
+                  "| motion | " + " | ".join(present) + " | classical: frames rejected, models | misses |",
+                  "|---" * (len(present) + 3) + "|"]
+        for c in group:
+            vals = [f"{c['rows'][r]['psnr_db']:.2f}" if r in c["rows"] else "" for r in present]
+            cl = c["rows"].get("classical", {})
+            models = cl.get("models", [])
+            counted = ", ".join(f"{models.count(m)} {m}" for m in dict.fromkeys(models) if m != "identity")
+            how = f"{cl.get('rejected', '')} rejected; {counted}" if cl else ""
+            lines.append(f"| {c['motion']} | " + " | ".join(vals) + f" | {how} | {'; '.join(misses(c)) or '-'} |")
+        means = [np.mean([c["rows"][r]["psnr_db"] for c in group if r in c["rows"]]) for r in present]
+        lines.append("| **mean** | " + " | ".join(f"{m:.2f}" for m in means) + " | | |")
+        lost = [c for c in group if misses(c)]
+        lines += ["", f"{len(lost)} of {len(group)} cells miss a goal."]
+        timed = {r: np.mean([c["rows"][r]["seconds"] for c in group if r in c["rows"]]) for r in present}
+        lines.append("Mean seconds a cell (a busy shared machine; benchmarks/bench_handheld.py times them properly): "
+                     + ", ".join(f"{r} {t:.1f}" for r, t in timed.items())
+                     + (f", classical's assemble {np.mean([c['rows']['classical']['assemble_s'] for c in group if 'classical' in c['rows']]):.1f}"
+                        if "classical" in present else "") + ".")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
