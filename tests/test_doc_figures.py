@@ -7,24 +7,10 @@ import pytest
 import doc_figures as df
 from hbis_torch.provenance import write_results
 
-#: Pages whose every figure is marked and checked; docs/figures.md lists the others.
-ENFORCED = [
-    "README.md",
-    "docs/architecture.md",
-    "docs/figures.md",
-    "docs/design.md",
-    "docs/hardware.md",
-    "docs/speed-vs-error.md",
-    "docs/capture.md",
-    "docs/classical.md",
-    "docs/data.md",
-    "docs/learned.md",
-    "docs/reproduction.md",
-    "docs/scanning.md",
-    "docs/stack-format.md",
-    "docs/system.md",
-    "docs/validate.md",
-]
+#: Pages not yet checked (docs/figures.md says why); every other page of README.md and docs/*.md is,
+#: a new one included.
+NOT_YET = {"docs/real-bursts.md"}
+ENFORCED = [str(p.relative_to(df.REPO)) for p in df.pages() if str(p.relative_to(df.REPO)) not in NOT_YET]
 
 
 @pytest.mark.parametrize("page", ENFORCED)
