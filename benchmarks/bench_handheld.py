@@ -89,8 +89,7 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool) -> None:
             reconstruct(stack, "learned")
             out["learned_s"] = time.perf_counter() - t
         if vidsr:
-            sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
-            from vidsr_peer import available, vidsr_sr
+            from peers.vidsr_peer import available, vidsr_sr  # benchmarks/ is the script's folder
 
             if available():
                 t = time.perf_counter()
@@ -160,7 +159,6 @@ def main(argv=None) -> int:
         return 2
     import numpy as np
 
-    sys.path.insert(0, str(ROOT))
     from hbis_torch.training.handheld_render import render_burst
 
     rows = []

@@ -145,8 +145,7 @@ def run_row(row: str, burst, cache: dict) -> dict:
     if row == "bicubic":
         image = bicubic(burst.frames[0], S)
     elif row == "vidsr":
-        sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
-        from vidsr_peer import vidsr_sr, version
+        vidsr_sr, version = _peer().vidsr_sr, _peer().version
 
         image = vidsr_sr(burst.frames, S)
         out["vidsr_version"] = version()
@@ -179,6 +178,18 @@ def run_row(row: str, burst, cache: dict) -> dict:
     out["seconds"] = time.perf_counter() - started
     out["image"] = image
     return out
+
+
+def _peer():
+    """benchmarks/peers/vidsr_peer.py, loaded from its path (a benchmark's module, not the package's)."""
+    import importlib.util
+
+    if "vidsr_peer" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("vidsr_peer", ROOT / "benchmarks" / "peers" / "vidsr_peer.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        sys.modules["vidsr_peer"] = module
+    return sys.modules["vidsr_peer"]
 
 
 def motion_error(burst, motions: np.ndarray) -> float:
@@ -265,8 +276,7 @@ def main(argv=None) -> int:
         return _refuse(problem)
     rows = [r for r in ROWS if not (r == "learned" and args.no_learned) and not (r == "vidsr" and args.no_vidsr)]
     if "vidsr" in rows:
-        sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
-        from vidsr_peer import available
+        available = _peer().available
 
         if not available():
             print("eval_handheld: vidsr is not installed: its row is skipped", file=sys.stderr)
@@ -300,11 +310,35 @@ def main(argv=None) -> int:
                     cell["rows"][row] = got
                     save()
                     print(f"{key:32s} {row:9s} {got['psnr_db']:6.2f} dB  {got['seconds']:6.1f} s", flush=True)
+    results["summary"] = summary(results)
     save()
     md = args.out.with_suffix(".md")
     atomic_write_text(md, table(results))
     print(f"wrote {args.out} and {md}")
     return 0
+
+
+def summary(results: dict) -> dict:
+    """Per S and frame count: each row's mean PSNR over the motions, the gaps the issue's goals
+    speak of (classical minus the oracle, vidsr and bicubic: mean and worst cell) and how many
+    cells miss a goal; keyed ``"S=2|F=16"``."""
+    out = {}
+    cells = list(results["cells"].values())
+    for S, F in sorted({(c["scale"], c["frames"]) for c in cells}):
+        group = [c for c in cells if c["scale"] == S and c["frames"] == F]
+        entry = {"cells": len(group), "missing_a_goal": sum(bool(misses(c)) for c in group), "mean_db": {}}
+        for row in ROWS:
+            values = [c["rows"][row]["psnr_db"] for c in group if row in c["rows"]]
+            if values:
+                entry["mean_db"][row] = float(np.mean(values))
+        for row in ("classical", "classical_lens"):
+            for other in ("oracle", "vidsr", "bicubic"):
+                gaps = [c["rows"][row]["psnr_db"] - c["rows"][other]["psnr_db"] for c in group
+                        if row in c["rows"] and other in c["rows"]]
+                if gaps:
+                    entry[f"{row}_minus_{other}"] = {"mean_db": float(np.mean(gaps)), "worst_db": float(np.min(gaps))}
+        out[f"S={S}|F={F}"] = entry
+    return out
 
 
 def misses(cell: dict) -> list[str]:

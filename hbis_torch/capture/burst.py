@@ -50,7 +50,9 @@ MODEL_TOLERANCE_PX = 0.01
 RICHER_GAIN = 0.01
 TRIM = 0.75
 # Pixels of a frame that score each model's motion (model_evidence): a regular grid of about this many.
-EVIDENCE_POINTS = 65536
+EVIDENCE_POINTS = 32768
+# The brightness fit halves frames whose shorter side is at least twice this (fit_gain_offset).
+GAIN_FIT_SIDE = 128
 # Pixels this close to the white or black level count as saturated (left out of the gain fit).
 SATURATION_MARGIN = 2.0 / 255.0
 
@@ -433,10 +435,20 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     A least-squares line through the warped frame's and the reference's pixels (both blurred a
     little against aliasing), refitted once without the pixels more than 3 robust sigmas off
     (a moving object) and without saturated pixels. A fit that is not sensible (g outside
-    [0.5, 2]) is refused in favour of (1, 0).
+    [0.5, 2]) is refused in favour of (1, 0). Frames larger than :data:`GAIN_FIT_SIDE` twice
+    over are halved (a Gaussian pyramid) until they are not: two numbers need no millions of
+    pixels, and the warp's cost was most of a large burst's brightness fit.
     """
     import kornia
 
+    from hbis_torch.registration.pyramid import pyramid, to_level
+
+    levels = 0
+    while min(frame.shape) >> levels >= 2 * GAIN_FIT_SIDE:
+        levels += 1
+    if levels:
+        frame, reference = (pyramid(x[None], levels)[-1][0] for x in (frame, reference))
+        motion = to_level(np.asarray(motion)[None], levels)[0]
     warped, valid = warp_to_reference(frame, motion)
     blur = kornia.filters.gaussian_blur2d(torch.stack((warped, reference))[:, None], (5, 5), (1.0, 1.0),
                                           border_type="replicate")[:, 0]

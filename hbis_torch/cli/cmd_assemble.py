@@ -73,10 +73,17 @@ def register(sub) -> None:
     add_system_file_args(p)
     add_force_arg(p)
     add_overwrite_arg(p)
+    from hbis_torch.cli.many import add_scheduler_argument
+
+    add_scheduler_argument(p, many="frames")  # --burst --out-dir DIR: many bursts (hbis_torch.cluster)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from hbis_torch.cli.many import run_many
+
+    if (code := run_many(args, "assemble")) is not None:  # many bursts, --out-dir (hbis_torch.cluster)
+        return code
     from hbis_torch.capture import (
         assemble_stack,
         frames_roi,
@@ -145,9 +152,15 @@ def run_burst(args) -> int:
     check_output_path(args.out, overwrite=args.overwrite)
     check_distinct_paths({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()},
                          {"--out": args.out})
-    frames, names = read_frames(args.frames)
-    stack, messages = assemble_burst(frames, args.scale, args.reference, args.motion, roi=args.roi,
-                                     bit_depth=args.bit_depth, names=names)
+    from hbis_torch.capture.raw import assemble_raw_burst, is_raw_burst
+
+    if is_raw_burst(args.frames):  # DNG and LibRaw's formats: the [raw] extra (docs/raw-bursts.md)
+        stack, messages = assemble_raw_burst(args.frames, args.scale, args.reference, args.motion, roi=args.roi,
+                                             bit_depth=args.bit_depth)
+    else:
+        frames, names = read_frames(args.frames)
+        stack, messages = assemble_burst(frames, args.scale, args.reference, args.motion, roi=args.roi,
+                                         bit_depth=args.bit_depth, names=names)
     write_stack(args.out, stack)
     tell("assemble", messages)
     models = stack.meta["motion_models"]
@@ -155,6 +168,7 @@ def run_burst(args) -> int:
     trusted = int((stack.confidence >= 0.5).sum())
     f = stack.frames
     print(f"wrote {args.out}: burst of {f.shape[0]} frames of {f.shape[2]} x {f.shape[1]} px ({f.dtype}"
-          f"{', RGB' if f.ndim == 4 else ''}), scale S = {stack.h}, reference frame {stack.reference_index}, "
+          f"{', RGB' if f.ndim == 4 else ''}{', raw ' + stack.meta['cfa'] if 'raw' in stack.meta else ''}), "
+          f"scale S = {stack.h}, reference frame {stack.reference_index}, "
           f"{trusted} frame(s) trusted; motion models: {counts}")
     return 0

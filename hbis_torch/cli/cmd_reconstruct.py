@@ -60,11 +60,18 @@ def register(sub) -> None:
     from hbis_torch.cli.common import add_overwrite_arg
 
     add_overwrite_arg(p)
+    from hbis_torch.cli.many import add_scheduler_argument
+
+    add_scheduler_argument(p)
     add_method_options(p, METHODS)  # last: the general options come first in --help
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.scheduler is not None:  # many stacks on a Dask cluster (hbis_torch.cluster)
+        from hbis_torch.cli.many import run_reconstruct
+
+        return run_reconstruct(args, prepare, reconstruct_one)
     if args.out_dir is not None:
         from hbis_torch.cli.reconstruct_batch import run_batch
 
@@ -78,12 +85,21 @@ def run(args) -> int:
 
     check_output_path(args.out, overwrite=args.overwrite)
     check_distinct_paths({"STACK": args.stack}, {"--out": args.out})
+    from hbis_torch.reconstruct.raw_output import check_raw_outputs
+
+    check_raw_outputs(args.stack, args.out, args.overwrite)  # a raw burst's preview (and DNG) too
     prepared = prepare(args)
     image, messages, meta, pixel_um = reconstruct_one(args, args.stack, prepared)
     from hbis_torch.cli.common import tell
     from hbis_torch.stack_io import write_image
 
     tell("reconstruct", messages)
+    if "raw" in meta:  # a raw burst: linear 16-bit TIFF (or DNG) and an sRGB preview (docs/raw-bursts.md)
+        from hbis_torch.reconstruct.raw_output import write_raw_outputs
+
+        written = write_raw_outputs(args.out, image, meta)
+        print(f"wrote {', '.join(map(str, written))} ({image.shape[1]} x {image.shape[0]} px, linear 16-bit)")
+        return 0
     write_image(args.out, image, meta, pixel_size_um=pixel_um)
     print(f"wrote {args.out} ({image.shape[1]} x {image.shape[0]} px, float32{', RGB' if image.ndim == 3 else ''})")
     return 0
@@ -136,5 +152,7 @@ def reconstruct_one(args, path: Path, prepared: tuple, threads: int | None = Non
     meta = {"format": "hbis-sr/1", "source": path.name, "method": args.method,
             "registration": args.registration, "h": stack.h, "roi": list(stack.roi),
             "reference_index": stack.reference_index}
+    if isinstance(stack.meta.get("raw"), dict):
+        meta.update(raw=stack.meta["raw"], cfa=stack.meta.get("cfa"))
     pixel_um = None if stack.kind == "burst" else object_pixel_um(stack.system, stack.h)  # a burst has no optics
     return image, messages, meta, pixel_um

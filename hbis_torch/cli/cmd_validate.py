@@ -8,6 +8,7 @@ from pathlib import Path
 
 from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli import examples
+from hbis_torch.cli.validate_report import json_report, method_names  # noqa: F401 - the command's own
 from hbis_torch.errors import HbisInputError
 
 DESCRIPTION = """\
@@ -59,22 +60,17 @@ def register(sub) -> None:
                    help="the forward model's Gaussian blur, standard deviation in frame pixels (default 0.2)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     add_method_options(p, METHODS)
+    from hbis_torch.cli.many import add_scheduler_argument
+
+    add_scheduler_argument(p, many="stack")  # --out-dir DIR: many stacks (hbis_torch.cluster)
     p.set_defaults(func=run)
 
 
-def method_names(given) -> list[str]:
-    """Method names from repeated and comma-separated ``--method`` values (None: the defaults)."""
-    from hbis_torch.validate.cross import DEFAULT_METHODS, resolve_methods
-
-    if not given:
-        return list(DEFAULT_METHODS)
-    names = [n.strip() for value in given for n in value.split(",")]
-    if any(not n for n in names):
-        raise HbisInputError(f"--method has an empty name in {','.join(given)!r}")
-    return resolve_methods(names)
-
-
 def run(args) -> int:
+    from hbis_torch.cli.many import run_many
+
+    if (code := run_many(args, "validate")) is not None:  # many stacks, --out-dir (hbis_torch.cluster)
+        return code
     from hbis_torch.cli.method_options import keywords_for_methods
     from hbis_torch.reconstruct.registry import METHODS
 
@@ -104,10 +100,7 @@ def run(args) -> int:
     for name, scores in result.methods.items():
         tell("validate", scores.messages, about=name)
     if args.json:
-        report = result.to_dict()
-        if stack.kind == "burst":  # a burst's factor is its scale S (hbis assemble --burst --scale S)
-            report = {("scale" if k == "h" else k): v for k, v in report.items()}
-        print(json.dumps({"stack": args.stack.name, "kind": stack.kind, **report}, indent=1))
+        print(json.dumps(json_report(result, args.stack.name, stack.kind), indent=1))
     else:
         print(table(result, args.stack.name, stack.kind))
     return 0

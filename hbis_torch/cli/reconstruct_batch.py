@@ -140,11 +140,19 @@ def _one(reconstruct_one, args, stack: Path, out: Path, prepared) -> int:
     from hbis_torch.stack_io import write_image
 
     try:
+        from hbis_torch.reconstruct.raw_output import check_raw_outputs
+
+        check_raw_outputs(stack, out, getattr(args, "overwrite", False))  # a raw burst's preview too
         image, messages, meta, pixel_um = reconstruct_one(args, stack, prepared)
         from hbis_torch.cli.common import tell
 
         tell("reconstruct", messages, about=str(stack))
-        write_image(out, image, meta, pixel_size_um=pixel_um)
+        if "raw" in meta:  # a raw burst: linear 16-bit TIFF and an sRGB preview, as with --out
+            from hbis_torch.reconstruct.raw_output import write_raw_outputs
+
+            write_raw_outputs(out, image, meta)
+        else:
+            write_image(out, image, meta, pixel_size_um=pixel_um)
         return 0
     except HbisInputError as exc:
         print(f"hbis reconstruct: {stack}: {exc}", file=sys.stderr)

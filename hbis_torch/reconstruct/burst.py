@@ -294,6 +294,8 @@ def scale_to_run(positions: Tensor, weights: Tensor, scale: int) -> tuple[int, n
     ``scale`` (the fallback's blend then leans on the single frame); and :func:`_lattice_fill` at
     it. A scale the samples do not fill leaves whole sub-pixel phases empty; at a coarser one the
     same samples still add what they resolve, and the image is enlarged to the scale asked for."""
+    if scale == 1:  # the reference's own grid: nothing to fill
+        return 1, np.ones((weights.shape[1], weights.shape[2]), dtype=np.float32)
     first = None
     for s in range(scale, 1, -1):
         fill = _lattice_fill(positions, weights, s)

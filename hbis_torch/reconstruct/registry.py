@@ -176,6 +176,10 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     np.ndarray, shape (h*H, h*W) (or (h*H, h*W, 3) for a colour stack), float32 in [0, 1]
     """
     entry = get_method(method)
+    if getattr(stack, "kind", "hbis") == "burst" and isinstance(stack.meta.get("raw"), dict):  # raw Bayer burst
+        # named, not imported: the classical package imports this one
+        joint = _resolve("hbis_torch.reconstruct.classical.raw_burst:reconstruct_raw_burst")
+        return joint(stack, entry, registration=registration, **kw)
     if getattr(stack, "kind", "hbis") == "burst" and entry.burst is not None:  # measured motion, robustness
         from hbis_torch.reconstruct.burst import reconstruct_burst
 

@@ -149,8 +149,13 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
 
 
 def _field(offsets: Tensor, shape: tuple[int, int], tile: int) -> Tensor:
-    """The offsets (F, rows, cols, 2) at every pixel of a (H, W) grid: (F, H, W, 2)."""
+    """The offsets (F, rows, cols, 2) at every pixel of a (H, W) grid: (F, H, W, 2).
+
+    The same bilinear field as :func:`sample_offsets`, by one enlargement: with
+    ``align_corners=False`` a tile's value sits at its centre and is held beyond the outer
+    centres."""
     H, W = shape
-    v, u = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
-    points = torch.stack((u, v), -1)[None].expand(offsets.shape[0], H, W, 2)
-    return sample_offsets(offsets, points, tile)
+    F, rows, cols, _ = offsets.shape
+    big = torch.nn.functional.interpolate(offsets.permute(0, 3, 1, 2).to(torch.float32), size=(rows * tile, cols * tile),
+                                          mode="bilinear", align_corners=False)
+    return big[:, :, :H, :W].permute(0, 2, 3, 1)

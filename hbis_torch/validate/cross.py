@@ -230,6 +230,9 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     from hbis_torch.reconstruct.positions import check_registration
     from hbis_torch.reconstruct.registry import reconstruct
 
+    if isinstance(stack.meta.get("raw"), dict):  # a raw burst (docs/raw-bursts.md): its own levels per frame
+        raise HbisInputError("hbis validate does not score raw bursts (hbis assemble --burst of raw files) yet: "
+                             "their samples are a mosaic with levels of their own")
     names = resolve_methods(methods)
     check_registration(registration)
     count = len(stack.frames)
