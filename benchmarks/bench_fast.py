@@ -327,8 +327,9 @@ def main(argv=None) -> int:
         results["outdir"] = outdir(work, count, separate, args.repeats)
     text = report(results, hs, args)
     print(text)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
+    from hbis_torch.provenance import write_results
+
+    write_results(args.out, text, argv=argv)
     if args.work is None:
         shutil.rmtree(work, ignore_errors=True)
     return 0

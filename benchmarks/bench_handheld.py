@@ -193,17 +193,10 @@ def main(argv=None) -> int:
             rows.append(row)
             print(json.dumps(row), flush=True)
             path.unlink()
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("eval_handheld", ROOT / "training" / "eval_handheld.py")
-    eval_handheld = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(eval_handheld)
-    result = {"provenance": eval_handheld.provenance(sys.argv[1:] if argv is None else argv,
-                                                     "benchmarks/bench_handheld.py"), "rows": rows}
     if args.json is not None:
-        from hbis_torch.io_utils import atomic_write_text
+        from hbis_torch.provenance import write_results
 
-        atomic_write_text(args.json, json.dumps(result, indent=1) + "\n")
+        write_results(args.json, {"rows": rows}, argv=sys.argv[1:] if argv is None else argv)
     for r in rows:
         print(summary(r))
     return 0

@@ -93,10 +93,9 @@ def main(argv=None) -> int:
             print(f"S={scale} {case:14s} cpu {row['cpu_s']:7.2f} s  wall {row['wall_s']:7.2f} s  peak "
                   f"{row['peak_before_mib']:6.0f} -> {row['peak_mib']:6.0f} MiB", flush=True)
     if args.json:
-        from hbis_torch.training.heldout_raw import provenance
+        from hbis_torch.provenance import write_results
 
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"provenance": provenance(), "rows": rows}, indent=1) + "\n")
+        write_results(args.json, {"rows": rows}, argv=argv)
         print(f"wrote {args.json}")
     return 0
 

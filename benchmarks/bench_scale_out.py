@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import re
 import shutil
 import statistics
@@ -34,28 +33,22 @@ import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def provenance(argv) -> dict:
-    """Command, commit, dirty, date and machine of this run."""
-    def git(*a):
-        return subprocess.run(["git", "-C", str(ROOT), *a], capture_output=True, text=True).stdout.strip()
-
-    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else ""
+    """Command, commit, dirty, date and machine of this run (:mod:`hbis_torch.provenance`), with the
+    load average at the start and Dask's version."""
     import distributed
 
-    return {"command": " ".join(["python", "benchmarks/bench_scale_out.py", *argv]), "commit": git("rev-parse", "HEAD"),
-            "dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
-            "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "machine": {"cpu": cpu, "cores": os.cpu_count(), "cores_usable": len(os.sched_getaffinity(0)),
-                        "platform": platform.platform(), "python": platform.python_version(),
-                        "distributed": distributed.__version__,
-                        "load_average": list(os.getloadavg())}}
+    from hbis_torch.provenance import provenance as shared
+
+    prov = shared(list(argv) if argv is not None else None)
+    prov["machine"]["load_average"] = list(os.getloadavg())
+    prov["versions"]["distributed"] = distributed.__version__
+    return prov
 
 
 def make_inputs(folder: Path, count: int) -> dict:
@@ -279,11 +272,10 @@ def main(argv=None) -> dict:
         result["model_open_s"] = model_open_s()
     result["projection"] = projection(result)
     result["provenance"]["machine"]["load_average_end"] = list(os.getloadavg())
-    text = json.dumps(result, indent=1) + "\n"
     if args.json:
-        from hbis_torch.io_utils import atomic_write_text
+        from hbis_torch.provenance import write_results
 
-        atomic_write_text(args.json, text)
+        write_results(args.json, {k: v for k, v in result.items() if k != "provenance"}, prov=result["provenance"])
     print(json.dumps({k: result[k] for k in ("overhead", "model_open_s")}, indent=1))
     for k in ("reconstruct", "assemble_burst"):
         print(k, {x: result[k][x] for x in ("median", "identical_outputs", "dask_over_in_process_tasks",

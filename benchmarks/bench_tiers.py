@@ -102,10 +102,12 @@ def main(argv=None) -> int:
             ratios.append(f"h = {h}, {precision}: best / fast end to end {best[0] / fast[0]:.2f}x "
                           f"(CPU {best[1] / fast[1]:.2f}x)")
     lines += [""] + ratios
-    text = "\n".join(lines) + f"\n\nCommand: python benchmarks/bench_tiers.py {' '.join(argv or sys.argv[1:])}\n"
+    text = "\n".join(lines) + "\n"
     print(text)
     if args.out is not None:
-        args.out.write_text(text)
+        from hbis_torch.provenance import write_results
+
+        write_results(args.out, text, argv=argv)
     return 0
 
 

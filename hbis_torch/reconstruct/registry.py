@@ -242,7 +242,8 @@ register(Method(
         Option("--precision", "precision", "how the network runs: 'fp32' (the default for the shipped models); "
                "'int8', its int8 file NAME.int8.onnx (shipped for h = 2, 3, 4, 7, both tiers), 1.2-1.4 times as "
                "fast on AVX2 cores, 2 times with AVX-512 VNNI; 'bf16', the float32 file in OpenVINO in bfloat16 "
-               "(pip install 'hbis-torch[openvino]'), 3 to 4.5 times as fast on cores with AMX or AVX-512 BF16, "
+               "(pip install 'hbis-torch[openvino]'), about 4 times as fast on cores with AMX (4.13x measured, "
+               "benchmarks/results/bench_fast.md), "
                "float32 on others. Each loses PSNR in the held-out matrix's cleanest cells: int8 up to 3.7 dB, "
                "bf16 up to 0.33 dB, in cells above 50 dB (docs/learned.md, section int8)",
                {"choices": ("int8", "bf16", "fp32")}),

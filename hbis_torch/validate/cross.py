@@ -17,7 +17,7 @@ import numpy as np
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 from hbis_torch.validate.baseline import ALIASES, SINGLE_FRAME, single_frame
-from hbis_torch.validate.forward import DEFAULT_BLUR_PX, predict_frame
+from hbis_torch.observation.forward import DEFAULT_BLUR_PX, predict_frame
 from hbis_torch.validate.frames import holdout_frames, select_frames
 from hbis_torch.validate.score import DEFAULT_BORDER_PX, FrameScore, fit_and_score, inside
 
@@ -213,7 +213,7 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     border_px : float
         Samples within this many LR pixels of the reference frame's edge are not scored.
     blur_px : float
-        The forward model's Gaussian blur, LR pixels (:mod:`hbis_torch.validate.forward`).
+        The forward model's Gaussian blur, LR pixels (:mod:`hbis_torch.observation.forward`).
     method_options : dict, optional
         Per method name, keywords for :func:`hbis_torch.reconstruct.reconstruct`.
     messages : list, optional

@@ -119,8 +119,8 @@ PRECISIONS = ("int8", "bf16", "fp32")
 #   cores with AVX-512 VNNI (3 in OpenVINO); up to 0.75 / 3.68 / 0.85 / 1.22 dB lost at h = 2 /
 #   3 / 4 / 7 (fast tier);
 # - bf16, the float32 file run by OpenVINO in bfloat16 on cores with bf16 units (AMX or AVX-512
-#   BF16): 3 to 4.5 times as fast there; up to 0.33 dB lost, in the cells above 50 dB
-#   (benchmarks/results/check_bf16*.md).
+#   BF16): 4.13 times as fast with AMX (benchmarks/results/bench_fast.md); up to 0.33 dB lost,
+#   in the cells above 50 dB (benchmarks/results/check_bf16*.md).
 DEFAULT_PRECISION = None
 
 
