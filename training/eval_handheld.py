@@ -164,7 +164,9 @@ def run_row(row: str, burst, cache: dict) -> dict:
         notes: list[str] = []
         image = reconstruct(stack, row, messages=notes)
         out["messages"] = notes
-        out["motion_error_px"] = motion_error(burst, stack.motions)
+        errors = motion_error(burst, stack.motions)
+        out["frame_motion_error_px"] = [None if c == 0 else e for e, c in zip(errors, stack.confidence)]
+        out["motions"] = stack.motions.tolist()
     elif row == "oracle":
         notes = []
         image = reconstruct(oracle_stack(burst), "classical", messages=notes)
@@ -176,19 +178,19 @@ def run_row(row: str, burst, cache: dict) -> dict:
     return out
 
 
-def motion_error(burst, motions: np.ndarray) -> float:
-    """Largest distance (LR px) over frames and a grid of every 16th pixel between where the found
-    motions and the true flow put a frame's pixels (frames with confidence 0 too)."""
+def motion_error(burst, motions: np.ndarray) -> list[float]:
+    """Per frame, the largest distance (LR px), over a grid of every 16th pixel, between where the
+    found motion and the true flow put the frame's pixels."""
     F, H, W = burst.frames.shape
     v, u = np.mgrid[0:H:16, 0:W:16].astype(np.float64)
-    worst = 0.0
+    errors = [0.0]
     for k in range(1, F):
         m = motions[k]
         w = m[2, 0] * u + m[2, 1] * v + m[2, 2]
         x, y = (m[0, 0] * u + m[0, 1] * v + m[0, 2]) / w, (m[1, 0] * u + m[1, 1] * v + m[1, 2]) / w
         true = burst.flow(k)[0:H:16, 0:W:16]
-        worst = max(worst, float(np.hypot(x - true[..., 0], y - true[..., 1]).max()))
-    return worst
+        errors.append(float(np.hypot(x - true[..., 0], y - true[..., 1]).max()))
+    return errors
 
 
 def provenance(argv, script: str = "training/eval_handheld.py") -> dict:
@@ -345,6 +347,9 @@ def table(results: dict) -> str:
             models = cl.get("models", [])
             counted = ", ".join(f"{models.count(m)} {m}" for m in dict.fromkeys(models) if m != "identity")
             how = f"{cl.get('rejected', '')} rejected; {counted}" if cl else ""
+            kept = [e for e in cl.get("frame_motion_error_px", []) if e is not None]
+            if kept:
+                how += f"; worst kept frame's motion off by {max(kept):.2f} px"
             lines.append(f"| {c['motion']} | " + " | ".join(vals) + f" | {how} | {'; '.join(misses(c)) or '-'} |")
         means = [np.mean([c["rows"][r]["psnr_db"] for c in group if r in c["rows"]]) for r in present]
         lines.append("| **mean** | " + " | ".join(f"{m:.2f}" for m in means) + " | | |")
