@@ -23,7 +23,8 @@ image without a border of ``--border`` LR px (4 by default: S x 4 output px). Th
 
 Each finished row of each cell is written at once to ``--out`` (JSON, atomically): a run that
 stops resumes where it stopped when run again with the same ``--out`` and settings, and a run
-with more rows or cells adds to it. At the end the table goes to the same path with ``.md``: each
+with more rows or cells adds to it. With it, the table goes to the same path with ``.md``
+(``--table-only`` writes it from ``--out`` alone): each
 cell's rows and which goals of the issue it misses (classical within 0.3 dB of the oracle;
 classical no more than 0.3 dB behind vidsr; classical 2 dB or more over bicubic with 8 frames or
 more).
@@ -62,6 +63,8 @@ def parse_args(argv=None):
     p.add_argument("--blur", type=float, default=0.3, help="the lens's Gaussian sigma, LR px (default 0.3)")
     p.add_argument("--border", type=int, default=4, help="border left out of the score, LR px (default 4)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--table-only", action="store_true", help="only write the .md table of what --out holds "
+                   "(e.g. of a run still going or stopped)")
     return p.parse_args(argv)
 
 
@@ -260,6 +263,13 @@ def main(argv=None) -> int:
     problem = check_args(args)
     if problem:
         return _refuse(problem)
+    if args.table_only:
+        from hbis_torch.io_utils import atomic_write_text
+
+        if not args.out.exists():
+            return _refuse(f"--out {args.out} does not exist")
+        atomic_write_text(args.out.with_suffix(".md"), table(json.loads(args.out.read_text())))
+        return 0
     rows = [r for r in ROWS if not (r == "learned" and args.no_learned) and not (r == "vidsr" and args.no_vidsr)]
     if "vidsr" in rows:
         sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
@@ -296,11 +306,10 @@ def main(argv=None) -> int:
                     got["run"] = len(results["provenance"]) - 1
                     cell["rows"][row] = got
                     save()
+                    atomic_write_text(args.out.with_suffix(".md"), table(results))
                     print(f"{key:32s} {row:9s} {got['psnr_db']:6.2f} dB  {got['seconds']:6.1f} s", flush=True)
     save()
-    md = args.out.with_suffix(".md")
-    atomic_write_text(md, table(results))
-    print(f"wrote {args.out} and {md}")
+    print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
     return 0
 
 
@@ -351,8 +360,11 @@ def table(results: dict) -> str:
             if kept:
                 how += f"; worst kept frame's motion off by {max(kept):.2f} px"
             lines.append(f"| {c['motion']} | " + " | ".join(vals) + f" | {how} | {'; '.join(misses(c)) or '-'} |")
-        means = [np.mean([c["rows"][r]["psnr_db"] for c in group if r in c["rows"]]) for r in present]
-        lines.append("| **mean** | " + " | ".join(f"{m:.2f}" for m in means) + " | | |")
+        whole = [c for c in group if all(r in c["rows"] for r in present)]  # the mean over the same cells
+        if whole:
+            means = [np.mean([c["rows"][r]["psnr_db"] for c in whole]) for r in present]
+            lines.append(f"| **mean** ({len(whole)} cells with every row) | " + " | ".join(f"{m:.2f}" for m in means)
+                         + " | | |")
         lost = [c for c in group if misses(c)]
         lines += ["", f"{len(lost)} of {len(group)} cells miss a goal."]
         timed = {r: np.mean([c["rows"][r]["seconds"] for c in group if r in c["rows"]]) for r in present}
