@@ -5,7 +5,7 @@
 
 For each size, a burst of :func:`hbis_torch.training.handheld_render.render_burst` (``--motion``,
 by default ``all``: turn, perspective, rolling shutter, a moving object, brightness; 16-bit) is rendered
-here and saved; then fresh processes (so that imports and first calls count as a user's
+here and saved (``--cache DIR`` keeps it for the next run); then fresh processes (so that imports and first calls count as a user's
 ``hbis assemble`` + ``hbis reconstruct`` would) run, each timed from its own start:
 
 * a 32 x 32 burst of the same frames' corner: assemble + classical (the *start-up*: imports, first
@@ -56,8 +56,8 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: 
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.reconstruct import reconstruct
 
-    frames = np.load(path)
-    if mode == "start":
+    frames = np.load(path, mmap_mode="r" if mode == "start" else None)
+    if mode == "start":  # only the corner is read
         frames = np.ascontiguousarray(frames[:, :START, :START])
     out: dict = {"import_load_s": time.perf_counter() - t0}
     t = time.perf_counter()
@@ -69,6 +69,8 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: 
     out["to_classical_s"] = time.perf_counter() - t0
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out["rejected"] = int((stack.confidence == 0).sum())
+    out["models"] = list(stack.meta["motion_models"])
+    out["assemble_messages"] = messages
     if mode == "full":
         import scipy.fft
 
@@ -148,6 +150,8 @@ def main(argv=None) -> int:
     p.add_argument("--no-learned", action="store_true")
     p.add_argument("--no-vidsr", action="store_true")
     p.add_argument("--json", type=Path, help="write the results here (atomically)")
+    p.add_argument("--cache", type=Path, help="keep the rendered bursts in this folder and reuse them (a 12 MP "
+                   "burst takes minutes to render)")
     p.add_argument("--child", help=argparse.SUPPRESS)
     p.add_argument("--mode", default="full", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -168,6 +172,9 @@ def main(argv=None) -> int:
     if args.frames < 2 or not 1 <= args.scale <= 8 or args.repeats < 1:
         print("bench_handheld: --frames must be 2 or more, --scale 1..8 and --repeats 1 or more", file=sys.stderr)
         return 2
+    if args.cache is not None and not args.cache.is_dir():
+        print(f"bench_handheld: --cache {args.cache}: the folder does not exist", file=sys.stderr)
+        return 2
     if args.json is not None and not args.json.parent.is_dir():
         print(f"bench_handheld: --json {args.json}: the folder does not exist", file=sys.stderr)
         return 2
@@ -179,10 +186,12 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for w, h in sizes:
             t = time.perf_counter()
-            burst = render_burst(args.motion, args.scale, args.frames, w, h, seed=0)
-            path = Path(tmp) / f"{w}x{h}.npy"
-            np.save(path, burst.frames)
-            del burst
+            name = f"handheld_{args.motion}_{w}x{h}_S{args.scale}_F{args.frames}_seed0.npy"
+            path = (args.cache or Path(tmp)) / name
+            if not path.exists():
+                burst = render_burst(args.motion, args.scale, args.frames, w, h, seed=0)
+                np.save(path, burst.frames)
+                del burst
             row = {"size": f"{w}x{h}", "megapixels": w * h / 1e6, "frames": args.frames, "scale": args.scale,
                    "motion": args.motion,
                    "render_s": time.perf_counter() - t}
@@ -207,7 +216,8 @@ def main(argv=None) -> int:
                     row["vidsr_over_hbis"] = full["vidsr_s"] / (full["assemble_s"] + full["classical_s"])
             rows.append(row)
             print(json.dumps(row), flush=True)
-            path.unlink()
+            if args.cache is None:
+                path.unlink()
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("eval_handheld", ROOT / "training" / "eval_handheld.py")
