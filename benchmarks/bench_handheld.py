@@ -22,7 +22,9 @@ here and saved (``--cache DIR`` keeps it for the next run); then fresh processes
 issue 49 is own time <= 20 x floor. Peak memory: each full-burst process reports its own peak
 resident set (``getrusage(RUSAGE_SELF).ru_maxrss``, read after classical, before learned and
 vidsr run), and this process reads ``getrusage(RUSAGE_CHILDREN).ru_maxrss`` after it exits (the
-largest child so far: with sizes in rising order, that size's process, everything it ran).
+largest child so far, the renders included). Linux starts a child's peak from its parent's
+resident set at the fork, so the bursts are rendered in processes of their own and this one
+stays small (``parent_rss_mb``: what every child's peak starts from).
 The goal: 16 frames of 12 MP at S = 2 in <= 6 GB.
 
 Timings on a machine shared with other jobs are noisy: the ratios are measured side by side in
@@ -178,9 +180,6 @@ def main(argv=None) -> int:
     if args.json is not None and not args.json.parent.is_dir():
         print(f"bench_handheld: --json {args.json}: the folder does not exist", file=sys.stderr)
         return 2
-    import numpy as np
-
-    from hbis_torch.training.handheld_render import render_burst
 
     rows, load_before = [], os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
@@ -188,15 +187,19 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             name = f"handheld_{args.motion}_{w}x{h}_S{args.scale}_F{args.frames}_seed0.npy"
             path = (args.cache or Path(tmp)) / name
-            if not path.exists():
-                burst = render_burst(args.motion, args.scale, args.frames, w, h, seed=0)
-                np.save(path, burst.frames)
-                del burst
+            if not path.exists():  # in a process of its own: this one stays small, and a child's peak
+                # memory (which Linux starts from its parent's at the fork) is its own
+                code = ("import sys, numpy as np; from hbis_torch.training.handheld_render import render_burst; "
+                        f"np.save(sys.argv[1], render_burst({args.motion!r}, {args.scale}, {args.frames}, {w}, {h}, "
+                        "seed=0).frames)")
+                env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+                subprocess.run([sys.executable, "-c", code, str(path)], check=True, env=env)
             row = {"size": f"{w}x{h}", "megapixels": w * h / 1e6, "frames": args.frames, "scale": args.scale,
                    "motion": args.motion,
                    "render_s": time.perf_counter() - t}
             small = w * h <= 1_000_000
             repeats = args.repeats if small else 1
+            row["parent_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
             row["start_runs"] = [run_child(path, args.scale, "start", False, False) for _ in range(args.repeats)]
             row["full_runs"] = [run_child(path, args.scale, "full", small and not args.no_learned and i == 0,
                                           small and not args.no_vidsr and i == 0, args.max_gb) for i in range(repeats)]
