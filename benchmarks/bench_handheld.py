@@ -3,9 +3,9 @@
     python benchmarks/bench_handheld.py [--sizes 640x480 4000x3000] [--frames 16] [--scale 2]
         [--no-vidsr] [--no-learned] [--json benchmarks/results/bench_handheld.json]
 
-For each size, a burst of :func:`hbis_torch.training.handheld_render.render_burst` (motion
-``all``: turn, perspective, rolling shutter, a moving object, brightness; 16-bit) is rendered
-here and saved; then fresh processes (so that imports and first calls count as a user's
+For each size, a burst of :func:`hbis_torch.training.handheld_render.render_burst` (``--motion``,
+by default ``all``: turn, perspective, rolling shutter, a moving object, brightness; 16-bit) is rendered
+here and saved (``--cache DIR`` keeps it for the next run); then fresh processes (so that imports and first calls count as a user's
 ``hbis assemble`` + ``hbis reconstruct`` would) run, each timed from its own start:
 
 * a 32 x 32 burst of the same frames' corner: assemble + classical (the *start-up*: imports, first
@@ -22,11 +22,13 @@ here and saved; then fresh processes (so that imports and first calls count as a
 issue 49 is own time <= 20 x floor. Peak memory: each full-burst process reports its own peak
 resident set (``getrusage(RUSAGE_SELF).ru_maxrss``, read after classical, before learned and
 vidsr run), and this process reads ``getrusage(RUSAGE_CHILDREN).ru_maxrss`` after it exits (the
-largest child so far: with sizes in rising order, that size's process, everything it ran).
+largest child so far, the renders included). Linux starts a child's peak from its parent's
+resident set at the fork, so the bursts are rendered in processes of their own and this one
+stays small (``parent_rss_mb``: what every child's peak starts from).
 The goal: 16 frames of 12 MP at S = 2 in <= 6 GB.
 
 Timings on a machine shared with other jobs are noisy: the ratios are measured side by side in
-one run, and the JSON says on what machine.
+one run, and the JSON says on what machine and under what load (the load average before and after).
 """
 
 from __future__ import annotations
@@ -45,16 +47,19 @@ ROOT = Path(__file__).resolve().parents[1]
 START = 32  # side of the start-up burst
 
 
-def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool) -> None:
+def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: float) -> None:
     """Run in a fresh process: time what the module docstring says; print one JSON line."""
     t0 = time.perf_counter()
+    if max_gb > 0:  # on a shared machine a run that would take all memory fails alone (MemoryError)
+        limit = int(max_gb * 2**30)
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     import numpy as np
 
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.reconstruct import reconstruct
 
-    frames = np.load(path)
-    if mode == "start":
+    frames = np.load(path, mmap_mode="r" if mode == "start" else None)
+    if mode == "start":  # only the corner is read
         frames = np.ascontiguousarray(frames[:, :START, :START])
     out: dict = {"import_load_s": time.perf_counter() - t0}
     t = time.perf_counter()
@@ -66,6 +71,8 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool) -> None:
     out["to_classical_s"] = time.perf_counter() - t0
     out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out["rejected"] = int((stack.confidence == 0).sum())
+    out["models"] = list(stack.meta["motion_models"])
+    out["assemble_messages"] = messages
     if mode == "full":
         import scipy.fft
 
@@ -98,8 +105,9 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool) -> None:
     print("RESULT " + json.dumps(out), flush=True)
 
 
-def run_child(path: Path, scale: int, mode: str, learned: bool, vidsr: bool) -> dict:
-    cmd = [sys.executable, __file__, "--child", str(path), "--scale", str(scale), "--mode", mode]
+def run_child(path: Path, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: float = 0) -> dict:
+    cmd = [sys.executable, __file__, "--child", str(path), "--scale", str(scale), "--mode", mode,
+           "--max-gb", str(max_gb)]
     cmd += ["--no-learned"] * (not learned) + ["--no-vidsr"] * (not vidsr)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     done = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -134,48 +142,65 @@ def main(argv=None) -> int:
     p.add_argument("--sizes", nargs="+", default=["640x480", "4000x3000"], help="frame sizes WxH (default 640x480 "
                    "4000x3000)")
     p.add_argument("--frames", type=int, default=16)
+    p.add_argument("--motion", default="all", help="the burst's motion (handheld_render.MOTIONS; default all)")
     p.add_argument("--scale", type=int, default=2)
     p.add_argument("--repeats", type=int, default=3, help="fresh processes per size up to 1 MP, and for the "
                    "start-up burst; the fastest counts (default 3; one above 1 MP)")
+    p.add_argument("--max-gb", type=float, default=14.0, help="address space a full-burst process may take, GiB "
+                   "(default 14; 0: no limit): above it the run fails with MemoryError rather than crowd the machine")
     p.add_argument("--no-learned", action="store_true")
     p.add_argument("--no-vidsr", action="store_true")
     p.add_argument("--json", type=Path, help="write the results here (atomically)")
+    p.add_argument("--cache", type=Path, help="keep the rendered bursts in this folder and reuse them (a 12 MP "
+                   "burst takes minutes to render)")
     p.add_argument("--child", help=argparse.SUPPRESS)
     p.add_argument("--mode", default="full", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.child:
-        child(args.child, args.scale, args.mode, not args.no_learned, not args.no_vidsr)
+        child(args.child, args.scale, args.mode, not args.no_learned, not args.no_vidsr, args.max_gb)
         return 0
     try:
         sizes = sorted((parse_size(s) for s in args.sizes), key=lambda wh: wh[0] * wh[1])
     except ValueError:
         print(f"bench_handheld: --sizes must be WxH of {START} x {START} px or more, got {args.sizes}", file=sys.stderr)
         return 2
+    from hbis_torch.training.handheld_render import MOTIONS
+
+    if args.motion not in MOTIONS:
+        print(f"bench_handheld: --motion must be one of {', '.join(MOTIONS)}", file=sys.stderr)
+        return 2
     if args.frames < 2 or not 1 <= args.scale <= 8 or args.repeats < 1:
         print("bench_handheld: --frames must be 2 or more, --scale 1..8 and --repeats 1 or more", file=sys.stderr)
+        return 2
+    if args.cache is not None and not args.cache.is_dir():
+        print(f"bench_handheld: --cache {args.cache}: the folder does not exist", file=sys.stderr)
         return 2
     if args.json is not None and not args.json.parent.is_dir():
         print(f"bench_handheld: --json {args.json}: the folder does not exist", file=sys.stderr)
         return 2
-    import numpy as np
 
-    from hbis_torch.training.handheld_render import render_burst
-
-    rows = []
+    rows, load_before = [], os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         for w, h in sizes:
             t = time.perf_counter()
-            burst = render_burst("all", args.scale, args.frames, w, h, seed=0)
-            path = Path(tmp) / f"{w}x{h}.npy"
-            np.save(path, burst.frames)
-            del burst
+            name = f"handheld_{args.motion}_{w}x{h}_S{args.scale}_F{args.frames}_seed0.npy"
+            path = (args.cache or Path(tmp)) / name
+            if not path.exists():  # in a process of its own: this one stays small, and a child's peak
+                # memory (which Linux starts from its parent's at the fork) is its own
+                code = ("import sys, numpy as np; from hbis_torch.training.handheld_render import render_burst; "
+                        f"np.save(sys.argv[1], render_burst({args.motion!r}, {args.scale}, {args.frames}, {w}, {h}, "
+                        "seed=0).frames)")
+                env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+                subprocess.run([sys.executable, "-c", code, str(path)], check=True, env=env)
             row = {"size": f"{w}x{h}", "megapixels": w * h / 1e6, "frames": args.frames, "scale": args.scale,
+                   "motion": args.motion,
                    "render_s": time.perf_counter() - t}
             small = w * h <= 1_000_000
             repeats = args.repeats if small else 1
+            row["parent_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
             row["start_runs"] = [run_child(path, args.scale, "start", False, False) for _ in range(args.repeats)]
             row["full_runs"] = [run_child(path, args.scale, "full", small and not args.no_learned and i == 0,
-                                          small and not args.no_vidsr and i == 0) for i in range(repeats)]
+                                          small and not args.no_vidsr and i == 0, args.max_gb) for i in range(repeats)]
             row["start"], row["full"] = (fastest(row["start_runs"]), fastest(row["full_runs"]))
             full, start = row["full"], row["start"]
             if "failed" not in full and "failed" not in start:
@@ -192,11 +217,14 @@ def main(argv=None) -> int:
                     row["vidsr_over_hbis"] = full["vidsr_s"] / (full["assemble_s"] + full["classical_s"])
             rows.append(row)
             print(json.dumps(row), flush=True)
-            path.unlink()
+            if args.cache is None:
+                path.unlink()
     if args.json is not None:
         from hbis_torch.provenance import write_results
 
-        write_results(args.json, {"rows": rows}, argv=sys.argv[1:] if argv is None else argv)
+        write_results(args.json, {"rows": rows, "load_average_1_5_15_min": {"before": load_before,
+                                                                              "after": os.getloadavg()}},
+                      argv=sys.argv[1:] if argv is None else argv)
     for r in rows:
         print(summary(r))
     return 0

@@ -111,6 +111,10 @@ def test_the_eval_resumes_where_it_stopped(eh, tmp_path, capsys):
     assert eh.main(args[:-2] + ["--no-learned", "--blur", "0.5"]) == 2
     assert "other settings" in capsys.readouterr().err and out.read_text() == before
     assert eh.main(["--out", str(out), "--motions", "spin"]) == 2
+    # the table alone, from what the file holds
+    out.with_suffix(".md").unlink()
+    assert eh.main(["--out", str(out), "--table-only"]) == 0
+    assert "| translation | " in out.with_suffix(".md").read_text()
 
 
 def test_the_vidsr_peer_gives_an_image_on_the_truths_grid(eh):

@@ -25,7 +25,8 @@ image without a border of ``--border`` LR px (4 by default: S x 4 output px). Th
 
 Each finished row of each cell is written at once to ``--out`` (JSON, atomically): a run that
 stops resumes where it stopped when run again with the same ``--out`` and settings, and a run
-with more rows or cells adds to it. At the end the table goes to the same path with ``.md``: each
+with more rows or cells adds to it. With it, the table goes to the same path with ``.md``
+(``--table-only`` writes it from ``--out`` alone): each
 cell's rows and which goals of the issue it misses (classical within 0.3 dB of the oracle;
 classical no more than 0.3 dB behind vidsr; classical 2 dB or more over bicubic with 8 frames or
 more).
@@ -64,6 +65,8 @@ def parse_args(argv=None):
     p.add_argument("--blur", type=float, default=0.3, help="the lens's Gaussian sigma, LR px (default 0.3)")
     p.add_argument("--border", type=int, default=4, help="border left out of the score, LR px (default 4)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--table-only", action="store_true", help="only write the .md table of what --out holds "
+                   "(e.g. of a run still going or stopped)")
     return p.parse_args(argv)
 
 
@@ -168,7 +171,9 @@ def run_row(row: str, burst, cache: dict) -> dict:
         else:
             image = reconstruct(stack, row, messages=notes)
         out["messages"] = notes
-        out["motion_error_px"] = motion_error(burst, stack.motions)
+        errors = motion_error(burst, stack.motions)
+        out["frame_motion_error_px"] = [None if c == 0 else e for e, c in zip(errors, stack.confidence)]
+        out["motions"] = stack.motions.tolist()
     elif row == "oracle":
         notes = []
         image = reconstruct(oracle_stack(burst), "classical", messages=notes)
@@ -192,19 +197,19 @@ def _peer():
     return sys.modules["vidsr_peer"]
 
 
-def motion_error(burst, motions: np.ndarray) -> float:
-    """Largest distance (LR px) over frames and a grid of every 16th pixel between where the found
-    motions and the true flow put a frame's pixels (frames with confidence 0 too)."""
+def motion_error(burst, motions: np.ndarray) -> list[float]:
+    """Per frame, the largest distance (LR px), over a grid of every 16th pixel, between where the
+    found motion and the true flow put the frame's pixels."""
     F, H, W = burst.frames.shape
     v, u = np.mgrid[0:H:16, 0:W:16].astype(np.float64)
-    worst = 0.0
+    errors = [0.0]
     for k in range(1, F):
         m = motions[k]
         w = m[2, 0] * u + m[2, 1] * v + m[2, 2]
         x, y = (m[0, 0] * u + m[0, 1] * v + m[0, 2]) / w, (m[1, 0] * u + m[1, 1] * v + m[1, 2]) / w
         true = burst.flow(k)[0:H:16, 0:W:16]
-        worst = max(worst, float(np.hypot(x - true[..., 0], y - true[..., 1]).max()))
-    return worst
+        errors.append(float(np.hypot(x - true[..., 0], y - true[..., 1]).max()))
+    return errors
 
 
 def provenance(argv, script: str = "training/eval_handheld.py") -> dict:
@@ -274,6 +279,13 @@ def main(argv=None) -> int:
     problem = check_args(args)
     if problem:
         return _refuse(problem)
+    if args.table_only:
+        from hbis_torch.io_utils import atomic_write_text
+
+        if not args.out.exists():
+            return _refuse(f"--out {args.out} does not exist")
+        atomic_write_text(args.out.with_suffix(".md"), table(json.loads(args.out.read_text())))
+        return 0
     rows = [r for r in ROWS if not (r == "learned" and args.no_learned) and not (r == "vidsr" and args.no_vidsr)]
     if "vidsr" in rows:
         available = _peer().available
@@ -309,12 +321,11 @@ def main(argv=None) -> int:
                     got["run"] = len(results["provenance"]) - 1
                     cell["rows"][row] = got
                     save()
+                    atomic_write_text(args.out.with_suffix(".md"), table(results))
                     print(f"{key:32s} {row:9s} {got['psnr_db']:6.2f} dB  {got['seconds']:6.1f} s", flush=True)
     results["summary"] = summary(results)
     save()
-    md = args.out.with_suffix(".md")
-    atomic_write_text(md, table(results))
-    print(f"wrote {args.out} and {md}")
+    print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
     return 0
 
 
@@ -384,9 +395,15 @@ def table(results: dict) -> str:
             models = cl.get("models", [])
             counted = ", ".join(f"{models.count(m)} {m}" for m in dict.fromkeys(models) if m != "identity")
             how = f"{cl.get('rejected', '')} rejected; {counted}" if cl else ""
+            kept = [e for e in cl.get("frame_motion_error_px", []) if e is not None]
+            if kept:
+                how += f"; worst kept frame's motion off by {max(kept):.2f} px"
             lines.append(f"| {c['motion']} | " + " | ".join(vals) + f" | {how} | {'; '.join(misses(c)) or '-'} |")
-        means = [np.mean([c["rows"][r]["psnr_db"] for c in group if r in c["rows"]]) for r in present]
-        lines.append("| **mean** | " + " | ".join(f"{m:.2f}" for m in means) + " | | |")
+        whole = [c for c in group if all(r in c["rows"] for r in present)]  # the mean over the same cells
+        if whole:
+            means = [np.mean([c["rows"][r]["psnr_db"] for c in whole]) for r in present]
+            lines.append(f"| **mean** ({len(whole)} cells with every row) | " + " | ".join(f"{m:.2f}" for m in means)
+                         + " | | |")
         lost = [c for c in group if misses(c)]
         lines += ["", f"{len(lost)} of {len(group)} cells miss a goal."]
         timed = {r: np.mean([c["rows"][r]["seconds"] for c in group if r in c["rows"]]) for r in present}
