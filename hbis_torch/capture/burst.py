@@ -398,6 +398,7 @@ def feature_start(reference: np.ndarray, frame: np.ndarray) -> np.ndarray | None
         return None
     src = np.float32([kf[m.queryIdx].pt for m in matches])
     dst = np.float32([kr[m.trainIdx].pt for m in matches])
+    cv2.setRNGSeed(0)  # RANSAC draws from OpenCV's global generator: the same burst, the same start, every run
     matrix, inliers = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0 * scale)
     if matrix is None or int(inliers.sum()) < 6:
         return None
