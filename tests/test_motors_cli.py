@@ -90,9 +90,19 @@ class FakePlanner(types.ModuleType):
         return {"ae_axis_max": 0.25, "ae_axis_mean": 0.125}
 
 
+def _use_planner(monkeypatch, planner) -> None:
+    """Put ``planner`` where ``import hbis_torch.scan as planner`` finds it: that statement reads the
+    package's attribute before sys.modules, so once another test has imported the real module, the
+    module table alone is not enough."""
+    import hbis_torch
+
+    monkeypatch.setitem(sys.modules, "hbis_torch.scan", planner)
+    monkeypatch.setattr(hbis_torch, "scan", planner, raising=False)
+
+
 def test_scan_prints_ae_first_captures_each_frame_once_and_resumes(sim, tmp_path, monkeypatch, capsys):
     planner = FakePlanner()
-    monkeypatch.setitem(sys.modules, "hbis_torch.scan", planner)
+    _use_planner(monkeypatch, planner)
     log = tmp_path / "captures.txt"
     capture = f"{sys.executable} -c \"open('{log}', 'a').write('{{index}} {{phi1}} {{phi2}}\\n')\""
     journal, out = tmp_path / "journal.json", tmp_path / "phases.json"
@@ -127,7 +137,7 @@ def test_scan_prints_ae_first_captures_each_frame_once_and_resumes(sim, tmp_path
 
 
 def test_scan_dry_run_needs_no_controller(monkeypatch, capsys):
-    monkeypatch.setitem(sys.modules, "hbis_torch.scan", FakePlanner())
+    _use_planner(monkeypatch, FakePlanner())
     assert main(["motors", "scan", "--h", "2", "--dry-run", "--steps-per-deg", "100,50"]) == 0
     out = capsys.readouterr().out
     assert "4 frames" in out and "0.01000 deg (prism 1), 0.02000 deg (prism 2)" in out
@@ -225,7 +235,7 @@ def test_a_port_that_can_never_be_serial_exits_2(kind, tmp_path, capsys):
 ])
 def test_scan_arguments_are_checked_before_the_controller_is_reset(extra, message, sim, tmp_path, monkeypatch,
                                                                    capsys):
-    monkeypatch.setitem(sys.modules, "hbis_torch.scan", FakePlanner())
+    _use_planner(monkeypatch, FakePlanner())
     monkeypatch.chdir(tmp_path)
     (tmp_path / "CORRUPT").write_text("{not json")
     assert motors(sim.port, "scan", "--h", "2", *extra) == 2
@@ -239,7 +249,7 @@ def test_scan_help_gives_the_form_of_negative_phases(monkeypatch, capsys):
     with pytest.raises(SystemExit):
         main(["motors", "scan", "--help"])
     assert "--phases-deg=-0.2,-70" in " ".join(capsys.readouterr().out.split())
-    monkeypatch.setitem(sys.modules, "hbis_torch.scan", FakePlanner())
+    _use_planner(monkeypatch, FakePlanner())
     assert main(["motors", "scan", "--h", "2", "--dry-run", "--steps-per-deg", "100,100",
                  "--phases-deg=-0.2,-70"]) == 0
     assert "from phases (-0.2000, -70.0000) deg" in capsys.readouterr().out

@@ -104,11 +104,11 @@ def run(args) -> int:
     for flag, given in (("--scale", args.scale), ("--reference", args.reference), ("--motion", args.motion != "auto")):
         if given:
             raise HbisInputError(f"{flag} is for bursts: give --burst as well")
-    check_output_path(args.out, overwrite=args.overwrite)
     inputs = {"--phases": args.phases, "--dark": args.dark, "--flat": args.flat, "--bad-pixels": args.bad_pixels,
               "--system": getattr(args, "system", None), "--calibration": getattr(args, "calibration", None)}
     inputs.update({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()})
-    check_distinct_paths(inputs, {"--out": args.out})
+    check_distinct_paths(inputs, {"--out": args.out})  # first: "is an input" says more than "exists"
+    check_output_path(args.out, overwrite=args.overwrite)
     system = system_for(args)
     scan = read_phases(args.phases)
     calibration = load_calibration(args.dark, args.flat, args.bad_pixels)
@@ -149,9 +149,9 @@ def run_burst(args) -> int:
                                         ("--calibration", getattr(args, "calibration", None))) if value is not None]
     if refused:
         raise HbisInputError(f"{', '.join(refused)} do(es) not apply to a burst (--burst)")
-    check_output_path(args.out, overwrite=args.overwrite)
     check_distinct_paths({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()},
                          {"--out": args.out})
+    check_output_path(args.out, overwrite=args.overwrite)
     from hbis_torch.capture.raw import assemble_raw_burst, is_raw_burst
 
     if is_raw_burst(args.frames):  # DNG and LibRaw's formats: the [raw] extra (docs/raw-bursts.md)

@@ -83,8 +83,8 @@ def run(args) -> int:
     args.stack = args.stack[0]
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
 
+    check_distinct_paths({"STACK": args.stack}, {"--out": args.out})  # first: "is the input" says more
     check_output_path(args.out, overwrite=args.overwrite)
-    check_distinct_paths({"STACK": args.stack}, {"--out": args.out})
     from hbis_torch.reconstruct.raw_output import check_raw_outputs
 
     check_raw_outputs(args.stack, args.out, args.overwrite)  # a raw burst's preview (and DNG) too

@@ -156,8 +156,10 @@ def check_raw_outputs(stack_path, out, overwrite: bool = False) -> None:
 
     import tifffile
 
+    from hbis_torch.tiff_io import quiet_tifffile
+
     try:
-        with tifffile.TiffFile(stack_path) as tif:
+        with quiet_tifffile(), tifffile.TiffFile(stack_path) as tif:  # a broken file: read_stack's one line
             meta = json.loads(tif.pages[0].description or "{}")
     except Exception:  # not readable here: read_stack says why, in its own line
         return

@@ -16,7 +16,7 @@ Examples
 >>> sorted(METHODS)
 ['classical', 'learned']
 >>> [option.flag for option in METHODS["classical"].options]
-['--no-deblur']
+['--no-deblur', '--psf-sigma']
 """
 
 from __future__ import annotations
