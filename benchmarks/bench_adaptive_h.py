@@ -115,7 +115,7 @@ def main(argv=None) -> dict:
           f"{summary['frames_recommended_total']} recommended vs {summary['frames_best_total']} for the best h "
           f"and {summary['frames_h_max_total']} at h_max; one frame alone: within 0.5 dB in "
           f"{summary['single_frame_within_0p5_db']}/{summary['cases']}")
-    return benchutil.finish(args, rows, summary)
+    return benchutil.finish(args, rows, summary, argv)
 
 
 if __name__ == "__main__":

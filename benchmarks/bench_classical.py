@@ -111,7 +111,7 @@ def main(argv=None) -> dict:
           f"{summary['psnr_gain_vs_griddata_db']:+.2f} dB; vs bicubic: {summary['psnr_gain_vs_bicubic_db']:+.2f} dB; "
           f"interpolation alone (no deblurring) vs griddata: {summary['speedup_vs_griddata_no_deblur']:.0f}x faster, "
           f"{summary['ours_no_deblur']['psnr_db'] - summary['griddata_linear']['psnr_db']:+.2f} dB")
-    return benchutil.finish(args, rows, summary)
+    return benchutil.finish(args, rows, summary, argv)
 
 
 if __name__ == "__main__":

@@ -16,8 +16,12 @@ import statistics
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 from hbis_torch.cli import COMMANDS
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import check_output_path
+from hbis_torch.provenance import record_printed
 
 
 def _time(argv: list[str]) -> float:
@@ -29,7 +33,20 @@ def _time(argv: list[str]) -> float:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument("--out", type=Path, default=None,
+                        help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
     args = parser.parse_args(argv)
+    try:
+        check_output_path(args.out, "--out") if args.out is not None else None
+    except HbisInputError as exc:
+        print(f"bench_cli_start: {exc}", file=sys.stderr)
+        return 2
+    with record_printed(args.out, argv):
+        return measure(args)
+
+
+def measure(args):
+    """Run the benchmark and print its result."""
     py = sys.executable
     cases = {"import torch": [py, "-c", "import torch"], "hbis --help": [py, "-m", "hbis_torch", "--help"]}
     cases.update({f"hbis {c} --help": [py, "-m", "hbis_torch", c, "--help"] for c in COMMANDS})

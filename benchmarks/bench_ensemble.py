@@ -18,7 +18,6 @@ gain over the classical image and over an ensemble of 1; ``--json`` writes the r
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import time
 from pathlib import Path
@@ -86,7 +85,9 @@ def main(argv=None) -> int:
                          "classical_s": classical_s, "psnr_db": float(np.mean(scores[n])),
                          "classical_psnr_db": float(np.mean(classical_scores))})
     if args.json is not None:
-        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+        from hbis_torch.provenance import write_results
+
+        write_results(args.json, {"rows": rows}, argv=argv)
     return 0
 
 

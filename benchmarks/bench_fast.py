@@ -104,7 +104,7 @@ def fullframe(work: Path, h: int, repeats: int) -> dict:
         for method, options in methods.items():
             for size, stack in (("full", full), ("small", small)):
                 out = work / f"out_{method.replace(' ', '_')}_{size}_h{h}.tif"
-                wall, rss = run_process(hbis("reconstruct", str(stack), *options, "--out", str(out)))
+                wall, rss = run_process(hbis("reconstruct", str(stack), *options, "--out", str(out), "--overwrite"))
                 key = (method, size)
                 best[key] = min(best.get(key, (float("inf"), 0)), (wall, rss))
     return {method: {"full_s": best[method, "full"][0], "small_s": best[method, "small"][0],
@@ -209,7 +209,7 @@ def startup(work: Path, repeats: int) -> dict:
         best["torch"] = min(best["torch"], run_process([sys.executable, "-c", "import torch"])[0])
         for key, extra in (("learned_32", []), ("learned_32_cpu", ["--provider", "cpu"])):
             best[key] = min(best[key], run_process(hbis("reconstruct", str(small), "--method", "learned", *extra,
-                                                        "--out", str(work / "start.tif")))[0])
+                                                        "--out", str(work / "start.tif"), "--overwrite"))[0])
     return best
 
 
@@ -230,7 +230,7 @@ def outdir(work: Path, count: int, separate: int, repeats: int) -> dict:
         t0 = time.perf_counter()
         for i in range(separate):
             run_process(hbis("reconstruct", str(folder / f"s{i:03d}.tif"), "--method", "learned",
-                             "--out", str(work / f"one_{i}.tif")))
+                             "--out", str(work / f"one_{i}.tif"), "--overwrite"))
         single = min(single, (time.perf_counter() - t0) / separate)
     return {"count": count, "separate": separate, "batch_s_per_stack": batch, "single_s_per_stack": single}
 
@@ -327,8 +327,9 @@ def main(argv=None) -> int:
         results["outdir"] = outdir(work, count, separate, args.repeats)
     text = report(results, hs, args)
     print(text)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
+    from hbis_torch.provenance import write_results
+
+    write_results(args.out, text, argv=argv)
     if args.work is None:
         shutil.rmtree(work, ignore_errors=True)
     return 0

@@ -13,23 +13,41 @@ over the seeds.
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import numpy as np
 from skimage import data, transform
 
-import hbis_torch.reconstruct.burst as burst
 from hbis_torch.capture.burst import assemble_burst
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import check_output_path
 from hbis_torch.metrics import psnr
+from hbis_torch.provenance import record_printed
 from hbis_torch.reconstruct import reconstruct
+import hbis_torch.reconstruct.burst as burst
 from hbis_torch.reconstruct.single_frame import single_frame
 from hbis_torch.simulate.burst import random_motions, simulate_burst
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, nargs="+", default=[4, 8, 16])
     parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--out", type=Path, default=None,
+                        help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
     args = parser.parse_args(argv)
+    try:
+        check_output_path(args.out, "--out") if args.out is not None else None
+    except HbisInputError as exc:
+        print(f"bench_few_frames: {exc}", file=sys.stderr)
+        return 2
+    with record_printed(args.out, argv):
+        return measure(args)
+
+
+def measure(args):
+    """Run the benchmark and print its result."""
     truth = transform.resize(data.astronaut()[100:300, 150:350].mean(-1) / 255, (80, 80), anti_aliasing=True)
     print("| frames | single frame | classical | classical without the fill blend |\n| --- | --- | --- | --- |")
     for count in args.frames:
@@ -51,4 +69,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -90,7 +90,7 @@ def make_stacks(work: Path, hs) -> dict:
             if not (stack.exists() and truth.exists()):
                 roi = ["--roi", "full"] if size == "full" else []
                 subprocess.run([sys.executable, "-m", "hbis_torch", "simulate", "--scene", "camera",
-                                "--h", str(h), *roi, "--out", str(stack), "--truth", str(truth)],
+                                "--h", str(h), *roi, "--out", str(stack), "--truth", str(truth), "--overwrite"],
                                check=True, cwd=REPO, env=child_env())
             paths[h, size] = (stack, truth)
     return paths
@@ -229,8 +229,10 @@ def main(argv=None) -> int:
     result["ratios"] = {str(h): ratios(result["summary"], h) for h in args.hs}
     text = markdown(result, args.hs, (load0[0], load1[0]))
     print(text)
-    args.json.write_text(json.dumps(result, indent=2) + "\n")
-    args.json.with_suffix(".md").write_text(text)
+    from hbis_torch.provenance import write_results
+
+    write_results(args.json, result, argv=argv)
+    write_results(args.json.with_suffix(".md"), text, argv=argv)
     plot(result, args.hs, args.plot)
     return 0
 

@@ -96,8 +96,7 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: 
             reconstruct(stack, "learned")
             out["learned_s"] = time.perf_counter() - t
         if vidsr:
-            sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
-            from vidsr_peer import available, vidsr_sr
+            from peers.vidsr_peer import available, vidsr_sr  # benchmarks/ is the script's folder
 
             if available():
                 t = time.perf_counter()
@@ -157,7 +156,6 @@ def main(argv=None) -> int:
     p.add_argument("--child", help=argparse.SUPPRESS)
     p.add_argument("--mode", default="full", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
-    sys.path.insert(0, str(ROOT))  # this checkout's hbis_torch, here and in the children (PYTHONPATH)
     if args.child:
         child(args.child, args.scale, args.mode, not args.no_learned, not args.no_vidsr, args.max_gb)
         return 0
@@ -221,18 +219,12 @@ def main(argv=None) -> int:
             print(json.dumps(row), flush=True)
             if args.cache is None:
                 path.unlink()
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("eval_handheld", ROOT / "training" / "eval_handheld.py")
-    eval_handheld = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(eval_handheld)
-    result = {"provenance": eval_handheld.provenance(sys.argv[1:] if argv is None else argv,
-                                                     "benchmarks/bench_handheld.py"), "rows": rows,
-              "load_average_1_5_15_min": {"before": load_before, "after": os.getloadavg()}}
     if args.json is not None:
-        from hbis_torch.io_utils import atomic_write_text
+        from hbis_torch.provenance import write_results
 
-        atomic_write_text(args.json, json.dumps(result, indent=1) + "\n")
+        write_results(args.json, {"rows": rows, "load_average_1_5_15_min": {"before": load_before,
+                                                                              "after": os.getloadavg()}},
+                      argv=sys.argv[1:] if argv is None else argv)
     for r in rows:
         print(summary(r))
     return 0

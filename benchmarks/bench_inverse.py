@@ -10,22 +10,40 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import torch
 
 from hbis_torch.config import FoveaSystem
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import check_output_path
 from hbis_torch.optics.inverse import exact_inverse, paper_inverse, paper_norms
+from hbis_torch.provenance import record_printed
 from hbis_torch.scan import axis_alignment_error, plan_scan
 
 
-def main() -> None:
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=200)
     parser.add_argument("--h", type=int, default=7)
     parser.add_argument("--phases-deg", default="5,70")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    args = parser.parse_args()
+    parser.add_argument("--out", type=Path, default=None,
+                        help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
+    args = parser.parse_args(argv)
+    try:
+        check_output_path(args.out, "--out") if args.out is not None else None
+    except HbisInputError as exc:
+        print(f"bench_inverse: {exc}", file=sys.stderr)
+        return 2
+    with record_printed(args.out, argv):
+        return measure(args)
+
+
+def measure(args):
+    """Run the benchmark and print its result."""
     torch.set_num_threads(args.threads)
 
     system = FoveaSystem()
@@ -70,4 +88,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -46,7 +46,8 @@ import torch
 import torch.nn.functional as F
 
 from hbis_torch.config import FoveaSystem
-from hbis_torch.io_utils import atomic_path, atomic_write_text
+from hbis_torch.io_utils import atomic_path
+from hbis_torch.provenance import write_results
 from hbis_torch.metrics import psnr
 from hbis_torch.scan import plan_scan
 from hbis_torch.optics import sample_positions
@@ -487,7 +488,7 @@ def save_side_table(out: Path, name: str, text: str, head: str = "Load") -> str:
     """Write ``text`` to ``out / name`` (atomically) under a line with the load average; return it."""
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / name, f"{head} average (1/5/15 min): {load}\n\n{text}")
+    write_results(out / name, f"{head} average (1/5/15 min): {load}\n\n{text}")
     return text
 
 
@@ -555,11 +556,10 @@ def main(argv=None) -> int:
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     table = summarise(results)
     args.out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(args.out / "bench_learned.json",
-                      json.dumps({"load_average": load, "results": results, "table": table,
-                                  "positions_s": positions_s}, indent=1))
+    write_results(args.out / "bench_learned.json",
+                  {"load_average": load, "results": results, "table": table, "positions_s": positions_s}, argv=argv)
     text = markdown(table, positions_s, load) + "\n" + wide_table(table)
-    atomic_write_text(args.out / "bench_learned.md", text)
+    write_results(args.out / "bench_learned.md", text, argv=argv)
     pareto_plot(table, args.plot)
     print(text)
     return 0

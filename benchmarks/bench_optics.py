@@ -6,19 +6,25 @@
 2. Per-pixel landing maps for a whole h = 7 scan (49 phase pairs): the exact trace against the
    spline-interpolated maps, with the measured maximum error.
 
-Run:  python3 benchmarks/bench_optics.py
+Run:  python3 benchmarks/bench_optics.py [--out benchmarks/results/bench_optics.txt]
 """
 
 from __future__ import annotations
 
+import argparse
 import math
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from hbis_torch import FoveaSystem
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import check_output_path
 from hbis_torch.optics import landing_map, landing_map_interpolated, pixel_rays, trace_risley
+from hbis_torch.provenance import record_printed
 
 
 def best_of(fn, repeats=5):
@@ -48,7 +54,23 @@ def numpy_trace(rays, phi1_deg, phi2_deg, a_deg, n):
     return refract(r, n11, n)
 
 
-def main():
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=None,
+                        help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
+    args = parser.parse_args(argv)
+    try:
+        check_output_path(args.out, "--out") if args.out is not None else None
+    except HbisInputError as exc:
+        print(f"bench_optics: {exc}", file=sys.stderr)
+        return 2
+    with record_printed(args.out, argv):
+        measure()
+    return 0
+
+
+def measure() -> None:
+    """Run the benchmark and print its result."""
     torch.manual_seed(0)
     system = FoveaSystem()
     a, n = system.prisms.wedge_angle_deg, system.prisms.refractive_index
@@ -90,4 +112,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

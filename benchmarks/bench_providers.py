@@ -15,11 +15,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 
 import numpy as np
 
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import check_output_path
+from hbis_torch.provenance import record_printed
 from hbis_torch.reconstruct.learned import LearnedSR, available_providers, default_model_path
 
 
@@ -36,7 +41,20 @@ def main(argv=None) -> int:
     parser.add_argument("--size", type=int, default=256, help="LR side of the square input (one pass)")
     parser.add_argument("--repeats", type=int, default=15)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=None,
+                        help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
     args = parser.parse_args(argv)
+    try:
+        check_output_path(args.out, "--out") if args.out is not None else None
+    except HbisInputError as exc:
+        print(f"bench_providers: {exc}", file=sys.stderr)
+        return 2
+    with record_printed(args.out, argv):
+        return measure(args)
+
+
+def measure(args):
+    """Run the benchmark and print its result."""
     runners = {p: LearnedSR(default_model_path(args.h), threads=args.threads, provider=p) for p in available_providers()}
     h = args.h
     rng = np.random.default_rng(0)

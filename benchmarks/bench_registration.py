@@ -128,7 +128,7 @@ def main(argv=None) -> dict:
         print("mean RMS error (px): " + ", ".join(f"{k} {v:.4f}" for k, v in s["rms_px_mean"].items()))
         print(f"median speed-up over phase_cross_correlation at {size}^2: {s['speedup_vs_pcc_with_plan']:.1f}x with "
               f"the plan, {s['speedup_vs_pcc_data_only']:.1f}x from the data alone\n")
-    return benchutil.finish(args, rows, summary)
+    return benchutil.finish(args, rows, summary, argv)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,6 @@ while CPU seconds per stack stay close to what an idle core would take.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -167,8 +166,9 @@ def main(argv=None) -> int:
         result = {"load_average_before": load_before, "load_average_after": load_after,
                   "single_process": single, "data_loader_2_workers": loader2, "goal_stacks_per_s": GOAL,
                   "forward_model": table}
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(result, indent=1))
+        from hbis_torch.provenance import write_results
+
+        write_results(args.out, result, argv=argv)
     return 0
 
 

@@ -198,7 +198,9 @@ def main(argv=None) -> int:
     args.repeats = args.repeats or (1 if args.quick else 3)
     rows = measure(hs, sizes, photos, args.repeats, args.checkpoint)
     text = markdown(rows, args, hs, sizes, photos)
-    args.out.write_text(text)
+    from hbis_torch.provenance import write_results
+
+    write_results(args.out, text, argv=args.argv)
     plot(rows, hs, sizes, args.out.with_suffix(".png"))
     print(text)
     return 0

@@ -53,7 +53,8 @@ def stack_for(work: Path, h: int) -> tuple[Path, Path]:
     if not (stack.exists() and truth.exists()):
         work.mkdir(parents=True, exist_ok=True)
         subprocess.run([sys.executable, "-m", "hbis_torch", "simulate", "--scene", "camera", "--h", str(h),
-                        "--out", str(stack), "--truth", str(truth)], check=True, cwd=REPO, env=env())
+                        "--out", str(stack), "--truth", str(truth), "--overwrite"], check=True, cwd=REPO,
+                       env=env())
     return stack, truth
 
 
@@ -101,10 +102,12 @@ def main(argv=None) -> int:
             ratios.append(f"h = {h}, {precision}: best / fast end to end {best[0] / fast[0]:.2f}x "
                           f"(CPU {best[1] / fast[1]:.2f}x)")
     lines += [""] + ratios
-    text = "\n".join(lines) + f"\n\nCommand: python benchmarks/bench_tiers.py {' '.join(argv or sys.argv[1:])}\n"
+    text = "\n".join(lines) + "\n"
     print(text)
     if args.out is not None:
-        args.out.write_text(text)
+        from hbis_torch.provenance import write_results
+
+        write_results(args.out, text, argv=argv)
     return 0
 
 

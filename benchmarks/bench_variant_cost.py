@@ -122,11 +122,10 @@ def main(argv=None) -> int:
               f"{m['train']:7.3f} s {ratio['train']:5.2f}x "
               + " ".join(f"{m[case] * 1e3:8.1f} ms {ratio[case]:5.2f}x" for case in cases))
     if args.json is not None:
-        from hbis_torch.io_utils import atomic_write_text
+        from hbis_torch.provenance import write_results
 
         settings = {k: v for k, v in vars(args).items() if k != "json"}
-        record = {"settings": settings, "providers": providers, "rows": rows}
-        atomic_write_text(args.json, json.dumps(record, indent=2) + "\n")
+        write_results(args.json, {"settings": settings, "providers": providers, "rows": rows}, argv=argv)
     return 0
 
 

@@ -24,6 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from hbis_torch.errors import HbisInputError
+from hbis_torch.io_utils import check_output_path
+from hbis_torch.provenance import record_printed
+
 REPO = Path(__file__).resolve().parents[1]
 
 WORKER = r"""
@@ -68,11 +72,23 @@ def main(argv=None) -> int:
     parser.add_argument("--size", type=int, default=256, help="ROI side, LR pixels")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=None,
+                        help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
     args = parser.parse_args(argv)
     if not (args.previous / "hbis_torch").is_dir():
         print(f"bench_versions: {args.previous} is not a checkout of this project", file=sys.stderr)
         return 2
+    try:
+        check_output_path(args.out, "--out") if args.out is not None else None
+    except HbisInputError as exc:
+        print(f"bench_versions: {exc}", file=sys.stderr)
+        return 2
+    with record_printed(args.out, argv):
+        return measure(args)
 
+
+def measure(args):
+    """Run the benchmark and print its result."""
     from hbis_torch.config import FoveaSystem
     from hbis_torch.simulate import simulate_stack
     from hbis_torch.stack_io import write_stack

@@ -7,7 +7,6 @@ that a comparison is single-core on both sides and other jobs on the machine do 
 
 from __future__ import annotations
 
-import json
 import os
 import statistics
 import time
@@ -27,12 +26,14 @@ def cpu_timed(fn, repeats: int):
     return result, statistics.median(times)
 
 
-def finish(args, rows: list, summary: dict) -> dict:
-    """The benchmark's result (settings, rows, summary), also written atomically to ``args.json``."""
+def finish(args, rows: list, summary: dict, argv=None) -> dict:
+    """The benchmark's result (settings, rows, summary), also written atomically to ``args.json``
+    with its provenance (:func:`hbis_torch.provenance.write_results`; ``argv`` the arguments parsed,
+    ``sys.argv[1:]`` by default)."""
     result = {"settings": {k: v for k, v in vars(args).items() if k != "json"}, "rows": rows,
               "summary": summary}
     if args.json:
-        from hbis_torch.io_utils import atomic_write_text
+        from hbis_torch.provenance import write_results
 
-        atomic_write_text(args.json, json.dumps(result, indent=2, default=str) + "\n")
+        result = {"provenance": write_results(args.json, result, argv=argv), **result}
     return result

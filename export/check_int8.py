@@ -22,7 +22,6 @@ file's weights, the rest of the int8 file's loss from the rounding at run time.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -30,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.provenance import record_printed, write_results
 from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR, models_dir
 from hbis_torch.reconstruct.learned.method import classical_and_noise
@@ -55,20 +54,26 @@ def parse(argv):
     parser.add_argument("--photos", nargs="+", default=list(PHOTOS), choices=PHOTOS)
     parser.add_argument("--conditions", type=int, nargs="+", default=None, help="indices of the conditions (default: all)")
     parser.add_argument("--tolerance", type=float, default=0.05, help="largest loss of a cell, dB")
-    parser.add_argument("--out", type=Path, default=None, help="write every cell as JSON")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="write every cell as JSON ({'provenance': ..., 'cells': [...]})")
+    parser.add_argument("--md", type=Path, default=None,
+                        help="also write the printed tables as markdown, with their provenance")
     return parser.parse_args(argv)
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parse(argv)
-    if args.out is not None and args.out.exists():
-        print(f"check_int8: {args.out} exists; choose another --out", file=sys.stderr)
-        return 2
+    args.argv = argv
+    for path, flag in ((args.out, "--out"), (args.md, "--md")):
+        if path is not None and path.exists():
+            print(f"check_int8: {path} exists; choose another {flag}", file=sys.stderr)
+            return 2
     if args.bf16 and args.float_activations:
         print("check_int8: --float-activations is for the int8 files, not --bf16", file=sys.stderr)
         return 2
     folder = args.models or models_dir()
-    with tempfile.TemporaryDirectory() as twins:
+    with tempfile.TemporaryDirectory() as twins, record_printed(args.md, argv=argv):
         return compare(args, folder, Path(twins))
 
 
@@ -104,7 +109,7 @@ def compare(args, folder: Path, twins: Path) -> int:
         failed |= print_table(h, [x for x in cells if x["h"] == h], candidates, args)
     print(f"\n{time.monotonic() - started:.0f} s")
     if args.out is not None:
-        atomic_write_text(args.out, json.dumps(cells, indent=1))
+        write_results(args.out, {"cells": cells}, argv=args.argv)
     return 1 if failed else 0
 
 

@@ -58,12 +58,12 @@ def _linear(what: str, coefficients, pixels: float, extra_bytes: float = 0.0) ->
 
 def estimate_simulate(frames: int, width: int, height: int) -> Estimate:
     """``hbis simulate``: ``frames`` (h^2) frames of ``width`` x ``height`` pixels."""
-    return _linear(f"simulating {frames} frames of {width} x {height}", _SIMULATE, frames * width * height)
+    return _linear(f"simulating {frames} frames of {width} x {height} px", _SIMULATE, frames * width * height)
 
 
 def estimate_reconstruct(frames: int, width: int, height: int, channels: int = 1) -> Estimate:
     """``hbis reconstruct`` of a stack of ``frames`` frames of ``width`` x ``height`` (x channels)."""
-    return _linear(f"reconstructing {frames} frames of {width} x {height}", _RECONSTRUCT,
+    return _linear(f"reconstructing {frames} frames of {width} x {height} px", _RECONSTRUCT,
                    frames * width * height * channels)
 
 

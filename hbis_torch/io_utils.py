@@ -103,13 +103,15 @@ def _not_pseudo(path: Path, what: str) -> None:
             raise HbisInputError(f"{what}: {path} lies under {root}, where no output file can be written")
 
 
-def check_output_path(path, what: str = "--out") -> Path:
+def check_output_path(path, what: str = "--out", overwrite: bool = True) -> Path:
     """Refuse, in one line, an output file path that cannot be written; return it as a Path.
 
     Refused: ``""``; an existing directory or anything that is not a regular file (a device, a
     FIFO); a path under /proc or /sys; a path whose parent is a file; a folder in which no
-    file can be created (tried with a temporary file, removed at once). Folders still missing
-    are fine (the writers create them), provided the nearest existing one takes files.
+    file can be created (tried with a temporary file, removed at once); with ``overwrite``
+    False, a file that exists already (the CLI's rule: replaced only with ``--overwrite``).
+    Folders still missing are fine (the writers create them), provided the nearest existing one
+    takes files.
     """
     if path is None or str(path).strip() == "":
         raise HbisInputError(f"{what}: the output path is empty")
@@ -120,6 +122,8 @@ def check_output_path(path, what: str = "--out") -> Path:
         raise HbisInputError(f"{what}: {path} is a directory; give a file name")
     if os.path.lexists(target) and not target.is_file():
         raise HbisInputError(f"{what}: {path} exists and is not a regular file")
+    if not overwrite and os.path.lexists(path):
+        raise HbisInputError(f"{what}: {path} exists already; pass --overwrite to replace it")
     ancestor = _first_existing(target.parent)
     if not ancestor.is_dir():
         raise HbisInputError(f"{what}: {ancestor} is a file, so {path} cannot be created under it")

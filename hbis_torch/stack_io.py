@@ -198,6 +198,11 @@ class Stack:
         return x.sub_(black).div_(white - black).clamp_(0.0, 1.0)  # in place: a full frame's stack is 80 MB
 
 
+#: How to make a stack, for the line that refuses a file that is none (a plain image, a burst's frames).
+MAKE_A_STACK = ("make one with 'hbis assemble --burst --scale S FRAMES...' (frames of a moving camera), "
+                "'hbis assemble --phases PHASES FRAMES...' (a prism scan) or 'hbis simulate'")
+
+
 def read_stack(path) -> Stack:
     """Read and validate an hbis-stack/1 TIFF.
 
@@ -214,11 +219,17 @@ def read_stack(path) -> Stack:
     path = Path(path)
     frames, description = read_tiff(path, MAX_PAGES)
     if not description:
-        raise StackFormatError(f"{path}: page 0 has no ImageDescription (the stack's JSON)")
+        raise StackFormatError(f"{path}: not an hbis-stack/1 file: page 0 has no ImageDescription (the stack's "
+                               f"JSON); {MAKE_A_STACK}")
     try:
-        meta = load_json(description, f"{path}: page 0's ImageDescription")
+        meta = load_json(description, f"{path}: not an hbis-stack/1 file: page 0's ImageDescription")
     except HbisInputError as exc:
-        raise StackFormatError(str(exc)) from None
+        raise StackFormatError(f"{exc}; {MAKE_A_STACK}") from None
+    if not isinstance(meta, dict):
+        raise StackFormatError(f"{path}: not an hbis-stack/1 file: page 0's ImageDescription is not a JSON object; "
+                               f"{MAKE_A_STACK}")
+    if "format" not in meta:  # a plain image (tifffile writes {"shape": ...}) or another program's file
+        raise StackFormatError(f"{path}: not an hbis-stack/1 file (its JSON has no 'format'); {MAKE_A_STACK}")
     validate_stack(frames, meta, str(path))
     h = meta["h"]
     if meta.get("kind", "hbis") == "hbis" and len(frames) != h * h:  # a file is one whole scan (in memory, part of one may be a Stack)

@@ -48,7 +48,7 @@ def test_cli_assemble_then_reconstruct_recovers_motion_and_image(tmp_path, capsy
         assert np.abs(a[:2] / a[2] - b[:2] / b[2]).max() < 0.06
     single = psnr(_single(burst), burst.truth)
     for method in ("classical", "learned"):
-        assert main(["-q", "reconstruct", str(stack_path), "--method", method, "--out", str(out)]) == 0
+        assert main(["-q", "reconstruct", str(stack_path), "--method", method, "--out", str(out), "--overwrite"]) == 0
         image, meta = read_image(out)
         assert image.shape == (2 * SIZE, 2 * SIZE) and np.isfinite(image).all()
         assert psnr(image, burst.truth) > single + 1.5, method

@@ -43,7 +43,8 @@ def frames(count=4, shape=(20, 24), dtype=np.uint16, top=4095, seed=0):
 
 
 def assemble(tmp_path, *args):
-    return main(["assemble", "--phases", str(tmp_path / "phases.json"), "--out", str(tmp_path / "stack.tif"), *args])
+    return main(["assemble", "--phases", str(tmp_path / "phases.json"), "--out", str(tmp_path / "stack.tif"), "--overwrite",
+                 *args])
 
 
 def one_line_error(capsys, code, fragment, tmp_path):

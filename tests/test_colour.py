@@ -72,9 +72,16 @@ def test_rgb_reconstruction_classical_beats_the_reference_frame(colour_case, mod
 
 
 def test_rgb_reconstruction_learned(colour_case):
+    # Measured on this stack: learned 37.93 dB, classical 36.38 dB, the reference frame upsampled
+    # (bicubic) 30.93 dB. The floor sits 0.5 dB under the learned figure, and the network must add
+    # at least 1 dB over the classical image it refines: one frame upsampled, or the classical image
+    # returned unrefined, fails.
     stack, truth = colour_case
     image = reconstruct(stack, "learned", registration="optics")
-    assert image.shape == (64, 64, 3) and psnr(image, truth) > 22
+    assert image.shape == (64, 64, 3)
+    learned = psnr(image, truth)
+    assert learned > 37.4
+    assert learned > psnr(reconstruct(stack, "classical", registration="optics"), truth) + 1.0
 
 
 def test_bayer_joint_demosaicking_and_learned_demosaic_first(colour_case, tmp_path):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from hbis_torch.reconstruct.learned import noise_params_from_meta
+from hbis_torch.provenance import read_provenance
 from hbis_torch.training import heldout
 
 SCRIPT = Path(__file__).resolve().parents[1] / "training" / "eval_matrix.py"
@@ -59,8 +60,12 @@ def test_independent_rows_render_their_own_frames_and_truth_of_the_same_scan(em)
 
 def test_cells_outside_the_training_domain_report_both_the_method_and_the_network(em, tmp_path, capsys):
     out = tmp_path / "cells.json"
-    assert em.main(["--h", "2", "--photos", "camera", "--size", "24", "--out", str(out)]) == 0
-    cells = {c["condition"]: c for c in json.loads(out.read_text())}
+    md = tmp_path / "cells.md"
+    assert em.main(["--h", "2", "--photos", "camera", "--size", "24", "--out", str(out), "--md", str(md)]) == 0
+    record = json.loads(out.read_text())
+    assert record["provenance"]["command"].endswith(f"--out {out} --md {md}")  # where the cells came from
+    assert read_provenance(md)["commit"] == record["provenance"]["commit"] and "| condition |" in md.read_text()
+    cells = {c["condition"]: c for c in record["cells"]}
     outside = cells[condition(em, "outside ranges").name]
     inside = cells[condition(em, "reference frame 0").name]
     assert "lens cutoff" in outside["classical_returned"] and outside["delta_db"] == 0.0  # the classical image
@@ -75,5 +80,5 @@ def test_a_tier_runs_at_its_own_default_self_ensemble(em, tmp_path, capsys):
     # --tier best scores the best models as hbis reconstruct --model best runs them (2 symmetries)
     out = tmp_path / "best.json"
     assert em.main(["--h", "4", "--tier", "best", "--photos", "camera", "--size", "16", "--out", str(out)]) == 0
-    assert {c["ensemble"] for c in json.loads(out.read_text())} == {2}
+    assert {c["ensemble"] for c in json.loads(out.read_text())["cells"]} == {2}
     assert "self-ensemble of 2 at h = 4" in capsys.readouterr().out

@@ -68,6 +68,15 @@ def check_drive_simulated_motors(out: str, folder: Path) -> None:
     assert (folder / "scan-journal.json").is_file()
 
 
+def check_handheld_burst(out: str, folder: Path) -> None:
+    scores = {m.strip(): float(v) for m, v in re.findall(r"PSNR (.+?) +(\S+) dB", out)}
+    assert set(scores) == {"bicubic", "classical", "classical, lens given"}
+    assert scores["classical"] > scores["bicubic"] + 1.5
+    assert scores["classical, lens given"] > scores["classical"]
+    assert "translation" not in re.search(r"models: (.*)", out).group(1)  # the burst turns
+    assert (folder / "handheld_burst.png").stat().st_size > 1000 and (folder / "burst.tif").is_file()
+
+
 CHECKS = {name[len("check_"):]: f for name, f in globals().items() if name.startswith("check_")}
 
 

@@ -96,7 +96,7 @@ def test_the_eval_resumes_where_it_stopped(eh, tmp_path, capsys):
     assert eh.main(args) == 0
     done = json.loads(out.read_text())
     cell = done["cells"]["translation|S=2|F=3"]
-    assert set(cell["rows"]) == {"bicubic", "classical", "oracle"}
+    assert set(cell["rows"]) == {"bicubic", "classical", "classical_lens", "oracle"}
     assert cell["rows"]["classical"]["psnr_db"] > cell["rows"]["bicubic"]["psnr_db"] - 3
     # a run stopped before its oracle row: the rerun keeps what was there and adds only that row
     cell["rows"]["bicubic"]["psnr_db"] = 99.0

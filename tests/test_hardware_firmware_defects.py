@@ -6,8 +6,17 @@
   ``$13=`` and the other settings on the line as GRBL will run it.
 - D3: in a feed hold (or with the safety door open) GRBL runs no line but still answers ``?``; the
   driver names the hold and its remedy instead of calling the controller silent.
+
+And two found later against the same firmware:
+
+- D4: after a homing alarm (ALARM:6 to 10) GRBL resets itself: 500 ms printing the alarm, the
+  aborted ``$H``'s ``ok``, every line sent meanwhile dropped, then its welcome. The driver reads
+  through that reset, so a later ``$X`` is answered by the reset controller, not by the stale ``ok``.
+- D5: GRBL stores ``$100=0`` (and reads ``0.0000000001`` as 0, a number beyond its 32-bit floats
+  as inf); the driver refuses steps per degree that GRBL would store as <= 0 or not finite.
 """
 
+import math
 import time
 
 import pytest
@@ -17,7 +26,8 @@ from hbis_torch.errors import HbisInputError, ScanInterrupted
 from hbis_torch.hardware import GrblAlarm, GrblController, GrblHeld, GrblSimulator, GrblTimeouts
 from hbis_torch.hardware.grbl_protocol import CYCLE_START, FEED_HOLD, SAFETY_DOOR, SOFT_RESET, clean_line, setting_write
 from hbis_torch.hardware.scan_executor import run_scan
-from hbis_torch.hardware.sim_machine import ALARM_REPORT_DELAY_S, GrblMachineModel
+from hbis_torch.hardware.sim_machine import (ALARM_REPORT_DELAY_S, HOMING_DURATION_S, PRISM_STEPS_PER_DEG,
+                                             WELCOME, GrblMachineModel)
 
 FAST = GrblTimeouts(welcome_s=3.0, reply_s=0.5, status_s=0.3, homing_s=5.0, move_margin_s=1.0)
 
@@ -164,3 +174,62 @@ def test_a_held_scan_stops_with_exit_code_3(capsys, tmp_path):
                 run_scan(grbl, [[10.0, 10.0], [40.0, 40.0], [80.0, 80.0]], lambda k, p: None, settle_s=0)
         assert isinstance(info.value.cause, GrblHeld) and info.value.next_frame == 1
         assert info.value.exit_code == 3 and "send cycle start (~)" in str(info.value)
+
+
+# --------------------------------------------------------------------------- D4: homing alarm
+
+
+def test_model_resets_itself_after_a_homing_alarm():
+    m = GrblMachineModel({22: 1})
+    m.fail_next_homing(8)
+    m.receive(b"$H\n", 0.0)
+    m.tick(HOMING_DURATION_S)
+    assert m.take_output() == b"ALARM:8\r\n"
+    m.receive(b"$X\n?" + SOFT_RESET, HOMING_DURATION_S + 0.1)  # within the 500 ms: all dropped
+    m.tick(HOMING_DURATION_S + ALARM_REPORT_DELAY_S - 0.01)
+    assert m.take_output() == b""
+    m.tick(HOMING_DURATION_S + ALARM_REPORT_DELAY_S)
+    assert m.take_output().decode() == f"ok\r\n\r\n{WELCOME}\r\n[MSG:'$H'|'$X' to unlock]\r\n"
+    assert m.state == "Alarm" and "$X" not in m.received_lines
+    m.receive(b"$X\n", HOMING_DURATION_S + 1.0)  # heard once GRBL has reset
+    assert m.take_output() == b"[MSG:Caution: Unlocked]\r\nok\r\n" and m.state == "Idle"
+
+
+@pytest.mark.parametrize("wait_s", [0.0, 0.6])
+def test_unlock_after_a_homing_alarm_unlocks(wait_s):
+    """At once ($X would fall in GRBL's 500 ms and be dropped) or later: $X reaches the reset controller."""
+    with GrblSimulator({22: 1}, speedup=2, max_lifetime_s=60) as sim, connect(sim.port) as grbl:
+        sim.fail_next_homing(9)  # at speedup 2 the cycle takes 0.5 s, GRBL's pause 0.25 s
+        with pytest.raises(GrblAlarm) as info:
+            grbl.home()
+        time.sleep(wait_s)
+        grbl.unlock()
+        assert grbl.status().state == "Idle" and sim.machine.state == "Idle"
+        assert list(grbl.messages)[-1] == "Caution: Unlocked" and grbl.stale_replies == 0
+        assert grbl.home().state == "Idle"  # the replies are still in step with the lines
+    assert info.value.code == 9 and "reset itself; home ($H) again or unlock ($X)" in str(info.value)
+
+
+# --------------------------------------------------------------------------- D5: steps per degree
+
+
+def test_model_stores_steps_per_degree_as_grbl_reads_them():
+    m = GrblMachineModel()
+    for text, stored in [("80.5", 80.5), ("0", 0.0), ("0.0000000001", 0.0), ("1" + "0" * 39, math.inf)]:
+        m.receive(f"$100={text}\n".encode(), 0.0)
+        assert m.take_output() == b"ok\r\n" and m.settings[100] == stored
+    m.receive(b"$101=-1\n$101=1e5\n$" + b"1" * 40 + b"=1\n", 0.0)  # GRBL reads no exponent, no N > 255
+    assert m.take_output() == b"error:4\r\nerror:3\r\nerror:3\r\n" and m.settings[101] == PRISM_STEPS_PER_DEG
+    assert setting_write("$0000000101=0") == (100, 0.0) and setting_write("$" + "1" * 40 + "=1") is None
+
+
+def test_steps_per_degree_grbl_would_hold_as_zero_or_inf_are_refused_before_sending():
+    lines = ["$100=0", "$101=-1", "$100=-0", "$1 01 = 0 (off)", "$100=0.0000000001", "$101=1" + "0" * 39,
+             "$0000000101=0"]  # GRBL keeps 8 digits: that is $100=0
+    with GrblSimulator(speedup=50, max_lifetime_s=60) as sim, connect(sim.port) as grbl:
+        for line in lines:
+            with pytest.raises(HbisInputError, match=r"refusing .* steps per degree must be positive and finite"):
+                grbl.send(line)
+        assert [line for line in sim.machine.received_lines if "=" in line] == []
+        grbl.send("$101=71.111")  # a good value still goes through and is read again
+        assert grbl.steps_per_deg == (pytest.approx(PRISM_STEPS_PER_DEG, abs=1e-3), pytest.approx(71.111))

@@ -288,9 +288,10 @@ ARGUMENTS = [
     ["demo", "--h", "0", "--out", "{tmp}/demo"],
     ["demo", "--h", "-1", "--out", "{tmp}/demo"],
     ["demo", "--h", "100", "--out", "{tmp}/demo"],
-    ["demo", "--roi", "0", "--out", "{tmp}/demo"],
-    ["demo", "--roi", "-5", "--out", "{tmp}/demo"],
-    ["demo", "--roi", "100000", "--out", "{tmp}/demo"],
+    ["demo", "--roi-size", "0", "--out", "{tmp}/demo"],
+    ["demo", "--roi-size", "-5", "--out", "{tmp}/demo"],
+    ["demo", "--roi-size", "100000", "--out", "{tmp}/demo"],
+    ["demo", "--roi", "608,456,64,48", "--out", "{tmp}/demo"],  # --roi is U0,V0,W,H elsewhere: the demo names --roi-size
     ["demo", "--assembly-error-deg", "nan", "--out", "{tmp}/demo"],
     ["demo", "--seed", "-1", "--out", "{tmp}/demo"],
     ["demo", "--seed", str(2**70), "--out", "{tmp}/demo"],
@@ -377,7 +378,7 @@ def test_an_output_written_through_a_link_keeps_the_link_and_the_umask(corpus, t
     old = os.umask(0o022)
     try:
         assert main(["reconstruct", str(corpus["valid"]), "--registration", "optics", "--no-deblur",
-                     "--out", str(link)]) == 0
+                     "--out", str(link), "--overwrite"]) == 0
         assert main(["reconstruct", str(corpus["valid"]), "--registration", "optics", "--no-deblur",
                      "--out", str(tmp_path / "new.tif")]) == 0
     finally:

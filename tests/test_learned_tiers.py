@@ -7,6 +7,8 @@ import torch
 
 from hbis_torch.cli import main
 from hbis_torch.errors import HbisInputError
+from hbis_torch.metrics import psnr
+from hbis_torch.reconstruct import reconstruct
 from hbis_torch.reconstruct.learned import LearnedSR, default_model_path, learned_sr, read_model_metadata
 from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.reconstruct.learned.runtime import missing_model, model_to_run
@@ -46,7 +48,12 @@ def test_model_best_on_the_command_line(tmp_path, capsys):
         assert code == 0, capsys.readouterr().err
         images[tier] = tifffile.imread(out)
     assert images["best"].shape == truth.shape and np.isfinite(images["best"]).all()
-    assert np.abs(images["best"] - images["fast"]).max() > 1e-3  # another network ran
+    # On this fixed stack (words, h = 4, 24 x 24) measured: best 31.98 dB, fast 29.59 dB, classical
+    # 27.92 dB. The best tier must beat the fast one, and both the classical image, by 1 dB; the
+    # fast model run under the best tier's name, or the classical image returned, fails.
+    score = {tier: psnr(image, truth) for tier, image in images.items()}
+    score["classical"] = psnr(reconstruct(read_stack(stack_path), "classical", registration="optics"), truth)
+    assert score["best"] > score["fast"] + 1.0 > score["classical"] + 2.0, score
 
 
 def test_a_grown_network_computes_what_the_small_one_did_and_then_learns():

@@ -195,3 +195,51 @@ def test_help_documents_exit_code_3(capsys):
     with pytest.raises(SystemExit):
         main(["--help"])
     assert "3 a device failed" in " ".join(capsys.readouterr().out.split())
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX device files")
+@pytest.mark.parametrize("kind", ["regular file", "directory", "/dev/null", "fifo"])
+def test_a_port_that_can_never_be_serial_exits_2(kind, tmp_path, capsys):
+    """A wrong --port is a bad argument (2): no retry mends it. A missing device stays 3 (unplugged)."""
+    port = {"regular file": tmp_path / "port.txt", "directory": tmp_path, "/dev/null": Path(os.devnull),
+            "fifo": tmp_path / "fifo"}[kind]
+    if kind == "regular file":
+        port.write_text("not a tty\n")
+    elif kind == "fifo":
+        os.mkfifo(port)
+    assert motors(str(port), "status") == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"{str(port)!r} cannot be a serial port: it is " in err
+    if kind == "regular file":
+        assert port.read_text() == "not a tty\n"  # opened by nothing, written by nothing
+    assert motors(str(tmp_path / "ttyUSB9"), "status") == 3
+    assert "cannot open serial port" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--phases-deg", "1e9,0"], "--phases-deg must lie within"),
+    (["--capture-cmd", "echo {foo}"], "--capture-cmd may only use {index}"),
+    (["--camera", "webcam:0", "--frames", "f{index}.tif"], "--camera must be"),
+    (["--camera", "sim:no-such-scene", "--frames", "f{index}.tif"], "unknown scene"),
+    (["--journal", "CORRUPT"], "is corrupt"),
+])
+def test_scan_arguments_are_checked_before_the_controller_is_reset(extra, message, sim, tmp_path, monkeypatch,
+                                                                   capsys):
+    monkeypatch.setitem(sys.modules, "hbis_torch.scan", FakePlanner())
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "CORRUPT").write_text("{not json")
+    assert motors(sim.port, "scan", "--h", "2", *extra) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and message in captured.err and len(captured.err.strip().splitlines()) == 1
+    assert sim.machine.received_lines == []  # the port was not opened: no reset, no $$
+    assert (tmp_path / "CORRUPT").read_text() == "{not json"
+
+
+def test_scan_help_gives_the_form_of_negative_phases(monkeypatch, capsys):
+    with pytest.raises(SystemExit):
+        main(["motors", "scan", "--help"])
+    assert "--phases-deg=-0.2,-70" in " ".join(capsys.readouterr().out.split())
+    monkeypatch.setitem(sys.modules, "hbis_torch.scan", FakePlanner())
+    assert main(["motors", "scan", "--h", "2", "--dry-run", "--steps-per-deg", "100,100",
+                 "--phases-deg=-0.2,-70"]) == 0
+    assert "from phases (-0.2000, -70.0000) deg" in capsys.readouterr().out

@@ -1,7 +1,9 @@
 """The shared real-bursts set (real captured sequences, not shipped): every sequence assembles
-as a burst and reconstructs with both methods, finite, at the burst's scale. Skipped where the
-set is absent."""
+as a burst and reconstructs with both methods, finite, at the burst's scale, and gives the gains
+docs/real-bursts.md quotes from benchmarks/results/bench_real_bursts.json. Skipped where the set
+is absent."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +13,13 @@ from hbis_torch.capture.burst import assemble_burst
 from hbis_torch.capture.frames import read_frames
 from hbis_torch.reconstruct.registry import reconstruct
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real-bursts"
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data" / "real-bursts"
+RESULTS = REPO / "benchmarks" / "results" / "bench_real_bursts.json"
+SEQUENCES = ("text.tif", "disk.tif", "Emily_small.tif", "Book_case1_small.tif")
+#: How far a re-measured gain may sit from the committed one: the docs' rounding and another CPU's
+#: float sums in the burst adaptation (the same machine reproduces them within 1e-5 dB).
+AGREE_DB = 0.1
 pytestmark = [pytest.mark.skipif(not DATA.is_dir(), reason="the shared real-bursts set is absent"),
               pytest.mark.usefixtures("one_thread")]
 
@@ -59,7 +67,49 @@ def test_classical_beats_the_single_frame_by_validate(name, scale, least):
     assert gain > least, gain
 
 
-@pytest.mark.parametrize("name, scale, least", [("text.tif", 2, 0.3), ("Emily_small.tif", 2, 0.0)])
+def _gains(name: str, scale: int) -> tuple[float, float]:
+    """(classical - single frame, learned - classical) by validate, 3 frames held out, as
+    benchmarks/bench_real_bursts.py measures them."""
+    from hbis_torch.validate import cross_validate
+
+    frames, names = read_frames([DATA / name])
+    stack, _ = assemble_burst(frames, scale, names=names)
+    scored = cross_validate(stack, ("single-frame", "classical", "learned"), holdout=3)
+    return scored.gain("classical"), scored.gain("learned", "classical")
+
+
+def _documented(name: str, scale: int) -> tuple[float, float]:
+    rows = json.loads(RESULTS.read_text())["rows"]
+    row = next(r for r in rows if r["sequence"] == name and r["scale"] == scale)
+    return row["classical_gain_db"], row["learned_minus_classical_db"]
+
+
+def test_text_gives_the_documented_gains():
+    # docs/real-bursts.md: text at S = 2, classical +3.82 dB over the single frame, the adapted
+    # network +0.68 dB over the classical image (the unadapted one gave +0.17)
+    classical, learned = _gains("text.tif", 2)
+    want_classical, want_learned = _documented("text.tif", 2)
+    assert abs(classical - want_classical) < AGREE_DB, (classical, want_classical)
+    assert abs(learned - want_learned) < AGREE_DB, (learned, want_learned)
+    assert learned > 0.3 and classical > 2.5
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scale", [2, 3, 4])
+def test_every_sequence_gives_the_documented_gains_and_meets_the_goals(scale):
+    # the goals docs/real-bursts.md reports met: classical +2.5 dB over the single frame on average,
+    # +0.5 on every sequence; learned +0.3 dB over classical on average, no sequence below -0.3
+    measured = {name: _gains(name, scale) for name in SEQUENCES}
+    for name, (classical, learned) in measured.items():
+        want_classical, want_learned = _documented(name, scale)
+        assert abs(classical - want_classical) < AGREE_DB, (name, classical, want_classical)
+        assert abs(learned - want_learned) < AGREE_DB, (name, learned, want_learned)
+    classical, learned = np.array(list(measured.values())).T
+    assert classical.mean() > 2.5 and classical.min() > 0.5, measured
+    assert learned.mean() > 0.3 and learned.min() > -0.3, measured
+
+
+@pytest.mark.parametrize("name, scale, least", [("Emily_small.tif", 2, 0.0)])
 def test_the_adapted_network_beats_classical_by_validate(name, scale, least):
     # as shipped the network gave +0.17 (text) and +0.00 dB (Emily: its noise lies outside the
     # training range, so the classical image came back); adapted to each burst +0.68 and +0.21

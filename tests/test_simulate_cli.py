@@ -33,7 +33,7 @@ def test_defaults_and_options(tmp_path):
     assert main(["simulate", "--scene", "flat", "--h", "1", "--out", str(out)]) == 0
     stack = read_stack(out)
     assert stack.roi == (512, 352, 256, 256)  # the documented default: 256 x 256 at the centre
-    rc = main(["simulate", "--scene", "flat", "--h", "2", "--out", str(out), *SMALL, "--bit-depth", "float",
+    rc = main(["simulate", "--scene", "flat", "--h", "2", "--out", str(out), "--overwrite", *SMALL, "--bit-depth", "float",
                "--no-noise", "--phases-deg", "45,130", "--method", "paper", "--fill-factor", "0.5",
                "--scene-size-mm", "2,3", "--seed", "4", "--alpha-deg", "3"])
     assert rc == 0

@@ -15,6 +15,8 @@ image without a border of ``--border`` LR px (4 by default: S x 4 output px). Th
 * **classical**: what ``hbis assemble --burst --scale S`` then ``hbis reconstruct --method
   classical`` do, by their library calls: :func:`~hbis_torch.capture.burst.assemble_burst` with
   its defaults, then :func:`~hbis_torch.reconstruct.registry.reconstruct` (``"classical"``);
+* **classical_lens**: the same stack, the lens's blur given as a calibration would give it
+  (``hbis reconstruct --psf-sigma``: the render's sigma);
 * **learned**: the same stack through ``reconstruct(stack, "learned")`` (``--no-learned`` skips it);
 * **oracle**: classical given the true motion: the stack built with the true homographies
   (:meth:`~hbis_torch.training.handheld_render.HandheldBurst.oracle_motions`: for the rolling
@@ -41,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-ROWS = ("bicubic", "vidsr", "classical", "learned", "oracle")
+ROWS = ("bicubic", "vidsr", "classical", "classical_lens", "learned", "oracle")
 #: The goals of the issue: classical within ORACLE_GAP of the oracle, never more than PEER_GAP behind
 #: vidsr, at least BICUBIC_GAIN over bicubic with BICUBIC_FRAMES frames or more.
 ORACLE_GAP, PEER_GAP, BICUBIC_GAIN, BICUBIC_FRAMES = 0.3, 0.3, 2.0, 8
@@ -146,12 +148,11 @@ def run_row(row: str, burst, cache: dict) -> dict:
     if row == "bicubic":
         image = bicubic(burst.frames[0], S)
     elif row == "vidsr":
-        sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
-        from vidsr_peer import vidsr_sr, version
+        vidsr_sr, version = _peer().vidsr_sr, _peer().version
 
         image = vidsr_sr(burst.frames, S)
         out["vidsr_version"] = version()
-    elif row in ("classical", "learned"):
+    elif row in ("classical", "classical_lens", "learned"):
         if "stack" not in cache:
             from hbis_torch.capture.burst import assemble_burst
 
@@ -165,7 +166,10 @@ def run_row(row: str, burst, cache: dict) -> dict:
             out.update(cache["assemble"])
         stack = cache["stack"]
         notes: list[str] = []
-        image = reconstruct(stack, row, messages=notes)
+        if row == "classical_lens":
+            image = reconstruct(stack, "classical", messages=notes, lens_sigma=burst.blur_sigma_px)
+        else:
+            image = reconstruct(stack, row, messages=notes)
         out["messages"] = notes
         errors = motion_error(burst, stack.motions)
         out["frame_motion_error_px"] = [None if c == 0 else e for e, c in zip(errors, stack.confidence)]
@@ -179,6 +183,18 @@ def run_row(row: str, burst, cache: dict) -> dict:
     out["seconds"] = time.perf_counter() - started
     out["image"] = image
     return out
+
+
+def _peer():
+    """benchmarks/peers/vidsr_peer.py, loaded from its path (a benchmark's module, not the package's)."""
+    import importlib.util
+
+    if "vidsr_peer" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("vidsr_peer", ROOT / "benchmarks" / "peers" / "vidsr_peer.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        sys.modules["vidsr_peer"] = module
+    return sys.modules["vidsr_peer"]
 
 
 def motion_error(burst, motions: np.ndarray) -> list[float]:
@@ -273,8 +289,7 @@ def main(argv=None) -> int:
         return 0
     rows = [r for r in ROWS if not (r == "learned" and args.no_learned) and not (r == "vidsr" and args.no_vidsr)]
     if "vidsr" in rows:
-        sys.path.insert(0, str(ROOT / "benchmarks" / "peers"))
-        from vidsr_peer import available
+        available = _peer().available
 
         if not available():
             print("eval_handheld: vidsr is not installed: its row is skipped", file=sys.stderr)
@@ -309,9 +324,33 @@ def main(argv=None) -> int:
                     save()
                     atomic_write_text(args.out.with_suffix(".md"), table(results))
                     print(f"{key:32s} {row:9s} {got['psnr_db']:6.2f} dB  {got['seconds']:6.1f} s", flush=True)
+    results["summary"] = summary(results)
     save()
     print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
     return 0
+
+
+def summary(results: dict) -> dict:
+    """Per S and frame count: each row's mean PSNR over the motions, the gaps the issue's goals
+    speak of (classical minus the oracle, vidsr and bicubic: mean and worst cell) and how many
+    cells miss a goal; keyed ``"S=2|F=16"``."""
+    out = {}
+    cells = list(results["cells"].values())
+    for S, F in sorted({(c["scale"], c["frames"]) for c in cells}):
+        group = [c for c in cells if c["scale"] == S and c["frames"] == F]
+        entry = {"cells": len(group), "missing_a_goal": sum(bool(misses(c)) for c in group), "mean_db": {}}
+        for row in ROWS:
+            values = [c["rows"][row]["psnr_db"] for c in group if row in c["rows"]]
+            if values:
+                entry["mean_db"][row] = float(np.mean(values))
+        for row in ("classical", "classical_lens"):
+            for other in ("oracle", "vidsr", "bicubic"):
+                gaps = [c["rows"][row]["psnr_db"] - c["rows"][other]["psnr_db"] for c in group
+                        if row in c["rows"] and other in c["rows"]]
+                if gaps:
+                    entry[f"{row}_minus_{other}"] = {"mean_db": float(np.mean(gaps)), "worst_db": float(np.min(gaps))}
+        out[f"S={S}|F={F}"] = entry
+    return out
 
 
 def misses(cell: dict) -> list[str]:

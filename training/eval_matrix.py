@@ -1,7 +1,7 @@
 """The learned method against the classical one on stacks the training never saw.
 
-    python training/eval_matrix.py [--h 2 4 7] [--tier fast|best | --models DIR] [--ensemble 8] [--out matrix.json]
-    python training/eval_matrix.py --bursts [--h 2 3 4] [--models DIR] [--no-adapt] [--out bursts.json]
+    python training/eval_matrix.py [--h 2 4 7] [--tier fast|best | --models DIR] [--ensemble 8] [--out matrix.json] [--md matrix.md]
+    python training/eval_matrix.py --bursts [--h 2 3 4] [--models DIR] [--no-adapt] [--out bursts.json] [--md bursts.md]
 
 Held out from training on every axis at once:
 
@@ -42,7 +42,6 @@ learned minus classical for every cell, its row means, and the classical PSNR fo
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -50,7 +49,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hbis_torch.io_utils import atomic_write_text
+from hbis_torch.provenance import record_printed, write_results
 from hbis_torch.reconstruct.classical import optics_cutoff
 from hbis_torch.reconstruct.learned import LearnedSR, estimate_noise_params
 from hbis_torch.reconstruct.learned.inputs import check_ensemble
@@ -83,13 +82,23 @@ def main(argv=None) -> int:
     parser.add_argument("--ensemble", type=int, default=None, choices=(1, 2, 4, 8),
                         help="the learned method's geometric self-ensemble (hbis reconstruct --ensemble; "
                         "default: the tier's, as hbis reconstruct's; a --models folder as the fast tier)")
-    parser.add_argument("--out", type=Path, default=None, help="write every cell as JSON")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="write every cell as JSON ({'provenance': ..., 'cells': [...]})")
+    parser.add_argument("--md", type=Path, default=None,
+                        help="also write the printed tables as markdown, with their provenance")
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
-    if args.out is not None and args.out.exists():
-        print(f"eval_matrix: {args.out} exists; choose another --out", file=sys.stderr)
-        return 2
-    if args.bursts:
-        return burst_matrix(args)
+    args.argv = argv
+    for path, flag in ((args.out, "--out"), (args.md, "--md")):
+        if path is not None and path.exists():
+            print(f"eval_matrix: {path} exists; choose another {flag}", file=sys.stderr)
+            return 2
+    with record_printed(args.md, argv=args.argv):
+        return burst_matrix(args) if args.bursts else scan_matrix(args)
+
+
+def scan_matrix(args) -> int:
+    """The scan rows: every condition x photograph x h, the shipped models against the classical image."""
     args.h = args.h or [2, 4, 7]
     cells = []
     jobs = [(h, c, p) for h in args.h for c in range(len(CONDITIONS)) for p in args.photos]
@@ -142,7 +151,7 @@ def main(argv=None) -> int:
                   + ", ".join(f"{name} {np.mean(v):+.2f}" for name, v in by_row.items())
                   + f" (worst cell {min(x['extrapolated_delta_db'] for x in returned):+.2f} dB).")
     if args.out is not None:
-        atomic_write_text(args.out, json.dumps(cells, indent=1))
+        write_results(args.out, {"cells": cells}, argv=args.argv)
     return 0
 
 
@@ -205,7 +214,7 @@ def burst_matrix(args) -> int:
                   f"worst {seen.min():+.2f} dB; it moves {slope:.2f} dB per dB of the truth's "
                   f"(correlation {np.corrcoef(deltas, seen)[0, 1]:.2f})")
     if args.out is not None:
-        atomic_write_text(args.out, json.dumps(cells, indent=1))
+        write_results(args.out, {"cells": cells}, argv=args.argv)
     return 0
 
 

@@ -100,6 +100,8 @@ qat_calibration_count = 48  # calibration-pool examples its ranges are measured 
 qat_teacher = False  # with qat: the loss's target is init_from's float network's output, not the truth (distillation:
 # the int8 file learns to compute what the float file does)
 pool_workers = 1  # processes that simulate a pool not yet cached (each example has its own seed: same pool)
+pool_scheduler = ""  # or a running Dask scheduler's ADDRESS that simulates it, one task per example: the same pool
+# (docs/scale-out.md; not local:N, whose spawned workers would run this script again: pool_workers is that)
 prefetch = 0  # batches prepared ahead in threads (0: each batch when it is needed); the same batches either way
 
 # ---------------------------------------------------------------------------- overrides
@@ -131,6 +133,8 @@ for arg in _as_overrides(sys.argv[1:]):
     if type(parsed) is not type(globals()[key]) and not (isinstance(globals()[key], float) and isinstance(parsed, int)):
         raise SystemExit(f"{key} must be {type(globals()[key]).__name__}, got {value!r}")
     globals()[key] = type(globals()[key])(parsed)
+if pool_scheduler.startswith("local"):  # before any work
+    raise SystemExit("pool_scheduler takes a running scheduler's address; on this machine use pool_workers=N")
 config = {k: globals()[k] for k in config_keys}
 architecture = Architecture(h, width=width, blocks=blocks, kind=kind)  # the net; checkpoints, export, runtime read it
 
@@ -247,6 +251,10 @@ def cached_pool(name: str, count: int, size: int, pool_seed: int, builder=build_
 def simulate(count: int, size: int, pool_seed: int, indices: range, builder=build_pool) -> list[dict]:
     """``builder`` (:func:`build_pool`, or :func:`build_burst_pool`) of ``indices``, over
     ``pool_workers`` processes (the same examples, in order)."""
+    if pool_scheduler:  # on a Dask cluster (the [cluster] extra): example i is the same everywhere
+        from hbis_torch.cluster.pool import build_pool_on
+
+        return build_pool_on(pool_scheduler, builder, h, count, size, pool_seed, indices)
     if pool_workers <= 1 or len(indices) < 2:
         return builder(h, count, size, pool_seed, indices)
     chunks = [indices[i::pool_workers] for i in range(pool_workers)]

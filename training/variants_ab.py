@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
 import math
 import sys
 import time
@@ -330,7 +329,9 @@ def main(argv=None) -> int:
     record = {"config": {**vars(args), "out": str(args.out), "device": str(dev)}, "steps": step,
               "classical_val_db": classical_val, "best_val_db": {k: best[k][0] for k in best}, "macs": macs,
               "history": history, "cells": results}
-    args.out.write_text(json.dumps(record, indent=1))
+    from hbis_torch.provenance import write_results
+
+    write_results(args.out, record, argv=argv)
     print(f"total {time.time() - started_all:.0f} s")
     return 0
 

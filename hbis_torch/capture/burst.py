@@ -24,6 +24,7 @@ homographies frame px -> reference px; confidence (F,) in [0, 1]; gain_offset (F
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,7 +32,10 @@ import torch
 
 from hbis_torch.capture.frames import bit_depth_hint
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 from hbis_torch.stack_io import BURST_MIN_CONFIDENCE, Stack, make_burst_meta, validate_stack
+
+log = logging.getLogger(__name__)
 
 #: ``--motion`` choices: ``auto`` climbs translation -> similarity -> affine -> homography per frame.
 MOTIONS = ("auto", "translation", "similarity", "affine", "homography")
@@ -45,6 +49,10 @@ MODEL_TOLERANCE_PX = 0.01
 # A richer model than translation is kept only if it predicts the frame this much better (relative).
 RICHER_GAIN = 0.01
 TRIM = 0.75
+# Pixels of a frame that score each model's motion (model_evidence): a regular grid of about this many.
+EVIDENCE_POINTS = 32768
+# The brightness fit halves frames whose shorter side is at least twice this (fit_gain_offset).
+GAIN_FIT_SIDE = 128
 # Pixels this close to the white or black level count as saturated (left out of the gain fit).
 SATURATION_MARGIN = 2.0 / 255.0
 
@@ -63,6 +71,9 @@ class BurstMotion:
     gain_offset : np.ndarray, shape (F, 2), float64
     messages : list of str
         One line per frame that was rejected or needed a second start, naming it.
+    local : np.ndarray, shape (F, rows, cols, 2), float64, or None
+        Local shifts on top of each motion (:mod:`hbis_torch.registration.local`), LR px; None
+        for frames too small to tile.
     """
 
     motions: np.ndarray
@@ -70,6 +81,7 @@ class BurstMotion:
     models: list
     gain_offset: np.ndarray
     messages: list = field(default_factory=list)
+    local: np.ndarray | None = None
 
 
 def luminance(frames: np.ndarray) -> torch.Tensor:
@@ -88,9 +100,16 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
                    names: list | None = None) -> BurstMotion:
     """Measure every frame's motion, model, brightness and confidence relative to the reference.
 
-    Frames are registered outward from the reference, each against the reference itself; the
-    fit starts from phase correlation, and where that leaves the frame untrusted, from its
-    neighbour's motion (a burst drifts smoothly) and then from matched features.
+    Every frame's whole-frame motion is first found coarse to fine on a Gaussian pyramid
+    (:func:`~hbis_torch.registration.pyramid.coarse_to_fine`, batched over the frames), so a
+    turn of the camera that moves the corners by pixels is within the fit's reach. At full
+    resolution each model of the ladder is fitted from that start (or the ``motion`` asked for
+    alone), and ``auto`` keeps, per frame, the model with the lowest BIC of the whole frame's
+    prediction error (:func:`model_evidence`): evidence that grows with the frame, so a
+    rotation of a tenth of a degree wins on a 640 x 480 frame while a 48 px frame's aliasing does
+    not buy a richer model. Where a frame is still untrusted, the fit starts again from its
+    neighbour's motion (a burst drifts smoothly) and then from matched features. With ``-v`` the
+    ``hbis_torch`` log says why each frame got its model.
 
     Parameters
     ----------
@@ -108,37 +127,140 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     -------
     BurstMotion
     """
+    from hbis_torch.progress import progress
+    from hbis_torch.registration import ALL_MODELS, register_stack
+    from hbis_torch.registration.pyramid import coarse_to_fine, project
+
     F = grey.shape[0]
+    shape = tuple(grey.shape[1:])
     names = names or [f"frame {k}" for k in range(F)]
     motions = np.repeat(np.eye(3)[None], F, 0)
     confidence, models = np.ones(F), ["identity"] * F
     gain_offset = np.tile([1.0, 0.0], (F, 1))
     messages: list[str] = []
     ref = grey[reference]
-    from hbis_torch.progress import progress
-
-    order = [list(range(reference + 1, F)), list(range(reference - 1, -1, -1))]
-    bar = progress(desc="registering the burst", total=F - 1, unit="frame")
-    for direction in order:
+    same = [k for k in range(F) if k != reference and torch.equal(grey[k], ref)]
+    todo = [k for k in range(F) if k != reference and k not in same]
+    if not todo:
+        return BurstMotion(motions, confidence, models, gain_offset, messages)
+    candidates = ALL_MODELS if motion == "auto" else (motion,)
+    bar = progress(desc="registering the burst", total=len(candidates) + 2, unit="step")
+    start = coarse_to_fine(grey, reference, candidates[-1], keep_levels=1)
+    bar.update()
+    if start is None:  # frames too small for a pyramid: each frame's own ladder (_register_pair)
+        candidates = ()
+    fits = {}
+    for model in candidates:
+        prediction = project(start, model, shape)
+        prediction[reference] = np.eye(3)
+        fits[model] = register_stack(grey, reference, prediction=prediction, model=model,
+                                     motion_tolerance_px=MODEL_TOLERANCE_PX)
+        bar.update()
+    if fits:
+        evidence = model_evidence(grey, reference, {m: r.homographies.numpy() for m, r in fits.items()}, todo)
+        for k in todo:
+            chosen = min(candidates, key=lambda m: evidence[m][k])
+            reg, conf = fits[chosen], burst_confidence(fits[chosen], shape, k)
+            if len(candidates) > 1:
+                log.info("frame %d (%s): %s (the whole frame's BIC against it: %s)", k, names[k], chosen,
+                         ", ".join(f"{m} {evidence[m][k] - evidence[chosen][k]:+.1f}" for m in candidates
+                                   if m != chosen))
+            motions[k], models[k], confidence[k] = reg.homographies[k].numpy(), chosen, conf
+    else:
+        confidence[todo] = 0.0
+    # Frames left untrusted (every frame, for frames too small for a pyramid): the ladder on the
+    # pair, from phase correlation, then the neighbour's motion, then matched features.
+    for direction in (range(reference + 1, F), range(reference - 1, -1, -1)):
         neighbour = np.eye(3)
         for k in direction:
-            bar.update()
-            if torch.equal(grey[k], ref):
-                continue
-            reg, how = _register_pair(ref, grey[k], motion, neighbour)
-            conf = burst_confidence(reg, tuple(grey.shape[1:]))
-            models[k] = reg.model
-            if conf < BURST_MIN_CONFIDENCE:
-                why = "; ".join(m.replace("frame 1", "it") for m in reg.messages
-                                if "not registered" not in m) or "its motion is not measurable"
-                messages.append(f"frame {k} ({names[k]}) rejected (registration confidence {conf:.2f}{how}): {why}")
-                confidence[k] = 0.0
-                continue
-            motions[k], confidence[k] = reg.homographies[1].numpy(), conf
-            neighbour = motions[k]
+            if k in todo and confidence[k] < RETRY_CONFIDENCE:
+                reg, how = _register_pair(ref, grey[k], motion, neighbour)
+                conf = burst_confidence(reg, shape)
+                if conf > confidence[k] or confidence[k] == 0:
+                    motions[k], models[k], confidence[k] = reg.homographies[1].numpy(), reg.model, conf
+                    if how:
+                        log.info("frame %d (%s): %s%s", k, names[k], reg.model, how)
+                if confidence[k] < BURST_MIN_CONFIDENCE:
+                    why = "; ".join(m.replace("frame 1", "it") for m in reg.messages
+                                    if "not registered" not in m) or "its motion is not measurable"
+                    messages.append(f"frame {k} ({names[k]}) rejected (registration confidence "
+                                    f"{confidence[k]:.2f}{how}): {why}")
+                    confidence[k] = 0.0
+                    continue
+            if k in todo and confidence[k] > 0:
+                neighbour = motions[k]
+    bar.update()
+    for k in todo:
+        if confidence[k] > 0:
             gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k])
+    local = None
+    if start is not None:  # frames large enough for a pyramid are large enough to tile
+        from hbis_torch.registration.local import local_offsets
+
+        local = local_offsets(grey, reference, motions, gain_offset, [k for k in todo if confidence[k] > 0])
     bar.close()
-    return BurstMotion(motions, confidence, models, gain_offset, messages)
+    return BurstMotion(motions, confidence, models, gain_offset, messages, local)
+
+
+def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: list) -> dict:
+    """BIC of each model's motion from the whole frame's prediction error, per frame.
+
+    A frame's samples at up to :data:`EVIDENCE_POINTS` pixels spread over it are compared with
+    the reference read where each motion puts them (both blurred by a Gaussian of 1 px against
+    aliasing, a gain and an offset fitted, the worst quarter left out: a moving object). With
+    ``n`` such residuals, independent over about 4 pi px^2 of a blurred frame, and ``k`` the
+    model's parameters, ``BIC = n log(mse) + k log(n)``: a richer model must explain the frame
+    better by more than its parameters could by chance, and that margin shrinks as the frame
+    grows.
+
+    Parameters
+    ----------
+    grey : Tensor, shape (F, H, W), float32
+    reference : int
+    motions : dict of str -> np.ndarray, shape (F, 3, 3)
+        Each model's motions, frame px -> reference px.
+    frames : list of int
+        The frames to score.
+
+    Returns
+    -------
+    dict of str -> dict of int -> float
+        Lower is better; inf where a motion leaves too little of the frame on the reference.
+    """
+    import kornia
+
+    from hbis_torch.registration import N_PARAMS
+
+    F, H, W = grey.shape
+    blurred = kornia.filters.gaussian_blur2d(grey[:, None], (5, 5), (1.0, 1.0), border_type="replicate")[:, 0]
+    step = max(1, int(np.sqrt(H * W / EVIDENCE_POINTS)))
+    v, u = torch.meshgrid(torch.arange(3, H - 3, step, dtype=torch.float64),
+                          torch.arange(3, W - 3, step, dtype=torch.float64), indexing="ij")
+    points = torch.stack((u.reshape(-1), v.reshape(-1), torch.ones(u.numel(), dtype=torch.float64)))
+    ref = blurred[reference][None, None]
+    # Residuals of the blurred frames are correlated over about 4 pi px^2.
+    independent = max(1.0, (H - 6) * (W - 6) / (4 * np.pi))
+    out = {m: {} for m in motions}
+    for k in frames:
+        values = blurred[k].reshape(-1)[(v.reshape(-1) * W + u.reshape(-1)).long()].double()
+        for model, found in motions.items():
+            q = torch.from_numpy(found[k]) @ points
+            qu, qv = q[0] / q[2], q[1] / q[2]
+            inside = (qu >= 3) & (qu <= W - 4) & (qv >= 3) & (qv <= H - 4)
+            if int(inside.sum()) < 64 or not bool(torch.isfinite(q).all()):
+                out[model][k] = float("inf")
+                continue
+            grid = torch.stack((2 * qu[inside] / (W - 1) - 1, 2 * qv[inside] / (H - 1) - 1), -1).float()
+            target = torch.nn.functional.grid_sample(ref, grid[None, None], mode="bilinear",
+                                                     align_corners=True)[0, 0, 0].double()
+            x = values[inside]
+            A = torch.stack((x, torch.ones_like(x)), -1)
+            fit = A @ torch.linalg.lstsq(A, target[:, None]).solution
+            squared = (fit[:, 0] - target).pow(2).sort().values
+            mse = float(squared[:int(TRIM * len(squared))].mean()) + 1e-20
+            n = min(float(len(squared)), independent * float(inside.double().mean()))
+            out[model][k] = n * np.log(mse) + N_PARAMS[model] * np.log(n)
+    return out
 
 
 def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbour: np.ndarray):
@@ -228,9 +350,9 @@ def overlap(motion: np.ndarray, shape) -> float:
     return float(np.mean((fu >= -0.5) & (fu <= W - 0.5) & (fv >= -0.5) & (fv <= H - 0.5)))
 
 
-def burst_confidence(reg, shape) -> float:
-    """Confidence in [0, 1] of the second frame of a registered pair (frames of ``shape``
-    (H, W)), for a burst.
+def burst_confidence(reg, shape, index: int = 1) -> float:
+    """Confidence in [0, 1] of frame ``index`` of a registration (frames of ``shape`` (H, W);
+    by default the second frame of a registered pair), for a burst.
 
     The scan registration's own confidence asks for 0.05 px (the Risley scan's sub-pixel steps
     are that fine); a burst's random sub-pixel offsets gain from samples good to a tenth of a pixel
@@ -241,12 +363,12 @@ def burst_confidence(reg, shape) -> float:
     :data:`FULL_OVERLAP` up, 0 at none (the fit compares only the points both frames see, so a
     motion wrong by a whole frame can look precise on the few it keeps).
     """
-    precision = float(reg.precision_px[1])
-    residual = float(reg.residual[1])
-    if not (np.isfinite(precision) and np.isfinite(residual)) or not bool(torch.isfinite(reg.homographies).all()):
+    precision = float(reg.precision_px[index])
+    residual = float(reg.residual[index])
+    if not (np.isfinite(precision) and np.isfinite(residual)) or not bool(torch.isfinite(reg.homographies[index]).all()):
         return 0.0
     match = float(np.clip((MATCH_RESIDUAL_ZERO - residual) / (MATCH_RESIDUAL_ZERO - MATCH_RESIDUAL_ONE), 0, 1))
-    covered = min(1.0, overlap(reg.homographies[1].numpy(), shape) / FULL_OVERLAP)
+    covered = min(1.0, overlap(reg.homographies[index].numpy(), shape) / FULL_OVERLAP)
     return float(np.exp(-(precision / BURST_PRECISION_PX) ** 2)) * match * covered
 
 
@@ -276,6 +398,7 @@ def feature_start(reference: np.ndarray, frame: np.ndarray) -> np.ndarray | None
         return None
     src = np.float32([kf[m.queryIdx].pt for m in matches])
     dst = np.float32([kr[m.trainIdx].pt for m in matches])
+    cv2.setRNGSeed(0)  # RANSAC draws from OpenCV's global generator: the same burst, the same start, every run
     matrix, inliers = cv2.estimateAffinePartial2D(src, dst, method=cv2.RANSAC, ransacReprojThreshold=3.0 * scale)
     if matrix is None or int(inliers.sum()) < 6:
         return None
@@ -313,10 +436,20 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     A least-squares line through the warped frame's and the reference's pixels (both blurred a
     little against aliasing), refitted once without the pixels more than 3 robust sigmas off
     (a moving object) and without saturated pixels. A fit that is not sensible (g outside
-    [0.5, 2]) is refused in favour of (1, 0).
+    [0.5, 2]) is refused in favour of (1, 0). Frames larger than :data:`GAIN_FIT_SIDE` twice
+    over are halved (a Gaussian pyramid) until they are not: two numbers need no millions of
+    pixels, and the warp's cost was most of a large burst's brightness fit.
     """
     import kornia
 
+    from hbis_torch.registration.pyramid import pyramid, to_level
+
+    levels = 0
+    while min(frame.shape) >> levels >= 2 * GAIN_FIT_SIDE:
+        levels += 1
+    if levels:
+        frame, reference = (pyramid(x[None], levels)[-1][0] for x in (frame, reference))
+        motion = to_level(np.asarray(motion)[None], levels)[0]
     warped, valid = warp_to_reference(frame, motion)
     blur = kornia.filters.gaussian_blur2d(torch.stack((warped, reference))[:, None], (5, 5), (1.0, 1.0),
                                           border_type="replicate")[:, 0]
@@ -373,10 +506,16 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
     if hint is not None:
         messages.append(hint)
     if all(m == "identity" for m in found.models):
-        messages.append(f"all {len(frames)} frames are identical to the reference: the burst holds no new samples "
-                        "(its reconstruction is the single-frame estimate)")
+        messages.append(act(f"all {len(frames)} frames are identical to the reference: the burst holds no new "
+                            "samples (its reconstruction is the single-frame estimate); capture it again, moving "
+                            "the camera a little between frames"))
+    extra = {}
+    if found.local is not None:
+        from hbis_torch.registration.local import TILE_PX
+
+        extra["local_motion"] = {"tile_px": TILE_PX, "offsets": found.local.round(5).tolist()}
     meta = make_burst_meta(scale, roi, found.motions, found.confidence, found.models, found.gain_offset,
-                           reference_index=reference, bit_depth=bit_depth)
+                           reference_index=reference, bit_depth=bit_depth, **extra)
     frames = np.ascontiguousarray(frames)
     validate_stack(frames, meta, "assembled burst")
     return Stack(frames, meta), messages

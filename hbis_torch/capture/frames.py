@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 
 VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv"})
 TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
@@ -482,5 +483,5 @@ def bit_depth_hint(frames: np.ndarray) -> str | None:
     bits = max(top.bit_length(), 1)
     if bits > 14:
         return None
-    return (f"the frames' values reach {top}, {bits} of the 16 bits their type holds: if the camera "
+    return act(f"the frames' values reach {top}, {bits} of the 16 bits their type holds: if the camera "
             f"records {bits} bits, pass --bit-depth {bits} (the stack maps 65535 to white)")

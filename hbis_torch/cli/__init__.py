@@ -4,8 +4,9 @@ this file, with a ``register(subparsers)`` function; modules are found automatic
 Conventions (docs/design.md, "CLI contract"): exit codes 0 success, 2 bad arguments or bad
 input (one line on stderr), 3 a device that failed (the motor controller timed out, vanished,
 went silent, raised an alarm; one line), 1 anything else; ``--version``; ``-v``/``-q`` set the level of the
-``hbis_torch`` loggers (the library logs, this module configures) and ``-q`` hides the progress
-bars; a closed pipe ends the command quietly. A ``cmd_`` module imports only light modules at
+``hbis_torch`` loggers (the library logs, this module configures; a command's own lines go the
+same way, :func:`hbis_torch.cli.common.tell`) and ``-q`` hides the progress bars and Python's
+warnings; a closed pipe ends the command quietly. A ``cmd_`` module imports only light modules at
 the top and its heavy ones (torch, matplotlib, pyserial) inside the function that runs it, so that
 ``hbis --help`` and each ``--help`` start fast (``benchmarks/bench_cli_start.py``;
 ``tests/test_architecture.py`` checks what they load).
@@ -19,6 +20,7 @@ import logging
 import os
 import pkgutil
 import sys
+import warnings
 
 from hbis_torch import __version__
 from hbis_torch.errors import HbisError
@@ -27,7 +29,9 @@ COMMANDS = sorted(m.name[4:] for m in pkgutil.iter_modules(__path__) if m.name.s
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
     """Shows every option's default (the Table 1 values among them); help texts that already
-    name their default are left as written."""
+    name their default are left as written. A description or epilog keeps its paragraphs (split
+    at blank lines), each wrapped to the terminal's width; a paragraph with an indented line (the
+    examples) is kept as written."""
 
     def _get_help_string(self, action):
         text = action.help or ""
@@ -35,9 +39,28 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
             return text
         return super()._get_help_string(action)
 
+    def _fill_text(self, text, width, indent):
+        import textwrap
+
+        out = []
+        for paragraph in text.split("\n\n"):
+            if any(line[:1].isspace() for line in paragraph.splitlines()):
+                out.append("\n".join(indent + line for line in paragraph.splitlines()))
+            else:
+                out.append(textwrap.fill(" ".join(paragraph.split()), width, initial_indent=indent,
+                                         subsequent_indent=indent))
+        return "\n\n".join(out)
+
 
 class RawDescriptionFormatter(HelpFormatter, argparse.RawDescriptionHelpFormatter):
     """:class:`HelpFormatter` that keeps the description's line breaks."""
+
+    _fill_text = argparse.RawDescriptionHelpFormatter._fill_text
+
+
+def examples(*lines: str) -> str:
+    """A help text's epilog: the ``examples:`` heading and one command a line."""
+    return "example" + ("s" if len(lines) > 1 else "") + ":\n" + "\n".join(f"  {line}" for line in lines)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -93,11 +116,18 @@ def _finish(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:
+    """``-v``/``-q`` in an "output" group, listed right after the parser's own options (before
+    groups of options that only some runs take, such as a method's)."""
     group = parser.add_argument_group("output")
+    motors = parser.prog.split()[1:2] == ["motors"]
+    debug = ("-vv: debug, with the GRBL serial traffic" if motors else
+             "-vv: debug" + ("; on motor commands with the GRBL serial traffic" if parser.prog == "hbis" else ""))
     group.add_argument("-v", "--verbose", action="count", default=0 if default is None else default,
-                       help="more messages on stderr (-vv: debug, with the GRBL serial traffic)")
+                       help=f"more messages on stderr: what each step did and found ({debug})")
     group.add_argument("-q", "--quiet", action="store_true", default=False if default is None else default,
-                       help="only errors on stderr, and no progress bars")
+                       help="only errors on stderr: no warnings, no progress bars")
+    groups = parser._action_groups
+    groups.insert(2, groups.pop())  # after the positionals and the options
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
@@ -112,7 +142,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         "scanning, simulation and super-resolution. Numbers default to the paper's Table 1.",
         epilog="exit codes: 0 success; 2 bad arguments or bad input (one line on stderr); 3 a device "
         "failed (the motor controller timed out, vanished, went silent, is held or raised an alarm: "
-        "fix the bench and retry); 1 anything else",
+        "fix the bench and retry); 1 anything else\n\n"
+        + examples("hbis demo --out hbis-out", "hbis simulate --scene camera --h 4 --out stack.tif",
+                   "hbis reconstruct stack.tif --method learned --out sr.tif", "hbis COMMAND --help"),
     )
     parser.add_argument("--version", action="version", version=f"hbis {__version__}")
     _add_verbosity(parser, None)
@@ -138,13 +170,40 @@ def configure_logging(verbose: int = 0, quiet: bool = False) -> None:
     level = logging.ERROR if quiet else {0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG)
     logger = logging.getLogger("hbis_torch")
     logger.setLevel(level)
-    if not any(getattr(h, "_hbis_cli", False) for h in logger.handlers):
-        handler = logging.StreamHandler()
-        handler.setFormatter(logging.Formatter("hbis: %(message)s" if level >= logging.INFO
-                                               else "hbis: %(name)s: %(message)s"))
+    handler = next((h for h in logger.handlers if getattr(h, "_hbis_cli", False)), None)
+    if handler is None:
+        handler = _StderrHandler()
         handler._hbis_cli = True
         logger.addHandler(handler)
+    handler.setFormatter(_LineFormatter("hbis: %(message)s" if level >= logging.INFO
+                                        else "hbis: %(name)s: %(message)s"))
     set_progress(False if quiet else None)
+
+
+class _StderrHandler(logging.StreamHandler):
+    """A handler that writes to whatever ``sys.stderr`` is when a record comes (a test's
+    capture, a redirected stream), not to the stream of the first command run in the process."""
+
+    def __init__(self):
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+class _LineFormatter(logging.Formatter):
+    """The handler's format, except for a command's own lines (:func:`hbis_torch.cli.common.tell`),
+    which carry their ``hbis COMMAND:`` prefix already."""
+
+    def format(self, record):
+        if getattr(record, "hbis_line", False):
+            return record.getMessage()
+        return super().format(record)
 
 
 def _quiet_broken_pipe() -> int:
@@ -230,7 +289,10 @@ def _main(argv: list[str] | None) -> int:
     args.argv = ["hbis", *argv]  # the command line, for outputs that record it (the demo's report)
     configure_logging(args.verbose, args.quiet)
     try:
-        code = int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            if args.quiet:  # Python's warnings (a dependency's among them) are messages too
+                warnings.simplefilter("ignore")
+            code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here for short outputs
         return code
     except BrokenPipeError:

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from hbis_torch.budget import add_force_arg
 from hbis_torch.checks import bounded_float, bounded_int
-from hbis_torch.cli.common import add_system_args, add_system_file_args, system_for
+from hbis_torch.cli import examples
+from hbis_torch.cli.common import add_overwrite_arg, add_system_args, add_system_file_args, system_for
 from hbis_torch.errors import HbisInputError
 
 CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
@@ -46,8 +47,8 @@ def register(sub) -> None:
         "reference is measured (phase correlation or matched features, then Lucas-Kanade, the simplest motion "
         "model that explains it, frame by frame), with its brightness (gain, offset) and a confidence; frames that "
         "cannot be registered (another scene, no texture) are named and marked untrusted.",
-        epilog="examples: hbis assemble --phases phases.json --roi 608,456,64,48 --bit-depth 12 "
-        "--out stack.tif 'frames/cap_{index:03d}.tif'; hbis assemble --burst --scale 3 --out burst.tif clip.avi",
+        epilog=examples("hbis assemble --phases phases.json --roi 608,456,64,48 --bit-depth 12 --out stack.tif "
+                        "'frames/cap_{index:03d}.tif'", "hbis assemble --burst --scale 3 --out burst.tif clip.avi"),
     )
     p.add_argument("frames", nargs="+", metavar="FRAME", help="frames in scan order (files, {index} pattern, TIFF, video)")
     p.add_argument("--phases", help="the phases file of 'hbis motors scan --out' (required unless --burst)")
@@ -71,10 +72,18 @@ def register(sub) -> None:
     add_system_args(p)
     add_system_file_args(p)
     add_force_arg(p)
+    add_overwrite_arg(p)
+    from hbis_torch.cli.many import add_scheduler_argument
+
+    add_scheduler_argument(p, many="frames")  # --burst --out-dir DIR: many bursts (hbis_torch.cluster)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from hbis_torch.cli.many import run_many
+
+    if (code := run_many(args, "assemble")) is not None:  # many bursts, --out-dir (hbis_torch.cluster)
+        return code
     from hbis_torch.capture import (
         assemble_stack,
         frames_roi,
@@ -82,9 +91,8 @@ def run(args) -> int:
         read_frames,
         read_phases,
     )
-    import sys
-
     from hbis_torch.capture.frames import bit_depth_hint, probe_frames
+    from hbis_torch.cli.common import tell
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import write_stack
 
@@ -96,7 +104,7 @@ def run(args) -> int:
     for flag, given in (("--scale", args.scale), ("--reference", args.reference), ("--motion", args.motion != "auto")):
         if given:
             raise HbisInputError(f"{flag} is for bursts: give --burst as well")
-    check_output_path(args.out)
+    check_output_path(args.out, overwrite=args.overwrite)
     inputs = {"--phases": args.phases, "--dark": args.dark, "--flat": args.flat, "--bad-pixels": args.bad_pixels,
               "--system": getattr(args, "system", None), "--calibration": getattr(args, "calibration", None)}
     inputs.update({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()})
@@ -116,10 +124,9 @@ def run(args) -> int:
                            black_level=args.black_level, calibration=calibration, cfa=args.cfa)
     write_stack(args.out, stack)
     hint = bit_depth_hint(frames) if args.bit_depth is None else None
-    if hint is not None:
-        print(f"hbis assemble: {hint}", file=sys.stderr)
+    tell("assemble", [hint] if hint is not None else [])
     f = stack.frames
-    print(f"wrote {args.out}: {f.shape[0]} frames of {f.shape[2]} x {f.shape[1]} ({f.dtype}"
+    print(f"wrote {args.out}: {f.shape[0]} frames of {f.shape[2]} x {f.shape[1]} px ({f.dtype}"
           f"{', RGB' if f.ndim == 4 else ''}), h = {stack.h}, roi {list(stack.roi)}, reference frame "
           f"{stack.reference_index}{', calibrated' if calibration else ''}")
     return 0
@@ -127,9 +134,8 @@ def run(args) -> int:
 
 def run_burst(args) -> int:
     """``hbis assemble --burst``: frames with unknown motion -> a burst stack."""
-    import sys
-
     from hbis_torch.capture import read_frames
+    from hbis_torch.cli.common import tell
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import write_stack
@@ -143,20 +149,26 @@ def run_burst(args) -> int:
                                         ("--calibration", getattr(args, "calibration", None))) if value is not None]
     if refused:
         raise HbisInputError(f"{', '.join(refused)} do(es) not apply to a burst (--burst)")
-    check_output_path(args.out)
+    check_output_path(args.out, overwrite=args.overwrite)
     check_distinct_paths({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()},
                          {"--out": args.out})
-    frames, names = read_frames(args.frames)
-    stack, messages = assemble_burst(frames, args.scale, args.reference, args.motion, roi=args.roi,
-                                     bit_depth=args.bit_depth, names=names)
+    from hbis_torch.capture.raw import assemble_raw_burst, is_raw_burst
+
+    if is_raw_burst(args.frames):  # DNG and LibRaw's formats: the [raw] extra (docs/raw-bursts.md)
+        stack, messages = assemble_raw_burst(args.frames, args.scale, args.reference, args.motion, roi=args.roi,
+                                             bit_depth=args.bit_depth)
+    else:
+        frames, names = read_frames(args.frames)
+        stack, messages = assemble_burst(frames, args.scale, args.reference, args.motion, roi=args.roi,
+                                         bit_depth=args.bit_depth, names=names)
     write_stack(args.out, stack)
-    for line in messages:
-        print(f"hbis assemble: {line}", file=sys.stderr)
+    tell("assemble", messages)
     models = stack.meta["motion_models"]
     counts = ", ".join(f"{models.count(m)} {m}" for m in dict.fromkeys(models))
     trusted = int((stack.confidence >= 0.5).sum())
     f = stack.frames
-    print(f"wrote {args.out}: burst of {f.shape[0]} frames of {f.shape[2]} x {f.shape[1]} ({f.dtype}"
-          f"{', RGB' if f.ndim == 4 else ''}), scale {stack.h}, reference frame {stack.reference_index}, "
+    print(f"wrote {args.out}: burst of {f.shape[0]} frames of {f.shape[2]} x {f.shape[1]} px ({f.dtype}"
+          f"{', RGB' if f.ndim == 4 else ''}{', raw ' + stack.meta['cfa'] if 'raw' in stack.meta else ''}), "
+          f"scale S = {stack.h}, reference frame {stack.reference_index}, "
           f"{trusted} frame(s) trusted; motion models: {counts}")
     return 0

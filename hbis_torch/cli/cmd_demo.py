@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import time
@@ -12,7 +13,17 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_write_text, check_output_dir
 from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli.common import SEED_ARG
-from hbis_torch.cli.cmd_figures import FIGURE_SET_NAMES, figure_set
+from hbis_torch.cli import examples
+from hbis_torch.cli.cmd_figures import FIGURE_SET_NAMES, add_figure_sets_arg, figure_set
+
+
+def _roi_elsewhere(text: str):
+    """``hbis demo --roi``: refused, naming --roi-size (--roi is U0,V0,WIDTH,HEIGHT in every command
+    that takes it; the demo steers the fovea itself and takes only the ROI's side)."""
+    import argparse
+
+    raise argparse.ArgumentTypeError("the demo takes the side of the fovea's ROI as --roi-size PX (--roi is "
+                                     "U0,V0,WIDTH,HEIGHT in hbis simulate, assemble and motors scan)")
 
 
 def register(sub) -> None:
@@ -24,6 +35,7 @@ def register(sub) -> None:
         "stitching with refinement from the images; the two-stage loop (detect, steer the fovea, scan, "
         "super-resolve); the foveated composite; FER, foveal ratio and BSR from the data. Writes PNGs, "
         "report.json and report.html into --out.",
+        epilog=examples("hbis demo --out hbis-out", "hbis demo --design-only --figure-sets design --out hbis-design"),
     )
     p.add_argument("--out", default="hbis-out", help="output folder (default: ./hbis-out)")
     from hbis_torch.reconstruct.registry import METHODS
@@ -31,9 +43,13 @@ def register(sub) -> None:
     p.add_argument("--method", choices=tuple(METHODS), default="learned",
                    help="super-resolution method, as hbis reconstruct's (default: learned, "
                    "the shipped ONNX model run in onnxruntime)")
-    p.add_argument("--model", default=None, help="model file, for a method that takes one (learned; optional)")
+    p.add_argument("--model", default=None, metavar="fast|best|M.onnx",
+                   help="for a method that takes a model (learned), as hbis reconstruct's: 'fast' (the default), "
+                   "'best' or an ONNX model file")
     p.add_argument("--h", type=bounded_int(1, 7), default=4, help="resolution improvement factor (default: 4)")
-    p.add_argument("--roi", type=bounded_int(16, 960), default=160, help="side of the fovea's ROI in pixels (default: 160)")
+    p.add_argument("--roi-size", type=bounded_int(16, 960), default=160, metavar="PX",
+                   help="side of the fovea's square ROI in pixels (default: 160)")
+    p.add_argument("--roi", type=_roi_elsewhere, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=SEED_ARG, default=3, help="seed of the assembly errors (default: 3)")
     p.add_argument("--assembly-error-deg", type=bounded_float(0.0, 5.0), default=0.7,
                    help="rms misalignment of the side cameras, deg (default: 0.7; 0 = perfect)")
@@ -41,8 +57,7 @@ def register(sub) -> None:
     p.add_argument("--threads", type=bounded_int(1, 1024), default=1,
                    help="torch threads (default: 1; the chain is many small tensor operations, for which "
                    "thread hand-offs cost more than they save)")
-    p.add_argument("--figure-sets", nargs="*", choices=FIGURE_SET_NAMES, default=None,
-                   help="figure sets to draw (default: all, as hbis figures does)")
+    add_figure_sets_arg(p, "--figure-sets")
     p.add_argument("--design-only", action="store_true", help="only the design report and figures")
     p.set_defaults(func=run)
 
@@ -84,7 +99,7 @@ def _run(args):
     system = FoveaSystem()
     report = design(system).to_dict()
     prototype = design(system, varphi_h_deg=15.0, varphi_v_deg=10.0, h=4).to_dict()
-    sets = FIGURE_SET_NAMES if args.figure_sets is None else args.figure_sets
+    sets = FIGURE_SET_NAMES if args.figure_sets is None else list(dict.fromkeys(args.figure_sets))
     from hbis_torch.progress import progress_enabled
 
     figures = [str(p) for name in sets
@@ -93,7 +108,7 @@ def _run(args):
     _print_design(report, prototype)
     if args.design_only:
         return summary, None
-    config = ChainConfig(h=args.h, roi_size=args.roi, seed=args.seed, refine=not args.no_refine,
+    config = ChainConfig(h=args.h, roi_size=args.roi_size, seed=args.seed, refine=not args.no_refine,
                          assembly_sigma_deg=args.assembly_error_deg, method=args.method, model=args.model)
     system_summary = run_chain(out, system, config, log=logging.getLogger("hbis_torch.system.pipeline").info)
     summary["system"] = system_summary
@@ -110,12 +125,13 @@ def run(args) -> int:
 
     if args.model is not None and "model" not in get_method(args.method).keywords:
         raise HbisInputError(f"--model is for a method that takes a model file; {args.method} does not")
-    if args.model is not None and not Path(args.model).is_file():
-        raise HbisInputError(f"{args.model}: no such model file")
-    if args.method == "learned" and args.model is None and not args.design_only:
-        from hbis_torch.reconstruct.learned.runtime import default_model_path
+    from hbis_torch.reconstruct.learned.runtime import available_tier, default_model_path, tier_of
 
-        default_model_path(args.h)  # no shipped model for this h: say so now, not after the design
+    tier = tier_of(args.model)  # None: a file
+    if tier is None and not Path(args.model).is_file():
+        raise HbisInputError(f"{args.model}: no such model file (--model takes 'fast', 'best' or an ONNX file)")
+    if args.method == "learned" and tier is not None and not args.design_only:
+        default_model_path(args.h, available_tier(tier, args.h))  # none shipped for this h: say so now
     check_output_dir(args.out)
     import torch
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from hbis_torch.checks import bounded_float
+from hbis_torch.cli import examples
 from hbis_torch.cli.common import H_ARG, add_system_args, system_from_args
 
 
@@ -14,6 +15,7 @@ def register(sub) -> None:
         help="FOV extension, FER, varphi limits, varphi_c, H, h_max and BSR of an HBIS",
         description="Compute the design numbers of an HBIS (paper sections 2.1-3.3). Without "
         "--varphi-h-deg/--varphi-v-deg the largest inclinations with no blind zone are used.",
+        epilog=examples("hbis design", "hbis design --json --varphi-h-deg 15 --varphi-v-deg 10 --h 4"),
     )
     add_system_args(p)
     p.add_argument("--varphi-h-deg", type=bounded_float(0.0, 90.0, hi_open=True), help="inclination of the left/right cameras [deg]")

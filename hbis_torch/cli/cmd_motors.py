@@ -74,7 +74,8 @@ def register(sub) -> None:
         "phases back, run --capture-cmd. A journal records the frames taken; rerunning the same "
         "command after a fault resumes at the first frame not taken.")
     a.add_argument("--h", type=H_ARG, required=True, help="resolution improvement factor h (h x h frames)")
-    a.add_argument("--phases-deg", default="5,70", metavar="A,B", help="initial phases (default 5,70)")
+    a.add_argument("--phases-deg", default="5,70", metavar="A,B",
+                   help="initial phases (default 5,70); a negative one needs the = form: --phases-deg=-0.2,-70")
     a.add_argument("--method", choices=("exact", "paper"), default="exact", help="inverse solution (default exact)")
     a.add_argument("--journal", default="motors-scan-journal.json",
                    help="journal of frames taken, for resuming (default ./motors-scan-journal.json)")
@@ -169,15 +170,20 @@ def run_goto(args) -> int:
     return 0
 
 
-def _plan_and_predict(args, steps_per_deg, initial_deg):
-    """Plan from ``initial_deg`` (already on the motor step grid) and print the predicted AE."""
+def _planner():
     try:
-        from hbis_torch.scan import plan_scan, step_alignment_error
+        import hbis_torch.scan as planner
     except ImportError as exc:
         raise HbisInputError(f"the scan planner (hbis_torch.scan) is not available in this build: {exc}") from None
+    return planner
+
+
+def _plan_and_predict(args, steps_per_deg, initial_deg):
+    """Plan from ``initial_deg`` (already on the motor step grid) and print the predicted AE."""
+    planner = _planner()
     system = system_from_args(args)
-    plan = plan_scan(system, args.h, initial_phases_deg=initial_deg, method=args.method)
-    ae = step_alignment_error(system, plan, steps_per_deg)
+    plan = planner.plan_scan(system, args.h, initial_phases_deg=initial_deg, method=args.method)
+    ae = planner.step_alignment_error(system, plan, steps_per_deg)
     frames = plan.phases_deg.shape[0]
     print(f"scan plan: h = {args.h}, {frames} frames from phases ({initial_deg[0]:.4f}, {initial_deg[1]:.4f}) "
           f"deg, {args.method} inverse, step SL = {plan.step_mm * 1e3:.3f} um on the object plane")
@@ -213,9 +219,14 @@ def _capture_command(template: str, timeout_s: float):
 
 
 def run_scan_cmd(args) -> int:
+    from hbis_torch.capture.cameras import camera_from_spec
+    from hbis_torch.checks import MAX_PHASE_DEG
     from hbis_torch.hardware.grbl_protocol import nearest_step_phase
+    from hbis_torch.hardware.scan_executor import ScanJournal, run_scan
 
     requested = _pair(args.phases_deg, "--phases-deg")
+    if max(abs(v) for v in requested) > MAX_PHASE_DEG:
+        raise HbisInputError(f"--phases-deg must lie within +-{MAX_PHASE_DEG:g} degrees, got {args.phases_deg!r}")
     if not args.dry_run:
         check_output_path(args.journal, "--journal")
         if args.out:
@@ -231,8 +242,19 @@ def run_scan_cmd(args) -> int:
         return 0
     if args.steps_per_deg:
         raise HbisInputError("--steps-per-deg is only for --dry-run; a real scan reads $100/$101 from the controller")
+    # Every check that needs no controller comes before the port is opened (and the controller reset).
     roi = _capture_checks(args)
-    with _controller(args).open() as grbl, contextlib.ExitStack() as stack:
+    controller = _controller(args)
+    _planner().plan_scan(system_from_args(args), args.h, initial_phases_deg=requested, method=args.method)
+    capture = lambda index, phases: None  # noqa: E731 - moves and read-backs only
+    if not args.dry_run:
+        ScanJournal.read(args.journal)  # a corrupt one; whether it is this scan's needs the plan
+        if args.camera:
+            # the spec, scene and ROI; made again below around the phases the motors can reach
+            camera_from_spec(args.camera, system_from_args(args), roi, args.h, requested, seed=args.seed)
+        elif args.capture_cmd:
+            capture = _capture_command(args.capture_cmd, args.capture_timeout_s)
+    with controller.open() as grbl, contextlib.ExitStack() as stack:
         # Plan from phases the motors can reach, so the controller's rounding to whole steps is
         # the one the AE prediction models (steps counted from the initial phases).
         initial = _snapped(requested, grbl.nearest_reachable(*requested))
@@ -240,22 +262,14 @@ def run_scan_cmd(args) -> int:
         if args.dry_run:
             return 0
         if args.camera:
-            from hbis_torch.capture.cameras import camera_from_spec
-
             camera = camera_from_spec(args.camera, system_from_args(args), roi, args.h, initial, seed=args.seed)
             stack.enter_context(camera)
             capture = _camera_capture(camera, args.frames)
-        elif args.capture_cmd:
-            capture = _capture_command(args.capture_cmd, args.capture_timeout_s)
-        else:
-            capture = lambda index, phases: None  # noqa: E731 - moves and read-backs only
 
         def progress(record, total):
             print(f"frame {record.index} ({record.index + 1} of {total}): planned ({record.target_deg[0]:.4f}, "
                   f"{record.target_deg[1]:.4f}) read back ({record.phases_deg[0]:.4f}, "
                   f"{record.phases_deg[1]:.4f}) deg", flush=True)
-
-        from hbis_torch.hardware.scan_executor import ScanJournal, run_scan
 
         journal = ScanJournal.open(Path(args.journal), plan.phases_deg)
         if journal.complete and not args.resume:

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from hbis_torch.checks import bounded_int
+from hbis_torch.cli import examples
 from hbis_torch.cli.method_options import add_method_options, method_keywords
 from hbis_torch.errors import HbisInputError
 
@@ -21,19 +21,19 @@ def register(sub) -> None:
         f"each direction, covering the reference frame's ROI, written as a float32 TIFF in [0, 1]. Methods: {methods}. "
         "A burst stack ('hbis assemble --burst') goes through the same methods onto its reference frame's grid refined "
         "S times, samples its motion does not explain down-weighted (docs/real-bursts.md).",
+        epilog=examples("hbis reconstruct stack.tif --method learned --out sr.tif",
+                        "hbis reconstruct 'scans/*.tif' --method classical --out-dir sr/"),
     )
     p.add_argument("stack", type=Path, nargs="+", metavar="STACK",
                    help="input stack (hbis-stack/1 TIFF); with --out-dir, any number of them, a glob pattern "
                    "(quoted: 'scans/*.tif') or @LIST, a text file naming one stack a line")
     p.add_argument("--method", choices=tuple(METHODS), default="classical",
                    help="reconstruction method (default: classical)")
-    add_method_options(p, METHODS)
     outputs = p.add_mutually_exclusive_group(required=True)
-    outputs.add_argument("--out", type=Path, help="output TIFF (one stack; an existing file is replaced)")
+    outputs.add_argument("--out", type=Path, help="output TIFF (one stack)")
     outputs.add_argument("--out-dir", type=Path, metavar="DIR",
                          help="many stacks in one process (the model is opened once, stacks run side by side "
-                         "where cores are free): each to DIR/STEM.METHOD.tif; outputs that exist already are "
-                         "refused before any work; a stack that fails is named in one line and the others go on; "
+                         "where cores are free): each to DIR/STEM.METHOD.tif; a stack that fails is named in one line and the others go on; "
                          "exit 1 if one failed")
     p.add_argument("--jobs", type=bounded_int(1, 256), default=None,
                    help="with --out-dir: stacks reconstructed at once, each on one thread (default: the CPUs "
@@ -57,10 +57,21 @@ def register(sub) -> None:
     from hbis_torch.budget import add_force_arg
 
     add_force_arg(p)
+    from hbis_torch.cli.common import add_overwrite_arg
+
+    add_overwrite_arg(p)
+    from hbis_torch.cli.many import add_scheduler_argument
+
+    add_scheduler_argument(p)
+    add_method_options(p, METHODS)  # last: the general options come first in --help
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if args.scheduler is not None:  # many stacks on a Dask cluster (hbis_torch.cluster)
+        from hbis_torch.cli.many import run_reconstruct
+
+        return run_reconstruct(args, prepare, reconstruct_one)
     if args.out_dir is not None:
         from hbis_torch.cli.reconstruct_batch import run_batch
 
@@ -72,16 +83,25 @@ def run(args) -> int:
     args.stack = args.stack[0]
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
 
-    check_output_path(args.out)
+    check_output_path(args.out, overwrite=args.overwrite)
     check_distinct_paths({"STACK": args.stack}, {"--out": args.out})
+    from hbis_torch.reconstruct.raw_output import check_raw_outputs
+
+    check_raw_outputs(args.stack, args.out, args.overwrite)  # a raw burst's preview (and DNG) too
     prepared = prepare(args)
     image, messages, meta, pixel_um = reconstruct_one(args, args.stack, prepared)
-    for line in messages:
-        print(f"hbis reconstruct: {line}", file=sys.stderr)
+    from hbis_torch.cli.common import tell
     from hbis_torch.stack_io import write_image
 
+    tell("reconstruct", messages)
+    if "raw" in meta:  # a raw burst: linear 16-bit TIFF (or DNG) and an sRGB preview (docs/raw-bursts.md)
+        from hbis_torch.reconstruct.raw_output import write_raw_outputs
+
+        written = write_raw_outputs(args.out, image, meta)
+        print(f"wrote {', '.join(map(str, written))} ({image.shape[1]} x {image.shape[0]} px, linear 16-bit)")
+        return 0
     write_image(args.out, image, meta, pixel_size_um=pixel_um)
-    print(f"wrote {args.out} ({image.shape[0]} x {image.shape[1]} px, float32{', RGB' if image.ndim == 3 else ''})")
+    print(f"wrote {args.out} ({image.shape[1]} x {image.shape[0]} px, float32{', RGB' if image.ndim == 3 else ''})")
     return 0
 
 
@@ -132,5 +152,7 @@ def reconstruct_one(args, path: Path, prepared: tuple, threads: int | None = Non
     meta = {"format": "hbis-sr/1", "source": path.name, "method": args.method,
             "registration": args.registration, "h": stack.h, "roi": list(stack.roi),
             "reference_index": stack.reference_index}
+    if isinstance(stack.meta.get("raw"), dict):
+        meta.update(raw=stack.meta["raw"], cfa=stack.meta.get("cfa"))
     pixel_um = None if stack.kind == "burst" else object_pixel_um(stack.system, stack.h)  # a burst has no optics
     return image, messages, meta, pixel_um

@@ -6,6 +6,7 @@ import json
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.checks import bounded_float, bounded_int
+from hbis_torch.cli import examples
 from hbis_torch.cli.common import H_ARG, add_system_args, system_from_args
 
 # hbis_torch.scan's METHODS and CONVENTIONS, written out so that --help does not import torch
@@ -31,6 +32,7 @@ def register(sub) -> None:
         description="Plan the h x h sub-pixel scan of the optical axis around the initial phases "
         "(raster order, x fastest) and report the phases, each prism's phase range, and the "
         "alignment error of the axis and of the pixels (paper section 3.2).",
+        epilog=examples("hbis scan --h 7 --phases-deg 5,70", "hbis scan --h 4 --phases-deg 5,70 --steps-per-deg 80,80 --json"),
     )
     add_system_args(p)
     p.add_argument("--h", type=H_ARG, required=True, help="resolution improvement factor h (>= 1)")

@@ -8,10 +8,19 @@ from pathlib import Path
 
 from hbis_torch.budget import add_force_arg
 from hbis_torch.checks import bounded_float, bounded_int
-from hbis_torch.cli.common import H_ARG, SEED_ARG, add_system_args, system_from_args
+from hbis_torch.cli import examples
+from hbis_torch.cli.common import H_ARG, SEED_ARG, add_overwrite_arg, add_system_args, system_from_args
 
 DEFAULT_CROP = 256
 SUMMARY = "synthesise a stack (and its ground truth) through the Risley model"
+
+# hbis_torch.simulate's scene names and SensorModel's defaults, written out so that --help does not
+# import torch (hbis_torch.simulate does; tests/test_cli_polish.py checks that they agree).
+SCENES = ("astronaut", "bars", "brick", "camera", "cell", "chelsea", "clock", "coffee", "coins", "edges", "flat",
+          "gradient", "grass", "gravel", "hubble_deep_field", "immunohistochemistry", "moon", "page", "rocket",
+          "siemens-star", "slanted-edge", "text", "texture", "words")
+SENSOR_DEFAULTS = {"fill_factor": 1.0, "defocus_um": 0.0, "full_well_e": 10000.0, "read_noise_e": 2.0,
+                   "black_level_dn": 0.0, "bit_depth": 12}
 
 
 def _numbers(text: str, count: tuple[int, ...], kind=float, name: str = "value"):
@@ -40,10 +49,7 @@ def _bit_depth(text: str):
 
 
 def register(sub) -> None:
-    from hbis_torch.simulate import BUILTIN_SCENES
-    from hbis_torch.simulate.sensor import SensorModel
-
-    defaults = SensorModel()
+    defaults = argparse.Namespace(**SENSOR_DEFAULTS)
     p = sub.add_parser(
         "simulate",
         help=SUMMARY,
@@ -55,10 +61,10 @@ def register(sub) -> None:
             "writes what an ideal sensor of pitch p/h sees at the reference (initial) phases,\n"
             "float32 (h*H, h*W), the image a reconstruction should produce (docs/data.md).\n\n"
             "Scenes: an image file (PNG, JPEG, TIFF, ...) or a built-in name:\n"
-            + textwrap.fill(", ".join(sorted(BUILTIN_SCENES)), 88, initial_indent="  ", subsequent_indent="  ")
+            + textwrap.fill(", ".join(SCENES), 88, initial_indent="  ", subsequent_indent="  ")
             + "\nBy default a scene is scaled to cover the view of the frame region (--roi)."
         ),
-        epilog="example: hbis simulate --scene siemens-star --h 4 --out star.tif --truth star_truth.tif",
+        epilog=examples("hbis simulate --scene siemens-star --h 4 --out star.tif --truth star_truth.tif"),
     )
     p.add_argument("--scene", required=True, help="built-in scene name or image path")
     p.add_argument("--h", type=H_ARG, required=True, help="resolution improvement factor (h x h frames)")
@@ -99,6 +105,7 @@ def register(sub) -> None:
                    help="grid margin [pixels] around the frames (default 8; see docs/data.md)")
     add_system_args(p)
     add_force_arg(p)
+    add_overwrite_arg(p)
     p.set_defaults(func=run)
 
 
@@ -116,9 +123,9 @@ def run(args) -> int:
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import object_pixel_um, write_image, write_stack
 
-    check_output_path(args.out)
+    check_output_path(args.out, overwrite=args.overwrite)
     if args.truth is not None:
-        check_output_path(args.truth, "--truth")
+        check_output_path(args.truth, "--truth", overwrite=args.overwrite)
     scene_file = args.scene if Path(args.scene).exists() else None
     check_distinct_paths({"--scene": scene_file}, {"--out": args.out, "--truth": args.truth})
     system = system_from_args(args)
@@ -151,13 +158,13 @@ def run(args) -> int:
                                   margin_px=args.margin_px)
     out = Path(args.out)
     write_stack(out, stack)
-    message = (f"wrote {out}: {stack.frames.shape[0]} frames of {roi[2]} x {roi[3]} "
+    message = (f"wrote {out}: {stack.frames.shape[0]} frames of {roi[2]} x {roi[3]} px "
                f"({stack.frames.dtype}), h = {args.h}, roi {list(roi)}, scene {scene.name} "
                f"{scene.size_mm[0]:.3f} x {scene.size_mm[1]:.3f} mm")
     if args.truth:
         write_image(args.truth, truth, {"format": "hbis-truth/1", "h": args.h, "roi": list(roi),
                                         "reference_index": stack.reference_index, "stack": out.name},
                     pixel_size_um=object_pixel_um(system, args.h))
-        message += f"; truth {args.truth}: {truth.shape[1]} x {truth.shape[0]} float32"
+        message += f"; truth {args.truth}: {truth.shape[1]} x {truth.shape[0]} px float32"
     print(message)
     return 0

@@ -3,12 +3,12 @@ observation-space cross-validation (docs/validate.md)."""
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from pathlib import Path
 
 from hbis_torch.checks import bounded_float, bounded_int
+from hbis_torch.cli import examples
+from hbis_torch.cli.validate_report import json_report, method_names  # noqa: F401 - the command's own
 from hbis_torch.errors import HbisInputError
 
 DESCRIPTION = """\
@@ -42,7 +42,7 @@ def register(sub) -> None:
         "validate",
         help="score reconstruction methods on a stack without ground truth (cross-validation on its frames)",
         description=DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=examples("hbis validate stack.tif", "hbis validate burst.tif --method classical,learned --json"),
     )
     p.add_argument("stack", type=Path, help="input stack (hbis-stack/1 TIFF: an HBIS scan or a burst)")
     p.add_argument("--method", action="append", metavar="NAME[,NAME...]",
@@ -60,22 +60,17 @@ def register(sub) -> None:
                    help="the forward model's Gaussian blur, standard deviation in frame pixels (default 0.2)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     add_method_options(p, METHODS)
+    from hbis_torch.cli.many import add_scheduler_argument
+
+    add_scheduler_argument(p, many="stack")  # --out-dir DIR: many stacks (hbis_torch.cluster)
     p.set_defaults(func=run)
 
 
-def method_names(given) -> list[str]:
-    """Method names from repeated and comma-separated ``--method`` values (None: the defaults)."""
-    from hbis_torch.validate.cross import DEFAULT_METHODS, resolve_methods
-
-    if not given:
-        return list(DEFAULT_METHODS)
-    names = [n.strip() for value in given for n in value.split(",")]
-    if any(not n for n in names):
-        raise HbisInputError(f"--method has an empty name in {','.join(given)!r}")
-    return resolve_methods(names)
-
-
 def run(args) -> int:
+    from hbis_torch.cli.many import run_many
+
+    if (code := run_many(args, "validate")) is not None:  # many stacks, --out-dir (hbis_torch.cluster)
+        return code
     from hbis_torch.cli.method_options import keywords_for_methods
     from hbis_torch.reconstruct.registry import METHODS
 
@@ -99,13 +94,13 @@ def run(args) -> int:
                                 border_px=DEFAULT_BORDER_PX if args.border is None else args.border,
                                 blur_px=DEFAULT_BLUR_PX if args.blur is None else args.blur,
                                 method_options=options, messages=messages, on_step=bar.update)
-    for line in messages:
-        print(f"hbis validate: {line}", file=sys.stderr)
+    from hbis_torch.cli.common import tell
+
+    tell("validate", messages)
     for name, scores in result.methods.items():
-        for line in scores.messages:
-            print(f"hbis validate: {name}: {line}", file=sys.stderr)
+        tell("validate", scores.messages, about=name)
     if args.json:
-        print(json.dumps({"stack": args.stack.name, "kind": stack.kind, **result.to_dict()}, indent=1))
+        print(json.dumps(json_report(result, args.stack.name, stack.kind), indent=1))
     else:
         print(table(result, args.stack.name, stack.kind))
     return 0
@@ -116,7 +111,8 @@ def table(result, name: str, kind: str) -> str:
     from hbis_torch.validate.baseline import SINGLE_FRAME
 
     held = ", ".join(str(k) for k in result.held_out)
-    lines = [f"{name}: {'burst' if kind == 'burst' else 'HBIS scan'} of {result.frames} frames, h = {result.h}, "
+    factor = f"scale S = {result.h}" if kind == "burst" else f"h = {result.h}"
+    lines = [f"{name}: {'burst' if kind == 'burst' else 'HBIS scan'} of {result.frames} frames, {factor}, "
              f"reference {result.reference_index}; held out one at a time: {held}; scored on {result.scored_on}",
              f"{'method':<14} {'PSNR dB':>8} {'vs single':>9}  {'per held-out frame (dB)':<28} {'s/run':>7}"]
     base = result.methods.get(SINGLE_FRAME)

@@ -96,3 +96,30 @@ def system_for(args: argparse.Namespace, defaults: argparse.Namespace | None = N
 
         system = with_lens(system, read_opencv_calibration(args.calibration), args.calibration)
     return system
+
+
+def tell(command: str, messages, about: str | None = None) -> None:
+    """Show what a step said (its ``messages`` list) by the one verbosity rule of the CLI: a line
+    that asks the user to act (:class:`hbis_torch.notices.UserAction`) as a warning, shown by
+    default and marked ``warning:``; any other line only with ``-v``; nothing with ``-q``.
+
+    Each line reads ``hbis COMMAND: [ABOUT: ][warning: ]TEXT`` on stderr (``about``: the stack
+    or method the line is about, where a command runs several)."""
+    import logging
+
+    from hbis_torch.notices import asks_to_act
+
+    log = logging.getLogger("hbis_torch.cli")
+    where = f"hbis {command}: " + (f"{about}: " if about else "")
+    for line in messages:
+        if asks_to_act(line):
+            log.warning("%swarning: %s", where, line, extra={"hbis_line": True})
+        else:
+            log.info("%s%s", where, line, extra={"hbis_line": True})
+
+
+def add_overwrite_arg(parser: argparse.ArgumentParser) -> None:
+    """``--overwrite``: the one rule for output files (``--out``, ``--out-dir``, ``--truth``): one
+    that exists already is refused before any work, unless this flag is given."""
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace output files that exist already (without it they are refused, before any work)")

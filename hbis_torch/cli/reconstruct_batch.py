@@ -8,7 +8,8 @@ interpreter lock in their kernels): for small stacks that keeps every core busy,
 stack's own threading does not. Every output is ``DIR/STEM.METHOD.tif``.
 
 Checked before any work, in one line each (exit 2): no stack found, a stack named twice, an
-output that exists already (nothing is overwritten), an output folder that cannot be written.
+output that exists already (unless ``--overwrite``, the rule of ``--out`` too), an output folder
+that cannot be written.
 A stack that fails while it runs (an unreadable file, a stack the method refuses) is named in
 one line on stderr and the others go on; the summary at the end gives each stack's exit code
 (0 written, 2 bad input, 1 other error), and the command's is the largest.
@@ -62,19 +63,20 @@ def expand_stacks(items) -> list[Path]:
     return stacks
 
 
-def output_paths(stacks: list[Path], out_dir: Path, method: str) -> list[Path]:
+def output_paths(stacks: list[Path], out_dir: Path, method: str, overwrite: bool = False) -> list[Path]:
     """``out_dir/STEM.METHOD.tif`` for each stack; HbisInputError if two stacks share a stem or
-    an output exists already."""
+    (unless ``overwrite``) an output exists already."""
     outs = [out_dir / f"{path.name.split('.')[0]}.{method}.tif" for path in stacks]
     by_name: dict[Path, Path] = {}
     for stack, out in zip(stacks, outs):
         if out in by_name:
             raise HbisInputError(f"{stack} and {by_name[out]} would both be written to {out}; rename one")
         by_name[out] = stack
-    existing = [out for out in outs if os.path.lexists(out)]
+    existing = [out for out in outs if os.path.lexists(out) and not (overwrite and os.path.isfile(out))]
     if existing:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
-        raise HbisInputError(f"{existing[0]}{more} exists already; remove it or choose another --out-dir")
+        how = "it is not a regular file" if overwrite else "pass --overwrite to replace it"
+        raise HbisInputError(f"--out-dir: {existing[0]}{more} exists already; {how}")
     return outs
 
 
@@ -93,7 +95,7 @@ def run_batch(args, prepare, reconstruct_one) -> int:
     missing = [path for path in stacks if not path.is_file()]
     if missing:
         raise HbisInputError(f"stack {missing[0]} not found" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
-    outs = output_paths(stacks, args.out_dir, args.method)
+    outs = output_paths(stacks, args.out_dir, args.method, getattr(args, "overwrite", False))
     cpus = len(os.sched_getaffinity(0))
     jobs = args.jobs or (1 if args.threads is not None else min(cpus, len(stacks)))
     kw, calibration = prepare(args)
@@ -138,10 +140,19 @@ def _one(reconstruct_one, args, stack: Path, out: Path, prepared) -> int:
     from hbis_torch.stack_io import write_image
 
     try:
+        from hbis_torch.reconstruct.raw_output import check_raw_outputs
+
+        check_raw_outputs(stack, out, getattr(args, "overwrite", False))  # a raw burst's preview too
         image, messages, meta, pixel_um = reconstruct_one(args, stack, prepared)
-        for line in messages:
-            print(f"hbis reconstruct: {stack}: {line}", file=sys.stderr)
-        write_image(out, image, meta, pixel_size_um=pixel_um)
+        from hbis_torch.cli.common import tell
+
+        tell("reconstruct", messages, about=str(stack))
+        if "raw" in meta:  # a raw burst: linear 16-bit TIFF and an sRGB preview, as with --out
+            from hbis_torch.reconstruct.raw_output import write_raw_outputs
+
+            write_raw_outputs(out, image, meta)
+        else:
+            write_image(out, image, meta, pixel_size_um=pixel_um)
         return 0
     except HbisInputError as exc:
         print(f"hbis reconstruct: {stack}: {exc}", file=sys.stderr)

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import stat
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -25,9 +27,10 @@ from hbis_torch.checks import MAX_PHASE_DEG
 from hbis_torch.errors import (HbisInputError, GrblAlarm, GrblCommandError, GrblDisconnected, GrblError, GrblHeld,
                                GrblMoveLost, GrblProtocolError, GrblTimeout)
 from hbis_torch.hardware.grbl_codes import alarm_meaning, error_meaning
-from hbis_torch.hardware.grbl_protocol import (JOG_CANCEL, LINE_MAX_CHARS, REALTIME_BYTES, SOFT_RESET, STATUS_QUERY,
-                                               GrblStatus, Kind, classify, clean_line, format_jog, format_move,
-                                               nearest_step_phase, setting_write, unwrap_near)
+from hbis_torch.hardware.grbl_protocol import (FLOAT32_MAX, HOMING_ALARMS, JOG_CANCEL, LINE_MAX_CHARS, REALTIME_BYTES,
+                                               SOFT_RESET, STATUS_QUERY, GrblStatus, Kind, classify, clean_line,
+                                               format_jog, format_move, nearest_step_phase, setting_write,
+                                               unwrap_near)
 from hbis_torch.hardware.motion_profile import axis_limited, move_duration_s
 
 try:  # pyserial's POSIX backend lets termios.error (not an OSError) out of flush() on a dead tty
@@ -39,6 +42,7 @@ log = logging.getLogger(__name__)
 _IO_ERRORS = (serial.SerialException, OSError, _TermiosError)
 
 _ALARM_HINT = "reset the controller, then home ($H) or unlock ($X) before moving again"
+_HOMING_ALARM_HINT = "the controller has reset itself; home ($H) again or unlock ($X) before moving"
 # A reset that brings no welcome within this is sent again: GRBL 1.1h loses a reset sent in the
 # 500 ms it spends printing ALARM:1 or ALARM:2 (report_alarm_message), and answers a later one.
 _RESET_RESEND_S = 1.0
@@ -47,6 +51,44 @@ _HELD_STATES = ("Hold", "Door")
 
 _DEFAULT_RATE_DEG_PER_MIN = 500.0
 _DEFAULT_ACCEL_DEG_PER_S2 = 10.0
+
+
+def _never_a_serial_port(url: str) -> str | None:
+    """Why the file at ``url`` can never be a serial port (a directory, a regular file, a FIFO...:
+    anything but a character device), or None when it may be one, is missing (an unplugged
+    adapter) or ``url`` is a pyserial URL such as ``socket://``.
+
+    Judged from :func:`os.stat` alone, before anything is opened. Whether a character device is a
+    terminal (:func:`_not_a_terminal`) is asked only after pyserial failed to open it, so a real
+    serial port is never opened twice.
+    """
+    if "://" in url:
+        return None
+    try:
+        mode = os.stat(url).st_mode
+    except (OSError, ValueError):
+        return None
+    if stat.S_ISDIR(mode):
+        return "it is a directory"
+    if stat.S_ISREG(mode):
+        return "it is a regular file"
+    if not stat.S_ISCHR(mode):
+        return "it is not a character device"
+    return None
+
+
+def _not_a_terminal(url: str) -> bool:
+    """Whether the character device at ``url`` opens but is no terminal (``/dev/null``)."""
+    if "://" in url:
+        return False
+    try:
+        fd = os.open(url, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+    except (OSError, ValueError, AttributeError):  # O_NOCTTY is POSIX only
+        return False
+    try:
+        return not os.isatty(fd)
+    finally:
+        os.close(fd)
 
 
 @dataclass(frozen=True)
@@ -137,11 +179,26 @@ class GrblController:
 
     # ----------------------------------------------------------------------------- connection
     def open(self) -> "GrblController":
-        """Open the port, soft-reset the controller, wait for its welcome, read ``$$``."""
+        """Open the port, soft-reset the controller, wait for its welcome, read ``$$``.
+
+        Raises
+        ------
+        HbisInputError
+            When ``url`` names something that can never be a serial port: a directory, a regular
+            file, a character device that is not a terminal (``/dev/null``).
+        GrblError
+            When the port cannot be opened otherwise (a missing device: an unplugged adapter).
+        """
+        why = _never_a_serial_port(self.url)
+        if why is not None:
+            raise HbisInputError(f"{self.url!r} cannot be a serial port: {why}")
         try:
             self._serial = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.02,
                                                  write_timeout=self.timeouts.reply_s)
         except (*_IO_ERRORS, ValueError) as exc:
+            if _not_a_terminal(self.url):
+                raise HbisInputError(f"{self.url!r} cannot be a serial port: it is a character device "
+                                     "that is not a terminal") from None
             raise GrblError(f"cannot open serial port {self.url!r}: {exc}") from None
         try:
             self.reset()
@@ -207,8 +264,9 @@ class GrblController:
     def _next(self, deadline: float, *, in_reset: bool = False) -> tuple[Kind, object] | None:
         """The next line, classified and with pushed messages handled; None at ``deadline``.
 
-        ``ALARM:N`` raises :class:`GrblAlarm` (outside a reset); a welcome line outside a reset
-        means the controller restarted by itself and raises :class:`GrblProtocolError`.
+        ``ALARM:N`` raises :class:`GrblAlarm` (outside a reset), once the reset that GRBL does by
+        itself after a homing alarm has been read; a welcome line outside a reset means the
+        controller restarted by itself and raises :class:`GrblProtocolError`.
         """
         line = self._read_line(deadline)
         if line is None:
@@ -217,6 +275,9 @@ class GrblController:
         if kind is Kind.ALARM:
             self.alarm_code = payload
             if not in_reset:
+                if payload in HOMING_ALARMS:
+                    self._await_self_reset(payload)
+                    raise GrblAlarm(payload, alarm_meaning(payload), _HOMING_ALARM_HINT)
                 raise GrblAlarm(payload, alarm_meaning(payload), _ALARM_HINT)
         elif kind is Kind.MESSAGE:
             self.messages.append(payload)
@@ -271,6 +332,21 @@ class GrblController:
         self._wco = None
         return self.version
 
+    def _await_self_reset(self, code: int) -> None:
+        """Read through the reset GRBL does by itself after homing ``ALARM:code``: the ``ok`` of the
+        aborted ``$H`` and the welcome (any line sent meanwhile is dropped by GRBL, unanswered)."""
+        deadline = time.monotonic() + self.timeouts.welcome_s
+        while True:
+            event = self._next(deadline, in_reset=True)
+            if event is None:
+                log.warning("no welcome within %.1f s of ALARM:%d (GRBL resets itself after a homing alarm)",
+                            self.timeouts.welcome_s, code)
+                return
+            if event[0] is Kind.WELCOME:
+                self._wco = None
+                self.alarm_code = code
+                return
+
     def _drain_welcomes(self, wait_s: float) -> None:
         """Read what comes within ``wait_s`` as part of the reset (a second welcome is no restart)."""
         deadline = time.monotonic() + wait_s
@@ -309,6 +385,9 @@ class GrblController:
         if setting is not None and setting[0] == 13 and int(setting[1]) != 0:
             raise HbisInputError(f"refusing {line!r}: $13=1 makes GRBL report inches, and this driver "
                                  "reads positions as degrees ($13 must stay 0)")
+        if setting is not None and setting[0] in (100, 101) and not 0 < setting[1] <= FLOAT32_MAX:
+            raise HbisInputError(f"refusing {line!r}: GRBL would store ${setting[0]}={setting[1]:g}, and steps per "
+                                 "degree must be positive and finite (the driver could not use the controller after)")
         rereads = cleaned.startswith("$") and "=" in cleaned and not cleaned.startswith("$J=")
         if len(line) >= LINE_MAX_CHARS:
             raise HbisInputError(f"line too long for GRBL ({len(line)} >= {LINE_MAX_CHARS} characters): {line!r}")

@@ -22,6 +22,14 @@ REALTIME_BYTES = frozenset(SOFT_RESET + STATUS_QUERY + FEED_HOLD + CYCLE_START +
 LINE_MAX_CHARS = 80
 """GRBL's serial line buffer; longer lines are rejected with error:11."""
 
+HOMING_ALARMS = frozenset({6, 7, 8, 9, 10})
+"""The homing failures. GRBL 1.1h resets itself after one (``mc_reset``): it spends 500 ms
+printing ``ALARM:N``, answers the aborted ``$H`` with ``ok``, drops every line received meanwhile,
+then prints its welcome and ``[MSG:'$H'|'$X' to unlock]``, still in Alarm."""
+
+FLOAT32_MAX = 3.4028234663852886e38
+"""The largest setting GRBL can hold (its settings are 32-bit floats: larger values become inf)."""
+
 STATES = ("Idle", "Run", "Hold", "Jog", "Alarm", "Door", "Check", "Home", "Sleep")
 
 _WELCOME_RE = re.compile(r"^Grbl(?:HAL)?\s+(\d+\.\d+\w*)\s+\[.*\]$")
@@ -196,18 +204,59 @@ def clean_line(line: str) -> str:
     return "".join(out)
 
 
-_SETTING_WRITE_RE = re.compile(r"^\$([-+]?(?:\d+\.?\d*|\.\d+))=([-+]?(?:\d+\.?\d*|\.\d+))$")
+_GRBL_NUMBER_RE = re.compile(r"^([-+]?)(?:\d+\.?\d*|\.\d+)$", re.ASCII)
+_SETTING_WRITE_RE = re.compile(r"^\$([-+]?(?:\d+\.?\d*|\.\d+))=([-+]?(?:\d+\.?\d*|\.\d+))$", re.ASCII)
+_GRBL_DIGITS = 8  # MAX_INT_DIGITS of GRBL 1.1h's read_float
+
+
+def grbl_number(text: str) -> float | None:
+    """The value GRBL 1.1h's ``read_float`` gives a whole number ``text``; None when it is none.
+
+    GRBL keeps the first 8 digits (leading zeros count) and drops the rest, so
+    ``0.0000000001`` is 0 and ``000000013`` is 10; a value beyond its 32-bit floats is inf.
+    The float32 rounding of the digits kept is not modelled.
+
+    >>> grbl_number("142.222"), grbl_number("0.0000000001"), grbl_number("000000013")
+    (142.222, 0.0, 10.0)
+    >>> grbl_number("1" + "0" * 39), grbl_number("inf")
+    (inf, None)
+    """
+    m = _GRBL_NUMBER_RE.match(text)
+    if not m:
+        return None
+    digits, exponent, kept, point = 0, 0, 0, False
+    for char in text[len(m.group(1)):]:
+        if char == ".":
+            point = True
+        elif kept < _GRBL_DIGITS:
+            digits, kept = digits * 10 + int(char), kept + 1
+            exponent -= point
+        else:
+            exponent += not point  # an integer digit dropped still scales the value
+    if digits == 0:
+        value = 0.0
+    elif exponent >= 0:
+        value = math.inf if exponent > 38 else float(digits * 10 ** exponent)
+    else:
+        value = digits / 10 ** -exponent
+    if value > FLOAT32_MAX:
+        value = math.inf
+    return -value if m.group(1) == "-" else value
 
 
 def setting_write(line: str) -> tuple[int, float] | None:
     """``(N, value)`` when ``line``, cleaned as GRBL cleans it, writes setting ``$N``; else None.
 
-    GRBL reads N as a number and truncates it (``$013=1`` and ``$13.5=1`` both write ``$13``).
+    N and the value are read as GRBL reads numbers (:func:`grbl_number`); N is then truncated
+    (``$013=1`` and ``$13.5=1`` both write ``$13``); an N above 255 writes nothing (error:3).
     """
     m = _SETTING_WRITE_RE.match(clean_line(line))
     if not m:
         return None
-    return int(float(m.group(1))), float(m.group(2))
+    n = grbl_number(m.group(1))
+    if n > 255:
+        return None
+    return int(n), grbl_number(m.group(2))
 
 
 def _number(value: float) -> str:

@@ -66,10 +66,30 @@ class ScanJournal:
     def open(cls, path, targets_deg) -> "ScanJournal":
         """Load the journal at ``path`` if it exists (it must be for the same targets), else start one."""
         journal = cls(targets_deg, path)
-        if not journal.path.exists():
+        read = cls.read(journal.path)
+        if read is None:
             return journal
+        stored, frames = read
+        if len(stored) != len(journal.targets) or any(
+                abs(a - b) > 1e-9 for s, t in zip(stored, journal.targets) for a, b in zip(s, t)):
+            raise HbisInputError(f"scan journal {journal.path} belongs to another scan (its planned phases "
+                                 "differ): delete it or choose another journal file")
+        journal.frames = frames
+        return journal
+
+    @staticmethod
+    def read(path) -> tuple[list[tuple[float, float]], list[FrameRecord]] | None:
+        """The planned phases and the frames of the journal at ``path``; None when there is none.
+
+        Raises :class:`~hbis_torch.errors.HbisInputError` when the file is corrupt (checked
+        before a scan opens the controller; whether it belongs to the scan is checked by
+        :meth:`open`, once the plan is known).
+        """
+        path = Path(path)
+        if not path.exists():
+            return None
         try:
-            data = load_json(journal.path.read_text(errors="replace"), "its text")
+            data = load_json(path.read_text(errors="replace"), "its text")
             if not isinstance(data, dict):
                 raise ValueError("not a JSON object")
             if data.get("format") != JOURNAL_FORMAT:
@@ -78,16 +98,11 @@ class ScanJournal:
             frames = [FrameRecord(int(f["index"]), tuple(map(float, f["target_deg"])),
                                   tuple(map(float, f["phases_deg"]))) for f in data["frames"]]
         except (ValueError, KeyError, TypeError, HbisInputError) as exc:
-            raise HbisInputError(f"scan journal {journal.path} is corrupt: {exc}") from None
-        if len(stored) != len(journal.targets) or any(
-                abs(a - b) > 1e-9 for s, t in zip(stored, journal.targets) for a, b in zip(s, t)):
-            raise HbisInputError(f"scan journal {journal.path} belongs to another scan (its planned phases "
-                                 "differ): delete it or choose another journal file")
+            raise HbisInputError(f"scan journal {path} is corrupt: {exc}") from None
         for k, frame in enumerate(frames):
             if frame.index != k or not all(math.isfinite(v) for v in frame.phases_deg):
-                raise HbisInputError(f"scan journal {journal.path} is corrupt: frame {k} is missing or not finite")
-        journal.frames = frames
-        return journal
+                raise HbisInputError(f"scan journal {path} is corrupt: frame {k} is missing or not finite")
+        return stored, frames
 
     @property
     def next_index(self) -> int:

@@ -13,7 +13,11 @@ ones; Alarm lock-out (error:9); soft limits (``$20=1``: a move outside ``-$130..
 ALARM:2, a jog gets error:15); the line cleaning of GRBL's main loop (spaces, control characters
 and ``/`` dropped, ``( )`` and ``;`` comments removed, letters upper-cased); and the 500 ms that
 GRBL 1.1h spends printing an alarm (``report_alarm_message``): after ALARM:1 or ALARM:2 a soft
-reset sent before ``[MSG:Reset to continue]`` is lost, and only a later one is heard.
+reset sent before ``[MSG:Reset to continue]`` is lost, and only a later one is heard; a failed
+homing cycle (:meth:`GrblMachineModel.fail_next_homing`): GRBL 1.1h prints ``ALARM:N`` (6 to 10),
+spends the same 500 ms, answers the aborted ``$H`` with ``ok`` and resets itself (the welcome and
+``[MSG:'$H'|'$X' to unlock]``, still in Alarm), dropping every byte that came meanwhile; ``$N=``
+numbers read as GRBL reads them (8 digits kept; beyond a 32-bit float, inf).
 Positions are whole steps (``$100``-``$102``): a target is rounded to the nearest step, as GRBL
 does. A move follows a trapezoidal profile limited per axis by ``$110``-``$112`` (deg/min) and
 ``$120``-``$122`` (deg/s^2). Not modelled: arcs, probing, coordinate offsets, the planner's
@@ -28,8 +32,9 @@ import re
 from collections import deque
 from dataclasses import dataclass, field
 
-from hbis_torch.hardware.grbl_protocol import (CYCLE_START, FEED_HOLD, JOG_CANCEL, LINE_MAX_CHARS, SAFETY_DOOR,
-                                               SOFT_RESET, STATUS_QUERY, clean_line)
+from hbis_torch.hardware.grbl_protocol import (CYCLE_START, FEED_HOLD, HOMING_ALARMS, JOG_CANCEL,
+                                               LINE_MAX_CHARS, SAFETY_DOOR, SOFT_RESET, STATUS_QUERY, clean_line,
+                                               grbl_number)
 from hbis_torch.hardware.motion_profile import axis_limited, distance_at, move_duration_s
 
 VERSION = "1.1h"
@@ -128,6 +133,8 @@ class GrblMachineModel:
         self._hold_since: float | None = None
         self.held: str | None = None  # "Hold" or "Door": suspended, no line runs until ~ or a reset
         self._reset_lost_until: float | None = None  # the alarm window: a reset is lost before this
+        self._homing_fails: int | None = None  # the alarm code the next homing cycle ends with
+        self._self_reset_at: float | None = None  # after a homing alarm: GRBL resets itself then
         self._send_wco = True
         self._last_now = 0.0
 
@@ -140,6 +147,13 @@ class GrblMachineModel:
             raise ValueError("after_moves must be >= 0")
         self.faults.append(Fault(kind, int(after_moves), code))
 
+    def fail_next_homing(self, code: int = 8) -> None:
+        """Make the next homing cycle fail at its end with ``ALARM:code`` (6 to 10; 8: the switch
+        stayed closed after the pull-off, 9: no switch found); GRBL then resets itself."""
+        if int(code) not in HOMING_ALARMS:
+            raise ValueError(f"a homing alarm is one of {sorted(HOMING_ALARMS)}, got {code!r}")
+        self._homing_fails = int(code)
+
     def take_output(self) -> bytes:
         """Bytes produced since the last call, to be sent to the host."""
         out = bytes(self._out)
@@ -151,6 +165,8 @@ class GrblMachineModel:
         self.tick(now)
         for byte in data:
             char = bytes([byte])
+            if self._self_reset_at is not None:
+                continue  # GRBL is printing a homing alarm and resets itself next: all is dropped
             if char == SOFT_RESET:
                 if not self.silent and self._reset_lost_until is None:
                     self._soft_reset(now)
@@ -180,6 +196,10 @@ class GrblMachineModel:
     def tick(self, now: float) -> None:
         """Advance motion to model time ``now`` (s)."""
         self._last_now = now
+        if self._self_reset_at is not None and now >= self._self_reset_at:
+            self._self_reset_at = None
+            self._emit("ok")  # the aborted $H is answered, then GRBL resets (main loop's sys.abort)
+            self._soft_reset(now)
         if self._reset_lost_until is not None and now >= self._reset_lost_until:
             self._reset_lost_until = None  # the window closes: the message, and resets heard again
             self._emit("[MSG:Reset to continue]")
@@ -192,7 +212,10 @@ class GrblMachineModel:
             if block.alarm_fraction is not None and now >= block.start + block.alarm_fraction * block.duration:
                 at = block.start + block.alarm_fraction * block.duration
                 self.steps = list(self._position(block, at))
-                self._raise_alarm(block.alarm_code, critical=True, now=at)
+                if block.kind == "home":
+                    self._homing_alarm(block.alarm_code, now=at)
+                else:
+                    self._raise_alarm(block.alarm_code, critical=True, now=at)
                 self.tick(now)  # the alarm window may be over already
                 return
             end = block.start + block.duration
@@ -208,7 +231,8 @@ class GrblMachineModel:
 
     def busy(self) -> bool:
         """Whether motion or a line is pending (the server polls faster then)."""
-        return bool(self._blocks or self._lines or self._reset_lost_until is not None)
+        return bool(self._blocks or self._lines or self._reset_lost_until is not None
+                    or self._self_reset_at is not None)
 
     def position_deg(self, now: float | None = None) -> tuple[float, float, float]:
         """Machine position in degrees (whole steps over steps per degree)."""
@@ -264,6 +288,11 @@ class GrblMachineModel:
         self._emit(f"ALARM:{code}")
         if critical:  # "[MSG:Reset to continue]" follows at the end of the window (tick)
             self._reset_lost_until = now + ALARM_REPORT_DELAY_S
+
+    def _homing_alarm(self, code: int, *, now: float) -> None:
+        """A failed homing cycle: ``ALARM:code`` now, GRBL's own reset at the end of its 500 ms."""
+        self._raise_alarm(code, critical=False, now=now)
+        self._self_reset_at = now + ALARM_REPORT_DELAY_S
 
     def _soft_reset(self, now: float) -> None:
         self.tick(now)
@@ -389,7 +418,11 @@ class GrblMachineModel:
                 return "error:8"
             self.state = "Home"
             here = tuple(self.steps)
-            self._append(_Block("home", here, (0, 0, 0), HOMING_DURATION_S, reply_when_done=True), now)
+            block = _Block("home", here, (0, 0, 0), HOMING_DURATION_S, reply_when_done=True)
+            if self._homing_fails is not None:
+                block.alarm_fraction, block.alarm_code = 1.0, self._homing_fails
+                self._homing_fails = None
+            self._append(block, now)
             return None
         elif line.startswith("$J="):
             if self.state not in ("Idle", "Jog"):
@@ -397,15 +430,15 @@ class GrblMachineModel:
             return self._gcode(line[3:], now, jog=True)
         elif re.fullmatch(r"\$[-+]?(\d+\.?\d*|\.\d+)=.*", line):
             n_text, value_text = line[1:].split("=", 1)
-            n = int(float(n_text))  # GRBL reads N as a number and truncates it
+            number = grbl_number(n_text)  # GRBL reads N as a number and truncates it
+            n = int(number) if number <= 255 else None
             if n not in self.settings:
                 return "error:3"
             if self.state not in ("Idle", "Alarm"):
                 return "error:8"
-            try:
-                value = float(value_text)
-            except ValueError:
-                return "error:2"
+            value = grbl_number(value_text)  # 8 digits kept; beyond a 32-bit float: inf
+            if value is None:  # no number (error:2), or one followed by more (error:3: "1e5")
+                return "error:3" if re.match(r"[-+]?\.?\d", value_text) else "error:2"
             if value < 0:
                 return "error:4"
             if n == 20 and value and not self._homing_enabled():

@@ -180,6 +180,12 @@ class GrblSimulator:
         with self._lock:
             self.machine.inject(kind, after_moves, code)
 
+    def fail_next_homing(self, code: int = 8) -> None:
+        """Make the next homing cycle end in ``ALARM:code`` (see
+        :meth:`~.sim_machine.GrblMachineModel.fail_next_homing`); thread-safe."""
+        with self._lock:
+            self.machine.fail_next_homing(code)
+
     def __enter__(self) -> "GrblSimulator":
         return self.start()
 

@@ -43,6 +43,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 from hbis_torch.reconstruct.single_frame import enlarge, single_frame
 
 # Robustness: a sample keeps weight exp(-(d / tau)^2), d the blurred difference to the reference
@@ -213,8 +214,9 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     fallback = single_frame(frames[ref].numpy(), scale)
     notes = messages if messages is not None else []
     if all(torch.equal(frames[k], frames[ref]) for k in range(len(frames))):
-        notes.append(f"all {len(frames)} frames are identical: no new samples, so the output is the single-frame "
-                     "estimate (the reference frame enlarged, bicubic)")
+        notes.append(act(f"all {len(frames)} frames are identical: no new samples, so the output is the "
+                         "single-frame estimate (the reference frame enlarged, bicubic); capture the burst "
+                         "again, moving the camera a little between frames"))
         return fallback
     frames, positions, trusted, weights = burst_samples(stack, frames)
     cover = coverage(positions, weights, ref)
@@ -292,6 +294,8 @@ def scale_to_run(positions: Tensor, weights: Tensor, scale: int) -> tuple[int, n
     ``scale`` (the fallback's blend then leans on the single frame); and :func:`_lattice_fill` at
     it. A scale the samples do not fill leaves whole sub-pixel phases empty; at a coarser one the
     same samples still add what they resolve, and the image is enlarged to the scale asked for."""
+    if scale == 1:  # the reference's own grid: nothing to fill
+        return 1, np.ones((weights.shape[1], weights.shape[2]), dtype=np.float32)
     first = None
     for s in range(scale, 1, -1):
         fill = _lattice_fill(positions, weights, s)

@@ -74,7 +74,8 @@ def burst_positions(stack) -> tuple[Tensor, Tensor]:
     -------
     positions : Tensor, shape (F, H, W, 2), float64
         (u, v) of every sample in the reference frame's LR pixel coordinates: the frame's
-        homography (``stack.motions``) applied to its pixel centres.
+        homography (``stack.motions``) applied to its pixel centres, plus the stack's local
+        shifts there where it has them (``local_motion``, :mod:`hbis_torch.registration.local`).
     trusted : Tensor, shape (F,), bool
         Frames whose confidence is at least :data:`BURST_MIN_CONFIDENCE` (the reference always).
     """
@@ -86,6 +87,12 @@ def burst_positions(stack) -> tuple[Tensor, Tensor]:
                           indexing="ij")
     grid = torch.stack((u, v), -1).reshape(1, -1, 2).expand(count, -1, -1)
     positions = apply_homography(motions, grid).reshape(count, height, width, 2)
+    local = stack.meta.get("local_motion")
+    if local is not None:  # the smooth field of shifts on top of each homography
+        from hbis_torch.registration.local import sample_offsets
+
+        offsets = torch.tensor(local["offsets"], dtype=torch.float64)
+        positions = positions + sample_offsets(offsets, positions, int(local["tile_px"]))
     trusted = torch.from_numpy(stack.confidence >= BURST_MIN_CONFIDENCE)
     trusted[stack.reference_index] = True
     return positions, trusted

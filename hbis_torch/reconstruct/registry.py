@@ -25,6 +25,7 @@ import dataclasses
 import importlib
 from typing import TYPE_CHECKING, Any, Callable
 
+from hbis_torch.checks import bounded_float
 from hbis_torch.errors import HbisInputError
 
 if TYPE_CHECKING:
@@ -175,6 +176,10 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     np.ndarray, shape (h*H, h*W) (or (h*H, h*W, 3) for a colour stack), float32 in [0, 1]
     """
     entry = get_method(method)
+    if getattr(stack, "kind", "hbis") == "burst" and isinstance(stack.meta.get("raw"), dict):  # raw Bayer burst
+        # named, not imported: the classical package imports this one
+        joint = _resolve("hbis_torch.reconstruct.classical.raw_burst:reconstruct_raw_burst")
+        return joint(stack, entry, registration=registration, **kw)
     if getattr(stack, "kind", "hbis") == "burst" and entry.burst is not None:  # measured motion, robustness
         from hbis_torch.reconstruct.burst import reconstruct_burst
 
@@ -204,6 +209,10 @@ register(Method(
     options=(
         Option("--no-deblur", "deblur", "interpolation only, without the Wiener deblurring",
                {"action": "store_false"}),
+        Option("--psf-sigma", "lens_sigma", "a Gaussian lens blur (standard deviation, LR px, from a calibration "
+               "such as a slanted edge) that the deblurring undoes beyond the pixel's area and the optics' "
+               "diffraction; default 0: none. Too large a value rings and costs more than too small a one "
+               "(docs/real-bursts.md)", {"type": bounded_float(0.0, 3.0), "metavar": "PX"}),
     ),
 ))
 
@@ -233,7 +242,8 @@ register(Method(
         Option("--precision", "precision", "how the network runs: 'fp32' (the default for the shipped models); "
                "'int8', its int8 file NAME.int8.onnx (shipped for h = 2, 3, 4, 7, both tiers), 1.2-1.4 times as "
                "fast on AVX2 cores, 2 times with AVX-512 VNNI; 'bf16', the float32 file in OpenVINO in bfloat16 "
-               "(pip install 'hbis-torch[openvino]'), 3 to 4.5 times as fast on cores with AMX or AVX-512 BF16, "
+               "(pip install 'hbis-torch[openvino]'), about 4 times as fast on cores with AMX (4.13x measured, "
+               "benchmarks/results/bench_fast.md), "
                "float32 on others. Each loses PSNR in the held-out matrix's cleanest cells: int8 up to 3.7 dB, "
                "bf16 up to 0.33 dB, in cells above 50 dB (docs/learned.md, section int8)",
                {"choices": ("int8", "bf16", "fp32")}),

@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from hbis_torch.notices import act
 from hbis_torch.registration.homography import _grid_jacobian
 from hbis_torch.registration.lucas_kanade import _Fit
 
@@ -44,7 +45,8 @@ def _assess(fit: _Fit, precision: Tensor, flat: Tensor, noise: Tensor, ref: int,
     confidence = torch.where(flat, torch.zeros_like(confidence), confidence)
     messages: list[str] = []
     if bool(flat[ref]):
-        messages.append(f"reference frame {ref} is flat: there is nothing to register against")
+        messages.append(act(f"reference frame {ref} is flat: there is nothing to register against; "
+                            "choose a frame with texture as the reference"))
         confidence[:] = 0.0
     # Plain Python lists from here: one conversion each instead of one tensor op per frame.
     is_flat, converged = flat.tolist(), fit.converged.tolist()

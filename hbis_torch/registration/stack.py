@@ -271,12 +271,12 @@ def _normalisation(frames: Tensor, ref: int) -> tuple[Tensor, Tensor, Tensor, Te
 
 def _blur_and_margin(H: int, W: int, blur_sigma: float, dtype) -> tuple[Tensor, int]:
     """The blur's sampled kernel (2 r + 1,) and the border (px) that compared points keep clear
-    of; frames of H x W px too small for them are refused."""
+    of; frames (W x H px) too small for them are refused."""
     kernel = gaussian_kernel(blur_sigma, dtype)
     radius = (len(kernel) - 1) // 2
     margin = max(2 + int(math.ceil(2 * blur_sigma)), radius)
     if min(H, W) <= 2 * margin + 8:
-        raise HbisInputError(f"frames of {H} x {W} px are too small to register (blur_sigma={blur_sigma})")
+        raise HbisInputError(f"frames of {W} x {H} px are too small to register (blur_sigma={blur_sigma})")
     return kernel, margin
 
 

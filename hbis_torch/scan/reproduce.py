@@ -20,7 +20,7 @@ import torch
 from hbis_torch.checks import bounded_int
 from hbis_torch.config import FoveaSystem
 from hbis_torch.errors import HbisInputError
-from hbis_torch.io_utils import atomic_write_text, check_output_path
+from hbis_torch.io_utils import check_output_path
 from hbis_torch.optics import exit_directions, land_on_plane, rays_at
 from hbis_torch.optics.inverse import axis_landing
 from hbis_torch.scan.alignment import axis_alignment_error, pixel_alignment_error, pixel_grid
@@ -138,7 +138,9 @@ def main(argv=None) -> int:
     parser.add_argument("--stride", type=bounded_int(1, 65536), default=1, help="pixel stride (1: every pixel)")
     parser.add_argument("--conventions", action="store_true",
                         help="instead, compare the candidate pixel AE conventions")
-    parser.add_argument("--out", help="also write the table to this file")
+    parser.add_argument("--out", help="also write the table to this file, with its provenance (command, commit, "
+                        "date, machine)")
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     if args.out:
         try:
@@ -151,7 +153,9 @@ def main(argv=None) -> int:
         text = table(stride=args.stride)
     print(text)
     if args.out:
-        atomic_write_text(args.out, text)
+        from hbis_torch.provenance import write_results
+
+        write_results(args.out, text + "\n", argv=argv)
     return 0
 
 

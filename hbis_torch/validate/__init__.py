@@ -6,7 +6,7 @@ prediction by PSNR, beside the single-frame baseline (docs/validate.md).
 
 :mod:`hbis_torch.validate.frames`
     :func:`select_frames` (a stack of some of the frames) and :func:`holdout_frames`.
-:mod:`hbis_torch.validate.forward`
+:mod:`hbis_torch.validate.forward` (from :mod:`hbis_torch.observation.forward`)
     :func:`predict_frame`: the forward model.
 :mod:`hbis_torch.validate.score`
     :func:`fit_and_score`: gain and offset, then PSNR away from the border.

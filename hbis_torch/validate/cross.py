@@ -15,8 +15,9 @@ import time
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 from hbis_torch.validate.baseline import ALIASES, SINGLE_FRAME, single_frame
-from hbis_torch.validate.forward import DEFAULT_BLUR_PX, predict_frame
+from hbis_torch.observation.forward import DEFAULT_BLUR_PX, predict_frame
 from hbis_torch.validate.frames import holdout_frames, select_frames
 from hbis_torch.validate.score import DEFAULT_BORDER_PX, FrameScore, fit_and_score, inside
 
@@ -212,7 +213,7 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     border_px : float
         Samples within this many LR pixels of the reference frame's edge are not scored.
     blur_px : float
-        The forward model's Gaussian blur, LR pixels (:mod:`hbis_torch.validate.forward`).
+        The forward model's Gaussian blur, LR pixels (:mod:`hbis_torch.observation.forward`).
     method_options : dict, optional
         Per method name, keywords for :func:`hbis_torch.reconstruct.reconstruct`.
     messages : list, optional
@@ -229,6 +230,9 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     from hbis_torch.reconstruct.positions import check_registration
     from hbis_torch.reconstruct.registry import reconstruct
 
+    if isinstance(stack.meta.get("raw"), dict):  # a raw burst (docs/raw-bursts.md): its own levels per frame
+        raise HbisInputError("hbis validate does not score raw bursts (hbis assemble --burst of raw files) yet: "
+                             "their samples are a mosaic with levels of their own")
     names = resolve_methods(methods)
     check_registration(registration)
     count = len(stack.frames)
@@ -240,8 +244,9 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     held = holdout_frames(count, stack.reference_index, holdout, trusted)
     doubtful = [k for k in held if not trusted[k]]
     if doubtful and messages is not None:
-        messages.append(f"held-out frame(s) {doubtful}: their motion is not trusted (too few trusted frames to hold "
-                        "out instead), so their predictions, and scores, are doubtful for every method")
+        messages.append(act(f"held-out frame(s) {doubtful}: their motion is not trusted (too few trusted frames to "
+                            "hold out instead), so their predictions, and scores, are doubtful for every method; "
+                            "read the scores with care or validate a burst with more trusted frames"))
     score = _Scorer(stack, observed, positions, border_px, blur_px)
     results = {}
     for name in names:

@@ -37,6 +37,11 @@ BATCH_SAMPLES = 1 << 20
 OFFSET_ROW_STRIDE = 4
 
 
+#: The largest Gaussian lens blur (LR px) the deblurring takes: beyond it a pixel's neighbours
+#: share most of its light and a burst resolves little that deblurring could bring back.
+MAX_LENS_SIGMA = 3.0
+
+
 def classical_sr(
     frames,
     positions,
@@ -52,6 +57,7 @@ def classical_sr(
     noise_params_out: list | None = None,
     noise_floor: float | None = None,
     mixed_offsets: bool = False,
+    lens_sigma: float = 0.0,
 ) -> Tensor:
     """Super-resolve frames whose samples' positions are known.
 
@@ -98,6 +104,10 @@ def classical_sr(
         Samples of many frames at different offsets share the lattice's nodes (a burst): the
         first-order correction of :func:`~hbis_torch.reconstruct.classical.splat.snap_to_lattice`
         then measures the pilot's bias.
+    lens_sigma : float
+        A Gaussian lens blur (LR px) that the deblurring undoes, beyond ``cutoff``'s diffraction
+        (a burst's: measured by :func:`~hbis_torch.reconstruct.classical.lens_blur.estimate_lens_sigma`
+        or given); 0: none.
 
     Returns
     -------
@@ -109,6 +119,9 @@ def classical_sr(
     h = check_h(h)
     frames, positions, weights = _check_inputs(frames, positions, weights, fill_factor, kernel_sigma,
                                                cutoff, strength, noise, noise_floor)
+    if not (isinstance(lens_sigma, (int, float)) and math.isfinite(lens_sigma) and 0 <= lens_sigma <= MAX_LENS_SIGMA):
+        raise HbisInputError(f"the lens blur (--psf-sigma) must be a number in [0, {MAX_LENS_SIGMA}] LR px, "
+                             f"got {lens_sigma!r}")
     image, den, offset, typical = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur,
                                                 mixed_offsets=mixed_offsets)
     if deblur:
@@ -128,7 +141,7 @@ def classical_sr(
             noise_params_out.append(lattice_noise_params(image, kernel_sigma, valid, samples_per_node))
         del valid
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
-                              cutoff, strength, overwrite=True)
+                              cutoff, strength, overwrite=True, lens_sigma=lens_sigma)
     if not _all_finite(image):  # finite samples never should give this: say so
         raise RuntimeError("the classical reconstruction produced non-finite values; please report "
                            "the stack that caused it")

@@ -33,6 +33,12 @@ def box(f: Tensor, width: float) -> Tensor:
     return torch.sinc(width * f)
 
 
+def gaussian_transfer(f2: Tensor, sigma: float) -> Tensor:
+    """Transfer function of a Gaussian blur of standard deviation ``sigma`` px at squared
+    frequency f2 (cycles^2 per px^2): exp(-2 pi^2 sigma^2 f2)."""
+    return torch.exp(f2 * (-2 * math.pi ** 2 * sigma * sigma))
+
+
 def splat_transfer(f: Tensor, sigma: float) -> Tensor:
     """Transfer function, along one axis, of normalized convolution with the 3-tap Gaussian
     splat on a lattice with one sample per node: (1 + 2a cos 2 pi f) / (1 + 2a), a = e^(-1/2s^2).

@@ -21,7 +21,7 @@ from hbis_torch.reconstruct.classical.periodic import (
     shift_image,
     smooth_spectrum,
 )
-from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, splat_transfer
+from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, gaussian_transfer, splat_transfer
 
 # The deblurring never trusts the data more than this noise level (intensity units, [0, 1], for
 # an image whose brightest value is 1; in proportion below that): below it the model's own errors
@@ -57,6 +57,7 @@ def wiener_deblur(
     aliases: int = 1,
     dtype=torch.float32,
     overwrite: bool = False,
+    lens_sigma: float = 0.0,
 ) -> Tensor:
     """Wiener (MMSE linear) estimate of the p/h sensor's image from the interpolated one.
 
@@ -64,10 +65,12 @@ def wiener_deblur(
     the image is the scene S seen through the kernel K and sampled on the HR lattice shifted
     by ``offset``; the wanted image is S seen through W and sampled on the output lattice::
 
-        K(f) = optics(f) box(h a, f) exp(2 pi i f . offset),   W(f) = optics(f) box(a, f)
+        K(f) = optics(f) lens(f) box(h a, f) exp(2 pi i f . offset),   W(f) = optics(f) box(a, f)
         image(f) = sum_k S(f + k) K(f + k) + N(f),                  N white, std ``noise``
 
     (a = ``aperture``), where k runs over the integer aliases (abs(k) <= ``aliases`` per axis).
+    ``lens`` is a Gaussian blur beyond the diffraction of ``optics`` (a burst's lens, measured
+    or given: ``lens_sigma``); it is in the kernel only, so the estimate undoes it.
     **Prior:** the scene's power spectrum is s^2 / abs(f)^2 (independent Gaussian gradients, the
     1/f^2 law of natural images). The MMSE filter is then, per frequency::
 
@@ -103,6 +106,8 @@ def wiener_deblur(
     overwrite : bool
         ``image``'s memory may be reused (for the periodic part, then the result, which is then
         ``image`` itself if it is of ``dtype``); its content is lost. Saves an image-sized array.
+    lens_sigma : float
+        Standard deviation (LR px) of a Gaussian lens blur in the kernel (0: none).
 
     Returns
     -------
@@ -151,9 +156,9 @@ def wiener_deblur(
     shifts = [(kx, ky) for ky in range(-aliases, aliases + 1) for kx in range(-aliases, aliases + 1)]
     noise2 = max(noise, NOISE_FLOOR * level) ** 2
     # the prior's fit evaluates the model on a subsample, in float64
-    kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2)
+    kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2, lens_sigma=lens_sigma)
     s2, beta = fit_spectrum(measured, fx, fy, kernel, shifts, noise2)
-    model = _Model(fx[0].to(dtype), fy[:, 0].to(dtype), h, aperture, cutoff, offset, eps2)
+    model = _Model(fx[0].to(dtype), fy[:, 0].to(dtype), h, aperture, cutoff, offset, eps2, lens_sigma)
     # the power averaged over 3 x 3 frequencies for the filter's prior (which needs each block's
     # neighbours as they were before filtering)
     _apply_filter(spectrum, _mean_3x3(measured), model, (shifts, s2, beta, noise2, strength))
@@ -327,7 +332,7 @@ def _irfft2_in_place(spectrum: Tensor, shape: tuple[int, int], out: Tensor | Non
 
 def _alias_kernel(fx: Tensor, fy: Tensor, h: int, aperture: float, cutoff: float | None,
                   offset: tuple[float, float], eps2: float, kx: int, ky: int,
-                  pick: tuple[Tensor, Tensor] | None = None):
+                  pick: tuple[Tensor, Tensor] | None = None, lens_sigma: float = 0.0):
     """abs(K), W, the lattice phase and abs(f + k)^2 of alias (kx, ky): on the whole spectrum's
     grid, or at the (row, column) pairs ``pick`` (then without the phase). The separable
     factors are computed along each axis once.
@@ -347,6 +352,8 @@ def _alias_kernel(fx: Tensor, fy: Tensor, h: int, aperture: float, cutoff: float
     r2 = gx * gx + gy * gy + eps2
     optics = torch.ones_like(r2) if cutoff is None else diffraction_otf(torch.sqrt(r2) * h / cutoff)
     k_mag, w = optics * box_x * box_y, optics * pix_x * pix_y
+    if lens_sigma > 0:
+        k_mag = k_mag * gaussian_transfer(r2, lens_sigma * h)
     if pick is not None:
         return k_mag, w, None, r2
     # The lattice's phase factor is separable too: two 1-D exponentials, one product.
@@ -366,6 +373,7 @@ class _Model(NamedTuple):
     cutoff: float | None
     offset: tuple[float, float]
     eps2: float
+    lens_sigma: float = 0.0
 
     def band(self, k: int, f: Tensor) -> Tensor:
         """Indices along one axis where alias k can pass the optics (abs(f + k) below the cutoff,
@@ -380,8 +388,11 @@ class _Model(NamedTuple):
         r2 = (gx * gx + self.eps2) + gy * gy
         optics = (torch.ones_like(r2) if self.cutoff is None
                   else diffraction_otf(torch.sqrt(r2).mul_(self.h / self.cutoff)))
+        lens = gaussian_transfer(r2, self.lens_sigma * self.h) if self.lens_sigma > 0 else None
         prior = r2.log_().mul_(-0.5 * beta).exp_().mul_(s2)  # pow's a quarter of the time
         k_mag = optics * (box(gx, self.h * self.aperture) * box(gy, self.h * self.aperture))
+        if lens is not None:
+            k_mag *= lens
         optics *= box(gx, self.aperture) * box(gy, self.aperture)
         return prior, k_mag, optics
 

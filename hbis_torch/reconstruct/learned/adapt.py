@@ -4,7 +4,7 @@ The shipped networks learned from simulated cameras; a real camera blurs, adds n
 processes its frames in ways no simulator here reproduces. A burst carries its own check of that:
 a frame left out of the reconstruction can be predicted from the others' image through the forward
 model of observation space (the pixel's box and a small blur, read where the frame's motion puts
-each sample: :mod:`hbis_torch.validate.forward`), and compared with what the camera recorded.
+each sample: :mod:`hbis_torch.observation.forward`), and compared with what the camera recorded.
 :func:`adapt_refiner` fine-tunes the network for a few steps to make that prediction better:
 
 1. the frames besides the reference are dealt into :data:`FOLDS` groups (every fourth frame);
@@ -40,7 +40,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from hbis_torch.reconstruct.learned.inputs import TILE_HALO, network_inputs, run_tiled
-from hbis_torch.validate.forward import DEFAULT_BLUR_PX, pixel_kernel
+from hbis_torch.observation.forward import DEFAULT_BLUR_PX, pixel_kernel
 
 FOLDS = 4
 STEPS = 60
@@ -150,7 +150,7 @@ def make_fold(held: list[int], frames: Tensor, positions: Tensor, weights: Tenso
 
 class _Predictor:
     """The forward model on a window of the output: blur by the pixel's box and the lens, read at
-    the samples' positions (bicubic), as :func:`hbis_torch.validate.forward.predict_frame`."""
+    the samples' positions (bicubic), as :func:`hbis_torch.observation.forward.predict_frame`."""
 
     def __init__(self, scale: int):
         self.scale = scale

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
 from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.reconstruct.learned.domain import domain_from_metadata, outside_domain, unhelpful_model
 from hbis_torch.reconstruct.learned.inputs import check_ensemble, run_tiled, super_resolve, tile_ensemble
@@ -118,8 +119,8 @@ PRECISIONS = ("int8", "bf16", "fp32")
 #   cores with AVX-512 VNNI (3 in OpenVINO); up to 0.75 / 3.68 / 0.85 / 1.22 dB lost at h = 2 /
 #   3 / 4 / 7 (fast tier);
 # - bf16, the float32 file run by OpenVINO in bfloat16 on cores with bf16 units (AMX or AVX-512
-#   BF16): 3 to 4.5 times as fast there; up to 0.33 dB lost, in the cells above 50 dB
-#   (benchmarks/results/check_bf16*.md).
+#   BF16): 4.13 times as fast with AMX (benchmarks/results/bench_fast.md); up to 0.33 dB lost,
+#   in the cells above 50 dB (benchmarks/results/check_bf16*.md).
 DEFAULT_PRECISION = None
 
 
@@ -530,7 +531,7 @@ def classical_returned(image, reason: str, messages: list | None = None,
     saying ``reason`` (and ``remedy``) appended to ``messages``. A float32 image already in
     [0, 1] is returned as it is, not copied (a full frame's is 240 MB at h = 7)."""
     if messages is not None:
-        messages.append(f"{reason}: the learned method returns the classical image ({remedy})")
+        messages.append(act(f"{reason}: the learned method returns the classical image ({remedy})"))
     image = np.asarray(image, dtype=np.float32)
     return image if image.size == 0 or (image.min() >= 0 and image.max() <= 1) else np.clip(image, 0.0, 1.0)
 

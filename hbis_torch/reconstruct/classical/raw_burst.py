@@ -1,0 +1,514 @@
+"""Raw bursts: joint demosaicking and super-resolution of Bayer frames with measured motion.
+
+No frame is ever demosaicked (Wronski et al., SIGGRAPH 2019 [1]_): every frame's samples of one
+colour are placed where the frame's motion puts them on the reference's grid, and each colour's
+plane of the output, S times finer (S = 1: a burst demosaick), is the normalised-convolution
+interpolation of that colour's samples from every frame (green; then red and blue as green plus
+the interpolation of their samples' differences from green, which are smoother than the colours
+themselves: :func:`joint_demosaick_sr`): the classical method's splat and hole filling
+(:func:`splat_plane`: :func:`~hbis_torch.reconstruct.classical.classical_sr` without its Wiener
+step, as for raw Bayer scans,
+:func:`~hbis_torch.reconstruct.classical.method.reconstruct_classical_raw_bayer`), on each
+colour's samples alone.
+
+Green then goes through the classical burst path's Wiener deblurring of the pixel area where its
+samples fill the output grid (:func:`sharp_green`), and red and blue move with it.
+
+Per sample, the weight is
+
+* the robustness weight of :func:`hbis_torch.reconstruct.burst.robustness_weights`, computed on
+  the luminance of each 2 x 2 cell after a generalised Anscombe transform with the raw noise
+  model (:func:`stabilise`), so that one noise level holds in shadows and highlights alike; a
+  cell's weight goes to its four samples;
+* 0 for a clipped sample (at the white level): a clipped sample says only "at least this", so it
+  never pulls its colour; where a colour has (almost) only clipped samples nearby, that colour is
+  set to the clip level (:func:`joint_demosaick_sr`);
+* 0 for the frames the registration did not trust.
+
+The raw noise (variance ``S x + O`` of a normalised sample x, per colour) is the DNG's
+NoiseProfile where the files have one, else measured on the reference frame's four colour planes
+(:func:`estimate_noise`). It sets the robustness transform and the splat's width
+(:func:`kernel_for_noise`), and is reported.
+
+The output is the camera's linear RGB (not white-balanced; 1 = the white level),
+(S H, S W, 3) float32; :func:`hbis_torch.reconstruct.raw_output.camera_to_srgb` applies the white
+balance and colour matrix, and :func:`hbis_torch.reconstruct.raw_output.write_raw_outputs` writes
+a linear 16-bit TIFF, an sRGB preview PNG and, for ``.dng``, a linear DNG through pidng.
+
+References
+----------
+.. [1] B. Wronski et al., "Handheld multi-frame super-resolution", ACM Transactions on Graphics
+   38(4), SIGGRAPH 2019.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from hbis_torch.errors import HbisInputError
+from hbis_torch.notices import act
+
+# A colour whose unclipped samples weigh less than this share near an output pixel is taken as
+# clipped there (set to the clip level).
+CLIPPED_SHARE = 0.5
+KERNEL_SIGMA = 0.5  # joint_demosaick_sr's default
+# The splat's width follows the noise (kernel_for_noise): SHARP_SIGMA at a noise of SHARP_NOISE
+# (of a normalised green sample at x = 0.2) and below, SMOOTH_SIGMA from SMOOTH_NOISE up, log-linear
+# between. Chosen by hand on simulated bursts of astronaut and coffee (GRBG, seed 3), where the narrow
+# kernel won in bright light (20,000 e-) and the wide one in dim light (300 e-); the held-out matrix
+# (training/eval_raw.py) scores other photographs and seeds.
+SHARP_SIGMA, SMOOTH_SIGMA = 0.35, 0.5
+SHARP_NOISE, SMOOTH_NOISE = 0.003, 0.03
+# Green goes through the Wiener deblurring where its samples of weight above 0.5 number at least
+# this many per output pixel (a lattice left half empty loses more to deblurring than it gains:
+# docs/real-bursts.md, the few-frame case).
+DEBLUR_SAMPLES_PER_NODE = 1.0
+# The share of a colour plane's pixels (the flattest) the noise is measured on.
+FLAT_SHARE = 0.2
+
+
+def is_raw_burst_stack(stack) -> bool:
+    """Whether a stack is a raw burst (``hbis assemble --burst`` of raw files)."""
+    return getattr(stack, "kind", "hbis") == "burst" and stack.meta.get("cfa") is not None \
+        and isinstance(stack.meta.get("raw"), dict)
+
+
+def estimate_noise(values: np.ndarray, cfa: str) -> np.ndarray:
+    """Shot and read noise of one normalised mosaic, per colour: variance ``S x + O``.
+
+    Each colour's plane (every other row and column) is taken alone; Immerkaer's operator (its
+    output's standard deviation is 6 times the noise on smooth content), on the flattest fifth of
+    the plane, is binned by the local mean (3 x 3), the median absolute value of each bin gives
+    its noise, and a line is fitted to the variances (least squares, both terms at least 0).
+
+    Parameters
+    ----------
+    values : np.ndarray, shape (H, W), float
+        Normalised samples of one frame.
+    cfa : str
+
+    Returns
+    -------
+    np.ndarray, shape (3, 2): (S, O) for R, G, B
+    """
+    from scipy.ndimage import uniform_filter
+
+    from hbis_torch.sensor.noise import immerkaer
+
+    fits = {}
+    planes: dict[str, list] = {"R": [], "G": [], "B": []}
+    for k, colour in enumerate(cfa):
+        planes[colour].append(np.asarray(values[k // 2::2, k % 2::2], dtype=np.float64))
+    for colour, parts in planes.items():
+        levels, noise = [], []
+        for plane in parts:
+            if min(plane.shape) < 5:
+                continue
+            residual = immerkaer(plane) / 6.0
+            mean = uniform_filter(plane, 3)[1:-1, 1:-1]
+            # the flattest fifth of the plane (smallest local spread of a 5 x 5 smoothing): a
+            # colour plane is aliased, and texture would pass for noise
+            smooth = uniform_filter(plane, 5)
+            spread = np.sqrt(np.maximum(uniform_filter(smooth * smooth, 5) - uniform_filter(smooth, 5) ** 2, 0))
+            flat = spread[1:-1, 1:-1] <= np.quantile(spread, FLAT_SHARE)
+            levels.append(mean[flat])
+            noise.append(residual[flat])
+        if not levels:
+            fits[colour] = (0.0, 1e-6)
+            continue
+        level, residual = np.concatenate(levels), np.concatenate(noise)
+        edges = np.quantile(level, np.linspace(0, 1, 9))
+        xs, vs = [], []
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            inside = (level >= lo) & (level <= hi)
+            if inside.sum() < 16:
+                continue
+            xs.append(float(np.median(level[inside])))
+            vs.append((1.4826 * float(np.median(np.abs(residual[inside])))) ** 2)
+        xs, vs = np.asarray(xs), np.asarray(vs)
+        if len(xs) < 2 or np.ptp(xs) < 1e-6:
+            fits[colour] = (0.0, float(np.median(vs)) if len(vs) else 1e-6)
+            continue
+        slope, offset = np.polyfit(xs, vs, 1)
+        if offset < 0:
+            slope, offset = max(float(np.sum(xs * vs) / np.sum(xs * xs)), 0.0), 0.0
+        elif slope < 0:
+            slope, offset = 0.0, float(np.mean(vs))
+        fits[colour] = (float(slope), float(max(offset, 1e-10)))
+    return np.array([fits[c] for c in "RGB"], dtype=np.float64)
+
+
+def stabilise(grey: np.ndarray, noise: np.ndarray, balance) -> np.ndarray:
+    """The generalised Anscombe transform of cell luminances, with the raw noise model: their noise
+    becomes (about) 1 at every level.
+
+    A cell's luminance is the mean of its four white-balanced samples (R, G, G, B), so its
+    variance is ``a L + b`` with ``a = sum(wb_c S_c) / 16`` and ``b = sum(wb_c^2 O_c) / 16`` (a
+    grey scene's samples are ``L / wb_c``).
+
+    Parameters
+    ----------
+    grey : np.ndarray, shape (F, h, w)
+        Cell luminances (:func:`hbis_torch.capture.raw.cell_luminance`).
+    noise : np.ndarray, shape (3, 2)
+    balance : sequence of 3 floats
+
+    Returns
+    -------
+    np.ndarray, shape (F, h, w), float32
+    """
+    wb = np.asarray(balance, dtype=np.float64)
+    count = np.array([1.0, 2.0, 1.0])
+    a = float(np.sum(count * wb * noise[:, 0]) / 16)
+    b = float(np.sum(count * wb * wb * noise[:, 1]) / 16)
+    if a <= 1e-12:
+        return (grey / np.sqrt(max(b, 1e-12))).astype(np.float32)
+    return (2.0 / a * np.sqrt(np.maximum(a * grey + 0.375 * a * a + b, 0.0))).astype(np.float32)
+
+
+def kernel_for_noise(noise: np.ndarray) -> float:
+    """The splat's Gaussian (output px) for the raw noise (3, 2): narrow where the samples are
+    clean, wide where they are noisy (the constants above, log-linear between)."""
+    sigma_n = float(np.sqrt(max(noise[1, 0] * 0.2 + noise[1, 1], 1e-12)))
+    t = np.clip(np.log(sigma_n / SHARP_NOISE) / np.log(SMOOTH_NOISE / SHARP_NOISE), 0, 1)
+    return float(SHARP_SIGMA + t * (SMOOTH_SIGMA - SHARP_SIGMA))
+
+
+def _positions(motions: np.ndarray, height: int, width: int, local: dict | None = None) -> Tensor:
+    """Every pixel (u, v) of every frame moved by its homography, plus the local shifts there
+    (``local``: a stack's ``local_motion``, :mod:`hbis_torch.registration.local`), (F, H, W, 2)
+    float64."""
+    from hbis_torch.registration import apply_homography
+
+    motions = torch.as_tensor(np.asarray(motions, dtype=np.float64))
+    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
+                          indexing="ij")
+    grid = torch.stack((u, v), -1).reshape(1, -1, 2).expand(motions.shape[0], -1, -1)
+    positions = apply_homography(motions, grid).reshape(motions.shape[0], height, width, 2)
+    if local is not None:
+        from hbis_torch.registration.local import sample_offsets
+
+        offsets = torch.as_tensor(np.asarray(local["offsets"], dtype=np.float64))
+        positions = positions + sample_offsets(offsets, positions, int(local["tile_px"]))
+    return positions
+
+
+def _cell_local(local: dict | None) -> dict | None:
+    """A stack's ``local_motion`` (pixels) on the 2 x 2 cells' grid: shifts and tiles halved."""
+    if local is None:
+        return None
+    return {"tile_px": int(local["tile_px"]) // 2, "offsets": np.asarray(local["offsets"], dtype=np.float64) / 2}
+
+
+def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: np.ndarray, reference: int,
+                   balance, noise: np.ndarray, robust: bool = True, local: dict | None = None) -> Tensor:
+    """The robustness weight of every sample (module docstring), (F, H, W) float64.
+
+    Parameters
+    ----------
+    values : np.ndarray, shape (F, H, W), float32
+        Normalised samples; H, W even.
+    cfa : str
+    motions : np.ndarray, shape (F, 3, 3)
+        Frame px -> reference px (full resolution).
+    trusted : np.ndarray, shape (F,), bool
+    reference : int
+    balance : sequence of 3 floats
+    noise : np.ndarray, shape (3, 2)
+    robust : bool
+        False: every trusted sample gets 1 (for comparisons).
+    local : dict, optional
+        The stack's ``local_motion`` (pixels), if any.
+    """
+    from hbis_torch.capture.raw import cell_luminance, pixels_to_cells
+    from hbis_torch.reconstruct.burst import robustness_weights
+
+    F, H, W = values.shape
+    trusted_t = torch.as_tensor(np.asarray(trusted, dtype=bool))
+    if not robust:
+        return trusted_t[:, None, None].to(torch.float64).expand(F, H, W).clone()
+    grey = stabilise(cell_luminance(values, cfa, balance), noise, balance)
+    cells = _positions(pixels_to_cells(motions), H // 2, W // 2, _cell_local(local))
+    weights = robustness_weights(torch.from_numpy(grey), cells, trusted_t, reference)
+    return weights.repeat_interleave(2, 1).repeat_interleave(2, 2)
+
+
+def _bilinear(image: np.ndarray, positions: Tensor, scale: int) -> Tensor:
+    """Values of an output-grid image (S H, S W) at sample positions (..., 2) in reference LR px
+    (bilinear, border-clamped), float64."""
+    rows, cols = image.shape
+    x = (positions[..., 0] + 0.5) * scale - 0.5
+    y = (positions[..., 1] + 0.5) * scale - 0.5
+    grid = torch.stack((2 * x / max(cols - 1, 1) - 1, 2 * y / max(rows - 1, 1) - 1), -1).reshape(1, -1, 1, 2)
+    out = torch.nn.functional.grid_sample(torch.from_numpy(np.ascontiguousarray(image, dtype=np.float64))[None, None],
+                                          grid.to(torch.float64), mode="bilinear", padding_mode="border",
+                                          align_corners=True)
+    return out.reshape(positions.shape[:-1])
+
+
+def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, shape: tuple, sigma: float,
+                batch: int = 1 << 20, sums: bool = False):
+    """Scattered samples -> one plane of the output grid: the classical method's Gaussian splat
+    and hole filling (:func:`~hbis_torch.reconstruct.classical.splat.splat`,
+    :func:`~hbis_torch.reconstruct.classical.splat.fill_holes`: what
+    :func:`~hbis_torch.reconstruct.classical.classical_sr` does without its Wiener step), on
+    samples in any arrangement, values not clamped.
+
+    Parameters
+    ----------
+    values : Tensor, shape (N,)
+    positions : Tensor, shape (N, 2), float64
+        (u, v) in reference LR px.
+    weights : Tensor, shape (N,)
+        0 leaves a sample out (it is not splatted at all).
+    scale : int
+    shape : (rows, cols)
+        The output grid, (S H, S W).
+    sigma : float
+        The Gaussian, output px (at most 0.6: the splat's 3 x 3 footprint).
+    batch : int
+        Samples splatted at a time.
+    sums : bool
+        Return the splat's sums (numerator, denominator) (rows, cols) float64 Tensors instead.
+
+    Returns
+    -------
+    np.ndarray, shape (rows, cols), float64
+    """
+    from hbis_torch.reconstruct.classical.splat import fill_holes, splat
+
+    keep = weights > 0
+    values, positions, weights = values[keep], positions[keep], weights[keep].to(torch.float64)
+    num = den = 0
+    for start in range(0, len(values), batch):
+        part = slice(start, start + batch)
+        x = (positions[part, 0] + 0.5) * scale - 0.5
+        y = (positions[part, 1] + 0.5) * scale - 0.5
+        n, d = splat(values[part].to(torch.float64), x, y, shape, sigma, weights[part])
+        num, den = num + n, den + d
+    if isinstance(num, int):
+        if sums:
+            return torch.zeros(shape, dtype=torch.float64), torch.zeros(shape, dtype=torch.float64)
+        raise HbisInputError("no sample falls on the output grid")
+    if sums:
+        return num, den
+    return fill_holes(num, den).numpy()
+
+
+def sharp_green(values: Tensor, positions: Tensor, weights: Tensor, cfa: str, scale: int,
+                kernel_sigma: float) -> np.ndarray | None:
+    """The green plane through the classical burst path with its Wiener deblurring
+    (:func:`~hbis_torch.reconstruct.classical.burst.burst_sr`), or None where the green samples
+    are too few for it (fewer than :data:`DEBLUR_SAMPLES_PER_NODE` of weight above 0.5 per
+    output pixel).
+
+    The green samples of each pattern position form a grid of half the frames' size, pitch 2 px:
+    they go to ``burst_sr`` as frames of that grid (positions in its pixels, scale 2 S, so that
+    its output is the S-times grid of the full frames), with a fill factor of 1/4 (the pixel is
+    1 px of the 2 px pitch).
+
+    Parameters
+    ----------
+    values : Tensor, shape (F, H, W), float32
+    positions : Tensor, shape (F, H, W, 2), float64
+        Full-resolution reference px.
+    weights : Tensor, shape (F, H, W), float64
+        Already 0 for clipped samples.
+    cfa : str
+    scale : int
+    kernel_sigma : float
+
+    Returns
+    -------
+    np.ndarray, shape (S H, S W), float64, or None
+    """
+    from hbis_torch.reconstruct.classical.burst import burst_sr
+
+    where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == "G"]
+    F, H, W = values.shape
+    w = torch.cat([weights[:, dv::2, du::2] for dv, du in where])
+    if float((w > 0.5).sum()) < DEBLUR_SAMPLES_PER_NODE * scale * scale * H * W:
+        return None
+    data = torch.cat([values[:, dv::2, du::2] for dv, du in where]).contiguous()
+    half = (torch.cat([positions[:, dv::2, du::2] for dv, du in where]) + 0.5) / 2 - 0.5
+    return burst_sr(data, half.contiguous(), 2 * scale, w.contiguous(), True, fill_factor=0.25,
+                    kernel_sigma=min(max(kernel_sigma, 0.2), 0.6)).numpy().astype(np.float64)
+
+
+def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motions: np.ndarray, scale: int,
+                       weights: Tensor, kernel_sigma: float = KERNEL_SIGMA, differences: bool = True,
+                       deblur: bool = True, local: dict | None = None) -> np.ndarray:
+    """Each colour's plane from its own samples of every frame (module docstring).
+
+    Green first (half the samples); then, with ``differences``, red and blue as green plus the
+    splat of their samples' differences from green at their own positions (the difference of
+    colours is smoother than either, so the splat blurs less of it); without, each plane alone.
+
+    Parameters
+    ----------
+    values : np.ndarray, shape (F, H, W), float32
+        Normalised samples (the reference's exposure).
+    clipped : np.ndarray, shape (F, H, W), bool
+    cfa : str
+    motions : np.ndarray, shape (F, 3, 3)
+        Frame px -> reference px.
+    scale : int
+        S (1: a burst demosaick).
+    weights : Tensor, shape (F, H, W), float64
+        Per-sample weights in [0, 1] (:func:`sample_weights`).
+    kernel_sigma : float
+        The splat Gaussian, output px (0.2 to 0.6).
+    differences : bool
+    deblur : bool
+        Green through the classical burst path's Wiener deblurring (:func:`sharp_green`), where
+        its samples suffice; red and blue follow it (they are green plus their differences).
+    local : dict, optional
+        The stack's ``local_motion`` (pixels), if any.
+
+    Returns
+    -------
+    np.ndarray, shape (S H, S W, 3), float32 in [0, 1]
+        Camera RGB, linear; 1 at the clip level.
+    """
+    from hbis_torch.reconstruct.classical.splat import fill_holes
+
+    F, H, W = values.shape
+    positions = _positions(motions, H, W, local)
+    frames = torch.from_numpy(np.ascontiguousarray(values, dtype=np.float32))
+    unclipped = torch.from_numpy(~np.asarray(clipped, dtype=bool))
+    weights = torch.as_tensor(weights, dtype=torch.float64)
+    out = (scale * H, scale * W)
+
+    def samples(colour, *arrays):
+        """One colour's samples only, flattened: the splat touches a quarter (red, blue) or half
+        (green) of the burst."""
+        where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == colour]
+        return [torch.cat([a[:, dv::2, du::2].reshape(-1, *a.shape[3:]) for dv, du in where]) for a in arrays]
+
+    planes = {}
+    sharp = None
+    if deblur:
+        sharp = sharp_green(frames, positions, weights * unclipped, cfa, scale, kernel_sigma)
+    for colour in "GRB":  # green first: red and blue are splatted as differences from it
+        data, where, w, ok = samples(colour, frames, positions, weights, unclipped)
+        kept = w * ok
+        if not bool((kept > 0).any()):  # clipped everywhere: at the clip level
+            planes[colour] = np.ones(out)
+            continue
+        if colour != "G" and differences:
+            data = data - _bilinear(planes["G"], where, scale).to(torch.float32)
+        num, den = splat_plane(data, where, kept, scale, out, kernel_sigma, sums=True)
+        planes[colour] = fill_holes(num, den).numpy()
+        if colour != "G" and differences:
+            planes[colour] = planes[colour] + planes["G"]
+        if not bool(ok.all()):
+            # the unclipped samples' share of the splat's weight (holes filled from around them),
+            # from a second splat of the (few) clipped samples alone
+            _, lost = splat_plane(torch.ones(len(ok)), where, w * ~ok, scale, out, kernel_sigma, sums=True)
+            share = fill_holes(den, den + lost).numpy()
+            planes[colour] = np.where(share < CLIPPED_SHARE, 1.0, planes[colour])
+    if sharp is not None:  # the sharpened green, and red and blue moved with it
+        change = sharp - planes["G"]
+        for colour in "RGB":  # a colour at the clip level stays there
+            planes[colour] = np.where(planes[colour] >= 1.0, planes[colour], planes[colour] + change)
+    planes = [planes[c] for c in "RGB"]
+    return np.clip(np.stack(planes, -1), 0, 1).astype(np.float32)
+
+
+def raw_inputs(stack) -> dict:
+    """What the joint path takes from a raw burst stack: normalised samples (with the
+    registration's gain and offset), clipped samples, motions, trust, balance and the noise."""
+    from hbis_torch.capture.raw import normalised
+    from hbis_torch.stack_io import BURST_MIN_CONFIDENCE
+
+    raw = stack.meta["raw"]
+    values, clipped = normalised(np.asarray(stack.frames), raw)
+    trusted = np.asarray(stack.confidence) >= BURST_MIN_CONFIDENCE
+    trusted[stack.reference_index] = True
+    cfa = stack.meta["cfa"]
+    balance = np.asarray(raw["white_balance"], dtype=np.float64)
+    go = np.asarray(stack.gain_offset, dtype=np.float64)
+    top = float(raw.get("grey_scale", 1.0))
+    if not np.allclose(go, [1.0, 0.0]):
+        per_colour = np.array([1.0 / balance["RGB".index(c)] for c in cfa], dtype=np.float64).reshape(2, 2)
+        H, W = values.shape[1:]
+        tile = np.tile(per_colour, ((H + 1) // 2, (W + 1) // 2))[:H, :W]
+        values = (go[:, 0, None, None] * values + go[:, 1, None, None] * top * tile[None]).astype(np.float32)
+    if raw.get("noise_profile") is not None:
+        noise, source = np.asarray(raw["noise_profile"], dtype=np.float64), "the DNG noise profile"
+    else:
+        noise, source = estimate_noise(values[stack.reference_index], cfa), "measured on the reference frame"
+    return {"values": values, "clipped": clipped, "cfa": cfa, "motions": np.asarray(stack.motions),
+            "trusted": trusted, "reference": stack.reference_index, "balance": balance, "noise": noise,
+            "noise_source": source, "local": stack.meta.get("local_motion")}
+
+
+def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messages: list | None = None,
+                          colour: str | None = None, robust: bool = True,
+                          kernel_sigma: float | None = None, **kw) -> np.ndarray:
+    """Jointly demosaick and super-resolve a raw burst stack (module docstring).
+
+    Parameters
+    ----------
+    stack : hbis_torch.stack_io.Stack
+        A raw burst (:func:`is_raw_burst_stack`).
+    method : hbis_torch.reconstruct.registry.Method, optional
+        The method asked for; only the classical splat is joint, so the learned method's name is
+        met with a message.
+    registration : {"auto", "data"}
+    messages : list, optional
+    colour : None
+        Refused otherwise (the planes are joint).
+    robust : bool
+        Robustness weights (True) or every trusted sample at 1.
+    kernel_sigma : float, optional
+        The splat's Gaussian, output px; default from the noise (:func:`kernel_for_noise`).
+    **kw
+        Refused if any (the classical method's ``deblur`` is accepted: the joint splat has no
+        Wiener step).
+
+    Returns
+    -------
+    np.ndarray, shape (S H, S W, 3), float32 in [0, 1]
+        Linear camera RGB (:func:`hbis_torch.reconstruct.raw_output.camera_to_srgb` makes it
+        linear sRGB).
+    """
+    notes = messages if messages is not None else []
+    if registration == "optics":
+        raise HbisInputError("a burst stack has no optics: its motion was measured by 'hbis assemble --burst' "
+                             "(use --registration auto)")
+    if colour is not None:
+        raise HbisInputError("the colour option (--colour) does not apply to raw bursts: their colours are "
+                             "demosaicked jointly")
+    kw.pop("deblur", None)  # the classical method's option: the joint splat has no Wiener step
+    for key in ("threads", "model", "provider", "extrapolate", "ensemble", "precision"):
+        kw.pop(key, None)
+    if kw:
+        raise HbisInputError(f"option(s) {', '.join(sorted(kw))} do not apply to raw bursts")
+    if method is not None and getattr(method, "name", "classical") != "classical":
+        notes.append(act(f"raw bursts are demosaicked and super-resolved jointly by the classical splat; the "
+                         f"{method.name} method has no raw burst path of its own, so its output is that"))
+    inputs = raw_inputs(stack)
+    if bool(inputs["clipped"].all()):
+        raise HbisInputError("every sample of the burst is clipped (at the white level): there is nothing to "
+                             "reconstruct")
+    if all(m == "identity" for m in stack.meta.get("motion_models", [])):
+        notes.append(act(f"all {len(stack.frames)} frames are identical to the reference: the output is the "
+                         "reference frame demosaicked by the same splat"))
+    notes.append(f"raw noise ({inputs['noise_source']}): variance S x + O per colour, "
+                 + ", ".join(f"{c} S={s:.2e} O={o:.2e}" for c, (s, o) in zip("RGB", inputs["noise"])))
+    left_out = [k for k, t in enumerate(inputs["trusted"]) if not t]
+    if left_out:
+        notes.append(f"left out {len(left_out)} frame(s) whose motion is not trusted: {left_out}")
+    if int(inputs["clipped"].sum()):
+        share = float(inputs["clipped"].mean())
+        notes.append(f"{100 * share:.2f} % of the samples are clipped: left out of their colour, which is set to "
+                     "the clip level where only clipped samples remain")
+    weights = sample_weights(inputs["values"], inputs["cfa"], inputs["motions"], inputs["trusted"],
+                             inputs["reference"], inputs["balance"], inputs["noise"], robust, inputs["local"])
+    if kernel_sigma is None:
+        kernel_sigma = kernel_for_noise(inputs["noise"])
+    return joint_demosaick_sr(inputs["values"], inputs["clipped"], inputs["cfa"], inputs["motions"], stack.h,
+                              weights, kernel_sigma, local=inputs["local"])

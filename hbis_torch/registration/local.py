@@ -1,0 +1,161 @@
+"""Local motion on top of a frame's global one: a smooth field of small shifts, tile by tile.
+
+A homography holds for a flat scene seen by a global-shutter camera through a distortion-free
+lens. A hand-held burst breaks each a little: the rolling shutter reads rows at different
+moments (a shift that changes down the frame), near and far objects move apart (parallax), and
+the lens's distortion bends what a homography keeps straight. What is left after the global
+motion is small and smooth, so it is measured as one shift per tile of the reference grid by
+Lucas-Kanade on the blurred images (a few Gauss-Newton steps of a translation, as HDR+ [1]_ and
+Wronski et al. [2]_ align tiles), shrunk towards zero where the tile's texture does not pin it down,
+and interpolated bilinearly between the tiles' centres. What no motion explains (a moving
+object) stays the robustness weights' to handle.
+
+Offsets are (F, rows, cols, 2) float64 in LR px, (du, dv) at the centre of each tile of the
+reference grid: a sample that the frame's homography puts at x lands at x + offset(x).
+
+References
+----------
+.. [1] S. W. Hasinoff et al., "Burst photography for high dynamic range and low-light imaging on
+   mobile cameras", ACM Transactions on Graphics 35(6), 2016 (tile alignment).
+.. [2] B. Wronski et al., "Handheld multi-frame super-resolution", ACM Transactions on Graphics
+   38(4), 2019.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+#: Side of a tile, LR px: small enough to follow a rolling shutter's skew down a frame, large
+#: enough that a tile's texture pins its shift to a few hundredths of a pixel.
+TILE_PX = 32
+#: Largest local shift (LR px) on top of the global motion; a tile that asks for more is left at
+#: the global motion (its own content moved: the robustness weights' case).
+MAX_LOCAL_PX = 1.5
+ITERATIONS = 3
+#: Frames smaller than this many tiles across (either way) keep their global motion alone.
+MIN_TILES = 3
+BLUR_PX = 1.0
+
+
+def tile_grid(shape: tuple[int, int], tile: int = TILE_PX) -> tuple[int, int]:
+    """(rows, cols) of tiles over a frame of ``shape`` (H, W) (the last ones may be partial)."""
+    H, W = shape
+    return -(-H // tile), -(-W // tile)
+
+
+def sample_offsets(offsets: Tensor, points: Tensor, tile: int = TILE_PX) -> Tensor:
+    """The offsets field at ``points``: bilinear between the tiles' centres, held at the edges.
+
+    Parameters
+    ----------
+    offsets : Tensor, shape (F, rows, cols, 2)
+    points : Tensor, shape (F, ..., 2)
+        (u, v) on the reference grid, LR px.
+
+    Returns
+    -------
+    Tensor, shape of ``points``, in ``points``' dtype
+    """
+    F, rows, cols, _ = offsets.shape
+    lead = points.shape[1:-1]
+    flat = points.reshape(F, 1, -1, 2)
+    # Tile (i, j)'s centre is at ((j + 0.5) tile - 0.5, (i + 0.5) tile - 0.5).
+    gu = ((flat[..., 0] + 0.5) / tile - 0.5) * (2 / max(cols - 1, 1)) - 1
+    gv = ((flat[..., 1] + 0.5) / tile - 0.5) * (2 / max(rows - 1, 1)) - 1
+    grid = torch.stack((gu, gv), -1).to(torch.float32)
+    field = offsets.permute(0, 3, 1, 2).to(torch.float32)
+    out = torch.nn.functional.grid_sample(field, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    return out[:, :, 0].permute(0, 2, 1).reshape((F,) + lead + (2,)).to(points.dtype)
+
+
+def _shift(image: Tensor, field: Tensor) -> Tensor:
+    """``image`` (F, C, H, W) read at x + field(x), ``field`` (F, H, W, 2) in px, bilinear."""
+    F, _, H, W = image.shape
+    v, u = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
+    grid = torch.stack(((u + field[..., 0]) * (2 / (W - 1)) - 1, (v + field[..., 1]) * (2 / (H - 1)) - 1), -1)
+    return torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
+
+
+def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset: np.ndarray,
+                  use: list[int], tile: int = TILE_PX) -> np.ndarray | None:
+    """Each frame's local shifts on top of its homography (module docstring).
+
+    Parameters
+    ----------
+    grey : Tensor, shape (F, H, W), float32 in [0, 1]
+    reference : int
+    motions : np.ndarray, shape (F, 3, 3)
+        Frame px -> reference px.
+    gain_offset : np.ndarray, shape (F, 2)
+        ``g * frame + o`` matches the reference.
+    use : list of int
+        The frames to refine (the others get zero offsets).
+    tile : int
+        Tile side, LR px.
+
+    Returns
+    -------
+    np.ndarray, shape (F, rows, cols, 2), float64, or None
+        None where the frames are smaller than :data:`MIN_TILES` tiles either way.
+    """
+    import kornia
+
+    from hbis_torch.sensor.noise import noise_sigma
+
+    F, H, W = grey.shape
+    rows, cols = tile_grid((H, W), tile)
+    if min(rows, cols) < MIN_TILES:
+        return None
+    out = np.zeros((F, rows, cols, 2))
+    if not use:
+        return out
+    blur = (lambda x: kornia.filters.gaussian_blur2d(x, (7, 7), (BLUR_PX, BLUR_PX), border_type="replicate"))
+    ref = blur(grey[reference][None, None])
+    gradient = kornia.filters.spatial_gradient(ref, mode="diff", order=1, normalized=False)[:, 0]  # (1, 2, H, W)
+    ref_and_gradient = torch.cat((ref, gradient * 0.5), 1)  # central differences: (f(x+1) - f(x-1)) / 2
+    # Noise of a blurred difference of two frames, for the shrinkage of poorly pinned tiles.
+    noise = float(noise_sigma(grey[reference][None])[0]) * 2 ** 0.5 / (2 * np.pi ** 0.5 * BLUR_PX)
+    pool = (lambda x: torch.nn.functional.avg_pool2d(x, tile, tile, ceil_mode=True, count_include_pad=False) * tile * tile)
+    for k in use:
+        g, o = gain_offset[k]
+        frame = (g * grey[k] + o)[None, None]
+        ones = torch.ones_like(frame)
+        warped = kornia.geometry.transform.warp_perspective(
+            torch.cat((blur(frame), ones), 1), torch.as_tensor(motions[k], dtype=torch.float32)[None], (H, W),
+            mode="bilinear", padding_mode="zeros", align_corners=True)
+        valid = (warped[:, 1:] > 0.999).float()
+        valid[..., :2, :], valid[..., -2:, :], valid[..., :2], valid[..., -2:] = 0, 0, 0, 0
+        d = torch.zeros(1, rows, cols, 2)
+        for _ in range(ITERATIONS):
+            field = _field(d, (H, W), tile)
+            at = _shift(ref_and_gradient, field)
+            r = (warped[:, :1] - at[:, :1]) * valid
+            gx, gy = at[:, 1:2] * valid, at[:, 2:3] * valid
+            sums = pool(torch.cat((gx * gx, gx * gy, gy * gy, gx * r, gy * r, valid), 1))[0]
+            axx, axy, ayy, bx, by, n = sums
+            # Tikhonov: a tile whose texture is at the noise's level keeps (nearly) its shift.
+            lam = (noise ** 2) * n.clamp_min(1) * 4.0
+            det = (axx + lam) * (ayy + lam) - axy * axy
+            step_u = ((ayy + lam) * bx - axy * by) / det.clamp_min(1e-20)
+            step_v = ((axx + lam) * by - axy * bx) / det.clamp_min(1e-20)
+            d = d + torch.stack((step_u, step_v), -1)[None]
+        d = torch.where((n > 0.5 * tile * tile)[None, ..., None], d, torch.zeros_like(d))
+        too_far = d.norm(dim=-1, keepdim=True) > MAX_LOCAL_PX
+        d = torch.where(too_far, torch.zeros_like(d), d)
+        out[k] = d[0].double().numpy()
+    return out
+
+
+def _field(offsets: Tensor, shape: tuple[int, int], tile: int) -> Tensor:
+    """The offsets (F, rows, cols, 2) at every pixel of a (H, W) grid: (F, H, W, 2).
+
+    The same bilinear field as :func:`sample_offsets`, by one enlargement: with
+    ``align_corners=False`` a tile's value sits at its centre and is held beyond the outer
+    centres."""
+    H, W = shape
+    F, rows, cols, _ = offsets.shape
+    big = torch.nn.functional.interpolate(offsets.permute(0, 3, 1, 2).to(torch.float32), size=(rows * tile, cols * tile),
+                                          mode="bilinear", align_corners=False)
+    return big[:, :, :H, :W].permute(0, 2, 3, 1)

@@ -1,0 +1,93 @@
+"""Hand-held bursts at sizes where a turn of the camera moves the corners by pixels: the coarse-to-
+fine registration, the per-frame model choice and a given lens blur (issue [handheld]).
+
+The bursts come from the held-out renderer (:mod:`hbis_torch.training.handheld_render`), which
+the registration was never tuned on."""
+
+import numpy as np
+import pytest
+
+from hbis_torch.capture.burst import assemble_burst
+from hbis_torch.cli import main
+from hbis_torch.metrics import psnr
+from hbis_torch.reconstruct.registry import reconstruct
+from hbis_torch.registration.pyramid import from_level, levels_for, project, to_level
+from hbis_torch.stack_io import Stack, make_burst_meta
+from hbis_torch.training.handheld_render import render_burst
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+W, H = 320, 240
+
+
+def _corner_error(found: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """Largest distance (px) at the frame's corners, per frame."""
+    corners = np.array([[0, 0, 1], [W - 1, 0, 1], [0, H - 1, 1], [W - 1, H - 1, 1]], float).T
+    a, b = found @ corners, true @ corners
+    return np.abs(a[:, :2] / a[:, 2:] - b[:, :2] / b[:, 2:]).max((1, 2))
+
+
+def _oracle(burst) -> Stack:
+    F = len(burst.frames)
+    meta = make_burst_meta(burst.scale, (0, 0, W, H), burst.oracle_motions(), np.ones(F),
+                           ["identity"] + ["homography"] * (F - 1), burst.stack_gain_offset(), bit_depth=16)
+    return Stack(np.ascontiguousarray(burst.frames), meta)
+
+
+@pytest.fixture(scope="module")
+def turned():
+    """A burst that turns by up to a degree, its stack and the stack of its true motion."""
+    burst = render_burst("similarity", 2, 6, W, H, seed=11)
+    stack, messages = assemble_burst(burst.frames, 2)
+    return burst, stack, messages
+
+
+def test_pyramid_levels_and_their_coordinates_round_trip():
+    assert levels_for((48, 40)) == 0 and levels_for((240, 320)) == 1 and levels_for((480, 640)) == 2
+    rng = np.random.default_rng(0)
+    m = np.eye(3) + rng.normal(0, 1e-3, (3, 3))
+    m[2, 2] = 1
+    np.testing.assert_allclose(from_level(to_level(m[None], 2), 2)[0], m, atol=1e-12)
+    # a pixel centre of level 1 sits between four full-resolution centres
+    np.testing.assert_allclose(to_level(np.eye(3)[None], 1)[0], np.eye(3))
+    similarity = np.array([[np.cos(0.01), -np.sin(0.01), 3.0], [np.sin(0.01), np.cos(0.01), -2.0], [0, 0, 1]])
+    np.testing.assert_allclose(project(similarity[None], "similarity", (H, W))[0], similarity, atol=1e-9)
+    shift = project(similarity[None], "translation", (H, W))[0]
+    assert np.allclose(shift[:2, :2], np.eye(2)) and not np.allclose(shift[:2, 2], 0)
+
+
+def test_a_turned_burst_registers_every_frame_with_a_model_that_turns(turned):
+    burst, stack, messages = turned
+    assert not messages, messages  # nothing rejected
+    error = _corner_error(stack.motions, burst.oracle_motions())
+    assert error.max() < 0.05, error
+    true = burst.oracle_motions()
+    turns = np.degrees(np.abs(np.arctan2(true[:, 1, 0], true[:, 0, 0])))
+    for k in range(1, len(true)):
+        # a turn that moves a corner by more than 0.2 px cannot be a translation
+        if np.radians(turns[k]) * np.hypot(W, H) / 2 > 0.2:
+            assert stack.meta["motion_models"][k] != "translation", (k, turns[k])
+
+
+def test_the_turned_bursts_image_is_as_good_as_its_true_motions(turned):
+    burst, stack, _ = turned
+    found = psnr(reconstruct(stack, "classical"), burst.truth)
+    true = psnr(reconstruct(_oracle(burst), "classical"), burst.truth)
+    assert found > true - 0.3, (found, true)
+
+
+def test_a_given_lens_blur_is_undone():
+    burst = render_burst("translation", 2, 8, W, H, blur_sigma_px=0.5, seed=4)
+    stack, _ = assemble_burst(burst.frames, 2)
+    plain = psnr(reconstruct(stack, "classical"), burst.truth)
+    given = psnr(reconstruct(stack, "classical", lens_sigma=0.5), burst.truth)
+    assert given > plain + 0.5, (plain, given)
+
+
+def test_a_bad_psf_sigma_is_refused_before_the_stack_is_read(tmp_path, capsys):
+    missing = tmp_path / "no-such-stack.tif"
+    with pytest.raises(SystemExit) as stop:
+        main(["reconstruct", str(missing), "--method", "classical", "--psf-sigma", "-1",
+              "--out", str(tmp_path / "sr.tif")])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "--psf-sigma" in err and "no-such-stack" not in err
