@@ -215,11 +215,12 @@ def motion_error(burst, motions: np.ndarray) -> list[float]:
 def provenance(argv, script: str = "training/eval_handheld.py") -> dict:
     """Command, commit, dirty, date, machine of this run (hbis_torch.provenance's where it exists)."""
     try:
-        from hbis_torch.provenance import provenance as shared
+        import hbis_torch.provenance as shared
     except ImportError:
-        pass
-    else:
-        return shared(argv=list(argv))
+        shared = None
+    # only this checkout's own: an installed checkout's module describes that checkout's git state
+    if shared is not None and ROOT in Path(shared.__file__).resolve().parents:
+        return shared.provenance(argv=list(argv))
     import datetime
     import platform
     import subprocess
