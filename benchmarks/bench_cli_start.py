@@ -19,9 +19,7 @@ import time
 from pathlib import Path
 
 from hbis_torch.cli import COMMANDS
-from hbis_torch.errors import HbisInputError
-from hbis_torch.io_utils import check_output_path
-from hbis_torch.provenance import record_printed
+from hbis_torch.provenance import run_recorded
 
 
 def _time(argv: list[str]) -> float:
@@ -36,13 +34,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
     args = parser.parse_args(argv)
-    try:
-        check_output_path(args.out, "--out") if args.out is not None else None
-    except HbisInputError as exc:
-        print(f"bench_cli_start: {exc}", file=sys.stderr)
-        return 2
-    with record_printed(args.out, argv):
-        return measure(args)
+    return run_recorded("bench_cli_start", measure, args, argv)
 
 
 def measure(args):

@@ -13,17 +13,14 @@ over the seeds.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 from skimage import data, transform
 
 from hbis_torch.capture.burst import assemble_burst
-from hbis_torch.errors import HbisInputError
-from hbis_torch.io_utils import check_output_path
 from hbis_torch.metrics import psnr
-from hbis_torch.provenance import record_printed
+from hbis_torch.provenance import run_recorded
 from hbis_torch.reconstruct import reconstruct
 import hbis_torch.reconstruct.burst as burst
 from hbis_torch.reconstruct.single_frame import single_frame
@@ -37,13 +34,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
     args = parser.parse_args(argv)
-    try:
-        check_output_path(args.out, "--out") if args.out is not None else None
-    except HbisInputError as exc:
-        print(f"bench_few_frames: {exc}", file=sys.stderr)
-        return 2
-    with record_printed(args.out, argv):
-        return measure(args)
+    return run_recorded("bench_few_frames", measure, args, argv)
 
 
 def measure(args):

@@ -10,17 +10,14 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from pathlib import Path
 
 import torch
 
 from hbis_torch.config import FoveaSystem
-from hbis_torch.errors import HbisInputError
-from hbis_torch.io_utils import check_output_path
 from hbis_torch.optics.inverse import exact_inverse, paper_inverse, paper_norms
-from hbis_torch.provenance import record_printed
+from hbis_torch.provenance import run_recorded
 from hbis_torch.scan import axis_alignment_error, plan_scan
 
 
@@ -33,13 +30,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
     args = parser.parse_args(argv)
-    try:
-        check_output_path(args.out, "--out") if args.out is not None else None
-    except HbisInputError as exc:
-        print(f"bench_inverse: {exc}", file=sys.stderr)
-        return 2
-    with record_printed(args.out, argv):
-        return measure(args)
+    return run_recorded("bench_inverse", measure, args, argv)
 
 
 def measure(args):

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -21,10 +20,8 @@ import numpy as np
 import torch
 
 from hbis_torch import FoveaSystem
-from hbis_torch.errors import HbisInputError
-from hbis_torch.io_utils import check_output_path
 from hbis_torch.optics import landing_map, landing_map_interpolated, pixel_rays, trace_risley
-from hbis_torch.provenance import record_printed
+from hbis_torch.provenance import run_recorded
 
 
 def best_of(fn, repeats=5):
@@ -59,14 +56,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
     args = parser.parse_args(argv)
-    try:
-        check_output_path(args.out, "--out") if args.out is not None else None
-    except HbisInputError as exc:
-        print(f"bench_optics: {exc}", file=sys.stderr)
-        return 2
-    with record_printed(args.out, argv):
-        measure()
-    return 0
+    return run_recorded("bench_optics", lambda _: measure() or 0, args, argv)
 
 
 def measure() -> None:

@@ -15,16 +15,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
 
-from hbis_torch.errors import HbisInputError
-from hbis_torch.io_utils import check_output_path
-from hbis_torch.provenance import record_printed
+from hbis_torch.provenance import run_recorded
 from hbis_torch.reconstruct.learned import LearnedSR, available_providers, default_model_path
 
 
@@ -44,13 +41,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="also write what is printed to this file (.txt/.md, or .json), with its provenance")
     args = parser.parse_args(argv)
-    try:
-        check_output_path(args.out, "--out") if args.out is not None else None
-    except HbisInputError as exc:
-        print(f"bench_providers: {exc}", file=sys.stderr)
-        return 2
-    with record_printed(args.out, argv):
-        return measure(args)
+    return run_recorded("bench_providers", measure, args, argv)
 
 
 def measure(args):

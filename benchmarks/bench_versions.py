@@ -24,9 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hbis_torch.errors import HbisInputError
-from hbis_torch.io_utils import check_output_path
-from hbis_torch.provenance import record_printed
+from hbis_torch.provenance import run_recorded
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -78,13 +76,7 @@ def main(argv=None) -> int:
     if not (args.previous / "hbis_torch").is_dir():
         print(f"bench_versions: {args.previous} is not a checkout of this project", file=sys.stderr)
         return 2
-    try:
-        check_output_path(args.out, "--out") if args.out is not None else None
-    except HbisInputError as exc:
-        print(f"bench_versions: {exc}", file=sys.stderr)
-        return 2
-    with record_printed(args.out, argv):
-        return measure(args)
+    return run_recorded("bench_versions", measure, args, argv)
 
 
 def measure(args):

@@ -38,7 +38,7 @@ from pathlib import Path
 
 from hbis_torch.io_utils import atomic_write_text
 
-__all__ = ["provenance", "write_results", "read_provenance", "older_provenance", "record_printed", "machine", "REPO"]
+__all__ = ["provenance", "write_results", "read_provenance", "older_provenance", "record_printed", "run_recorded", "machine", "REPO"]
 
 #: The repository (or installed tree) holding this package.
 REPO = Path(__file__).resolve().parents[1]
@@ -274,6 +274,24 @@ class _Tee(io.TextIOBase):
     def flush(self):
         for stream in self.streams:
             stream.flush()
+
+
+def run_recorded(prog: str, measure, args, argv=None) -> int:
+    """A benchmark's ``main`` after its arguments are parsed: ``args.out`` checked as every output
+    is (:func:`~hbis_torch.io_utils.check_output_path`: one line, exit 2, before any work), then
+    ``measure(args)`` with what it prints recorded to ``args.out`` (:func:`record_printed`);
+    ``measure``'s return value is the exit code."""
+    from hbis_torch.errors import HbisInputError
+    from hbis_torch.io_utils import check_output_path
+
+    if args.out is not None:
+        try:
+            check_output_path(args.out, "--out")
+        except HbisInputError as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return 2
+    with record_printed(args.out, argv):
+        return measure(args)
 
 
 @contextlib.contextmanager

@@ -78,7 +78,7 @@ def test_every_benchmark_writes_its_results_through_the_provenance_writer():
 
     repo = Path(__file__).resolve().parents[1]  # the checkout (pv.REPO is the installed tree)
     scripts = sorted((repo / "benchmarks").glob("bench_*.py")) + [repo / "training" / "eval_matrix.py"]
-    writers = {"write_results", "record_printed", "finish"}
+    writers = {"write_results", "record_printed", "run_recorded", "finish"}
     raw = {"write_text", "atomic_write_text", "dump"}  # json.dump, Path.write_text, the bare atomic writer
     # bench_real_bursts also rewrites the generated table of its docs page (write_doc), which is a page,
     # not a results file; time_onnx_session runs in bare environments without this package (it prints).
@@ -88,7 +88,7 @@ def test_every_benchmark_writes_its_results_through_the_provenance_writer():
         tree = ast.parse(script.read_text())
         called = {(n.func.attr if isinstance(n.func, ast.Attribute) else getattr(n.func, "id", None))
                   for n in ast.walk(tree) if isinstance(n, ast.Call)}
-        assert called & writers, f"{script.name} never calls write_results / record_printed / finish"
+        assert called & writers, f"{script.name} never calls write_results / record_printed / run_recorded / finish"
         for fn in (n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)):
             for n in ast.walk(fn):
                 if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in raw:

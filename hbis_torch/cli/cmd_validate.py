@@ -9,7 +9,6 @@ from pathlib import Path
 from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli import examples
 from hbis_torch.cli.validate_report import json_report, method_names  # noqa: F401 - the command's own
-from hbis_torch.errors import HbisInputError
 
 DESCRIPTION = """\
 Score super-resolution methods on a stack that has no ground truth. One frame at a time is held

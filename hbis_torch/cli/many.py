@@ -75,7 +75,7 @@ def _warm_worker(warm=None) -> None:
 
 def _inputs_and_outputs(items, out_dir: Path, suffix: str) -> tuple[list[Path], list[Path]]:
     """The inputs (paths, globs, @LIST) and ``out_dir/STEM.SUFFIX`` for each, checked."""
-    from hbis_torch.cli.reconstruct_batch import expand_stacks
+    from hbis_torch.cli.reconstruct_batch import expand_stacks, named_outputs
     from hbis_torch.io_utils import check_output_dir
 
     check_output_dir(out_dir, "--out-dir")
@@ -83,12 +83,7 @@ def _inputs_and_outputs(items, out_dir: Path, suffix: str) -> tuple[list[Path], 
     missing = [path for path in sources if not path.is_file()]
     if missing:
         raise HbisInputError(f"{missing[0]} not found" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
-    outputs = [out_dir / f"{path.name.split('.')[0]}.{suffix}" for path in sources]
-    by_name: dict[Path, Path] = {}
-    for source, out in zip(sources, outputs):
-        if out in by_name:
-            raise HbisInputError(f"{source} and {by_name[out]} would both be written to {out}; rename one")
-        by_name[out] = source
+    outputs = named_outputs(sources, out_dir, suffix)
     inputs = {path.resolve() for path in sources}
     clash = [out for out in outputs if out.resolve() in inputs]
     if clash:

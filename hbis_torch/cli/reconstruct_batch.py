@@ -63,15 +63,21 @@ def expand_stacks(items) -> list[Path]:
     return stacks
 
 
+def named_outputs(sources: list[Path], out_dir: Path, suffix: str) -> list[Path]:
+    """``out_dir/STEM.SUFFIX`` for each input; HbisInputError if two inputs share a stem."""
+    outs = [out_dir / f"{path.name.split('.')[0]}.{suffix}" for path in sources]
+    by_name: dict[Path, Path] = {}
+    for source, out in zip(sources, outs):
+        if out in by_name:
+            raise HbisInputError(f"{source} and {by_name[out]} would both be written to {out}; rename one")
+        by_name[out] = source
+    return outs
+
+
 def output_paths(stacks: list[Path], out_dir: Path, method: str, overwrite: bool = False) -> list[Path]:
     """``out_dir/STEM.METHOD.tif`` for each stack; HbisInputError if two stacks share a stem or
     (unless ``overwrite``) an output exists already."""
-    outs = [out_dir / f"{path.name.split('.')[0]}.{method}.tif" for path in stacks]
-    by_name: dict[Path, Path] = {}
-    for stack, out in zip(stacks, outs):
-        if out in by_name:
-            raise HbisInputError(f"{stack} and {by_name[out]} would both be written to {out}; rename one")
-        by_name[out] = stack
+    outs = named_outputs(stacks, out_dir, f"{method}.tif")
     existing = [out for out in outs if os.path.lexists(out) and not (overwrite and os.path.isfile(out))]
     if existing:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
