@@ -68,13 +68,13 @@ def main(argv=None) -> int:
     from hbis_torch.cli import main as hbis
 
     with tempfile.TemporaryDirectory() as tmp:
-        if hbis(["demo", "--out", tmp, "--figure-sets", "-q"]) != 0:
+        if hbis(["demo", "--out", tmp, "--no-figures", "-q"]) != 0:
             return 1
         report = json.loads((Path(tmp) / "report.json").read_text())["system"]
         sr = report["sr"]
         picture(Path(tmp), report["config"]["h"], args.picture, sr)
     kept = ("config", "refinement", "fer", "foveal_ratio", "bandwidth", "loop", "sr", "timings_s")
-    write_results(args.out, {"command_run": "hbis demo --out TMP --figure-sets -q",
+    write_results(args.out, {"command_run": "hbis demo --out TMP --no-figures -q",
                              **{key: report[key] for key in kept},
                              "picture": str(args.picture.resolve().relative_to(REPO))
                              if args.picture.resolve().is_relative_to(REPO) else str(args.picture)}, argv=argv)

@@ -349,3 +349,11 @@ def test_the_readme_s_commands_parse():
         argv = shlex.split(line)[1:]
         build_parser(argv).parse_args(argv)
     assert "pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu" in text
+
+
+def test_the_demo_can_draw_no_figures():
+    from hbis_torch.cli import build_parser
+
+    args = build_parser(["demo"]).parse_args(["demo", "--no-figures"])
+    assert args.figure_sets == []
+    assert build_parser(["demo"]).parse_args(["demo"]).figure_sets is None

@@ -58,6 +58,8 @@ def register(sub) -> None:
                    help="torch threads (default: 1; the chain is many small tensor operations, for which "
                    "thread hand-offs cost more than they save)")
     add_figure_sets_arg(p, "--figure-sets")
+    p.add_argument("--no-figures", dest="figure_sets", action="store_const", const=[],
+                   help="draw no figure sets (the quickest run: the system chain and its report only)")
     p.add_argument("--design-only", action="store_true", help="only the design report and figures")
     p.set_defaults(func=run)
 
