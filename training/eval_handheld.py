@@ -281,11 +281,9 @@ def main(argv=None) -> int:
     if problem:
         return _refuse(problem)
     if args.table_only:
-        from hbis_torch.io_utils import atomic_write_text
-
         if not args.out.exists():
             return _refuse(f"--out {args.out} does not exist")
-        atomic_write_text(args.out.with_suffix(".md"), table(json.loads(args.out.read_text())))
+        write_table(args.out, json.loads(args.out.read_text()), argv)
         return 0
     rows = [r for r in ROWS if not (r == "learned" and args.no_learned) and not (r == "vidsr" and args.no_vidsr)]
     if "vidsr" in rows:
@@ -322,12 +320,21 @@ def main(argv=None) -> int:
                     got["run"] = len(results["provenance"]) - 1
                     cell["rows"][row] = got
                     save()
-                    atomic_write_text(args.out.with_suffix(".md"), table(results))
+                    write_table(args.out, results, argv)
                     print(f"{key:32s} {row:9s} {got['psnr_db']:6.2f} dB  {got['seconds']:6.1f} s", flush=True)
     results["summary"] = summary(results)
     save()
+    write_table(args.out, results, argv)
     print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
     return 0
+
+
+def write_table(out: Path, results: dict, argv) -> None:
+    """The Markdown table beside the JSON ``out``, under a provenance header (the runs behind each
+    row are listed in it too)."""
+    from hbis_torch.provenance import write_results
+
+    write_results(out.with_suffix(".md"), table(results), argv=argv)
 
 
 def summary(results: dict) -> dict:
