@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 #: Side of a tile, LR px: small enough to follow a rolling shutter's skew down a frame, large
-#: enough that a tile's texture pins its shift to a few hundredths of a pixel.
+#: enough that a textured tile pins its shift (a setting, not tuned).
 TILE_PX = 32
 #: Largest local shift (LR px) on top of the global motion; a tile that asks for more is left at
 #: the global motion (its own content moved: the robustness weights' case).

@@ -67,8 +67,8 @@ def pyramid(frames: Tensor, levels: int) -> list[Tensor]:
 
     Each halving averages 2 x 2 pixels (an odd last row or column is dropped), which is the
     pixel-centre convention of :func:`level_matrix`; the fit blurs every level by its own
-    Gaussian, so no further anti-aliasing is needed (Kornia's 5-tap ``pyrdown`` took 4 times as
-    long on 640 x 480 frames)."""
+    Gaussian, so no further anti-aliasing is needed (with Kornia's 5-tap ``pyrdown`` the
+    assemble of 16 frames of 640 x 480 took 2.06 CPU s, with this 1.68 s, on one thread)."""
     out = [frames]
     for _ in range(levels):
         out.append(torch.nn.functional.avg_pool2d(out[-1][:, None], 2)[:, 0])
