@@ -26,8 +26,8 @@ from hbis_torch.errors import HbisInputError, ScanInterrupted
 from hbis_torch.hardware import GrblAlarm, GrblController, GrblHeld, GrblSimulator, GrblTimeouts
 from hbis_torch.hardware.grbl_protocol import CYCLE_START, FEED_HOLD, SAFETY_DOOR, SOFT_RESET, clean_line, setting_write
 from hbis_torch.hardware.scan_executor import run_scan
-from hbis_torch.hardware.sim_machine import (ALARM_REPORT_DELAY_S, HOMING_DURATION_S, PRISM_STEPS_PER_DEG,
-                                             WELCOME, GrblMachineModel)
+from hbis_torch.hardware.sim_machine import ALARM_REPORT_DELAY_S, HOMING_DURATION_S, WELCOME, GrblMachineModel
+from hbis_torch.hardware.sim_settings import PRISM_STEPS_PER_DEG
 
 FAST = GrblTimeouts(welcome_s=3.0, reply_s=0.5, status_s=0.3, homing_s=5.0, move_margin_s=1.0)
 

@@ -12,7 +12,8 @@ from hbis_torch.hardware.grbl_protocol import (Kind, classify, format_jog, forma
                                                parse_setting, parse_status, parse_welcome, unwrap_near,
                                                wrap_deg)
 from hbis_torch.hardware.motion_profile import distance_at, move_duration_s
-from hbis_torch.hardware.sim_machine import DEFAULT_SETTINGS, GrblMachineModel
+from hbis_torch.hardware.sim_machine import GrblMachineModel
+from hbis_torch.hardware.sim_settings import DEFAULT_SETTINGS
 
 
 @pytest.mark.parametrize("line, kind, payload", [

@@ -11,7 +11,8 @@ pytest.importorskip("rawpy")
 pytest.importorskip("pidng")
 pytest.importorskip("cv2")
 
-from hbis_torch.capture.raw import normalised, raw_burst_stack, read_raw, write_mosaic_dng  # noqa: E402
+from hbis_torch.capture.dng import write_mosaic_dng  # noqa: E402
+from hbis_torch.capture.raw import normalised, raw_burst_stack, read_raw  # noqa: E402
 from hbis_torch.cli import main  # noqa: E402
 from hbis_torch.reconstruct.classical.raw_burst import (  # noqa: E402
     estimate_noise,

@@ -117,7 +117,8 @@ def register(sub) -> None:
 
 
 def _controller(args) -> GrblController:
-    from hbis_torch.hardware.grbl import GrblController, GrblTimeouts
+    from hbis_torch.hardware.grbl import GrblController
+    from hbis_torch.hardware.timeouts import GrblTimeouts
 
     if not args.port:
         raise HbisInputError("--port is required: the controller's pyserial URL, e.g. /dev/ttyUSB0 "

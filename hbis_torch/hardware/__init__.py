@@ -20,7 +20,7 @@ __all__ = [
 # Names imported on first use, from the module that defines them: the driver needs pyserial, and
 # the simulator must not be imported before ``python -m hbis_torch.hardware.simulator`` runs it.
 # The package's light modules (``hbis motors --help`` needs the simulator's options) load neither.
-_LAZY = {"GrblController": "grbl", "GrblTimeouts": "grbl", "open_grbl": "grbl", "GrblSimulator": "simulator"}
+_LAZY = {"GrblController": "grbl", "GrblTimeouts": "timeouts", "open_grbl": "grbl", "GrblSimulator": "simulator"}
 
 
 __getattr__, __dir__ = lazy_exports(__name__, _LAZY, globals())

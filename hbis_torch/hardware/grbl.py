@@ -15,11 +15,8 @@ from __future__ import annotations
 
 import logging
 import math
-import os
-import stat
 import time
 from collections import deque
-from dataclasses import dataclass
 
 import serial
 
@@ -33,13 +30,11 @@ from hbis_torch.hardware.grbl_protocol import (FLOAT32_MAX, HOMING_ALARMS, JOG_C
                                                unwrap_near)
 from hbis_torch.hardware.motion_profile import axis_limited, move_duration_s
 
-try:  # pyserial's POSIX backend lets termios.error (not an OSError) out of flush() on a dead tty
-    from termios import error as _TermiosError
-except ImportError:  # Windows
-    _TermiosError = OSError
+from hbis_torch.hardware.serial_port import IO_ERRORS as _IO_ERRORS
+from hbis_torch.hardware.serial_port import open_serial_port
+from hbis_torch.hardware.timeouts import GrblTimeouts
 
 log = logging.getLogger(__name__)
-_IO_ERRORS = (serial.SerialException, OSError, _TermiosError)
 
 _ALARM_HINT = "reset the controller, then home ($H) or unlock ($X) before moving again"
 _HOMING_ALARM_HINT = "the controller has reset itself; home ($H) again or unlock ($X) before moving"
@@ -51,74 +46,6 @@ _HELD_STATES = ("Hold", "Door")
 
 _DEFAULT_RATE_DEG_PER_MIN = 500.0
 _DEFAULT_ACCEL_DEG_PER_S2 = 10.0
-
-
-def _never_a_serial_port(url: str) -> str | None:
-    """Why the file at ``url`` can never be a serial port (a directory, a regular file, a FIFO...:
-    anything but a character device), or None when it may be one, is missing (an unplugged
-    adapter) or ``url`` is a pyserial URL such as ``socket://``.
-
-    Judged from :func:`os.stat` alone, before anything is opened. Whether a character device is a
-    terminal (:func:`_not_a_terminal`) is asked only after pyserial failed to open it, so a real
-    serial port is never opened twice.
-    """
-    if "://" in url:
-        return None
-    try:
-        mode = os.stat(url).st_mode
-    except (OSError, ValueError):
-        return None
-    if stat.S_ISDIR(mode):
-        return "it is a directory"
-    if stat.S_ISREG(mode):
-        return "it is a regular file"
-    if not stat.S_ISCHR(mode):
-        return "it is not a character device"
-    return None
-
-
-def _not_a_terminal(url: str) -> bool:
-    """Whether the character device at ``url`` opens but is no terminal (``/dev/null``)."""
-    if "://" in url:
-        return False
-    try:
-        fd = os.open(url, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
-    except (OSError, ValueError, AttributeError):  # O_NOCTTY is POSIX only
-        return False
-    try:
-        return not os.isatty(fd)
-    finally:
-        os.close(fd)
-
-
-@dataclass(frozen=True)
-class GrblTimeouts:
-    """How long the driver waits for each kind of answer, in seconds.
-
-    Attributes
-    ----------
-    welcome_s : float
-        For the welcome line after a soft reset (an Arduino that reboots on connect needs ~2 s).
-    reply_s : float
-        For the ``ok``/``error`` that answers a line (GRBL answers within milliseconds).
-    status_s : float
-        For one status report after ``?``.
-    homing_s : float
-        For a whole homing cycle.
-    move_margin_s : float
-        Added to twice the estimated duration of a move to give its deadline.
-    """
-
-    welcome_s: float = 5.0
-    reply_s: float = 2.0
-    status_s: float = 0.5
-    homing_s: float = 60.0
-    move_margin_s: float = 2.0
-
-    def __post_init__(self) -> None:
-        for name, value in vars(self).items():
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise HbisInputError(f"timeout {name} must be a finite positive number, got {value!r}")
 
 
 class GrblController:
@@ -189,17 +116,7 @@ class GrblController:
         GrblError
             When the port cannot be opened otherwise (a missing device: an unplugged adapter).
         """
-        why = _never_a_serial_port(self.url)
-        if why is not None:
-            raise HbisInputError(f"{self.url!r} cannot be a serial port: {why}")
-        try:
-            self._serial = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.02,
-                                                 write_timeout=self.timeouts.reply_s)
-        except (*_IO_ERRORS, ValueError) as exc:
-            if _not_a_terminal(self.url):
-                raise HbisInputError(f"{self.url!r} cannot be a serial port: it is a character device "
-                                     "that is not a terminal") from None
-            raise GrblError(f"cannot open serial port {self.url!r}: {exc}") from None
+        self._serial = open_serial_port(self.url, self.baudrate, self.timeouts.reply_s)
         try:
             self.reset()
             self.read_settings()

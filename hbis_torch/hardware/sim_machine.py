@@ -36,21 +36,11 @@ from hbis_torch.hardware.grbl_protocol import (CYCLE_START, FEED_HOLD, HOMING_AL
                                                LINE_MAX_CHARS, SAFETY_DOOR, SOFT_RESET, STATUS_QUERY, clean_line,
                                                grbl_number)
 from hbis_torch.hardware.motion_profile import axis_limited, distance_at, move_duration_s
+from hbis_torch.hardware.sim_settings import DEFAULT_SETTINGS, INTEGER_SETTINGS
 
 VERSION = "1.1h"
 WELCOME = f"Grbl {VERSION} ['$' for help]"
 
-# A plausible prism rig: 1.8 deg motor, 16 microsteps, 4:1 belt -> 200*16*4/360 steps per degree.
-PRISM_STEPS_PER_DEG = 200 * 16 * 4 / 360
-DEFAULT_SETTINGS: dict[int, float] = {
-    0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002, 13: 0,
-    20: 0, 21: 0, 22: 0, 23: 0, 24: 25.0, 25: 500.0, 26: 250, 27: 1.0, 30: 1000, 31: 0, 32: 0,
-    100: PRISM_STEPS_PER_DEG, 101: PRISM_STEPS_PER_DEG, 102: 250.0,
-    110: 3600.0, 111: 3600.0, 112: 500.0,
-    120: 360.0, 121: 360.0, 122: 10.0,
-    130: 360.0, 131: 360.0, 132: 200.0,
-}
-_INTEGER_SETTINGS = {0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}
 PLANNER_BLOCKS = 15
 HOMING_DURATION_S = 1.0
 ALARM_REPORT_DELAY_S = 0.5
@@ -395,7 +385,7 @@ class GrblMachineModel:
             if self.state in ("Run", "Jog", "Home") or self._hold_since is not None:
                 return "error:8"
             for n, value in sorted(self.settings.items()):
-                self._emit(f"${n}={int(value)}" if n in _INTEGER_SETTINGS else f"${n}={value:.3f}")
+                self._emit(f"${n}={int(value)}" if n in INTEGER_SETTINGS else f"${n}={value:.3f}")
         elif line == "$G":
             m = self._modal
             feed = m["feed"] or 0
