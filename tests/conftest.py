@@ -1,6 +1,8 @@
 """Shared fixtures."""
 
 import dataclasses
+import importlib.util
+from pathlib import Path
 
 import pytest
 import torch
@@ -34,3 +36,19 @@ def distrust_frame(monkeypatch):
         monkeypatch.setattr(registration, "register_stack", register)
 
     return distrust
+
+
+@pytest.fixture(scope="session")
+def load_script():
+    """A loader of the repository's scripts (training/, benchmarks/) as modules, by their path from
+    the repository's root: ``load_script("training/soup.py")``."""
+    root = Path(__file__).resolve().parents[1]
+
+    def load(relative: str):
+        path = root / relative
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    return load

@@ -1,9 +1,7 @@
 """training/eval_matrix.py and its held-out matrix (hbis_torch.training.heldout): the stacks are
 what their conditions say."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,15 +10,10 @@ from hbis_torch.reconstruct.learned import noise_params_from_meta
 from hbis_torch.provenance import read_provenance
 from hbis_torch.training import heldout
 
-SCRIPT = Path(__file__).resolve().parents[1] / "training" / "eval_matrix.py"
-
 
 @pytest.fixture(scope="module")
-def em():
-    spec = importlib.util.spec_from_file_location("eval_matrix", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)  # it imports only hbis_torch: no path to set
-    return module
+def em(load_script):
+    return load_script("training/eval_matrix.py")
 
 
 def condition(em, words):

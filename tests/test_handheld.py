@@ -1,9 +1,7 @@
 """hbis_torch.training.handheld_render (hand-held bursts at real sizes) and training/eval_handheld.py:
 the frames move as the true motion says, the truth lies on frame 0's grid, and the eval resumes."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +9,6 @@ from scipy.ndimage import map_coordinates
 
 from hbis_torch.training.handheld_render import MOTIONS, render_burst
 
-SCRIPT = Path(__file__).resolve().parents[1] / "training" / "eval_handheld.py"
 W, H = 96, 72
 INNER = (slice(12, -12), slice(12, -12))
 
@@ -82,11 +79,8 @@ def test_every_motion_renders():
 
 
 @pytest.fixture(scope="module")
-def eh():
-    spec = importlib.util.spec_from_file_location("eval_handheld", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def eh(load_script):
+    return load_script("training/eval_handheld.py")
 
 
 def test_the_eval_resumes_where_it_stopped(eh, tmp_path, capsys):
@@ -119,10 +113,7 @@ def test_the_eval_resumes_where_it_stopped(eh, tmp_path, capsys):
 
 def test_the_vidsr_peer_gives_an_image_on_the_truths_grid(eh):
     pytest.importorskip("vidsr")
-    import sys
-
-    sys.path.insert(0, str(SCRIPT.parents[1] / "benchmarks" / "peers"))
-    from vidsr_peer import vidsr_sr
+    vidsr_sr = eh._peer().vidsr_sr  # benchmarks/peers/vidsr_peer.py, as the eval loads it
 
     burst = render_burst("translation", 2, 6, W, H, seed=2)
     image = vidsr_sr(burst.frames, 2)

@@ -1,8 +1,5 @@
 """training/soup.py: the weight mixes of two runs of one network, each scored on its validation set."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 import torch
 
@@ -10,15 +7,10 @@ from hbis_torch.reconstruct.learned.architecture import Architecture
 from hbis_torch.training.export import load_checkpoint
 from hbis_torch.training.net import build_net
 
-SCRIPT = Path(__file__).resolve().parents[1] / "training" / "soup.py"
-
 
 @pytest.fixture(scope="module")
-def soup():
-    spec = importlib.util.spec_from_file_location("soup", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def soup(load_script):
+    return load_script("training/soup.py")
 
 
 def _weights(path, seed, arch=Architecture(2, width=8, blocks=1)):
