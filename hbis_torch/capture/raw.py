@@ -396,19 +396,6 @@ def cell_luminance(values: np.ndarray, cfa: str, balance) -> np.ndarray:
     return (total / 4).astype(np.float32)
 
 
-def cell_to_pixels(motions: np.ndarray) -> np.ndarray:
-    """Homographies between 2 x 2-cell grids (F, 3, 3) -> the same motions between pixel grids:
-    cell (x, y) is pixel (2 x + 0.5, 2 y + 0.5)."""
-    A = np.array([[2.0, 0, 0.5], [0, 2.0, 0.5], [0, 0, 1]])
-    return A @ np.asarray(motions, dtype=np.float64) @ np.linalg.inv(A)
-
-
-def pixels_to_cells(motions: np.ndarray) -> np.ndarray:
-    """The inverse of :func:`cell_to_pixels`."""
-    A = np.array([[2.0, 0, 0.5], [0, 2.0, 0.5], [0, 0, 1]])
-    return np.linalg.inv(A) @ np.asarray(motions, dtype=np.float64) @ A
-
-
 def registration_grey(values: np.ndarray, cfa: str, balance, reference: int = 0,
                       clipped: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """:func:`cell_luminance` scaled into [0, 1] for the registration: (F, H/2, W/2) float32,
@@ -513,6 +500,7 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     import torch
 
     from hbis_torch.capture.burst import register_burst
+    from hbis_torch.registration.pyramid import from_level
     from hbis_torch.stack_io import Stack, make_burst_meta, validate_stack
 
     F, H, W = mosaics.shape
@@ -520,7 +508,7 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     values, clipped = normalised(mosaics, raw)
     grey, raw["grey_scale"] = registration_grey(values, cfa, raw["white_balance"], reference, clipped)
     found = register_burst(torch.from_numpy(grey), reference, motion, names)
-    motions = cell_to_pixels(found.motions)
+    motions = from_level(found.motions, 1)  # a 2 x 2 cell is a pixel of the pyramid's first level
     extra = {}
     if getattr(found, "local", None) is not None:  # [handheld]'s local shifts, from cells to pixels
         from hbis_torch.registration.local import TILE_PX

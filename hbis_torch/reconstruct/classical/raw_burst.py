@@ -222,7 +222,8 @@ def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: n
     local : dict, optional
         The stack's ``local_motion`` (pixels), if any.
     """
-    from hbis_torch.capture.raw import cell_luminance, pixels_to_cells
+    from hbis_torch.capture.raw import cell_luminance
+    from hbis_torch.registration.pyramid import to_level
     from hbis_torch.reconstruct.burst import robustness_weights
 
     F, H, W = values.shape
@@ -230,7 +231,7 @@ def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: n
     if not robust:
         return trusted_t[:, None, None].to(torch.float64).expand(F, H, W).clone()
     grey = stabilise(cell_luminance(values, cfa, balance), noise, balance)
-    cells = _positions(pixels_to_cells(motions), H // 2, W // 2, _cell_local(local))
+    cells = _positions(to_level(motions, 1), H // 2, W // 2, _cell_local(local))
     weights = robustness_weights(torch.from_numpy(grey), cells, trusted_t, reference)
     return weights.repeat_interleave(2, 1).repeat_interleave(2, 2)
 
