@@ -144,11 +144,10 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     if not todo:
         return BurstMotion(motions, confidence, models, gain_offset, messages)
     candidates = ALL_MODELS if motion == "auto" else (motion,)
-    bar = progress(desc="registering the burst", total=len(candidates) + 2, unit="step")
     start = coarse_to_fine(grey, reference, candidates[-1], keep_levels=1)
-    bar.update()
     if start is None:  # frames too small for a pyramid: each frame's own ladder (_register_pair)
         candidates = ()
+    bar = progress(desc="registering the burst", total=len(candidates) + 1, unit="step")
     fits = {}
     for model in candidates:
         prediction = project(start, model, shape)
@@ -253,12 +252,8 @@ def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: li
             grid = torch.stack((2 * qu[inside] / (W - 1) - 1, 2 * qv[inside] / (H - 1) - 1), -1).float()
             target = torch.nn.functional.grid_sample(ref, grid[None, None], mode="bilinear",
                                                      align_corners=True)[0, 0, 0].double()
-            x = values[inside]
-            A = torch.stack((x, torch.ones_like(x)), -1)
-            fit = A @ torch.linalg.lstsq(A, target[:, None]).solution
-            squared = (fit[:, 0] - target).pow(2).sort().values
-            mse = float(squared[:int(TRIM * len(squared))].mean()) + 1e-20
-            n = min(float(len(squared)), independent * float(inside.double().mean()))
+            mse = trimmed_line_mse(values[inside], target) + 1e-20
+            n = min(float(len(target)), independent * float(inside.double().mean()))
             out[model][k] = n * np.log(mse) + N_PARAMS[model] * np.log(n)
     return out
 
@@ -329,11 +324,16 @@ def prediction_error(reference: torch.Tensor, frame: torch.Tensor, motion: np.nd
     valid[:3], valid[-3:], valid[:, :3], valid[:, -3:] = False, False, False, False
     if int(valid.sum()) < 16:
         return float("inf")
-    x, y = out[0][valid].double(), frame[valid].double()
+    return trimmed_line_mse(out[0][valid].double(), frame[valid].double()) ** 0.5
+
+
+def trimmed_line_mse(x: torch.Tensor, y: torch.Tensor) -> float:
+    """Mean squared residual of ``y`` (N,) about its least-squares line in ``x`` (N,) (a gain and
+    an offset), over the best :data:`TRIM` of the points: a moving object's are left out."""
     A = torch.stack((x, torch.ones_like(x)), -1)
     fit = A @ torch.linalg.lstsq(A, y[:, None]).solution
     squared = (fit[:, 0] - y).pow(2).sort().values
-    return float(squared[:int(TRIM * len(squared))].mean().sqrt())  # a moving object's pixels left out
+    return float(squared[:int(TRIM * len(squared))].mean())
 
 
 def overlap(motion: np.ndarray, shape) -> float:
