@@ -25,7 +25,6 @@ benchmarks/results/bench_variant_cost.json.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import tempfile
