@@ -4,12 +4,14 @@ A *job* is a picklable callable ``job(input, staging) -> list[str]`` that reads 
 its whole output to the path ``staging`` and returns its messages (one line each). The engine
 (:func:`run_tasks`) gives each input a task that
 
-1. returns at once if the input's output exists already (a rerun resumes; nothing is overwritten);
+1. returns at once if the input's output exists already (a rerun resumes; nothing is overwritten),
+   unless the run was asked to replace outputs (``overwrite``, the command's ``--overwrite``);
 2. runs the job into a staging file beside the output, ``.NAME.<random>.tmp``;
 3. publishes it with a hard link (``os.link``), which fails if the output exists, so that a
    task that ran twice (its worker was declared dead while it was still writing) publishes one
    whole file once and the second copy is discarded; where the file system has no hard links,
-   ``os.rename`` (atomic, but the later copy then replaces the earlier, identical one);
+   ``os.rename`` (atomic, but the later copy then replaces the earlier, identical one); with
+   ``overwrite``, ``os.replace``;
 4. catches the input's failure: a bad input (:class:`~hbis_torch.errors.HbisInputError`) is
    exit code 2, anything else 1, named in one line; the other tasks go on.
 
@@ -233,11 +235,15 @@ def staging_path(out: Path) -> Path:
     return out.parent / f".{out.name}.{uuid.uuid4().hex}.tmp"
 
 
-def publish(staging: Path, out: Path) -> bool:
+def publish(staging: Path, out: Path, replace: bool = False) -> bool:
     """Move the whole file ``staging`` to ``out`` unless ``out`` exists; True if it was published.
 
     A hard link is atomic and refuses an existing ``out`` (two runs of one task publish once);
-    without hard links (some network and FAT file systems) ``os.rename``."""
+    without hard links (some network and FAT file systems) ``os.rename``. ``replace``: replace an
+    existing ``out`` (``os.replace``, atomic)."""
+    if replace:
+        os.replace(staging, out)
+        return True
     try:
         os.link(staging, out)
     except FileExistsError:
@@ -255,18 +261,19 @@ def publish(staging: Path, out: Path) -> bool:
     return True
 
 
-def run_task(job, source, out) -> Outcome:
-    """Run ``job`` on ``source`` into ``out`` (the task a worker runs; see the module's docstring)."""
+def run_task(job, source, out, overwrite: bool = False) -> Outcome:
+    """Run ``job`` on ``source`` into ``out`` (the task a worker runs; see the module's docstring);
+    ``overwrite``: replace ``out`` where it exists, instead of skipping the task."""
     started = time.perf_counter()
     out = Path(out)
     outcome = Outcome(worker=f"{os.uname().nodename}:{os.getpid()}")
-    if os.path.lexists(out):
+    if os.path.lexists(out) and not overwrite:
         outcome.skipped = True
         return outcome
     staging = staging_path(out)
     try:
         outcome.messages = list(job(source, staging) or [])
-        outcome.written = publish(staging, out)
+        outcome.written = publish(staging, out, replace=overwrite)
     except HbisInputError as exc:
         outcome.code, outcome.messages = 2, outcome.messages + [str(exc)]
     except Exception as exc:  # noqa: BLE001 - one input's failure must not stop the others
@@ -309,7 +316,7 @@ class Summary:
 
 
 def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix: str = "hbis",
-              out_dir=None) -> Summary:
+              out_dir=None, overwrite: bool = False) -> Summary:
     """Run ``job`` on every source into its output: on ``client``'s cluster, or in this process
     one after the other when ``client`` is None.
 
@@ -327,6 +334,8 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
         Messages are printed on stderr as ``PREFIX: SOURCE: MESSAGE``, as each task ends.
     out_dir : Path or None
         Locked for the run (a second run on it is refused) and cleared of leftover ``.*.tmp`` files.
+    overwrite : bool
+        Replace outputs that exist (the command's ``--overwrite``) instead of skipping their inputs.
 
     Returns
     -------
@@ -353,10 +362,11 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
                 print(f"{prefix}: {sources[i]}: {line}", file=sys.stderr)
 
         # Outputs done before are skipped here, without a task (each task checks again).
-        todo = [i for i, out in enumerate(outputs) if not os.path.lexists(out)]
+        todo = [i for i, out in enumerate(outputs) if overwrite or not os.path.lexists(out)]
         for i in sorted(set(range(len(sources))) - set(todo)):
             outcomes[i] = Outcome(skipped=True)
-        some = ([sources[i] for i in todo], [outputs[i] for i in todo], lambda k, outcome: report(todo[k], outcome))
+        some = ([sources[i] for i in todo], [outputs[i] for i in todo], lambda k, outcome: report(todo[k], outcome),
+                overwrite)
         with progress(total=len(sources), desc=desc, unit="task") as bar:
             bar.update(len(sources) - len(todo))
             if client is None:
@@ -374,7 +384,7 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
             lock.close()
 
 
-def _run_here(job, sources, outputs, report, bar) -> None:
+def _run_here(job, sources, outputs, report, overwrite, bar) -> None:
     """Run the tasks in this process, one after the other, each on one torch thread as on a worker
     (the same sums in the same order: the same bits; ``--scheduler local`` is the way to use more
     cores).
@@ -390,20 +400,20 @@ def _run_here(job, sources, outputs, report, bar) -> None:
     torch.set_num_threads(1)
     try:
         for i, (source, out) in enumerate(zip(sources, outputs)):
-            report(i, run_task(job, source, out))
+            report(i, run_task(job, source, out, overwrite))
             bar.update()
     finally:
         torch.set_num_threads(before)
 
 
-def _run_on(client, job, sources, outputs, report, bar) -> None:
+def _run_on(client, job, sources, outputs, report, overwrite, bar) -> None:
     """Submit one task per source and report each as the scheduler says it is finished."""
     distributed = import_distributed()
 
     token = uuid.uuid4().hex[:8]
     # The job travels with each task (a few kB: the options): scattered data would be lost with
     # the last worker holding it, a task's own arguments never are.
-    futures = [client.submit(run_task, job, str(source), str(out), pure=False,
+    futures = [client.submit(run_task, job, str(source), str(out), overwrite, pure=False,
                              key=f"hbis-{token}-{i}-{Path(out).name}")
                for i, (source, out) in enumerate(zip(sources, outputs))]
     index = {future.key: i for i, future in enumerate(futures)}
