@@ -146,7 +146,9 @@ def _run_pool(args, prepared, reconstruct_one, stacks, outs, todo) -> tuple[list
     from hbis_torch.progress import progress, progress_enabled, set_progress
 
     cpus = len(os.sched_getaffinity(0))
-    jobs = args.jobs or (1 if args.threads is not None else max(1, min(cpus, len(todo))))
+    # From all the stacks, not those left: a rerun that finishes the rest runs each stack on the
+    # threads the whole run gave it (torch's thread count changes the last bits of some sums).
+    jobs = args.jobs or (1 if args.threads is not None else min(cpus, len(stacks)))
     kw, calibration = prepared
     if jobs > 1 and "threads" not in kw and _takes_threads(args.method):
         kw = {**kw, "threads": 1}  # each stack on one thread: the pool keeps the cores busy
@@ -161,7 +163,7 @@ def _run_pool(args, prepared, reconstruct_one, stacks, outs, todo) -> tuple[list
     inner = progress_enabled()
     set_progress(False)  # no bars inside: stacks run side by side
     try:
-        with bar, ThreadPoolExecutor(max_workers=jobs) as pool:
+        with bar, ThreadPoolExecutor(max_workers=max(1, min(jobs, len(todo)))) as pool:
             bar.update(len(stacks) - len(todo))
             futures = {i: pool.submit(_one, reconstruct_one, args, stacks[i], outs[i], prepared) for i in todo}
             for i, future in futures.items():
