@@ -59,9 +59,9 @@ def add_scheduler_argument(parser: argparse.ArgumentParser, many: str | None = N
         if action.dest == "out":
             action.required = False
     parser.add_argument("--out-dir", type=Path, metavar="DIR",
-                        help="many inputs, one output each in DIR (see --scheduler; without it, one after the "
-                        "other in this process); outputs that exist are skipped; an input that fails is named in "
-                        "one line and the others go on")
+                        help="many inputs, one output each in DIR (see --scheduler; without it, side by side on "
+                        "threads of this process); outputs that exist are skipped (--overwrite replaces them); an "
+                        "input that fails is named in one line and the others go on")
 
 
 def _warm_worker(warm=None) -> None:

@@ -333,9 +333,9 @@ class Summary:
 
 
 def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix: str = "hbis",
-              out_dir=None, overwrite: bool = False) -> Summary:
+              out_dir=None, overwrite: bool = False, jobs: int | None = None) -> Summary:
     """Run ``job`` on every source into its output: on ``client``'s cluster, or in this process
-    one after the other when ``client`` is None.
+    on threads when ``client`` is None.
 
     Parameters
     ----------
@@ -344,7 +344,7 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
     sources, outputs : list of Path
         One output per source, distinct; outputs that exist are skipped.
     client : distributed.Client or None
-        Where to run; None: in this process, one task after the other, on one torch thread.
+        Where to run; None: in this process, ``jobs`` tasks at once, each on one torch thread.
     desc : str
         The progress bar's label.
     prefix : str
@@ -353,6 +353,9 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
         Locked for the run (a second run on it is refused) and cleared of leftover ``.*.tmp`` files.
     overwrite : bool
         Replace outputs that exist (the command's ``--overwrite``) instead of skipping their inputs.
+    jobs : int or None
+        Without ``client``: tasks at once on threads of this process (default: the CPUs it may
+        use, at most the number of inputs); each task has one torch thread whatever ``jobs`` is.
 
     Returns
     -------
@@ -384,11 +387,12 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
             outcomes[i] = Outcome(skipped=True)
         some = ([sources[i] for i in todo], [outputs[i] for i in todo], lambda k, outcome: report(todo[k], outcome),
                 overwrite)
+        jobs = jobs or min(len(os.sched_getaffinity(0)), max(1, len(sources)))
         with progress(total=len(sources), desc=desc, unit="task") as bar:
             bar.update(len(sources) - len(todo))
             if client is None:
-                _run_here(job, *some, bar)
-                where = "in this process, one at a time on one thread"
+                _run_here(job, *some, bar, jobs)
+                where = f"in this process, {jobs} at once, one thread each"
             else:
                 if todo:
                     _run_on(client, job, *some, bar)
@@ -401,25 +405,29 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
             lock.close()
 
 
-def _run_here(job, sources, outputs, report, overwrite, bar) -> None:
-    """Run the tasks in this process, one after the other, each on one torch thread as on a worker
-    (the same sums in the same order: the same bits; ``--scheduler local`` is the way to use more
-    cores).
+def _run_here(job, sources, outputs, report, overwrite, bar, jobs: int = 1) -> None:
+    """Run the tasks in this process, ``jobs`` side by side on threads (torch and its libraries
+    release the interpreter lock in their kernels), each on one torch thread as on a worker: the
+    same sums in the same order, the same bits (tested, for bursts too: the last-bit differences
+    once seen between two bursts assembled at once were :data:`hbis_torch.capture.burst.LSTSQ_DRIVER`'s
+    cause)."""
+    from concurrent.futures import ThreadPoolExecutor
 
-    Not side by side on threads: two bursts assembled at once in one process were measured to
-    differ, for 1 to 3 bursts in 25, in their last bits (gain and offset) from the same bursts
-    assembled alone, with torch and BLAS on one thread each, so something under
-    :func:`hbis_torch.capture.burst.assemble_burst` is not safe to run concurrently in one process.
-    Dask's workers are processes."""
     import torch
 
-    before = torch.get_num_threads()
+    from hbis_torch.progress import progress_enabled, set_progress
+
+    before, inner = torch.get_num_threads(), progress_enabled()
     torch.set_num_threads(1)
+    set_progress(False)  # no bars inside: tasks run side by side
     try:
-        for i, (source, out) in enumerate(zip(sources, outputs)):
-            report(i, run_task(job, source, out, overwrite))
-            bar.update()
+        with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(sources)))) as pool:
+            futures = [pool.submit(run_task, job, source, out, overwrite) for source, out in zip(sources, outputs)]
+            for i, future in enumerate(futures):
+                report(i, future.result())
+                bar.update()
     finally:
+        set_progress(None if inner else False)
         torch.set_num_threads(before)
 
 
