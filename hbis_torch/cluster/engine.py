@@ -107,8 +107,8 @@ class Connection:
 
             # ":0": the dashboard on a free port (8787 may be another cluster's). The workers'
             # statistical profiler (on by default: it samples the task's stack every 10 ms, taking
-            # the interpreter lock from it) is off: measured, it cost each task of 30 ms about
-            # 1.5 ms of CPU. The nannies hand this setting to the worker processes they start.
+            # the interpreter lock from it) is off: a measurable share of the CPU time of small
+            # tasks (docs/scale-out.md). The nannies hand this setting to the workers they start.
             with dask.config.set({"distributed.worker.profile.enabled": False}):
                 self.cluster = distributed.LocalCluster(n_workers=self.scheduler.workers, threads_per_worker=1,
                                                         processes=True, dashboard_address=":0",
