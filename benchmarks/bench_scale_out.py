@@ -154,7 +154,12 @@ def side_by_side(name: str, argv: list[str], out_flag_ok: bool, workers: int, re
             "throughput_per_s": {way: count / m["tasks_s"] for way, m in med.items()},
             "dask_over_in_process_tasks": med["in_process"]["tasks_s"] / med["dask"]["tasks_s"],
             "dask_over_in_process_command": med["in_process"]["command_s"] / med["dask"]["command_s"],
-            "per_round_ratio_tasks": [a["tasks_s"] / b["tasks_s"] for a, b in zip(runs["in_process"], runs["dask"])]}
+            "per_round_ratio_tasks": [a["tasks_s"] / b["tasks_s"] for a, b in zip(runs["in_process"], runs["dask"])],
+            # CPU time over wall time: the cores each way got. On a machine whose other jobs run in
+            # sessions of their own, Linux's scheduler (autogroup) shares the CPU between sessions,
+            # not processes: this whole script then gets its session's share, and 2 workers get no
+            # more cores than 1 thread, so Dask can only show its overhead there.
+            "cores_used": {way: m["command_cpu_s"] / m["command_s"] for way, m in med.items()}}
 
 
 class _Touch:
@@ -312,7 +317,10 @@ def main(argv=None) -> dict:
           f"outputs identical: {result['reconstruct']['identical_outputs'] and result['assemble_burst']['identical_outputs']}; "
           f"per-task overhead {result['overhead']['overhead_per_task_ms']:.1f} ms (goal <= 50 ms); "
           f"load average {load['load_average'][0]:.1f} at the start, {load['load_average_end'][0]:.1f} at the end "
-          f"on {os.cpu_count()} CPUs; {time.perf_counter() - started:.0f} s")
+          f"on {os.cpu_count()} CPUs; cores the commands got (CPU / wall), in-process and Dask: "
+          + ", ".join(f"{k} {result[k]['cores_used']['in_process']:.2f} and {result[k]['cores_used']['dask']:.2f}"
+                      for k in ("reconstruct", "assemble_burst"))
+          + f"; {time.perf_counter() - started:.0f} s")
     return result
 
 
