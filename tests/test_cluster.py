@@ -109,6 +109,32 @@ def test_reconstruct_on_the_cluster_is_bit_identical_names_the_corrupt_one_and_r
         assert _tree(here) == _tree(again)
 
 
+def test_a_raw_burst_on_the_cluster_writes_what_the_in_process_batch_writes(cluster, tmp_path, capsys):
+    pytest.importorskip("rawpy")
+    pytest.importorskip("pidng")
+    pytest.importorskip("cv2")
+    from hbis_torch.capture.dng import write_mosaic_dng
+    from hbis_torch.training.heldout_burst import BurstCondition
+    from hbis_torch.training.heldout_raw import BLACK, WHITE, make_raw_burst
+
+    burst = make_raw_burst("chelsea", "GRBG", "indoor", 2, 48, 5, BurstCondition("raw", frames=4))
+    frames = [str(write_mosaic_dng(tmp_path / f"f{k}.dng", m, "GRBG", BLACK, WHITE)) for k, m in enumerate(burst.mosaics)]
+    stack = tmp_path / "raw.tif"
+    assert main(["-q", "assemble", "--burst", "--scale", "2", "--out", str(stack), *frames]) == 0
+    here, there = tmp_path / "here", tmp_path / "there"
+    assert main(["-q", "reconstruct", str(stack), "--out-dir", str(here)]) == 0
+    assert main(["-q", "reconstruct", str(stack), "--out-dir", str(there), "--scheduler", cluster]) == 0
+    # the linear 16-bit TIFF and its sRGB preview, byte for byte
+    assert sorted(_tree(there)) == ["raw.classical.preview.png", "raw.classical.tif"] and _tree(there) == _tree(here)
+    for folder, where in ((here, []), (there, ["--scheduler", cluster])):  # a preview left alone: refused, kept
+        (folder / "raw.classical.tif").unlink()
+        (folder / "raw.classical.preview.png").write_bytes(b"keep me")
+        capsys.readouterr()
+        assert main(["-q", "reconstruct", str(stack), "--out-dir", str(folder), *where]) == 2
+        assert "exists already" in capsys.readouterr().err
+        assert (folder / "raw.classical.preview.png").read_bytes() == b"keep me"
+
+
 @pytest.fixture
 def one_thread():
     """torch on one thread, as each task on a worker: a burst's motions are sums that torch splits

@@ -252,6 +252,16 @@ def staging_path(out: Path) -> Path:
     return out.parent / f".{out.name}.{uuid.uuid4().hex}.tmp"
 
 
+def output_of(staging) -> Path:
+    """The output a staging file of :func:`staging_path` is for (``.NAME.<32 hex>.tmp`` -> ``NAME``):
+    for a job that writes a file beside its output (a raw burst's preview)."""
+    staging = Path(staging)
+    match = re.fullmatch(r"\.(.+)\.[0-9a-f]{32}\.tmp", staging.name)
+    if match is None:
+        raise ValueError(f"{staging} is not a staging file of staging_path")
+    return staging.parent / match.group(1)
+
+
 def publish(staging: Path, out: Path, replace: bool = False) -> bool:
     """Move the whole file ``staging`` to ``out`` unless ``out`` exists; True if it was published.
 
