@@ -96,11 +96,13 @@ class LensEstimate(NamedTuple):
     def describe(self) -> str:
         """One line for the user."""
         if self.sharpest is None:
+            if self.edges < MIN_EDGES:
+                return (f"lens blur: not measured ({self.edges} clean straight edges of {self.tried} tried, "
+                        f"{MIN_EDGES} needed); none undone (set one with --psf-sigma)")
             low = ", ".join(f"{v:.2f}" for v in self.edge_sigmas[:4])
-            why = (f"the sharpest of {self.edges} straight edges do not agree ({low}, ... LR px): a scene's own "
-                   "softness, not one lens" if self.edges >= MIN_EDGES else
-                   f"{self.edges} clean straight edges of {self.tried} tried, {MIN_EDGES} needed")
-            return f"lens blur: not measured ({why}); none undone (set one with --psf-sigma)"
+            return (f"lens blur: not measured (the sharpest of {self.edges} straight edges do not agree: {low}, "
+                    f"... LR px, the scene's own softness rather than one lens); none undone. The lens is at most "
+                    f"{np.median(self.edge_sigmas[:3]):.2f} LR px (the sharpest edges): set it with --psf-sigma")
         found = f"{self.group} of {self.edges} straight edges agree on sigma {self.sharpest:.2f} LR px"
         if self.sharpest > MAX_TRUSTED:
             return (f"lens blur: not undone: {found}, softer than any focused lens (a scene without sharp "
