@@ -41,7 +41,7 @@ TILE_PX = 8
 HALF_ACROSS, HALF_ALONG = 3.5, 4.0
 """The window of samples around an edge point (LR px), across the edge and along it."""
 MAX_EDGES = 80
-"""Edge points fitted at most: the strongest coherent ones (about 10 ms each)."""
+"""Edge points fitted at most: the strongest coherent ones."""
 MIN_COHERENCE = 0.7
 """The structure tensor's (l1 - l2) / (l1 + l2) over a tile: 1 for one straight edge."""
 MIN_CONTRAST_NOISE = 12.0
@@ -67,8 +67,8 @@ MAX_SIGMA = 3.0
 """The largest sigma (LR px) a fit may reach."""
 SCENE_MARGIN = 0.1
 """Sigma (LR px) taken off the sharpest group's in quadrature before it is undone: even a scene's
-sharpest edges are a little soft, and undoing too much blur costs far more than too little
-(on the training simulator's bursts, 0.1 LR px too much cost 0.35 dB, 0.2 cost 2.5 dB)."""
+sharpest edges are a little soft, and undoing too much blur (ringing) costs far more than too
+little (some blur left)."""
 MAX_TRUSTED = 0.7
 """Sharpest edges that agree on a sigma above this (LR px) are not taken for a focused lens: a
 scene drawn uniformly soft (an enlarged raster) or a lens out of focus, which a burst cannot tell
