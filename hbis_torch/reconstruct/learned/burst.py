@@ -4,6 +4,7 @@ burst's own frames (:mod:`hbis_torch.reconstruct.learned.adapt`)."""
 
 from __future__ import annotations
 
+import time
 import weakref
 
 import numpy as np
@@ -41,7 +42,9 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     model = available_tier(model, stack.h, messages)
     path, metadata, missing = model_to_run(model, stack.h, precision, provider)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
+    started = time.perf_counter()
     image = burst_sr(frames, positions, stack.h, weights).numpy()
+    classical_s = time.perf_counter() - started
     if missing is not None:
         return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)
     unhelpful = unhelpful_model(metadata)
@@ -51,7 +54,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     outside = None if extrapolate else outside_domain(domain_from_metadata(metadata), noise, None)
     if adapt:
         refined = _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages,
-                           precision)
+                           precision, classical_s)
         if refined is not None:
             return refined
     if outside is not None:
@@ -60,11 +63,15 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     return runner(image, noise, None, messages=messages, extrapolate=True, ensemble=ensemble)
 
 
-def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages, precision):
+def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages, precision,
+             classical_s):
     """The image refined by the network adapted to the burst, or None where it cannot be adapted
-    (the line saying why goes to ``messages``)."""
+    (the line saying why goes to ``messages``). The adaptation gets :data:`~hbis_torch.reconstruct.
+    learned.adapt.BUDGET_X_CLASSICAL` times ``classical_s`` (the classical step's seconds), at
+    least :data:`~hbis_torch.reconstruct.learned.adapt.BUDGET_MIN_S`."""
     from hbis_torch.progress import progress
-    from hbis_torch.reconstruct.learned.adapt import STEPS, adapt_refiner, load_refiner, pytorch_weights, refine
+    from hbis_torch.reconstruct.learned.adapt import (BUDGET_MIN_S, BUDGET_X_CLASSICAL, STEPS, adapt_refiner,
+                                                      load_refiner, pytorch_weights, refine)
 
     notes = messages if messages is not None else []
     weights_file = pytorch_weights(path)
@@ -76,16 +83,19 @@ def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, ou
     if cached is not None and cached() is positions and _last.get("key") == key:
         adaptation = _last["adaptation"]
     else:
+        budget = max(BUDGET_X_CLASSICAL * classical_s, BUDGET_MIN_S)
         with progress(total=STEPS, desc="adapting the network to the burst", unit="step") as bar:
             adaptation = adapt_refiner(load_refiner(weights_file), frames, positions, weights, stack.h, noise,
-                                       stack.reference_index, burst_sr, on_step=bar.update)
+                                       stack.reference_index, burst_sr, on_step=bar.update, budget_s=budget)
         _last.clear()
         _last.update(positions=weakref.ref(positions), key=key, adaptation=adaptation)
         if adaptation is None:
             notes.append("fewer than two usable frames besides the reference: the network is not adapted to the burst")
         else:
-            notes.append(f"the network was adapted to the burst's own frames (the weights of step "
-                         f"{adaptation.step} of {STEPS} kept): mean squared error of the left-out frames' "
+            stopped = "" if adaptation.steps_taken == STEPS else f", its time of {budget:.1f} s spent"
+            notes.append(f"the network was adapted to the burst's own frames ({adaptation.steps_taken} of {STEPS} "
+                         f"steps in {adaptation.seconds:.1f} s{stopped}; the weights of step {adaptation.step} "
+                         f"kept): mean squared error of the left-out frames' "
                          f"prediction {adaptation.error_before:.3g} unadapted, {adaptation.error_after:.3g} adapted, "
                          f"{adaptation.error_classical:.3g} from the classical image")
     if adaptation is None:
