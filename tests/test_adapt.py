@@ -236,3 +236,18 @@ def test_on_a_held_out_hand_held_burst_learned_is_not_behind_classical(motion):
     classical = psnr(reconstruct(stack, "classical")[border], burst.truth[border])
     learned = psnr(reconstruct(stack, "learned")[border], burst.truth[border])
     assert learned > classical + 0.1, (learned, classical)
+
+
+def test_the_folds_undo_the_lens_the_classical_image_undoes(monkeypatch):
+    stack, _ = _stack(size=24)
+    seen = []
+    real = adapt.adapt_refiner
+
+    def spy(*args, **kw):
+        seen.append(args[7].keywords["lens_sigma"])  # the classical step the folds are made with
+        return real(*args, **kw)
+
+    monkeypatch.setattr(adapt, "adapt_refiner", spy)
+    reconstruct(stack, "learned", lens_sigma=0.4)
+    reconstruct(stack, "learned")  # 'auto': the burst's own estimate, a number, and a new adaptation
+    assert seen[0] == 0.4 and len(seen) == 2 and isinstance(seen[1], float)
