@@ -32,9 +32,11 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     lattice, where the scans' noise is measured); where no model is shipped for it, the classical image,
     with a message (:func:`~hbis_torch.reconstruct.learned.runtime.classical_returned`).
 
-    With ``adapt`` (the default) the network is first fine-tuned to predict the burst's own
-    left-out frames (:func:`~hbis_torch.reconstruct.learned.adapt.adapt_refiner`) and runs in
-    PyTorch, float32. A burst whose noise lies outside the model's training range is then
+    With ``adapt`` (the default) the network's last convolution is first fine-tuned to predict
+    the burst's own left-out frames (:func:`~hbis_torch.reconstruct.learned.adapt.adapt_refiner`),
+    in at most :data:`~hbis_torch.reconstruct.learned.adapt.BUDGET_X_CLASSICAL` times the time
+    this call's classical step took (at least :data:`~hbis_torch.reconstruct.learned.adapt.BUDGET_MIN_S`),
+    and the network runs in PyTorch, float32. A burst whose noise lies outside the model's training range is then
     refined too where the adapted network predicts the left-out frames better than the classical
     image does (else it gets the classical image, said so). A model without its PyTorch weights
     beside it (``NAME.pt``), or a burst with fewer than two usable frames besides the reference,
