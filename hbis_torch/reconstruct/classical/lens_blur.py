@@ -14,7 +14,7 @@ standard deviation ``sigma`` (LR px). Scenes have soft edges as well as sharp on
 defocus, texture), and a soft edge only ever adds to the fitted sigma. The lens is common to
 every edge; the scene's softness varies from edge to edge. So the lens shows as a **pile-up of
 the sharpest edges at one sigma**: the estimate is the median of the lowest tight group of
-:func:`sharpest_group` (at least :data:`MIN_EDGES` edges, and a quarter of the accepted ones,
+:func:`sharpest_group` (at least :data:`MIN_EDGES` edges, and a tenth of the accepted ones,
 within :data:`GROUP_WIDTH`, starting among the lowest few); where the sharpest edges spread
 instead (a soft scene: a raster enlarged, a photograph's own blur), nothing is undone, since the
 burst cannot tell its lens from its scene there, and undoing blur that is not the lens costs
@@ -55,8 +55,9 @@ MAX_RESIDUAL_STEP times the step (registration errors of a few hundredths of a p
 residuals in proportion to the step; a second edge or a thin line in the window leaves more)."""
 MIN_EDGES = 8
 """The fewest edges in the sharpest group (module docstring)."""
-GROUP_SHARE = 0.25
-"""The sharpest group holds at least this share of the accepted edges."""
+GROUP_SHARE = 0.1
+"""The sharpest group holds at least this share of the accepted edges (at most
+:data:`MAX_EDGES` are fitted, so a larger frame does not make a chance group easier)."""
 GROUP_WIDTH = (0.05, 0.05)
 """The sharpest group's spread of sigma may reach a + b x its lowest sigma (LR px): edges that
 share one lens agree to a few hundredths of a pixel (their fits' standard errors)."""
@@ -68,8 +69,11 @@ SCENE_MARGIN = 0.1
 """Sigma (LR px) taken off the sharpest group's in quadrature before it is undone: even a scene's
 sharpest edges are a little soft, and undoing too much blur costs far more than too little
 (on the training simulator's bursts, 0.1 LR px too much cost 0.35 dB, 0.2 cost 2.5 dB)."""
-MAX_TRUSTED = 1.0
-"""Sharpest edges softer than this (LR px) are the scene's, or a lens out of focus: nothing undone."""
+MAX_TRUSTED = 0.7
+"""Sharpest edges that agree on a sigma above this (LR px) are not taken for a focused lens: a
+scene drawn uniformly soft (an enlarged raster) or a lens out of focus, which a burst cannot tell
+apart; nothing is undone (a calibrated ``--psf-sigma`` still is). A Gaussian of 0.7 LR px leaves
+9 % of the contrast at the pixel's Nyquist frequency."""
 
 
 class LensEstimate(NamedTuple):
@@ -92,11 +96,13 @@ class LensEstimate(NamedTuple):
     def describe(self) -> str:
         """One line for the user."""
         if self.sharpest is None:
+            if self.edges < MIN_EDGES:
+                return (f"lens blur: not measured ({self.edges} clean straight edges of {self.tried} tried, "
+                        f"{MIN_EDGES} needed); none undone (set one with --psf-sigma)")
             low = ", ".join(f"{v:.2f}" for v in self.edge_sigmas[:4])
-            why = (f"the sharpest of {self.edges} straight edges do not agree ({low}, ... LR px): a scene's own "
-                   "softness, not one lens" if self.edges >= MIN_EDGES else
-                   f"{self.edges} clean straight edges of {self.tried} tried, {MIN_EDGES} needed")
-            return f"lens blur: not measured ({why}); none undone (set one with --psf-sigma)"
+            return (f"lens blur: not measured (the sharpest of {self.edges} straight edges do not agree: {low}, "
+                    f"... LR px, the scene's own softness rather than one lens); none undone. The lens is at most "
+                    f"{np.median(self.edge_sigmas[:3]):.2f} LR px (the sharpest edges): set it with --psf-sigma")
         found = f"{self.group} of {self.edges} straight edges agree on sigma {self.sharpest:.2f} LR px"
         if self.sharpest > MAX_TRUSTED:
             return (f"lens blur: not undone: {found}, softer than any focused lens (a scene without sharp "
@@ -117,17 +123,35 @@ def sharpest_group(sigmas: np.ndarray) -> tuple[float, int] | None:
     return None
 
 
-def _f2(x: np.ndarray, sigma: float) -> np.ndarray:
-    """The second antiderivative of the Gaussian step Phi(x / sigma)."""
+def _antiderivatives(x: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the Gaussian step Phi(x / sigma): its second antiderivative F2, F2's derivative in x
+    (the first antiderivative F1) and F2's derivative in sigma (sigma Phi)."""
     from scipy.special import ndtr
 
     z = x / sigma
+    cdf = ndtr(z)
     pdf = np.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
-    return 0.5 * (x * x + sigma * sigma) * ndtr(z) + 0.5 * x * sigma * pdf
+    f2 = 0.5 * (x * x + sigma * sigma) * cdf + 0.5 * x * sigma * pdf
+    return f2, x * cdf + sigma * pdf, sigma * cdf
+
+
+def _profile(d: np.ndarray, theta: float, sigma: float, aperture: float):
+    """:func:`edge_profile` and its derivatives in ``d`` and in ``sigma``."""
+    a = max(aperture * abs(math.cos(theta)), 1e-2)
+    b = max(aperture * abs(math.sin(theta)), 1e-2)
+    out = np.zeros((3,) + d.shape)
+    for shift, sign in (((a + b) / 2, 1), ((a - b) / 2, -1), (-(a - b) / 2, -1), (-(a + b) / 2, 1)):
+        for i, part in enumerate(_antiderivatives(d + shift, sigma)):
+            out[i] += sign * part
+    return out / (a * b)
 
 
 def edge_profile(d: np.ndarray, theta: float, sigma: float, aperture: float = 1.0) -> np.ndarray:
     """The response of a pixel to a unit step at signed distance ``d`` (LR px) from its centre.
+
+    The step, blurred by the Gaussian lens, averaged over the pixel's area: along the edge's
+    normal the area is two boxes, of widths aperture x abs(cos theta) and aperture x abs(sin
+    theta), so the average is four terms of the blurred step's second antiderivative.
 
     Parameters
     ----------
@@ -145,11 +169,7 @@ def edge_profile(d: np.ndarray, theta: float, sigma: float, aperture: float = 1.
     np.ndarray
         In [0, 1]: 0 far on the dark side, 1 far on the bright side (d > 0).
     """
-    a = max(aperture * abs(math.cos(theta)), 1e-2)
-    b = max(aperture * abs(math.sin(theta)), 1e-2)
-    ha, hb = a / 2, b / 2
-    return (_f2(d + ha + hb, sigma) - _f2(d + ha - hb, sigma) - _f2(d - ha + hb, sigma)
-            + _f2(d - ha - hb, sigma)) / (a * b)
+    return _profile(np.asarray(d, dtype=np.float64), theta, sigma, aperture)[0]
 
 
 def _edge_points(reference: np.ndarray, noise: float) -> list[tuple[float, float, float]]:
@@ -209,44 +229,64 @@ def _samples(frames, positions, weights, x: float, y: float, theta: float):
 
 
 def _fit_edge(xy: np.ndarray, values: np.ndarray, theta0: float, noise: float, aperture: float):
-    """Fit one edge's samples (module docstring). Returns (sigma, its standard error, c1, RMS
-    residual) or None where the fit fails."""
+    """Fit one edge's samples (module docstring): the parameters (c0, c1, t, theta, sigma).
+    Returns (sigma, its standard error, c1, RMS residual in noise units) or None where the fit
+    fails."""
     from scipy.optimize import least_squares
 
     if len(values) < 40:
         return None
-    n0 = np.array([math.cos(theta0), math.sin(theta0)])
-    proj = xy @ n0
-    # Start: the step between the samples' low and high ends along the normal, through the middle.
+    proj = xy @ np.array([math.cos(theta0), math.sin(theta0)])
     low, high = values[proj < -1.5], values[proj > 1.5]
     if len(low) < 10 or len(high) < 10:
         return None
-    lo, hi = float(np.median(low)), float(np.median(high))
+    lo, hi = float(np.median(low)), float(np.median(high))  # the start: a step through the middle
+
+    def model(q):
+        c0, c1, t, th, sigma = q
+        normal = np.array([math.cos(th), math.sin(th)])
+        return _profile(xy @ normal - t, th, sigma, aperture), normal
 
     def residual(q):
-        c0, c1, t, th, s = q
-        d = xy @ np.array([math.cos(th), math.sin(th)]) - t
-        return (c0 + c1 * edge_profile(d, th, s, aperture) - values) / noise
+        (e, _, _), _ = model(q)
+        return (q[0] + q[1] * e - values) / noise
+
+    def jacobian(q):
+        # theta moves d (exactly) and the pixel's footprint on the normal (a far smaller term, left out)
+        (e, e_d, e_s), normal = model(q)
+        c1 = q[1]
+        across = xy @ np.array([-normal[1], normal[0]])
+        return np.stack([np.ones_like(e), e, -c1 * e_d, c1 * e_d * across, c1 * e_s], axis=1) / noise
 
     start = [lo, hi - lo, 0.0, theta0, 0.4]
     try:
-        fit = least_squares(residual, start, bounds=([-np.inf, -np.inf, -2, theta0 - 0.5, 0.02],
-                                                     [np.inf, np.inf, 2, theta0 + 0.5, MAX_SIGMA]),
-                            loss="soft_l1", f_scale=3.0, x_scale=[0.1, 0.1, 0.1, 0.05, 0.1], max_nfev=60)
+        fit = least_squares(residual, start, jac=jacobian,
+                            bounds=([-np.inf, -np.inf, -2, theta0 - 0.5, 0.02], [np.inf, np.inf, 2, theta0 + 0.5, MAX_SIGMA]),
+                            loss="soft_l1", f_scale=3.0, x_scale=[0.1, 0.1, 0.1, 0.05, 0.1], max_nfev=40)
     except (ValueError, np.linalg.LinAlgError):
         return None
-    c0, c1, t, th, s = fit.x
+    c0, c1, t, th, sigma = fit.x
     if abs(t) > 1.5:  # the edge left the window's middle: one side barely sampled
         return None
-    r = residual(fit.x)
-    J = fit.jac
+    J = jacobian(fit.x)
     try:
         cov = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         return None
+    r = residual(fit.x)
     rms = float(np.sqrt(np.mean(r * r)))
-    error = math.sqrt(max(cov[4, 4], 0.0)) * max(rms, 1.0)
-    return float(s), error, float(c1), rms
+    return float(sigma), math.sqrt(max(cov[4, 4], 0.0)) * max(rms, 1.0), float(c1), rms
+
+
+def frame_noise(image: np.ndarray) -> float:
+    """The noise standard deviation of one frame, from the median absolute response to the 3 x 3
+    mask of Immerkaer (1996), which cancels every plane and most smooth structure (its norm is 6);
+    edges and texture are a minority of pixels, so the median stays with the noise."""
+    from scipy.ndimage import convolve
+
+    mask = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
+    response = convolve(np.asarray(image, dtype=np.float64), mask, mode="reflect")[1:-1, 1:-1]
+    return float(1.4826 * np.median(np.abs(response)) / 6.0)
 
 
 def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float,
@@ -312,11 +352,10 @@ def burst_lens_sigma(frames, positions, weights, reference: int, notes: list | N
     float
         Sigma, LR px.
     """
-    from hbis_torch.reconstruct.classical.burst import burst_sample_noise
-
     grey = frames if frames.ndim == 3 else frames @ frames.new_tensor([0.299, 0.587, 0.114])
-    noise = burst_sample_noise(grey, positions, weights)
-    estimate = estimate_lens_sigma(grey.numpy(), positions.numpy(), weights.numpy(), reference, noise)
+    grey = grey.numpy()
+    noise = frame_noise(grey[reference])
+    estimate = estimate_lens_sigma(grey, positions.numpy(), weights.numpy(), reference, noise)
     if notes is not None:
         notes.append(estimate.describe())
     return estimate.sigma
