@@ -166,3 +166,88 @@ def test_the_forward_model_in_float32_agrees_with_float64():
     wide, narrow = predict(output, points), predict(output.float(), points.float())
     assert wide.dtype == torch.float64 and narrow.dtype == torch.float32
     assert float((wide - narrow.double()).abs().max()) < 1e-6
+
+
+def test_the_written_out_adam_takes_torchs_steps():
+    torch.manual_seed(0)
+    layers = [torch.nn.Conv2d(4, 3, 3) for _ in range(2)]
+    layers[1].load_state_dict(layers[0].state_dict())
+    ours, theirs = adapt.Adam(layers[0].parameters(), lr=1e-2), torch.optim.Adam(layers[1].parameters(), lr=1e-2)
+    x = torch.randn(2, 4, 9, 9)
+    start = layers[0].weight.detach().clone()
+    for _ in range(5):
+        for layer, optimiser in zip(layers, (ours, theirs)):
+            optimiser.zero_grad()
+            (layer(x) ** 3).mean().backward()
+            optimiser.step()
+    for a, b in zip(layers[0].parameters(), layers[1].parameters()):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    assert float((layers[0].weight.detach() - start).abs().max()) > 1e-3  # it moved
+
+
+def test_the_adaptation_stops_when_its_time_is_spent():
+    stack, _ = _stack(size=24)
+    frames, positions, _, weights = burst_samples(stack, corrected_frames(stack))
+    net = adapt.load_refiner(shipped_model_path(2).with_suffix(".pt"))
+    args = (net, frames, positions, weights, 2, (0.0, 1e-4), stack.reference_index, burst_sr)
+    spent = adapt.adapt_refiner(*args, steps=10, budget_s=0.0)
+    assert spent.steps_taken == 0 and spent.step == 0 and spent.error_after == spent.error_before
+    assert all(torch.equal(a, b) for a, b in zip(spent.net.state_dict().values(), net.state_dict().values()))
+    full = adapt.adapt_refiner(*args, steps=10, budget_s=60.0)
+    assert full.steps_taken == 10 and 0 < full.seconds < 60
+
+
+def test_the_learned_method_gives_the_adaptation_a_budget_from_the_classical_time(monkeypatch):
+    stack, _ = _stack(size=24)
+    monkeypatch.setattr(adapt, "BUDGET_MIN_S", 0.0)
+    monkeypatch.setattr(adapt, "BUDGET_X_CLASSICAL", 0.0)
+    notes: list = []
+    image = reconstruct(stack, "learned", messages=notes)
+    assert any(f"(0 of {adapt.STEPS} steps" in n and "spent" in n for n in notes), notes
+    np.testing.assert_allclose(image, reconstruct(stack, "learned", adapt=False), atol=1e-5)
+
+
+def test_the_window_is_the_most_textured():
+    frame = torch.zeros(300, 400)
+    frame[200:290, 20:110] = torch.rand(90, 90, generator=torch.Generator().manual_seed(0))
+    y, x, h, w = adapt.crop_box(frame, 128)
+    assert (h, w) == (128, 128) and y <= 200 and y + h >= 290 and x <= 20 and x + w >= 110
+    assert adapt.crop_box(frame[:50, :60], 128) == (0, 0, 50, 60)
+
+
+def test_the_crop_keeps_only_the_samples_that_land_in_it():
+    frames = torch.rand(2, 10, 12)
+    positions = torch.stack(torch.meshgrid(torch.arange(10.0), torch.arange(12.0), indexing="ij")[::-1], -1)
+    positions = torch.stack((positions, positions + torch.tensor([3.0, 0.0])))  # frame 1 moved 3 px right
+    f, p, w = adapt.crop_samples(frames, positions.double(), torch.ones(2, 10, 12, dtype=torch.float64), (2, 4, 5, 6))
+    assert f.shape == (2, 5, 6) and torch.equal(f, frames[:, 2:7, 4:10])
+    assert torch.equal(p[0, 0, 0], torch.tensor([0.0, 0.0], dtype=torch.float64))
+    assert bool((w[0] == 1).all()) and bool((w[1, :, :3] == 1).all()) and bool((w[1, :, 3:] == 0).all())
+
+
+@pytest.mark.parametrize("motion", ["similarity", "homography"])
+def test_on_a_held_out_hand_held_burst_learned_is_not_behind_classical(motion):
+    """The hand-held matrix's renderer (never trained or tuned on), one small burst per motion."""
+    from hbis_torch.training.handheld_render import render_burst
+
+    burst = render_burst(motion, 2, 8, 128, 96, seed=7)
+    stack, _ = assemble_burst(burst.frames, 2)
+    border = (slice(8, -8), slice(8, -8))
+    classical = psnr(reconstruct(stack, "classical")[border], burst.truth[border])
+    learned = psnr(reconstruct(stack, "learned")[border], burst.truth[border])
+    assert learned > classical + 0.1, (learned, classical)
+
+
+def test_the_folds_undo_the_lens_the_classical_image_undoes(monkeypatch):
+    stack, _ = _stack(size=24)
+    seen = []
+    real = adapt.adapt_refiner
+
+    def spy(*args, **kw):
+        seen.append(args[7].keywords["lens_sigma"])  # the classical step the folds are made with
+        return real(*args, **kw)
+
+    monkeypatch.setattr(adapt, "adapt_refiner", spy)
+    reconstruct(stack, "learned", lens_sigma=0.4)
+    reconstruct(stack, "learned")  # 'auto': the burst's own estimate, a number, and a new adaptation
+    assert seen[0] == 0.4 and len(seen) == 2 and isinstance(seen[1], float)

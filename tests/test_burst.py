@@ -183,7 +183,8 @@ def test_colour_burst_goes_per_channel_or_as_luma():
 
 
 @pytest.mark.parametrize("options", [{"model": "best"}, {"precision": "int8"}, {"model": "best", "precision": "int8"},
-                                     {"ensemble": 2}, {"extrapolate": True}, {"model": "best", "adapt": True}])
+                                     {"ensemble": 2}, {"extrapolate": True}, {"model": "best", "adapt": True},
+                                     {"lens_sigma": 0.6}])
 def test_every_learned_option_reaches_the_burst_path(options):
     """Each option of the learned entry is taken on a burst as on a scan (the tiers and the int8
     files came after the burst path; a keyword it did not know was a TypeError). The network as
@@ -196,6 +197,8 @@ def test_every_learned_option_reaches_the_burst_path(options):
     assert image.shape == plain.shape and np.isfinite(image).all()
     if options.get("model") == "best" or options.get("precision") == "int8":
         assert not np.array_equal(image, plain)  # another network ran
+    if "lens_sigma" in options:  # the classical image it refines undid another lens than the one measured
+        assert not np.array_equal(image, plain)
 
 
 def test_scale_three_bursts_run_the_shipped_model():

@@ -111,6 +111,21 @@ def test_the_eval_resumes_where_it_stopped(eh, tmp_path, capsys):
     assert "| translation | " in out.with_suffix(".md").read_text()
 
 
+def test_the_eval_runs_only_the_rows_asked_for_and_compares_learned_with_classical(eh, tmp_path, capsys):
+    out = tmp_path / "learned.json"
+    assert eh.main(["--out", str(out), "--motions", "translation", "--rows", "bogus", "--size", "64x48"]) == 2
+    assert "unknown row(s) bogus" in capsys.readouterr().err and not out.exists()
+    assert eh.main(["--out", str(out), "--motions", "translation", "--scales", "2", "--frames", "4", "--size",
+                    "64x48", "--rows", "classical", "learned"]) == 0
+    results = json.loads(out.read_text())
+    rows = results["cells"]["translation|S=2|F=4"]["rows"]
+    assert set(rows) == {"classical", "learned"}
+    learned = results["summary"]["S=2|F=4"]["learned_minus_classical"]
+    assert learned["mean_db"] == pytest.approx(rows["learned"]["psnr_db"] - rows["classical"]["psnr_db"])
+    assert learned["time_ratio_worst"] == pytest.approx(rows["learned"]["seconds"] / rows["classical"]["seconds"])
+    assert "Learned - classical over the 1 cells with both" in out.with_suffix(".md").read_text()
+
+
 def test_the_vidsr_peer_gives_an_image_on_the_truths_grid(eh):
     pytest.importorskip("vidsr")
     vidsr_sr = eh._peer().vidsr_sr  # benchmarks/peers/vidsr_peer.py, as the eval loads it

@@ -200,6 +200,15 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     return entry.run_function()(stack, registration=registration, **kw)
 
 
+# The lens blur the deblurring undoes: the classical method's, and the classical image's that the
+# learned method refines (one option, so that both take it alike)
+PSF_SIGMA = Option("--psf-sigma", "lens_sigma", "a Gaussian lens blur (standard deviation, LR px) that the deblurring "
+                   "undoes beyond the pixel's area and the optics' diffraction: a number (from a calibration such as "
+                   "a slanted edge; 0: none) or 'auto', the default: bursts measure it on their own straight edges "
+                   "and say what they found, scans take none. Too large a value rings and costs more than too small "
+                   "a one (docs/real-bursts.md)", {"type": auto_or(bounded_float(0.0, 3.0)), "metavar": "PX|auto"})
+
+
 register(Method(
     name="classical",
     run="hbis_torch.reconstruct.classical.method:reconstruct_classical",
@@ -209,11 +218,7 @@ register(Method(
     options=(
         Option("--no-deblur", "deblur", "interpolation only, without the Wiener deblurring",
                {"action": "store_false"}),
-        Option("--psf-sigma", "lens_sigma", "a Gaussian lens blur (standard deviation, LR px) that the deblurring "
-               "undoes beyond the pixel's area and the optics' diffraction: a number (from a calibration such as "
-               "a slanted edge; 0: none) or 'auto', the default: bursts measure it on their own straight edges "
-               "and say what they found, scans take none. Too large a value rings and costs more than too small "
-               "a one (docs/real-bursts.md)", {"type": auto_or(bounded_float(0.0, 3.0)), "metavar": "PX|auto"}),
+        PSF_SIGMA,
     ),
 ))
 
@@ -248,6 +253,7 @@ register(Method(
                "float32 on others. Each loses PSNR in the held-out matrix's cleanest cells: int8 up to 3.7 dB, "
                "bf16 up to 0.33 dB, in cells above 50 dB (docs/learned.md, section int8)",
                {"choices": ("int8", "bf16", "fp32")}),
+        PSF_SIGMA,
         Option("--no-adapt", "adapt", "bursts: refine with the network as shipped, not first fine-tuned for a few "
                "seconds to predict the burst's own left-out frames (test-time adaptation, docs/real-bursts.md)",
                {"action": "store_false"}),

@@ -5,20 +5,31 @@ processes its frames in ways no simulator here reproduces. A burst carries its o
 a frame left out of the reconstruction can be predicted from the others' image through the forward
 model of observation space (the pixel's box and a small blur, read where the frame's motion puts
 each sample: :mod:`hbis_torch.observation.forward`), and compared with what the camera recorded.
-:func:`adapt_refiner` fine-tunes the network for a few steps to make that prediction better:
+:func:`adapt_refiner` fine-tunes the network's last convolution for a few steps to make that
+prediction better:
 
-1. the frames besides the reference are dealt into :data:`FOLDS` groups (every fourth frame);
-   each group's *input* is the classical image of the other frames, its *targets* the group's
-   samples (robustness-weighted, at least :data:`BORDER_PX` inside the reference frame);
-2. the loss is the targets' weighted squared error, plus :data:`ANCHOR` times the mean squared
+1. the frames are cut to one window of :data:`CROP_PX` LR px (the most textured of a few
+   candidates, :func:`crop_box`); the frames besides the reference are dealt into :data:`FOLDS`
+   groups (every fourth frame); each group's *input* is the classical image of the other
+   frames' samples in the window, its *targets* the group's samples there (robustness-weighted,
+   at least :data:`BORDER_PX` inside the window);
+2. only the last convolution (``tail``) is fine-tuned, on the body's features computed once per
+   group (:meth:`~hbis_torch.reconstruct.learned.network.HbisSRNet.features`): a step costs a
+   convolution of 32 channels, not the network's forward and backward passes (measured on
+   development bursts, never the held-out renderer: ``training/adapt_dev.py``,
+   ``benchmarks/results/adapt_dev.json``);
+3. the loss is the targets' weighted squared error, plus :data:`ANCHOR` times the mean squared
    change of the output from the unadapted network's. The anchor holds what the frames cannot
    see: without it the network learns a pixel-scale checkerboard that the pixel's box averages
    away (on the shared Emily sequence the left-out frames' error halved in the fit and
    ``hbis validate`` lost 1.6 dB);
-3. Adam, :data:`STEPS` steps on every group but the first, each on a window of at most
-   :data:`WINDOW_PX` LR pixels (plus the network's reach on every side); the first group is held
-   out to stop early: every :data:`CHECK_EVERY` steps its error is measured, and the weights that
-   predict it best are kept (the unadapted network's, if none beats it).
+4. Adam, at most :data:`STEPS` steps on every group but the first, each on a sub-window of at
+   most :data:`WINDOW_PX` LR pixels; the first group is held out to stop early: every
+   :data:`CHECK_EVERY` steps its error is measured, and the weights that predict it best are
+   kept (the unadapted network's, if none beats it);
+5. the whole adaptation is bounded in time: ``budget_s`` seconds (the learned method gives it
+   :data:`BUDGET_X_CLASSICAL` times what its classical step took, at least
+   :data:`BUDGET_MIN_S`); the steps stop when it is spent (at least one check is made).
 
 Everything here is float32: the loss compares intensities in [0, 1] with errors of 1e-4 and
 more, far above float32's rounding (the prediction agrees with float64's to 1e-6: tested).
@@ -32,6 +43,8 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -43,14 +56,30 @@ from hbis_torch.reconstruct.learned.inputs import TILE_HALO, network_inputs, run
 from hbis_torch.observation.forward import DEFAULT_BLUR_PX, pixel_kernel
 
 FOLDS = 4
-STEPS = 60
-LEARNING_RATE = 3e-4
+# The tail alone, on a window of CROP_PX chosen by texture, with WINDOW_PX steps: on eight
+# 640 x 480 development bursts (training/adapt_dev.py, benchmarks/results/adapt_dev.json; never
+# the held-out renderer) 30 steps at 1e-3 gained +1.07 dB over classical on the mean (+0.85 at
+# worst; the network unadapted +0.47), 60 steps +1.08 and 40 steps at 1.5e-3 +1.09, in 1.6,
+# 2.4 and 1.9 times the classical step's time. The kept step was 10 to 20 of 30 in all eight.
+STEPS = 30
+LEARNING_RATE = 1e-3
 # Chosen with the forward model's blur from six settings (docs/real-bursts.md): a weaker anchor
 # gains more on real and held-out bursts but loses up to 2 dB on the training's own simulator.
 ANCHOR = 1.0
 CHECK_EVERY = 5
-WINDOW_PX = 96
+WINDOW_PX = 64
+CROP_PX = 192
 BORDER_PX = 2.0
+# The time the learned method gives the adaptation: this many times its classical step's
+# (burst_sr alone: 0.5 to 0.7 of what ``reconstruct(stack, "classical")`` takes on a 640 x 480
+# development burst, which also measures the positions and the robustness weights), and at
+# least BUDGET_MIN_S: a burst of small frames, whose classical step takes a tenth of a second,
+# still makes its STEPS (on the shared real sequences, on a loaded machine, a floor of 1 s left
+# them 0 to 16 steps and learned - classical fell from +0.50 to +0.27 dB at S = 2). With the
+# adapted network's pass over the whole image, the learned method then takes about 2 to 2.6
+# times the classical reconstruction at 640 x 480 (the issue's bound: 3).
+BUDGET_X_CLASSICAL = 1.5
+BUDGET_MIN_S = 5.0
 # Validate's lens blur (LR px): real cameras blur beyond the pixel's box; a camera that does not
 # (the project's own simulator) gets sharpened past the scene (docs/real-bursts.md, "Where it loses").
 BLUR_PX = DEFAULT_BLUR_PX
@@ -71,6 +100,8 @@ class Fold:
         The group's samples' (u, v) on the reference frame, LR px.
     values, weights : Tensor, shape (N,)
         What the camera recorded there, and each sample's robustness weight.
+    features : Tensor, shape (1, width, H, W), optional
+        The network's features of ``base`` (what its last convolution sees), once computed.
     """
 
     base: Tensor
@@ -78,6 +109,7 @@ class Fold:
     points: Tensor
     values: Tensor
     weights: Tensor
+    features: Tensor | None = None
 
 
 @dataclasses.dataclass
@@ -94,6 +126,10 @@ class Adaptation:
         The held-out group's weighted mean squared error with the unadapted and the kept network.
     error_classical : float
         The same for the classical image itself.
+    steps_taken : int
+        The steps made: fewer than asked where the time budget ran out.
+    seconds : float
+        The adaptation's time, the folds' classical images included.
     """
 
     net: torch.nn.Module
@@ -101,6 +137,8 @@ class Adaptation:
     error_before: float
     error_after: float
     error_classical: float
+    steps_taken: int = 0
+    seconds: float = 0.0
 
 
 def pytorch_weights(onnx_path) -> Path | None:
@@ -120,6 +158,44 @@ def load_refiner(checkpoint) -> torch.nn.Module:
     net = build_net(state["model_config"])
     net.load_state_dict(state["model"])
     return net.eval()
+
+
+def crop_box(reference_frame: Tensor, side: int = CROP_PX) -> tuple[int, int, int, int]:
+    """The window the adaptation works on: (row, col, rows, cols) of a ``side`` x ``side`` LR px
+    window (the whole frame where it is smaller), the one with the most gradient energy in the
+    reference frame among a grid of candidates half a window apart (a flat sky teaches nothing).
+
+    Parameters
+    ----------
+    reference_frame : Tensor, shape (H, W)
+    side : int
+    """
+    rows, cols = reference_frame.shape
+    h, w = min(rows, side), min(cols, side)
+    frame = reference_frame.double()
+    energy = (frame[1:, 1:] - frame[:-1, 1:]) ** 2 + (frame[1:, 1:] - frame[1:, :-1]) ** 2
+    total = F.pad(energy.cumsum(0).cumsum(1), (1, 0, 1, 0))  # summed-area table, (rows, cols)
+
+    def starts(n, size):
+        last = n - size
+        return sorted({*range(0, last + 1, max(size // 2, 1)), last})
+
+    def score(y, x):
+        y1, x1 = min(y + h - 1, rows - 1), min(x + w - 1, cols - 1)
+        return float(total[y1, x1] - total[y, x1] - total[y1, x] + total[y, x])
+
+    best = max(((y, x) for y in starts(rows, h) for x in starts(cols, w)), key=lambda yx: score(*yx))
+    return best[0], best[1], h, w
+
+
+def crop_samples(frames: Tensor, positions: Tensor, weights: Tensor, box) -> tuple[Tensor, Tensor, Tensor]:
+    """The frames' pixels in ``box`` (row, col, rows, cols) with their positions moved to the
+    window's corner; samples that the motion puts outside the window get weight 0."""
+    y0, x0, h, w = box
+    f = frames[:, y0:y0 + h, x0:x0 + w].contiguous()
+    p = positions[:, y0:y0 + h, x0:x0 + w] - torch.tensor([x0, y0], dtype=positions.dtype)
+    outside = (p[..., 0] < -0.5) | (p[..., 0] > w - 0.5) | (p[..., 1] < -0.5) | (p[..., 1] > h - 0.5)
+    return f, p.contiguous(), weights[:, y0:y0 + h, x0:x0 + w].masked_fill(outside, 0.0)
 
 
 def folds_of(count: int, reference: int, usable) -> list[list[int]]:
@@ -155,6 +231,9 @@ class _Predictor:
     def __init__(self, scale: int):
         self.scale = scale
         self.kernel = torch.from_numpy(pixel_kernel(scale, 1.0, BLUR_PX).astype(np.float32))
+        # LR px of context a window needs for its samples' predictions to equal the whole
+        # image's: the last convolution's 1, the blur's reach and the bicubic read's 2 output px
+        self.halo = 1 + math.ceil((len(self.kernel) // 2 + 2) / scale)
 
     def __call__(self, output: Tensor, points: Tensor) -> Tensor:
         """output (1, 1, S h, S w) of a window whose corner is LR px (0, 0); points (N, 2) in the
@@ -176,22 +255,24 @@ def _halo(net: torch.nn.Module) -> int:
 
 def _window(fold: Fold, y0: int, x0: int, size: tuple[int, int], halo: int):
     """The fold cut to an inner window (rows y0.., cols x0.., ``size`` LR px) with ``halo`` px of
-    context: (base, noise, the inner window's samples' points in the cut's px, their values and
-    weights, the inner window's corner (row, col) in the cut, LR px)."""
+    context: (base, features, the inner window's samples' points in the cut's px, their values
+    and weights, the inner window's corner (row, col) in the cut, LR px)."""
     rows, cols = fold.base.shape[-2:]
     ya, xa = max(0, y0 - halo), max(0, x0 - halo)
     yb, xb = min(rows, y0 + size[0] + halo), min(cols, x0 + size[1] + halo)
     u, v = fold.points[:, 0], fold.points[:, 1]
     inside = (u >= x0) & (u <= x0 + size[1] - 1) & (v >= y0) & (v <= y0 + size[0] - 1)
     points = fold.points[inside] - torch.tensor([xa, ya], dtype=torch.float32)
-    return (fold.base[..., ya:yb, xa:xb], fold.noise[..., ya:yb, xa:xb], points, fold.values[inside],
+    return (fold.base[..., ya:yb, xa:xb], fold.features[..., ya:yb, xa:xb], points, fold.values[inside],
             fold.weights[inside], (y0 - ya, x0 - xa))
 
 
 def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weights: Tensor, scale: int,
                   noise_params: tuple[float, float], reference: int, classical, *, steps: int = STEPS,
-                  seed: int = SEED, on_step=None) -> Adaptation | None:
-    """Fine-tune a copy of ``net`` to predict the burst's left-out frames (the module's recipe).
+                  seed: int = SEED, on_step=None, budget_s: float | None = None,
+                  crop: int = CROP_PX) -> Adaptation | None:
+    """Fine-tune a copy of ``net``'s last convolution to predict the burst's left-out frames
+    (the module's recipe).
 
     Parameters
     ----------
@@ -211,72 +292,125 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
     classical : callable
         ``classical(frames, positions, scale, weights)`` -> (S H, S W) Tensor.
     steps : int
-        Adam steps.
+        Adam steps at most.
     seed : int
-        Seeds the windows' draw: the same burst gives the same result.
+        Seeds the windows' draw: the same burst gives the same result (unless the time budget
+        stops it at another step).
     on_step : callable, optional
         Called after each step (a progress bar's ``update``).
+    budget_s : float, optional
+        Seconds the whole adaptation may take (folds included): no step starts after them.
+        None: all ``steps``.
+    crop : int
+        Side of the window the adaptation works on, LR px (:func:`crop_box`).
 
     Returns
     -------
     Adaptation or None
-        None where fewer than two frames besides the reference carry weight.
+        None where fewer than two frames besides the reference carry weight in the window.
     """
+    started = time.perf_counter()
+    frames, positions, weights = crop_samples(frames, positions, weights, crop_box(frames[reference], crop))
     usable = [bool(weights[k].sum() > 0) for k in range(len(frames))]
     groups = folds_of(len(frames), reference, usable)
     if not groups:
         return None
     folds = [make_fold(g, frames, positions, weights, scale, noise_params, classical) for g in groups]
+    with torch.no_grad():
+        for fold in folds:
+            fold.features = net.features(fold.base, fold.noise)
     check, train = folds[0], folds[1:]
-    adapted = copy.deepcopy(net).train()
-    frozen = net.eval()
+    tail = copy.deepcopy(net.tail).train()
     predict = _Predictor(scale)
-    halo = _halo(net)
+    halo = predict.halo
     rows, cols = check.base.shape[-2:]
     size = (min(rows, WINDOW_PX), min(cols, WINDOW_PX))
     generator = torch.Generator().manual_seed(seed)
 
-    # the held-out group is scored on one fixed window (the centre; the whole image up to
+    def output(layer, base: Tensor, features: Tensor) -> Tensor:
+        return F.pixel_shuffle(base + layer(features), scale)
+
+    # the held-out group is scored on one fixed window (the centre; the whole window up to
     # 2 x WINDOW_PX): the same samples at every check
     check_size = (min(rows, 2 * WINDOW_PX), min(cols, 2 * WINDOW_PX))
     check_window = _window(check, (rows - check_size[0]) // 2, (cols - check_size[1]) // 2, check_size, halo)
 
-    def error(model) -> float:
-        base, noise, points, values, w, _ = check_window
+    def error(layer) -> float:
+        base, features, points, values, w, _ = check_window
         with torch.no_grad():
-            out = F.pixel_shuffle(base, scale) if model is None else model(base, noise)
+            out = F.pixel_shuffle(base, scale) if layer is None else output(layer, base, features)
             return float(((predict(out, points) - values) ** 2 * w).sum() / w.sum().clamp_min(1e-12))
 
     with torch.no_grad():  # the unadapted network's output, which the anchor holds the adapted one near
-        anchors = {id(fold): frozen(fold.base, fold.noise) for fold in train}
-    before = best_error = error(frozen)
-    best_state, best_step = None, 0
-    optimiser = torch.optim.Adam(adapted.parameters(), lr=LEARNING_RATE)
+        anchors = [output(net.tail, fold.base, fold.features) for fold in train]
+    before = best_error = error(net.tail)
+    best_state, best_step, taken = None, 0, 0
+    optimiser = Adam(tail.parameters(), lr=LEARNING_RATE)
     for step in range(1, steps + 1):
+        if budget_s is not None and time.perf_counter() - started > budget_s:
+            break
         y0 = int(torch.randint(0, rows - size[0] + 1, (1,), generator=generator))
         x0 = int(torch.randint(0, cols - size[1] + 1, (1,), generator=generator))
         optimiser.zero_grad()
         loss = torch.zeros(())
-        for fold in train:
-            base, noise, points, values, w, (iy, ix) = _window(fold, y0, x0, size, halo)
+        for fold, anchored in zip(train, anchors):
+            base, features, points, values, w, (iy, ix) = _window(fold, y0, x0, size, halo)
             if len(values) == 0:
                 continue
-            out = adapted(base, noise)
+            out = output(tail, base, features)
             inner = out[..., iy * scale:(iy + size[0]) * scale, ix * scale:(ix + size[1]) * scale]
-            anchor = anchors[id(fold)][..., y0 * scale:(y0 + size[0]) * scale, x0 * scale:(x0 + size[1]) * scale]
+            anchor = anchored[..., y0 * scale:(y0 + size[0]) * scale, x0 * scale:(x0 + size[1]) * scale]
             fit = ((predict(out, points) - values) ** 2 * w).sum() / w.sum().clamp_min(1e-12)
             loss = loss + fit + ANCHOR * ((inner - anchor) ** 2).mean()
         if loss.requires_grad:
             loss.backward()
             optimiser.step()
+        taken = step
         if step % CHECK_EVERY == 0 or step == steps:
-            now = error(adapted)
-            if now < best_error:
-                best_error, best_state, best_step = now, copy.deepcopy(adapted.state_dict()), step
+            best_error, best_state, best_step = _keep_better(error(tail), tail, step, best_error, best_state, best_step)
         if on_step is not None:
             on_step()
-    adapted.load_state_dict(best_state if best_state is not None else net.state_dict())
-    return Adaptation(adapted.eval(), best_step, before, best_error, error(None))
+    if taken % CHECK_EVERY and taken != steps:  # stopped by the budget between checks
+        best_error, best_state, best_step = _keep_better(error(tail), tail, taken, best_error, best_state, best_step)
+    adapted = copy.deepcopy(net)
+    if best_state is not None:
+        adapted.tail.load_state_dict(best_state)
+    return Adaptation(adapted.eval(), best_step, before, best_error, error(None), taken, time.perf_counter() - started)
+
+
+class Adam:
+    """:class:`torch.optim.Adam`'s update with its defaults (betas 0.9 and 0.999, eps 1e-8, no
+    weight decay), written out: creating torch's optimiser first imports ``torch._dynamo``, about
+    a second, more than half the classical step's time on a 640 x 480 burst. The same steps as
+    torch's to float32 rounding (tested)."""
+
+    def __init__(self, params, lr: float, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
+        self.params = list(params)
+        self.lr, self.betas, self.eps, self.count = lr, betas, eps, 0
+        self.moments = [(torch.zeros_like(p), torch.zeros_like(p)) for p in self.params]
+
+    def zero_grad(self) -> None:
+        for p in self.params:
+            p.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        self.count += 1
+        (b1, b2), t = self.betas, self.count
+        for p, (m, v) in zip(self.params, self.moments):
+            if p.grad is None:
+                continue
+            m.mul_(b1).add_(p.grad, alpha=1 - b1)
+            v.mul_(b2).addcmul_(p.grad, p.grad, value=1 - b2)
+            denominator = (v.sqrt() / math.sqrt(1 - b2**t)).add_(self.eps)
+            p.addcdiv_(m, denominator, value=-self.lr / (1 - b1**t))
+
+
+def _keep_better(now: float, layer, step: int, best_error: float, best_state, best_step: int):
+    """(error, weights, step) of the better of ``layer`` now and the best so far."""
+    if now < best_error:
+        return now, copy.deepcopy(layer.state_dict()), step
+    return best_error, best_state, best_step
 
 
 def refine(net: torch.nn.Module, image: np.ndarray, scale: int, noise_params: tuple[float, float],

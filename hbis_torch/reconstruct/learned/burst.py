@@ -4,6 +4,8 @@ burst's own frames (:mod:`hbis_torch.reconstruct.learned.adapt`)."""
 
 from __future__ import annotations
 
+import functools
+import time
 import weakref
 
 import numpy as np
@@ -23,25 +25,35 @@ _last: dict = {}
 
 def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
                   model=None, threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
-                  ensemble: int | None = None, precision: str | None = None, adapt: bool = True) -> np.ndarray:
+                  ensemble: int | None = None, precision: str | None = None, adapt: bool = True,
+                  lens_sigma: float | None = None) -> np.ndarray:
     """The learned method's burst path: the classical burst image, refined by the network for the
     burst's scale, told the noise measured on the frames (a burst's samples lie on no regular
     lattice, where the scans' noise is measured); where no model is shipped for it, the classical image,
     with a message (:func:`~hbis_torch.reconstruct.learned.runtime.classical_returned`).
 
-    With ``adapt`` (the default) the network is first fine-tuned to predict the burst's own
-    left-out frames (:func:`~hbis_torch.reconstruct.learned.adapt.adapt_refiner`) and runs in
-    PyTorch, float32. A burst whose noise lies outside the model's training range is then
+    With ``adapt`` (the default) the network's last convolution is first fine-tuned to predict
+    the burst's own left-out frames (:func:`~hbis_torch.reconstruct.learned.adapt.adapt_refiner`),
+    in at most :data:`~hbis_torch.reconstruct.learned.adapt.BUDGET_X_CLASSICAL` times the time
+    this call's classical step took (at least :data:`~hbis_torch.reconstruct.learned.adapt.BUDGET_MIN_S`),
+    and the network runs in PyTorch, float32. A burst whose noise lies outside the model's training range is then
     refined too where the adapted network predicts the left-out frames better than the classical
     image does (else it gets the classical image, said so). A model without its PyTorch weights
     beside it (``NAME.pt``), or a burst with fewer than two usable frames besides the reference,
     is refined without adaptation, said so.
 
+    ``lens_sigma`` (LR px) is the lens blur the classical image undoes, as the classical method's
+    (:func:`~hbis_torch.reconstruct.burst.reconstruct_burst` measures it where none is given); the
+    adaptation's folds undo the same.
+
     Returns (S H, S W) float32 in [0, 1]."""
     model = available_tier(model, stack.h, messages)
     path, metadata, missing = model_to_run(model, stack.h, precision, provider)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
-    image = burst_sr(frames, positions, stack.h, weights).numpy()
+    started = time.perf_counter()
+    classical = functools.partial(burst_sr, lens_sigma=lens_sigma or 0.0)
+    image = classical(frames, positions, stack.h, weights).numpy()
+    classical_s = time.perf_counter() - started
     if missing is not None:
         return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)
     unhelpful = unhelpful_model(metadata)
@@ -51,7 +63,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     outside = None if extrapolate else outside_domain(domain_from_metadata(metadata), noise, None)
     if adapt:
         refined = _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages,
-                           precision)
+                           precision, classical_s, classical)
         if refined is not None:
             return refined
     if outside is not None:
@@ -60,32 +72,39 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     return runner(image, noise, None, messages=messages, extrapolate=True, ensemble=ensemble)
 
 
-def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages, precision):
+def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages, precision,
+             classical_s, classical):
     """The image refined by the network adapted to the burst, or None where it cannot be adapted
-    (the line saying why goes to ``messages``)."""
+    (the line saying why goes to ``messages``). The adaptation gets :data:`~hbis_torch.reconstruct.
+    learned.adapt.BUDGET_X_CLASSICAL` times ``classical_s`` (the classical step's seconds), at
+    least :data:`~hbis_torch.reconstruct.learned.adapt.BUDGET_MIN_S`."""
     from hbis_torch.progress import progress
-    from hbis_torch.reconstruct.learned.adapt import STEPS, adapt_refiner, load_refiner, pytorch_weights, refine
+    from hbis_torch.reconstruct.learned.adapt import (BUDGET_MIN_S, BUDGET_X_CLASSICAL, STEPS, adapt_refiner,
+                                                      load_refiner, pytorch_weights, refine)
 
     notes = messages if messages is not None else []
     weights_file = pytorch_weights(path)
     if weights_file is None:
         notes.append(f"no PyTorch weights beside {path.name} (NAME.pt): the network is not adapted to the burst")
         return None
-    key = (str(weights_file), stack.h, stack.reference_index)
+    key = (str(weights_file), stack.h, stack.reference_index, classical.keywords["lens_sigma"])
     cached = _last.get("positions")
     if cached is not None and cached() is positions and _last.get("key") == key:
         adaptation = _last["adaptation"]
     else:
+        budget = max(BUDGET_X_CLASSICAL * classical_s, BUDGET_MIN_S)
         with progress(total=STEPS, desc="adapting the network to the burst", unit="step") as bar:
             adaptation = adapt_refiner(load_refiner(weights_file), frames, positions, weights, stack.h, noise,
-                                       stack.reference_index, burst_sr, on_step=bar.update)
+                                       stack.reference_index, classical, on_step=bar.update, budget_s=budget)
         _last.clear()
         _last.update(positions=weakref.ref(positions), key=key, adaptation=adaptation)
         if adaptation is None:
             notes.append("fewer than two usable frames besides the reference: the network is not adapted to the burst")
         else:
-            notes.append(f"the network was adapted to the burst's own frames (the weights of step "
-                         f"{adaptation.step} of {STEPS} kept): mean squared error of the left-out frames' "
+            stopped = "" if adaptation.steps_taken == STEPS else f", its time of {budget:.1f} s spent"
+            notes.append(f"the network was adapted to the burst's own frames ({adaptation.steps_taken} of {STEPS} "
+                         f"steps in {adaptation.seconds:.1f} s{stopped}; the weights of step {adaptation.step} "
+                         f"kept): mean squared error of the left-out frames' "
                          f"prediction {adaptation.error_before:.3g} unadapted, {adaptation.error_after:.3g} adapted, "
                          f"{adaptation.error_classical:.3g} from the classical image")
     if adaptation is None:

@@ -16,8 +16,8 @@ from hbis_torch.reconstruct.learned.runtime import (NO_MODEL_REMEDY, LearnedSR, 
                                                     model_to_run, tier_of)
 
 
-def classical_and_noise(stack, registration: str = "optics", positions=None,
-                        messages: list | None = None) -> tuple[np.ndarray, tuple[float, float]]:
+def classical_and_noise(stack, registration: str = "optics", positions=None, messages: list | None = None,
+                        lens_sigma: float | None = None) -> tuple[np.ndarray, tuple[float, float]]:
     """The classical image of a stack and its frames' noise parameters: the network's two inputs.
 
     The noise parameters (a, b) (variance ``a x + b`` of a frame value x in [0, 1]) are the
@@ -36,6 +36,8 @@ def classical_and_noise(stack, registration: str = "optics", positions=None,
         Sample positions in ROI-local reference LR pixels.
     messages : list, optional
         Receives the registration's warnings.
+    lens_sigma : float, optional
+        A Gaussian lens blur (LR px) the classical step undoes (``--psf-sigma``); None or 0: none.
 
     Returns
     -------
@@ -54,17 +56,19 @@ def classical_and_noise(stack, registration: str = "optics", positions=None,
                              "record the sensor (full_well_e, read_noise_e) in the stack's metadata")
     measured = None if params is not None else []
     if positions is None:
-        image = reconstruct_classical(stack, registration, messages=messages, noise_params_out=measured)
+        image = reconstruct_classical(stack, registration, messages=messages, noise_params_out=measured,
+                                      lens_sigma=lens_sigma)
     else:
         image = classical_sr(stack.to_float(), positions, stack.h, cutoff=optics_cutoff(stack.system),
-                             fill_factor=stack_fill_factor(stack), noise_params_out=measured).numpy()
+                             fill_factor=stack_fill_factor(stack), noise_params_out=measured,
+                             lens_sigma=lens_sigma).numpy()
     return image, params if params is not None else measured[0]
 
 
 def learned_sr(stack, model=None, positions=None, threads: int | None = None,
                registration: str = "optics", messages: list | None = None,
                provider: str = "auto", extrapolate: bool = False, ensemble: int | None = None,
-               precision: str | None = None) -> np.ndarray:
+               precision: str | None = None, lens_sigma: float | None = None) -> np.ndarray:
     """Super-resolve a stack: the classical image, refined by an ONNX model in onnxruntime.
 
     The learned method takes every stack the classical method takes (any reference frame, any
@@ -109,6 +113,8 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
         Which file of the model runs (:func:`~hbis_torch.reconstruct.learned.runtime.with_precision`;
         None: the file named, float32 for the shipped models; ``"int8"``: its int8 file;
         ``"bf16"``: the float32 file in OpenVINO in bfloat16, on CPUs with bf16 units).
+    lens_sigma : float, optional
+        A Gaussian lens blur (LR px) the classical step undoes (:func:`classical_and_noise`).
 
     Returns
     -------
@@ -118,7 +124,7 @@ def learned_sr(stack, model=None, positions=None, threads: int | None = None,
     model = available_tier(model, stack.h, messages)
     path, metadata, missing = model_to_run(model, stack.h, precision, provider)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
-    image, noise_params = classical_and_noise(stack, registration, positions, messages)
+    image, noise_params = classical_and_noise(stack, registration, positions, messages, lens_sigma)
     if missing is not None:  # no shipped network for this h: as outside the training domain
         return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)
     unhelpful = unhelpful_model(metadata)
@@ -139,7 +145,8 @@ def _runner(path: str, mtime_ns: int, threads: int | None, provider: str, precis
 
 def reconstruct_learned(stack, registration: str = "auto", *, model=None, messages: list | None = None,
                         threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
-                        ensemble: int | None = None, precision: str | None = None, adapt: bool = True) -> np.ndarray:
+                        ensemble: int | None = None, precision: str | None = None, adapt: bool = True,
+                        lens_sigma: float | None = None) -> np.ndarray:
     """The ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS` (``hbis reconstruct``).
 
     Unlike :func:`learned_sr`, the registration defaults to ``"auto"``, as for every method of
@@ -147,13 +154,14 @@ def reconstruct_learned(stack, registration: str = "auto", *, model=None, messag
     (:func:`~hbis_torch.reconstruct.learned.burst.learned_burst`); a scan's network is never adapted.
     """
     return learned_sr(stack, model=model, threads=threads, registration=registration, messages=messages,
-                      provider=provider, extrapolate=extrapolate, ensemble=ensemble, precision=precision)
+                      provider=provider, extrapolate=extrapolate, ensemble=ensemble, precision=precision,
+                      lens_sigma=lens_sigma)
 
 
 def reconstruct_learned_raw_bayer(stack, registration: str = "auto", *, messages: list | None = None, model=None,
                                   threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
                                   ensemble: int | None = None, precision: str | None = None,
-                                  adapt: bool = True) -> np.ndarray:
+                                  adapt: bool = True, lens_sigma: float | None = None) -> np.ndarray:
     """The learned method on raw Bayer frames: each plane of the classical joint demosaicking
     refined by the network, with the noise of the sensor model or of one colour's sub-lattice: the
     ``raw_bayer`` path of the ``"learned"`` entry of :data:`hbis_torch.reconstruct.registry.METHODS`.
@@ -162,7 +170,7 @@ def reconstruct_learned_raw_bayer(stack, registration: str = "auto", *, messages
     model = available_tier(model, stack.h, messages)
     path, _, missing = model_to_run(model, stack.h, precision, provider)
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
-    planes = reconstruct_classical_raw_bayer(stack, registration, messages=messages)
+    planes = reconstruct_classical_raw_bayer(stack, registration, messages=messages, lens_sigma=lens_sigma)
     if missing is not None:  # as learned_sr: the classical image, said so
         return classical_returned(planes, missing, messages, remedy=NO_MODEL_REMEDY)
     runner = _runner(str(path.resolve()), path.stat().st_mtime_ns, threads, provider, precision)

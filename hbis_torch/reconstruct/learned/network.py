@@ -161,11 +161,15 @@ class HbisSRNet(nn.Module):
         """The constructor arguments (:meth:`Architecture.as_dict`), to rebuild the model from a checkpoint."""
         return self.architecture.as_dict()
 
+    def features(self, base: Tensor, noise: Tensor) -> Tensor:
+        """What the last convolution sees: (B, width, H, W) from ``forward``'s inputs. A burst's
+        test-time adaptation fine-tunes only that convolution on these, computed once
+        (:mod:`hbis_torch.reconstruct.learned.adapt`)."""
+        features = self.head(torch.cat((base - 0.5, noise), dim=1))
+        return features + self.body(features)
+
     def forward(self, base: Tensor, noise: Tensor) -> Tensor:
-        centred = base - 0.5
-        features = self.head(torch.cat((centred, noise), dim=1))
-        features = features + self.body(features)
-        return depth_to_space(base + self.tail(features), self.h)
+        return depth_to_space(base + self.tail(self.features(base, noise)), self.h)
 
 
 def build_net(config: Architecture | dict) -> HbisSRNet:
