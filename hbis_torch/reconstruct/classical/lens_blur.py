@@ -42,6 +42,8 @@ HALF_ACROSS, HALF_ALONG = 3.5, 4.0
 """The window of samples around an edge point (LR px), across the edge and along it."""
 MAX_EDGES = 80
 """Edge points fitted at most: the strongest coherent ones."""
+MAX_FRAMES = 12
+"""Frames an edge's fit takes at most, spread over the burst: a dozen sample its profile finely."""
 MIN_COHERENCE = 0.7
 """The structure tensor's (l1 - l2) / (l1 + l2) over a tile: 1 for one straight edge."""
 MIN_CONTRAST_NOISE = 12.0
@@ -214,7 +216,7 @@ def _samples(frames, positions, weights, x: float, y: float, theta: float):
     normal = np.array([math.cos(theta), math.sin(theta)])
     along = np.array([-normal[1], normal[0]])
     xy, values = [], []
-    for k in range(F):
+    for k in np.unique(np.linspace(0, F - 1, min(F, MAX_FRAMES)).round().astype(int)):
         d = positions[k, int(y), int(x)] - np.array([x, y])  # where frame k's pixel (y, x) lies, relative
         r0, r1 = max(int(math.floor(y - d[1])) - reach, 0), min(int(math.ceil(y - d[1])) + reach + 1, H)
         c0, c1 = max(int(math.floor(x - d[0])) - reach, 0), min(int(math.ceil(x - d[0])) + reach + 1, W)
@@ -242,10 +244,14 @@ def _fit_edge(xy: np.ndarray, values: np.ndarray, theta0: float, noise: float, a
         return None
     lo, hi = float(np.median(low)), float(np.median(high))  # the start: a step through the middle
 
+    last: list = [None, None]  # least_squares asks for the residual and the Jacobian at the same point
+
     def model(q):
-        c0, c1, t, th, sigma = q
-        normal = np.array([math.cos(th), math.sin(th)])
-        return _profile(xy @ normal - t, th, sigma, aperture), normal
+        if last[0] is None or not np.array_equal(last[0], q):
+            c0, c1, t, th, sigma = q
+            normal = np.array([math.cos(th), math.sin(th)])
+            last[:] = [np.array(q, dtype=np.float64), (_profile(xy @ normal - t, th, sigma, aperture), normal)]
+        return last[1]
 
     def residual(q):
         (e, _, _), _ = model(q)
