@@ -24,6 +24,7 @@ from hbis_torch.reconstruct.classical.splat import (
     typical_weight,
 )
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
+from hbis_torch.reconstruct.positions import BurstPositions
 from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 
 # Samples per batch in lattice_image (a band of rows of every frame: lattice.batch_slices):
@@ -70,14 +71,17 @@ def classical_sr(
         (ROI-local), for example from
         :func:`~hbis_torch.reconstruct.positions.stack_sample_positions`; or the spline nodes
         they are interpolated from (:func:`~hbis_torch.reconstruct.positions.stack_sample_nodes`,
-        values (F, n_v, n_u, 2)), then interpolated a batch of frames at a time, never held whole.
+        values (F, n_v, n_u, 2)), then interpolated a batch of frames at a time, never held whole;
+        or a burst's :class:`~hbis_torch.reconstruct.positions.BurstPositions`, computed a band
+        at a time.
     h : int
         Resolution improvement factor: the output is (h*H, h*W).
     deblur : bool
         Apply the Wiener deblurring (False: the normalized-convolution interpolation alone,
         resampled onto the output grid).
     weights : Tensor, shape (F,) or (F, H, W), optional
-        Per-frame or per-sample weights in [0, 1] (0 leaves a frame or sample out).
+        Per-frame or per-sample weights in [0, 1] (0 leaves a frame or sample out); a float32
+        tensor is read as it is (the lattice sums in float32), anything else as float64.
     kernel_sigma : float
         Splat Gaussian in HR px.
     noise : float, optional
@@ -163,8 +167,8 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
     Returns
     -------
     frames : Tensor, shape (F, H, W), float64 (float32 if given as a float32 tensor)
-    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions (as given, checked)
-    weights : Tensor, shape (F, H, W), float64, or None
+    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions or BurstPositions (as given, checked)
+    weights : Tensor, shape (F, H, W), float64 (float32 if given so), or None
         Per-frame weights expanded to every sample.
     """
     if isinstance(frames, Tensor) and frames.dtype == torch.float32:
@@ -179,6 +183,8 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
     if isinstance(positions, NodePositions):
         shape = (positions.values.shape[0], positions.height, positions.width, 2)
         as_float64_tensor(positions.values, "positions")
+    elif isinstance(positions, BurstPositions):  # computed a band at a time where they are read
+        shape = positions.shape
     else:
         positions = as_float64_tensor(positions, "positions")
         shape = tuple(positions.shape)
@@ -193,12 +199,13 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
     if not (math.isfinite(strength) and strength > 0):
         raise HbisInputError(f"strength must be a positive number, got {strength!r}")
     if weights is not None:
-        weights = as_float64_tensor(weights, "weights")
+        if not (isinstance(weights, Tensor) and weights.dtype == torch.float32 and _all_finite(weights)):
+            weights = as_float64_tensor(weights, "weights")  # float32 weights are read as they are
         if weights.shape == (F,):
             weights = weights[:, None, None].expand(F, H, W)
-        if tuple(weights.shape) != (F, H, W) or bool((weights < 0).any()):
+        if tuple(weights.shape) != (F, H, W) or float(weights.min()) < 0:
             raise HbisInputError(f"weights must be non-negative, shape ({F},) or {(F, H, W)}")
-        if not bool((weights > 0).any()):
+        if float(weights.max()) <= 0:
             raise HbisInputError("every sample has weight 0: nothing to reconstruct")
     for name, level in (("noise", noise), ("noise_floor", noise_floor)):
         if level is not None and not (math.isfinite(level) and level >= 0):
@@ -213,9 +220,9 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     Parameters
     ----------
     frames : Tensor, shape (F, H, W), float64 or float32
-    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions
+    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions or BurstPositions
         ROI-local reference LR coordinates of the samples (or the nodes they are interpolated
-        from, a batch of frames at a time).
+        from, a batch of frames at a time; or a burst's motions, applied a batch at a time).
     h : int
     kernel_sigma : float
     weights : Tensor, shape (F, H, W), optional
