@@ -108,18 +108,15 @@ class BurstPositions:
         return self._band(frames, rows)
 
     def _band(self, frames: slice, rows: slice) -> Tensor:
-        from hbis_torch.registration import apply_homography
+        from hbis_torch.registration import apply_homography_to_grid
 
         _, height, width, _ = self.shape
-        motions = self.motions[frames]
         picked = torch.arange(height, dtype=torch.float64)[rows]
-        v, u = torch.meshgrid(picked, torch.arange(width, dtype=torch.float64), indexing="ij")
-        grid = torch.stack((u, v), -1).reshape(1, -1, 2).expand(len(motions), -1, -1)
-        positions = apply_homography(motions, grid).reshape(len(motions), len(picked), width, 2)
+        positions = apply_homography_to_grid(self.motions[frames], picked, torch.arange(width, dtype=torch.float64))
         if self.offsets is not None:  # the smooth field of shifts on top of each homography
-            from hbis_torch.registration.local import sample_offsets
+            from hbis_torch.registration.local import add_offsets
 
-            positions = positions + sample_offsets(self.offsets[frames], positions, self.tile)
+            add_offsets(self.offsets[frames], positions, self.tile)
         return positions
 
     def whole(self) -> Tensor:

@@ -58,16 +58,33 @@ def sample_offsets(offsets: Tensor, points: Tensor, tile: int = TILE_PX) -> Tens
     -------
     Tensor, shape of ``points``, in ``points``' dtype
     """
+    out = _field_at(offsets, points, tile)  # (F, 2, N)
+    return out.permute(0, 2, 1).reshape(points.shape).to(points.dtype)
+
+
+def add_offsets(offsets: Tensor, points: Tensor, tile: int = TILE_PX) -> Tensor:
+    """``points += sample_offsets(offsets, points, tile)``, in place (no copy of the points in
+    the field's float32 or back): ``points``, a contiguous (F, ..., 2) tensor."""
+    F = offsets.shape[0]
+    points.view(F, -1, 2).add_(_field_at(offsets, points, tile).permute(0, 2, 1).contiguous())
+    return points
+
+
+def _field_at(offsets: Tensor, points: Tensor, tile: int) -> Tensor:
+    """The field (F, rows, cols, 2) read at ``points`` (F, ..., 2): (F, 2, N) float32 (grid_sample)."""
     F, rows, cols, _ = offsets.shape
-    lead = points.shape[1:-1]
-    flat = points.reshape(F, 1, -1, 2)
-    # Tile (i, j)'s centre is at ((j + 0.5) tile - 0.5, (i + 0.5) tile - 0.5).
-    gu = ((flat[..., 0] + 0.5) / tile - 0.5) * (2 / max(cols - 1, 1)) - 1
-    gv = ((flat[..., 1] + 0.5) / tile - 0.5) * (2 / max(rows - 1, 1)) - 1
-    grid = torch.stack((gu, gv), -1).to(torch.float32)
+    flat = points.reshape(F, -1, 2)
+    # Tile (i, j)'s centre is at ((j + 0.5) tile - 0.5, (i + 0.5) tile - 0.5): grid_sample's
+    # coordinate of u is ((u + 0.5) / tile - 0.5) 2 / (cols - 1) - 1, i.e. u a + b, computed in
+    # the points' dtype and written in float32.
+    grid = torch.empty((F, 1, flat.shape[1], 2), dtype=torch.float32)
+    for axis, count in ((0, cols), (1, rows)):
+        a = 2 / (tile * max(count - 1, 1))
+        b = (0.5 / tile - 0.5) * (2 / max(count - 1, 1)) - 1
+        torch.add(torch.tensor(b, dtype=flat.dtype), flat[..., axis], alpha=a, out=grid[:, 0, :, axis])
     field = offsets.permute(0, 3, 1, 2).to(torch.float32)
     out = torch.nn.functional.grid_sample(field, grid, mode="bilinear", padding_mode="border", align_corners=True)
-    return out[:, :, 0].permute(0, 2, 1).reshape((F,) + lead + (2,)).to(points.dtype)
+    return out[:, :, 0]
 
 
 def _shift(image: Tensor, field: Tensor) -> Tensor:
