@@ -97,15 +97,22 @@ class BurstPositions:
         return self.shape[0]
 
     def __getitem__(self, index) -> Tensor:
-        if isinstance(index, tuple):
-            frames, rows = index
-        else:
-            frames, rows = index, slice(None)
-        if isinstance(frames, (int, np.integer)):
-            return self._band(slice(int(frames), int(frames) + 1), rows)[0]
-        if not isinstance(frames, slice) or not isinstance(rows, slice):
-            raise TypeError("BurstPositions takes a frame index, or a slice of frames and a slice of rows")
-        return self._band(frames, rows)
+        """``positions[frames]``, ``positions[frames, rows]`` or ``positions[frames, rows, cols]``,
+        each an int or a slice (the rows' positions are computed whole, then the columns taken),
+        as the whole array's indexing gives them."""
+        index = index if isinstance(index, tuple) else (index,)
+        if len(index) > 3 or not all(isinstance(i, (slice, int, np.integer)) for i in index):
+            raise TypeError("BurstPositions takes up to three indices (frames, rows, columns), each an int or a slice")
+        index = index + (slice(None),) * (3 - len(index))
+        # ints as one-long slices, dropped again after
+        as_slices = [slice(int(i), int(i) + 1 or None) if not isinstance(i, slice) else i for i in index]
+        count, height, width, _ = self.shape
+        for i, size in zip(index, (count, height, width)):
+            if not isinstance(i, slice) and not -size <= int(i) < size:
+                raise IndexError(f"index {int(i)} is out of bounds for size {size}")
+        out = self._band(as_slices[0], as_slices[1])[:, :, as_slices[2]]
+        drop = tuple(0 if not isinstance(i, slice) else slice(None) for i in index)
+        return out[drop]
 
     def _band(self, frames: slice, rows: slice) -> Tensor:
         from hbis_torch.registration import apply_homography_to_grid
