@@ -154,32 +154,49 @@ class _Tally:
     def __init__(self, shape: tuple[int, int], reference: int, scales=()):
         H, W = shape
         self.shape, self.reference = shape, reference
-        self.cover = torch.zeros(H * W, dtype=torch.float64)
-        self.hits = {s: torch.zeros(s * H * s * W, dtype=torch.bool) for s in scales}
+        # framed by one node each way (:meth:`_framed_index`)
+        self.cover = torch.zeros((H + 2) * (W + 2), dtype=torch.float64)
+        self.hits = {s: torch.zeros((s * H + 2) * (s * W + 2), dtype=torch.bool) for s in scales}
 
     def add(self, k: int, where: Tensor, weight: Tensor) -> None:
-        """Frame ``k``'s positions (H, W, 2) and weights (H, W)."""
+        """Frame ``k``'s positions (H, W, 2) and weights (H, W).
+
+        Samples beyond the grid go to a one-node frame around it (indices clamped), which is
+        dropped, and samples that add nothing (weight 0, or at most 0.1 for the fill) to one
+        node of it: no boolean selection of the samples (a third of the time), the same sums
+        (a weight of 0 adds nothing, and the others are added in the same order)."""
         H, W = self.shape
+        if not bool(torch.isfinite(where).all()):  # (a degenerate motion) such samples land nowhere
+            keep = torch.isfinite(where).all(-1)
+            where, weight = torch.where(keep[..., None], where, -2.0), weight * keep
         if k != self.reference:  # coverage: the other frames' weights in the pixel each sample lands in
-            u, v = where[..., 0].round().long().reshape(-1), where[..., 1].round().long().reshape(-1)
-            w = weight.reshape(-1).double()
-            keep = (u >= 0) & (u < W) & (v >= 0) & (v < H) & (w > 0)
-            self.cover.index_add_(0, (v * W + u)[keep], w[keep])
+            index = self._framed_index(where, 1, H, W)
+            self.cover.index_add_(0, index, weight.reshape(-1).to(torch.float64))
         for s, hit in self.hits.items():  # the lattice nodes that samples of weight > 0.1 land on
-            U = (s * (where[..., 0] + 0.5) - 0.5).round().long()
-            V = (s * (where[..., 1] + 0.5) - 0.5).round().long()
-            keep = (weight > 0.1) & (U >= 0) & (U < s * W) & (V >= 0) & (V < s * H)
-            hit[(V * s * W + U)[keep]] = True
+            index = self._framed_index(where, s, s * H, s * W)
+            hit[torch.where(weight.reshape(-1) > 0.1, index, 0)] = True
+
+    @staticmethod
+    def _framed_index(where: Tensor, s: int, rows: int, cols: int) -> Tensor:
+        """Flat index (N,) int64 in a (rows + 2, cols + 2) grid framed by one node of the node
+        nearest each position (H, W, 2) on the s-times grid, clamped to the frame."""
+        u = (s * (where[..., 0] + 0.5) - 0.5) if s != 1 else where[..., 0]
+        v = (s * (where[..., 1] + 0.5) - 0.5) if s != 1 else where[..., 1]
+        u = u.round().clamp_(-1, cols).to(torch.int64)
+        v = v.round().clamp_(-1, rows).to(torch.int64)
+        return v.add_(1).mul_(cols + 2).add_(u).add_(1).reshape(-1)
 
     def coverage(self) -> np.ndarray:
-        return self.cover.reshape(self.shape).numpy()
+        H, W = self.shape
+        return self.cover.reshape(H + 2, W + 2)[1:-1, 1:-1].numpy().copy()
 
     def fill(self, s: int) -> np.ndarray:
         """:func:`_lattice_fill` at scale ``s``."""
         H, W = self.shape
         size = 2 * s + 1
-        fill = torch.nn.functional.avg_pool2d(self.hits[s].to(torch.float32).reshape(1, 1, s * H, s * W), size, 1,
-                                              size // 2, count_include_pad=False)[0, 0]
+        hit = self.hits[s].reshape(s * H + 2, s * W + 2)[1:-1, 1:-1].to(torch.float32)
+        fill = torch.nn.functional.avg_pool2d(hit.reshape(1, 1, s * H, s * W), size, 1, size // 2,
+                                              count_include_pad=False)[0, 0]
         return ((fill - NO_FILL) / (FULL_FILL - NO_FILL)).clamp(0, 1).numpy()
 
     def run_scale(self, scale: int) -> tuple[int, np.ndarray]:

@@ -87,10 +87,12 @@ def _field_at(offsets: Tensor, points: Tensor, tile: int) -> Tensor:
     return out[:, :, 0]
 
 
-def _shift(image: Tensor, field: Tensor) -> Tensor:
-    """``image`` (F, C, H, W) read at x + field(x), ``field`` (F, H, W, 2) in px, bilinear."""
+def _shift(image: Tensor, field: Tensor, pixels: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    """``image`` (F, C, H, W) read at x + field(x), ``field`` (F, H, W, 2) in px, bilinear;
+    ``pixels``: the (v, u) pixel grids (H, W) float32, where the caller keeps them."""
     F, _, H, W = image.shape
-    v, u = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
+    v, u = pixels or torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32),
+                                    indexing="ij")
     grid = torch.stack(((u + field[..., 0]) * (2 / (W - 1)) - 1, (v + field[..., 1]) * (2 / (H - 1)) - 1), -1)
     return torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
 
@@ -135,6 +137,7 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     # Noise of a blurred difference of two frames, for the shrinkage of poorly pinned tiles.
     noise = float(noise_sigma(grey[reference][None])[0]) * 2 ** 0.5 / (2 * np.pi ** 0.5 * BLUR_PX)
     pool = (lambda x: torch.nn.functional.avg_pool2d(x, tile, tile, ceil_mode=True, count_include_pad=False) * tile * tile)
+    pixels = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
     for k in use:
         g, o = gain_offset[k]
         frame = (g * grey[k] + o)[None, None]
@@ -147,7 +150,7 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
         d = torch.zeros(1, rows, cols, 2)
         for _ in range(ITERATIONS):
             field = _field(d, (H, W), tile)
-            at = _shift(ref_and_gradient, field)
+            at = _shift(ref_and_gradient, field, pixels)
             r = (warped[:, :1] - at[:, :1]) * valid
             gx, gy = at[:, 1:2] * valid, at[:, 2:3] * valid
             sums = pool(torch.cat((gx * gx, gx * gy, gy * gy, gx * r, gy * r, valid), 1))[0]
