@@ -84,14 +84,15 @@ def _blur(images: Tensor) -> Tensor:
                                           border_type="replicate")[:, 0]
 
 
-def _sample(image: Tensor, positions: Tensor) -> Tensor:
-    """Bilinear values of ``image`` (H, W) at ``positions`` (..., 2) (u, v), border-clamped."""
-    H, W = image.shape
+def _sample(images: Tensor, positions: Tensor) -> Tensor:
+    """Bilinear values of ``images`` (C, H, W) at ``positions`` (..., 2) (u, v), border-clamped:
+    (C, ...)."""
+    C, H, W = images.shape
     grid = torch.stack((2 * positions[..., 0] / max(W - 1, 1) - 1, 2 * positions[..., 1] / max(H - 1, 1) - 1), -1)
     flat = grid.reshape(1, 1, -1, 2).to(torch.float32)
-    out = torch.nn.functional.grid_sample(image[None, None].to(torch.float32), flat, mode="bilinear",
+    out = torch.nn.functional.grid_sample(images[None].to(torch.float32), flat, mode="bilinear",
                                           padding_mode="border", align_corners=True)
-    return out.reshape(positions.shape[:-1])
+    return out.reshape((C,) + positions.shape[:-1])
 
 
 def _inside(positions: Tensor, shape: tuple[int, int]) -> Tensor:
@@ -101,7 +102,7 @@ def _inside(positions: Tensor, shape: tuple[int, int]) -> Tensor:
     return (u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= H - 0.5)
 
 
-def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int) -> Tensor:
+def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int, tally=None) -> Tensor:
     """Per-sample weights in [0, 1]: 1 where the motion explains the sample, towards 0 where not.
 
     Computed a frame at a time (its positions, blur and comparison), so that no array of every
@@ -116,6 +117,9 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int)
     trusted : Tensor, shape (F,), bool
         Frames whose motion is trusted (the others get 0).
     reference : int
+    tally : _Tally, optional
+        Is handed every frame's positions and weights with any weight (:meth:`_Tally.add`),
+        which then need not be computed again.
 
     Returns
     -------
@@ -130,7 +134,7 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int)
     ref = _blur(grey[reference][None])[0]
     local = torch.nn.functional.avg_pool2d(torch.stack((ref, ref * ref))[:, None], 3, 1, 1,
                                            count_include_pad=False)[:, 0]
-    contrast = (local[1] - local[0] ** 2).clamp_min(0).sqrt()
+    both = torch.stack((ref, (local[1] - local[0] ** 2).clamp_min(0).sqrt()))  # the reference and its contrast
     del local
     # Noise of a difference of two frames blurred by a Gaussian of s px: sqrt(2) / (2 sqrt(pi) s).
     noise = float(noise_sigma(grey[reference][None])[0]) * 2 ** 0.5 / (2 * np.pi ** 0.5 * COMPARE_BLUR_PX)
@@ -139,11 +143,16 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int)
         if k == reference or not bool(trusted[k]):
             continue
         where = positions[k]
-        tau = _sample(contrast, where).mul_(CONTRAST_TOLERANCE).add_(NOISE_TOLERANCE * max(noise, 1e-4))
-        weight = torch.exp(-((_blur(grey[k][None])[0] - _sample(ref, where)) / tau) ** 2)
+        at_ref, tau = _sample(both, where)  # one grid for both images
+        tau.mul_(CONTRAST_TOLERANCE).add_(NOISE_TOLERANCE * max(noise, 1e-4))
+        weight = torch.exp(-((_blur(grey[k][None])[0] - at_ref) / tau) ** 2)
         weight = -torch.nn.functional.max_pool2d(-weight[None, None], 3, 1, 1)[0, 0]  # grow each rejection a pixel
         weights[k] = weight * _inside(where, (H, W))
+        if tally is not None:
+            tally.add(k, where, weights[k])
     weights[reference] = 1.0
+    if tally is not None:
+        tally.add(reference, positions[reference], weights[reference])
     return weights
 
 
@@ -157,6 +166,7 @@ class _Tally:
         # framed by one node each way (:meth:`_framed_index`)
         self.cover = torch.zeros((H + 2) * (W + 2), dtype=torch.float64)
         self.hits = {s: torch.zeros((s * H + 2) * (s * W + 2), dtype=torch.bool) for s in scales}
+        self.added = 0  # frames added
 
     def add(self, k: int, where: Tensor, weight: Tensor) -> None:
         """Frame ``k``'s positions (H, W, 2) and weights (H, W).
@@ -166,6 +176,7 @@ class _Tally:
         node of it: no boolean selection of the samples (a third of the time), the same sums
         (a weight of 0 adds nothing, and the others are added in the same order)."""
         H, W = self.shape
+        self.added += 1
         if not bool(torch.isfinite(where).all()):  # (a degenerate motion) such samples land nowhere
             keep = torch.isfinite(where).all(-1)
             where, weight = torch.where(keep[..., None], where, -2.0), weight * keep
@@ -227,7 +238,8 @@ def coverage(positions, weights: Tensor, reference: int) -> np.ndarray:
     return _tally(positions, weights, reference).coverage()
 
 
-def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
+                  tally: _Tally | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Steps 1 to 3 of the module docstring: what every method's burst path is handed.
 
     Parameters
@@ -240,6 +252,8 @@ def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False) -> tu
         Positions as a :class:`~hbis_torch.reconstruct.positions.BurstPositions` (computed a
         band at a time where they are read) and weights in float32 (the same values), not the
         whole float64 arrays: 24 bytes a sample less (a 12 MP burst of 16 frames: 4.6 GB).
+    tally : _Tally, optional
+        :func:`robustness_weights`'.
 
     Returns
     -------
@@ -254,7 +268,10 @@ def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False) -> tu
 
     frames = corrected_frames(stack) if frames is None else frames
     positions, trusted = burst_positions(stack, lazy=True)
-    weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index)
+    if tally is None:
+        weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index)
+    else:
+        weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index, tally)
     if not lazy:
         positions, weights = positions.whole(), weights.double()
     return frames, positions, trusted, weights
@@ -305,9 +322,11 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
                          "single-frame estimate (the reference frame enlarged, bicubic); capture the burst "
                          "again, moving the camera a little between frames"))
         return fallback
-    frames, positions, trusted, weights = burst_samples(stack, frames, lazy=True)
-    # the coverage and the lattice's fill in one pass over the frames (each frame's positions once)
-    tally = _tally(positions, weights, ref, range(scale, 1, -1))
+    # the coverage and the lattice's fill added up beside the weights (each frame's positions once)
+    tally = _Tally(tuple(frames.shape[1:3]), ref, range(scale, 1, -1))
+    frames, positions, trusted, weights = burst_samples(stack, frames, lazy=True, tally=tally)
+    if not tally.added:  # weights from elsewhere (a robustness_weights that takes no tally)
+        tally = _tally(positions, weights, ref, range(scale, 1, -1))
     cover = tally.coverage()
     if float(cover.max()) == 0.0:
         notes.append("no frame but the reference could be used (none registered, or none agrees with it): the output "

@@ -30,6 +30,9 @@ from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 # Samples per batch in lattice_image (a band of rows of every frame: lattice.batch_slices):
 # its temporaries (some 150 bytes a sample) stay near 150 MB whatever the stack's size.
 BATCH_SAMPLES = 1 << 20
+# A burst of up to this many samples keeps its lattice batches (24 bytes a sample: 200 MB) for the
+# splat's second pass rather than computing their positions again (16 frames of 640 x 480: 5M).
+KEEP_SAMPLES = 1 << 23
 # Rows used to find the samples' common sub-pixel offset: every 4th, and on frames of over 512
 # rows every (rows // 64)-th, at most every 16th (on a full frame at h = 4 the offset moves by
 # 8e-5 HR px from every row's, against 5e-5 with every 4th, which cost 0.05 s more). Small frames
@@ -253,9 +256,10 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         # to take, and where there are several batches fewer positions to interpolate.
         row_step = OFFSET_ROW_STRIDE if H <= 512 else min(16, H // 64)
         offset = common_offset_of(positions, slices, h, weights, row_step)
-        # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2) it is
-        # computed once for both passes over the samples.
-        kept = [node_batch(frames, positions, slices[0], h, offset, weights)] if len(slices) == 1 else None
+        # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2), or a burst
+        # (two passes) of up to KEEP_SAMPLES, the batches are computed once for both passes.
+        keep = len(slices) == 1 or (mixed_offsets and F * H * W <= KEEP_SAMPLES)
+        kept = [node_batch(frames, positions, part, h, offset, weights) for part in slices] if keep else None
 
         def batches():
             return kept or (node_batch(frames, positions, part, h, offset, weights) for part in slices)
