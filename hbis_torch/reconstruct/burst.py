@@ -367,11 +367,15 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
 
 
 def _luma_and_chroma(run, stack, frames, positions, weights, messages, kw) -> np.ndarray:
-    from hbis_torch.reconstruct.colour import rgb_to_ycbcr, upsample, ycbcr_to_rgb
+    from hbis_torch.reconstruct.colour import LUMA, rgb_to_ycbcr, upsample, ycbcr_to_rgb
 
-    ycc = rgb_to_ycbcr(frames.numpy().astype(np.float64))
-    y = run(stack, torch.from_numpy(ycc[..., 0].astype(np.float32)), positions, weights, messages=messages, **kw)
-    chroma = upsample(ycc[stack.reference_index, ..., 1:], stack.h)
+    # the luma a frame at a time (in float64, as rgb_to_ycbcr takes it), the chroma of the reference alone
+    luma = torch.empty(frames.shape[:3], dtype=torch.float32)
+    for k in range(len(frames)):
+        luma[k] = torch.from_numpy((frames[k].numpy().astype(np.float64) @ LUMA).astype(np.float32))
+    y = run(stack, luma, positions, weights, messages=messages, **kw)
+    reference = rgb_to_ycbcr(frames[stack.reference_index].numpy().astype(np.float64))
+    chroma = upsample(reference[..., 1:], stack.h)
     return ycbcr_to_rgb(np.concatenate((np.asarray(y, dtype=np.float64)[..., None], chroma), axis=-1))
 
 
