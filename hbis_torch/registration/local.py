@@ -93,7 +93,9 @@ def _shift(image: Tensor, field: Tensor, pixels: tuple[Tensor, Tensor] | None = 
     F, _, H, W = image.shape
     v, u = pixels or torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32),
                                     indexing="ij")
-    grid = torch.stack(((u + field[..., 0]) * (2 / (W - 1)) - 1, (v + field[..., 1]) * (2 / (H - 1)) - 1), -1)
+    grid = torch.empty((F, H, W, 2), dtype=torch.float32)  # written in place: no stacking copy
+    torch.add(u, field[..., 0], out=grid[..., 0]).mul_(2 / (W - 1)).sub_(1)
+    torch.add(v, field[..., 1], out=grid[..., 1]).mul_(2 / (H - 1)).sub_(1)
     return torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
 
 
@@ -148,12 +150,16 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
         valid = (warped[:, 1:] > 0.999).float()
         valid[..., :2, :], valid[..., -2:, :], valid[..., :2], valid[..., -2:] = 0, 0, 0, 0
         d = torch.zeros(1, rows, cols, 2)
+        terms = torch.empty((1, 6, H, W))  # the products the tiles sum, written in place (no concatenation)
+        terms[:, 5:] = valid
         for _ in range(ITERATIONS):
             field = _field(d, (H, W), tile)
             at = _shift(ref_and_gradient, field, pixels)
             r = (warped[:, :1] - at[:, :1]) * valid
             gx, gy = at[:, 1:2] * valid, at[:, 2:3] * valid
-            sums = pool(torch.cat((gx * gx, gx * gy, gy * gy, gx * r, gy * r, valid), 1))[0]
+            for i, (a, b) in enumerate(((gx, gx), (gx, gy), (gy, gy), (gx, r), (gy, r))):
+                torch.mul(a, b, out=terms[:, i:i + 1])
+            sums = pool(terms)[0]
             axx, axy, ayy, bx, by, n = sums
             # Tikhonov: a tile whose texture is at the noise's level keeps (nearly) its shift.
             lam = (noise ** 2) * n.clamp_min(1) * 4.0
