@@ -91,3 +91,21 @@ def test_the_lazy_samples_keep_the_weights_values_in_float32(stack):
     assert isinstance(lazy, BurstPositions) and light.dtype == torch.float32
     assert whole.dtype == torch.float64 and heavy.dtype == torch.float64
     assert torch.equal(light.double(), heavy) and float(heavy[1:].min()) < 1.0  # weights, not all ones
+
+
+def test_the_tally_drops_samples_beyond_the_grid_or_without_weight():
+    from hbis_torch.reconstruct.burst import _Tally
+
+    tally = _Tally((4, 5), 0, (2,))
+    where = torch.zeros(4, 5, 2, dtype=torch.float64)
+    where[1, 2], where[2, 3], where[3, 4] = float("nan"), float("inf"), 7.0  # nowhere, nowhere, beyond
+    where[0, 1] = torch.tensor([4.0, 3.0])  # the last pixel
+    weight = torch.ones(4, 5)
+    weight[0, 0] = 0.05  # counted in the coverage, too light for the fill
+    tally.add(1, where, weight)
+    cover = tally.coverage()
+    assert cover[0, 0] == pytest.approx(15.05) and cover[3, 4] == 1.0 and cover.sum() == pytest.approx(16.05)
+    tally.add(0, where, weight)  # the reference: only the fill
+    assert np.array_equal(tally.coverage(), cover) and tally.added == 2
+    hit = tally.hits[2].reshape(10, 12)[1:-1, 1:-1]
+    assert bool(hit[0, 0]) and bool(hit[6, 8]) and int(hit.sum()) == 2  # the nodes nearest (0, 0) and (4, 3)

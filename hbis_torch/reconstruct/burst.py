@@ -38,6 +38,8 @@ References
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import Tensor
@@ -177,7 +179,7 @@ class _Tally:
         (a weight of 0 adds nothing, and the others are added in the same order)."""
         H, W = self.shape
         self.added += 1
-        if not bool(torch.isfinite(where).all()):  # (a degenerate motion) such samples land nowhere
+        if not math.isfinite(float(where.sum())):  # (a degenerate motion) such samples land nowhere
             keep = torch.isfinite(where).all(-1)
             where, weight = torch.where(keep[..., None], where, -2.0), weight * keep
         if k != self.reference:  # coverage: the other frames' weights in the pixel each sample lands in
