@@ -4,7 +4,8 @@ Measured here (docs/scale-out.md):
 
 * the same 50 small stacks (half HBIS scans, half bursts) reconstructed (classical) by
   ``hbis reconstruct --out-dir`` in one process and by ``--scheduler local:N``; 25 bursts assembled
-  by ``hbis assemble --burst --out-dir`` in one process and on ``local:N``; each command in its own
+  by ``hbis assemble --burst --out-dir`` in one process and on ``local:N`` (in one process, inputs
+  side by side on threads, one torch thread each; on Dask, one per worker); each command in its own
   process with ``OMP_NUM_THREADS=1`` (as Dask's nanny starts its workers), the two ways
   alternated in each round (the machine is shared: a ratio is only fair between runs made side
   by side); the tasks' time is the summary line's ("in X s": after start-up
@@ -19,6 +20,8 @@ the full-frame times of benchmarks/results/bench_fullframe.json (measured on thi
 overhead measured here, and assumed file-system bandwidths (stated in the results).
 
     python benchmarks/bench_scale_out.py --json benchmarks/results/bench_scale_out.json
+
+About 2.5 minutes on 2 idle cores; the last line gives the ratios, the overhead and the load.
 """
 
 from __future__ import annotations
@@ -54,9 +57,13 @@ def provenance(argv) -> dict:
 def make_inputs(folder: Path, count: int) -> dict:
     """``count`` small stacks: count/2 HBIS scans (h = 4, 32 x 32 px, 16 frames) and count/2
     bursts (8 frames of 40 x 40 px, scale 2) as multi-page TIFFs and as the burst stacks that
-    ``hbis assemble --burst`` makes of them."""
+    ``hbis assemble --burst`` makes of them; made side by side on threads (each input has its
+    own seed: the same files in any order)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     import numpy as np
     import tifffile
+    import torch
     from skimage import data, transform
 
     from hbis_torch.capture.burst import assemble_burst
@@ -69,36 +76,53 @@ def make_inputs(folder: Path, count: int) -> dict:
     system = FoveaSystem()
     plan = plan_scan(system, 4)
     spec = SceneSpec.around_roi(32, 32, system.object_pixel_mm)
-    scans, bursts, burst_stacks = [], [], []
-    for k in range(count // 2):
-        stack, _ = simulate_stack(load_scene("words", spec, seed=k), system, plan, roi=(600, 400, 32, 32), seed=k)
-        scans.append(folder / "stacks" / f"scan{k:03d}.tif")
-        scans[-1].parent.mkdir(exist_ok=True)
-        write_stack(scans[-1], stack)
     camera = data.camera().astype(float) / 255
-    for k in range(count - count // 2):
+    for sub in ("stacks", "bursts"):
+        (folder / sub).mkdir(parents=True, exist_ok=True)
+
+    def scan(k):
+        stack, _ = simulate_stack(load_scene("words", spec, seed=k), system, plan, roi=(600, 400, 32, 32), seed=k)
+        write_stack(folder / "stacks" / f"scan{k:03d}.tif", stack)
+        return folder / "stacks" / f"scan{k:03d}.tif"
+
+    def burst(k):
         y, x = 40 * (k % 10), 40 * (k // 10)
         truth = transform.resize(camera[y:y + 160, x:x + 160], (80, 80), anti_aliasing=True)
-        burst = simulate_burst(truth, 2, random_motions(8, (40, 40), np.random.default_rng(k), 1.5, 1.0),
-                               noise=0.005, seed=k)
-        bursts.append(folder / "bursts" / f"clip{k:03d}.tif")
-        bursts[-1].parent.mkdir(exist_ok=True)
-        tifffile.imwrite(bursts[-1], burst.frames, photometric="minisblack")
-        stack, _ = assemble_burst(burst.frames, 2)
-        burst_stacks.append(folder / "stacks" / f"burst{k:03d}.tif")
-        write_stack(burst_stacks[-1], stack)
-    return {"stacks": scans + burst_stacks, "bursts": bursts}
+        frames = simulate_burst(truth, 2, random_motions(8, (40, 40), np.random.default_rng(k), 1.5, 1.0),
+                                noise=0.005, seed=k).frames
+        tifffile.imwrite(folder / "bursts" / f"clip{k:03d}.tif", frames, photometric="minisblack")
+        write_stack(folder / "stacks" / f"burst{k:03d}.tif", assemble_burst(frames, 2)[0])
+        return folder / "bursts" / f"clip{k:03d}.tif", folder / "stacks" / f"burst{k:03d}.tif"
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with ThreadPoolExecutor(len(os.sched_getaffinity(0))) as pool:
+            scans = list(pool.map(scan, range(count // 2)))
+            made = list(pool.map(burst, range(count - count // 2)))
+    finally:
+        torch.set_num_threads(before)
+    return {"stacks": scans + [b for _, b in made], "bursts": [c for c, _ in made]}
 
 
 def run_command(argv: list[str], env: dict) -> dict:
-    """Run ``hbis ARGV`` in a fresh process: its wall time and the tasks' time of its summary."""
-    started = time.perf_counter()
+    """Run ``hbis ARGV`` in a fresh process: its wall time, the tasks' time of its summary and the
+    CPU time of the command and every process it started (Dask's workers among them: a process's
+    children's CPU time is added to its own when it waits for them), which the load of other jobs
+    on the machine changes far less than the times."""
+    import resource
+
+    def children_cpu():
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return usage.ru_utime + usage.ru_stime
+
+    started, cpu = time.perf_counter(), children_cpu()
     done = subprocess.run([sys.executable, "-m", "hbis_torch", "-q", *argv], capture_output=True, text=True, env=env)
-    wall = time.perf_counter() - started
+    wall, cpu = time.perf_counter() - started, children_cpu() - cpu
     if done.returncode != 0:
         raise SystemExit(f"hbis {' '.join(argv[:3])} ... failed ({done.returncode}): {done.stderr.strip()[-2000:]}")
     match = re.search(r" in ([0-9.]+) s \(", done.stdout)
-    return {"command_s": wall, "tasks_s": float(match.group(1)) if match else None}
+    return {"command_s": wall, "tasks_s": float(match.group(1)) if match else None, "command_cpu_s": cpu}
 
 
 def same_outputs(a: Path, b: Path) -> bool:
@@ -124,12 +148,18 @@ def side_by_side(name: str, argv: list[str], out_flag_ok: bool, workers: int, re
         identical &= same_outputs(dirs["in_process"], dirs["dask"])
         for d in dirs.values():
             shutil.rmtree(d)
-    med = {way: {k: statistics.median(x[k] for x in v) for k in ("command_s", "tasks_s")} for way, v in runs.items()}
+    med = {way: {k: statistics.median(x[k] for x in v) for k in ("command_s", "tasks_s", "command_cpu_s")}
+           for way, v in runs.items()}
     return {"inputs": count, "runs": runs, "median": med, "identical_outputs": identical,
             "throughput_per_s": {way: count / m["tasks_s"] for way, m in med.items()},
             "dask_over_in_process_tasks": med["in_process"]["tasks_s"] / med["dask"]["tasks_s"],
             "dask_over_in_process_command": med["in_process"]["command_s"] / med["dask"]["command_s"],
-            "per_round_ratio_tasks": [a["tasks_s"] / b["tasks_s"] for a, b in zip(runs["in_process"], runs["dask"])]}
+            "per_round_ratio_tasks": [a["tasks_s"] / b["tasks_s"] for a, b in zip(runs["in_process"], runs["dask"])],
+            # CPU time over wall time: the cores each way got. On a machine whose other jobs run in
+            # sessions of their own, Linux's scheduler (autogroup) shares the CPU between sessions,
+            # not processes: this whole script then gets its session's share, and 2 workers get no
+            # more cores than 1 thread, so Dask can only show its overhead there.
+            "cores_used": {way: m["command_cpu_s"] / m["command_s"] for way, m in med.items()}}
 
 
 class _Touch:
@@ -246,9 +276,9 @@ def main(argv=None) -> dict:
     p.add_argument("--json", type=Path, help="write the results here")
     p.add_argument("--work", type=Path, help="keep the inputs in this folder and reuse them (default: a temporary one)")
     args = p.parse_args(argv)
+    started = time.perf_counter()
     # Both ways with OpenMP and BLAS pools of one thread, as Dask's nanny starts each worker: the
-    # same threads on both sides, and the in-process burst assembly reproducible (with 2 threads the
-    # same bursts assembled twice in one process differed in one burst's last bits in 25).
+    # same threads on both sides (each task also runs on one torch thread on both).
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), "HBIS_PROGRESS": "0",
            "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     result = {"provenance": provenance(argv)}
@@ -280,6 +310,17 @@ def main(argv=None) -> dict:
     for k in ("reconstruct", "assemble_burst"):
         print(k, {x: result[k][x] for x in ("median", "identical_outputs", "dask_over_in_process_tasks",
                                              "dask_over_in_process_command")})
+    load = result["provenance"]["machine"]
+    print(f"--scheduler local:{args.workers} over in-process --out-dir, tasks' throughput (goal >= 0.9x): "
+          f"reconstruct {result['reconstruct']['dask_over_in_process_tasks']:.2f}x, "
+          f"assemble --burst {result['assemble_burst']['dask_over_in_process_tasks']:.2f}x; "
+          f"outputs identical: {result['reconstruct']['identical_outputs'] and result['assemble_burst']['identical_outputs']}; "
+          f"per-task overhead {result['overhead']['overhead_per_task_ms']:.1f} ms (goal <= 50 ms); "
+          f"load average {load['load_average'][0]:.1f} at the start, {load['load_average_end'][0]:.1f} at the end "
+          f"on {os.cpu_count()} CPUs; cores the commands got (CPU / wall), in-process and Dask: "
+          + ", ".join(f"{k} {result[k]['cores_used']['in_process']:.2f} and {result[k]['cores_used']['dask']:.2f}"
+                      for k in ("reconstruct", "assemble_burst"))
+          + f"; {time.perf_counter() - started:.0f} s")
     return result
 
 

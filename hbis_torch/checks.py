@@ -157,6 +157,17 @@ def bounded_int(lo: int, hi: int):
     return parse
 
 
+def auto_or(parse):
+    """An argparse ``type=`` that reads ``auto`` as None (the method decides) and anything else with
+    ``parse``."""
+
+    def parse_or_auto(text: str):
+        return None if text.strip().lower() == "auto" else parse(text)
+
+    parse_or_auto.__name__ = getattr(parse, "__name__", "value")
+    return parse_or_auto
+
+
 def bounded_float(lo: float, hi: float, *, lo_open: bool = False, hi_open: bool = False):
     """An argparse ``type=`` for a finite number in [lo, hi] (``lo_open``/``hi_open``: excluded).
 

@@ -231,15 +231,18 @@ def test_validate_calls_a_burst_s_factor_its_scale(burst_stack, capsys):
 # --------------------------------------------------------------------------- 6. one overwrite rule
 
 
-def test_out_and_out_dir_refuse_an_existing_file_unless_overwrite(burst_stack, tmp_path, capsys):
+def test_out_refuses_and_out_dir_skips_an_existing_file_unless_overwrite(burst_stack, tmp_path, capsys):
     out, folder = tmp_path / "sr.tif", tmp_path / "many"
     folder.mkdir()
     for path in (out, folder / "burst.classical.tif"):
         path.write_bytes(b"keep me")
-    for argv in (["--out", str(out)], ["--out-dir", str(folder)]):
-        assert main(["reconstruct", str(burst_stack), *argv]) == 2
-        err = capsys.readouterr().err
-        assert len(err.strip().splitlines()) == 1 and "exists already; pass --overwrite to replace it" in err
+    assert main(["reconstruct", str(burst_stack), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "exists already; pass --overwrite to replace it" in err
+    # --out-dir: a file that exists is what an earlier run wrote; skipped, so a rerun resumes
+    # (with or without --scheduler, docs/scale-out.md)
+    assert main(["reconstruct", str(burst_stack), "--out-dir", str(folder)]) == 0
+    assert "reconstructed 0 of 1 stacks" in capsys.readouterr().out
     assert out.read_bytes() == b"keep me" and (folder / "burst.classical.tif").read_bytes() == b"keep me"
     for argv in (["--out", str(out)], ["--out-dir", str(folder)]):
         assert main(["reconstruct", str(burst_stack), *argv, "--overwrite"]) == 0

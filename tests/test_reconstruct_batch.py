@@ -31,7 +31,7 @@ def test_out_dir_writes_every_stack_and_names_the_one_that_fails(stacks, tmp_pat
     code = main(["reconstruct", *map(str, stacks), str(broken), "--out-dir", str(out), "--registration", "optics"])
     captured = capsys.readouterr()
     assert code == 2  # the worst stack's exit code: bad input
-    written = sorted(p.name for p in out.iterdir())
+    written = sorted(p.name for p in out.iterdir() if p.name != ".lock")  # the run's lock stays, released
     assert written == sorted(f"{p.stem}.classical.tif" for p in stacks)
     assert "reconstructed 3 of 4 stacks" in captured.out and f"exit 2: {broken}" in captured.out
     assert [line for line in captured.err.splitlines() if str(broken) in line and "not" in line]
@@ -40,14 +40,23 @@ def test_out_dir_writes_every_stack_and_names_the_one_that_fails(stacks, tmp_pat
     np.testing.assert_array_equal(tifffile.imread(single), tifffile.imread(out / f"{stacks[1].stem}.classical.tif"))
 
 
-def test_existing_outputs_are_refused_before_any_work(stacks, tmp_path, capsys):
+def test_existing_outputs_are_skipped_so_a_rerun_resumes(stacks, tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
-    existing = out / f"{stacks[0].stem}.learned.tif"
-    existing.write_bytes(b"keep me")
-    code = main(["reconstruct", *map(str, stacks), "--method", "learned", "--out-dir", str(out)])
-    assert code == 2 and "exists already" in capsys.readouterr().err
-    assert existing.read_bytes() == b"keep me" and sorted(out.iterdir()) == [existing]
+    existing = out / f"{stacks[0].stem}.classical.tif"
+    existing.write_bytes(b"keep me")  # what an earlier run wrote: never overwritten
+    code = main(["reconstruct", *map(str, stacks), "--out-dir", str(out), "--registration", "optics"])
+    printed = capsys.readouterr().out
+    assert code == 0 and "reconstructed 2 of 3 stacks" in printed and "1 done before, skipped" in printed
+    assert existing.read_bytes() == b"keep me"
+    assert sorted(p.name for p in out.iterdir()) == sorted([".lock"] + [f"{p.stem}.classical.tif" for p in stacks])
+    assert main(["reconstruct", *map(str, stacks), "--out-dir", str(out), "--overwrite", "--registration", "optics"]) == 0
+    assert existing.read_bytes() != b"keep me" and "reconstructed 3 of 3 stacks" in capsys.readouterr().out
+    odd = tmp_path / "odd"
+    (odd / f"{stacks[0].stem}.classical.tif").mkdir(parents=True)  # an output --overwrite could not replace
+    assert main(["reconstruct", str(stacks[0]), "--out-dir", str(odd), "--overwrite"]) == 2
+    assert "not a regular file" in capsys.readouterr().err and sorted(p.name for p in odd.iterdir()) == [
+        f"{stacks[0].stem}.classical.tif"]  # refused before any work
 
 
 def test_glob_and_list_file(stacks, tmp_path):

@@ -56,6 +56,9 @@ EVIDENCE_POINTS = 32768
 GAIN_FIT_SIDE = 128
 # Pixels this close to the white or black level count as saturated (left out of the gain fit).
 SATURATION_MARGIN = 2.0 / 255.0
+# torch.linalg.lstsq's default on the CPU, gelsy, reads its pivot array uninitialised (pytorch#71222),
+# so the same line fit differed in its last bits from run to run; gelsd (SVD) gives the same bits.
+LSTSQ_DRIVER = "gelsd"
 
 
 @dataclass
@@ -338,7 +341,7 @@ def trimmed_line_mse(x: torch.Tensor, y: torch.Tensor) -> float:
     """Mean squared residual of ``y`` (N,) about its least-squares line in ``x`` (N,) (a gain and
     an offset), over the best :data:`TRIM` of the points: a moving object's are left out."""
     A = torch.stack((x, torch.ones_like(x)), -1)
-    fit = A @ torch.linalg.lstsq(A, y[:, None]).solution
+    fit = A @ torch.linalg.lstsq(A, y[:, None], driver=LSTSQ_DRIVER).solution
     squared = (fit[:, 0] - y).pow(2).sort().values
     return float(squared[:int(TRIM * len(squared))].mean())
 
@@ -468,7 +471,7 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
         if int(use.sum()) < 16 or float(x[use].std()) < 1e-4:
             return 1.0, 0.0
         A = torch.stack((x[use], torch.ones_like(x[use])), -1)
-        gain, offset = torch.linalg.lstsq(A, y[use][:, None]).solution[:, 0].tolist()
+        gain, offset = torch.linalg.lstsq(A, y[use][:, None], driver=LSTSQ_DRIVER).solution[:, 0].tolist()
         r = y - (gain * x + offset)
         spread = 1.4826 * float(r[use].abs().median()) + 1e-6
         use = use & (r.abs() < 3 * spread)

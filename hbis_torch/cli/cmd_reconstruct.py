@@ -33,8 +33,9 @@ def register(sub) -> None:
     outputs.add_argument("--out", type=Path, help="output TIFF (one stack)")
     outputs.add_argument("--out-dir", type=Path, metavar="DIR",
                          help="many stacks in one process (the model is opened once, stacks run side by side "
-                         "where cores are free): each to DIR/STEM.METHOD.tif; a stack that fails is named in one line and the others go on; "
-                         "exit 1 if one failed")
+                         "where cores are free): each to DIR/STEM.METHOD.tif; a stack whose output exists is skipped (a rerun "
+                         "finishes the rest; --overwrite replaces them); a stack that fails is named in one line and the "
+                         "others go on; exit 1 if one failed")
     p.add_argument("--jobs", type=bounded_int(1, 256), default=None,
                    help="with --out-dir: stacks reconstructed at once, each on one thread (default: the CPUs "
                    "this process may use, at most the number of stacks; 1 where --threads is given)")

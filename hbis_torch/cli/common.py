@@ -119,7 +119,10 @@ def tell(command: str, messages, about: str | None = None) -> None:
 
 
 def add_overwrite_arg(parser: argparse.ArgumentParser) -> None:
-    """``--overwrite``: the one rule for output files (``--out``, ``--out-dir``, ``--truth``): one
-    that exists already is refused before any work, unless this flag is given."""
+    """``--overwrite``: the one rule for output files: nothing written is overwritten unless this
+    flag is given. One output (``--out``, ``--truth``) that exists already is refused before any
+    work; each file of ``--out-dir`` that exists already is skipped (an earlier run wrote it: a
+    rerun finishes the rest, with or without ``--scheduler``)."""
     parser.add_argument("--overwrite", action="store_true",
-                        help="replace output files that exist already (without it they are refused, before any work)")
+                        help="replace output files that exist already (without it, --out and --truth are refused "
+                        "before any work, and each file of --out-dir is skipped, so a rerun resumes)")

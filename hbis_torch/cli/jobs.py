@@ -51,11 +51,31 @@ class ReconstructJob:
             importlib.import_module(name)
 
     def __call__(self, source, staging) -> list[str]:
+        from hbis_torch.cluster.engine import output_of
+        from hbis_torch.reconstruct.raw_output import check_raw_outputs
         from hbis_torch.stack_io import write_image
 
+        out = output_of(staging)
+        check_raw_outputs(source, out, getattr(self.args, "overwrite", False))  # as the in-process batch
         image, messages, meta, pixel_um = self.reconstruct_one(self.args, Path(source), self.prepared, threads=self.threads)
-        write_image(staging, image, meta, pixel_size_um=pixel_um)
+        if "raw" in meta:  # a raw burst: linear 16-bit TIFF and an sRGB preview beside it, as in process
+            write_raw_staged(staging, out, image, meta)
+        else:
+            write_image(staging, image, meta, pixel_size_um=pixel_um)
         return messages
+
+
+def write_raw_staged(staging, out, image, meta) -> None:
+    """A raw burst's reconstruction: the linear TIFF into ``staging`` (the engine publishes it as
+    ``out``) and its sRGB preview moved, whole, to ``out``'s preview name
+    (:func:`hbis_torch.reconstruct.raw_output.preview_path`) before the output is published, so
+    that an output found by a rerun has its preview."""
+    import os
+
+    from hbis_torch.reconstruct.raw_output import preview_path, write_raw_outputs
+
+    written = write_raw_outputs(staging, image, meta)  # staging ends in .tmp: the TIFF, not a DNG
+    os.replace(written[-1], preview_path(out))
 
 
 @dataclass

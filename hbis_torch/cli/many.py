@@ -14,7 +14,8 @@ once in its handler (:func:`run_reconstruct`, :func:`run_many`); everything else
 
 Checked before any work (exit 2, one line): no input, a missing one, one named twice, two
 inputs with one output, an output that is an input, an output folder that cannot be written,
-``--scheduler`` without ``--out-dir``. Outputs that exist are skipped (a rerun resumes). An
+``--scheduler`` without ``--out-dir``. Outputs that exist are skipped (a rerun resumes; the
+in-process ``hbis reconstruct --out-dir`` does the same), ``--overwrite`` replaces them. An
 input that fails is named in one line and the others go on; the exit code is the worst input's
 (2 bad input, 1 other), the summary names each failure. A lost scheduler is exit 3.
 """
@@ -58,9 +59,9 @@ def add_scheduler_argument(parser: argparse.ArgumentParser, many: str | None = N
         if action.dest == "out":
             action.required = False
     parser.add_argument("--out-dir", type=Path, metavar="DIR",
-                        help="many inputs, one output each in DIR (see --scheduler; without it, one after the "
-                        "other in this process); outputs that exist are skipped; an input that fails is named in "
-                        "one line and the others go on")
+                        help="many inputs, one output each in DIR (see --scheduler; without it, side by side on "
+                        "threads of this process); outputs that exist are skipped (--overwrite replaces them); an "
+                        "input that fails is named in one line and the others go on")
 
 
 def _warm_worker(warm=None) -> None:
@@ -73,9 +74,10 @@ def _warm_worker(warm=None) -> None:
         warm()
 
 
-def _inputs_and_outputs(items, out_dir: Path, suffix: str) -> tuple[list[Path], list[Path]]:
-    """The inputs (paths, globs, @LIST) and ``out_dir/STEM.SUFFIX`` for each, checked."""
-    from hbis_torch.cli.reconstruct_batch import expand_stacks, named_outputs
+def _inputs_and_outputs(items, out_dir: Path, suffix: str, overwrite: bool = False) -> tuple[list[Path], list[Path]]:
+    """The inputs (paths, globs, @LIST) and ``out_dir/STEM.SUFFIX`` for each, checked (with
+    ``overwrite``, existing outputs must be regular files)."""
+    from hbis_torch.cli.reconstruct_batch import check_replaceable, expand_stacks, named_outputs
     from hbis_torch.io_utils import check_output_dir
 
     check_output_dir(out_dir, "--out-dir")
@@ -88,6 +90,7 @@ def _inputs_and_outputs(items, out_dir: Path, suffix: str) -> tuple[list[Path], 
     clash = [out for out in outputs if out.resolve() in inputs]
     if clash:
         raise HbisInputError(f"{clash[0]} is an input and would be an output; choose another --out-dir")
+    check_replaceable(outputs, overwrite)
     return sources, outputs
 
 
@@ -95,14 +98,16 @@ def _execute(job, sources, outputs, args, *, desc: str, prefix: str, threads: in
     """Run the tasks on ``args.scheduler`` (or here when it is None); the Summary."""
     from hbis_torch.cluster.engine import connect, dashboard_link, run_tasks, worker_plugin
 
+    overwrite = getattr(args, "overwrite", False)  # validate has no --overwrite
     if args.scheduler is None:
-        return run_tasks(job, sources, outputs, desc=desc, prefix=prefix, out_dir=args.out_dir)
+        return run_tasks(job, sources, outputs, desc=desc, prefix=prefix, out_dir=args.out_dir, overwrite=overwrite)
     with connect(args.scheduler) as client:
         client.register_plugin(worker_plugin(threads, functools.partial(_warm_worker, getattr(job, "warm", None))))
         link = dashboard_link(client)
         if link:
             print(f"{prefix}: Dask dashboard at {link}", file=sys.stderr)
-        return run_tasks(job, sources, outputs, client=client, desc=desc, prefix=prefix, out_dir=args.out_dir)
+        return run_tasks(job, sources, outputs, client=client, desc=desc, prefix=prefix, out_dir=args.out_dir,
+                         overwrite=overwrite)
 
 
 def _finish(summary, verb: str, noun: str, out_dir) -> int:
@@ -121,7 +126,7 @@ def run_reconstruct(args, prepare, reconstruct_one) -> int:
         raise HbisInputError("--scheduler needs --out-dir DIR (one output per stack)")
     if args.jobs is not None:
         raise HbisInputError("--jobs is for the in-process --out-dir; with --scheduler the workers run the stacks")
-    sources, outputs = _inputs_and_outputs(args.stack, args.out_dir, f"{args.method}.tif")
+    sources, outputs = _inputs_and_outputs(args.stack, args.out_dir, f"{args.method}.tif", args.overwrite)
     kw, calibration = prepare(args)
     threads = args.threads or 1  # a worker has one thread: as each stack in the in-process pool
     if METHODS[args.method].threads and "threads" not in kw:
@@ -165,7 +170,7 @@ def _run_bursts(args) -> int:
                                        ("--calibration", "calibration")) if getattr(args, dest, None) is not None]
     if refused:
         raise HbisInputError(f"{', '.join(refused)} do(es) not apply to a burst (--burst)")
-    sources, outputs = _inputs_and_outputs(args.frames, args.out_dir, "burst.tif")
+    sources, outputs = _inputs_and_outputs(args.frames, args.out_dir, "burst.tif", args.overwrite)
     summary = _execute(BurstJob(plain_args(args)), sources, outputs, args, desc="assemble", prefix="hbis assemble")
     return _finish(summary, "assembled", "bursts", args.out_dir)
 

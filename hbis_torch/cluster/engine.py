@@ -4,12 +4,14 @@ A *job* is a picklable callable ``job(input, staging) -> list[str]`` that reads 
 its whole output to the path ``staging`` and returns its messages (one line each). The engine
 (:func:`run_tasks`) gives each input a task that
 
-1. returns at once if the input's output exists already (a rerun resumes; nothing is overwritten);
+1. returns at once if the input's output exists already (a rerun resumes; nothing is overwritten),
+   unless the run was asked to replace outputs (``overwrite``, the command's ``--overwrite``);
 2. runs the job into a staging file beside the output, ``.NAME.<random>.tmp``;
 3. publishes it with a hard link (``os.link``), which fails if the output exists, so that a
    task that ran twice (its worker was declared dead while it was still writing) publishes one
    whole file once and the second copy is discarded; where the file system has no hard links,
-   ``os.rename`` (atomic, but the later copy then replaces the earlier, identical one);
+   ``os.rename`` (atomic, but the later copy then replaces the earlier, identical one); with
+   ``overwrite``, ``os.replace``;
 4. catches the input's failure: a bad input (:class:`~hbis_torch.errors.HbisInputError`) is
    exit code 2, anything else 1, named in one line; the other tasks go on.
 
@@ -101,10 +103,16 @@ class Connection:
         import logging
 
         if self.scheduler.local:
-            # ":0": the dashboard on a free port (8787 may be another cluster's)
-            self.cluster = distributed.LocalCluster(n_workers=self.scheduler.workers, threads_per_worker=1,
-                                                    processes=True, dashboard_address=":0",
-                                                    silence_logs=logging.ERROR)
+            import dask
+
+            # ":0": the dashboard on a free port (8787 may be another cluster's). The workers'
+            # statistical profiler (on by default: it samples the task's stack every 10 ms, taking
+            # the interpreter lock from it) is off: a measurable share of the CPU time of small
+            # tasks (docs/scale-out.md). The nannies hand this setting to the workers they start.
+            with dask.config.set({"distributed.worker.profile.enabled": False}):
+                self.cluster = distributed.LocalCluster(n_workers=self.scheduler.workers, threads_per_worker=1,
+                                                        processes=True, dashboard_address=":0",
+                                                        silence_logs=logging.ERROR)
             self.client = distributed.Client(self.cluster)
         else:
             try:
@@ -198,12 +206,23 @@ def worker_plugin(threads: int, warm=None):
 
 
 def prepare_worker(threads: int, warm=None) -> None:
-    """What :func:`worker_plugin` does in each worker process (also used in-process by tests)."""
+    """What :func:`worker_plugin` does in each worker process (also used in-process by tests).
+
+    Every thread pool of the process gets ``threads`` threads: torch's (and MKL's with it) here,
+    OpenCV's where it is installed (it would start one thread per core, and each worker of a
+    machine would), OpenMP's and the BLAS libraries' through the environment Dask's nanny gives
+    the worker (``OMP_NUM_THREADS=1`` and the like, ``distributed.nanny.pre-spawn-environ``)."""
+    import importlib.util
+
     import torch
 
     from hbis_torch.progress import set_progress
 
     torch.set_num_threads(threads)
+    if importlib.util.find_spec("cv2") is not None:
+        import cv2
+
+        cv2.setNumThreads(threads)
     set_progress(False)
     if warm is not None:
         try:
@@ -233,11 +252,25 @@ def staging_path(out: Path) -> Path:
     return out.parent / f".{out.name}.{uuid.uuid4().hex}.tmp"
 
 
-def publish(staging: Path, out: Path) -> bool:
+def output_of(staging) -> Path:
+    """The output a staging file of :func:`staging_path` is for (``.NAME.<32 hex>.tmp`` -> ``NAME``):
+    for a job that writes a file beside its output (a raw burst's preview)."""
+    staging = Path(staging)
+    match = re.fullmatch(r"\.(.+)\.[0-9a-f]{32}\.tmp", staging.name)
+    if match is None:
+        raise ValueError(f"{staging} is not a staging file of staging_path")
+    return staging.parent / match.group(1)
+
+
+def publish(staging: Path, out: Path, replace: bool = False) -> bool:
     """Move the whole file ``staging`` to ``out`` unless ``out`` exists; True if it was published.
 
     A hard link is atomic and refuses an existing ``out`` (two runs of one task publish once);
-    without hard links (some network and FAT file systems) ``os.rename``."""
+    without hard links (some network and FAT file systems) ``os.rename``. ``replace``: replace an
+    existing ``out`` (``os.replace``, atomic)."""
+    if replace:
+        os.replace(staging, out)
+        return True
     try:
         os.link(staging, out)
     except FileExistsError:
@@ -255,18 +288,19 @@ def publish(staging: Path, out: Path) -> bool:
     return True
 
 
-def run_task(job, source, out) -> Outcome:
-    """Run ``job`` on ``source`` into ``out`` (the task a worker runs; see the module's docstring)."""
+def run_task(job, source, out, overwrite: bool = False) -> Outcome:
+    """Run ``job`` on ``source`` into ``out`` (the task a worker runs; see the module's docstring);
+    ``overwrite``: replace ``out`` where it exists, instead of skipping the task."""
     started = time.perf_counter()
     out = Path(out)
     outcome = Outcome(worker=f"{os.uname().nodename}:{os.getpid()}")
-    if os.path.lexists(out):
+    if os.path.lexists(out) and not overwrite:
         outcome.skipped = True
         return outcome
     staging = staging_path(out)
     try:
         outcome.messages = list(job(source, staging) or [])
-        outcome.written = publish(staging, out)
+        outcome.written = publish(staging, out, replace=overwrite)
     except HbisInputError as exc:
         outcome.code, outcome.messages = 2, outcome.messages + [str(exc)]
     except Exception as exc:  # noqa: BLE001 - one input's failure must not stop the others
@@ -309,9 +343,9 @@ class Summary:
 
 
 def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix: str = "hbis",
-              out_dir=None) -> Summary:
+              out_dir=None, overwrite: bool = False, jobs: int | None = None) -> Summary:
     """Run ``job`` on every source into its output: on ``client``'s cluster, or in this process
-    one after the other when ``client`` is None.
+    on threads when ``client`` is None.
 
     Parameters
     ----------
@@ -320,13 +354,18 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
     sources, outputs : list of Path
         One output per source, distinct; outputs that exist are skipped.
     client : distributed.Client or None
-        Where to run; None: in this process, one task after the other, on one torch thread.
+        Where to run; None: in this process, ``jobs`` tasks at once, each on one torch thread.
     desc : str
         The progress bar's label.
     prefix : str
         Messages are printed on stderr as ``PREFIX: SOURCE: MESSAGE``, as each task ends.
     out_dir : Path or None
         Locked for the run (a second run on it is refused) and cleared of leftover ``.*.tmp`` files.
+    overwrite : bool
+        Replace outputs that exist (the command's ``--overwrite``) instead of skipping their inputs.
+    jobs : int or None
+        Without ``client``: tasks at once on threads of this process (default: the CPUs it may
+        use, at most the number of inputs); each task has one torch thread whatever ``jobs`` is.
 
     Returns
     -------
@@ -353,15 +392,17 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
                 print(f"{prefix}: {sources[i]}: {line}", file=sys.stderr)
 
         # Outputs done before are skipped here, without a task (each task checks again).
-        todo = [i for i, out in enumerate(outputs) if not os.path.lexists(out)]
+        todo = [i for i, out in enumerate(outputs) if overwrite or not os.path.lexists(out)]
         for i in sorted(set(range(len(sources))) - set(todo)):
             outcomes[i] = Outcome(skipped=True)
-        some = ([sources[i] for i in todo], [outputs[i] for i in todo], lambda k, outcome: report(todo[k], outcome))
+        some = ([sources[i] for i in todo], [outputs[i] for i in todo], lambda k, outcome: report(todo[k], outcome),
+                overwrite)
+        jobs = jobs or min(len(os.sched_getaffinity(0)), max(1, len(sources)))
         with progress(total=len(sources), desc=desc, unit="task") as bar:
             bar.update(len(sources) - len(todo))
             if client is None:
-                _run_here(job, *some, bar)
-                where = "in this process, one at a time on one thread"
+                _run_here(job, *some, bar, jobs)
+                where = f"in this process, {jobs} at once, one thread each"
             else:
                 if todo:
                     _run_on(client, job, *some, bar)
@@ -374,36 +415,40 @@ def run_tasks(job, sources, outputs, *, client=None, desc: str = "tasks", prefix
             lock.close()
 
 
-def _run_here(job, sources, outputs, report, bar) -> None:
-    """Run the tasks in this process, one after the other, each on one torch thread as on a worker
-    (the same sums in the same order: the same bits; ``--scheduler local`` is the way to use more
-    cores).
+def _run_here(job, sources, outputs, report, overwrite, bar, jobs: int = 1) -> None:
+    """Run the tasks in this process, ``jobs`` side by side on threads (torch and its libraries
+    release the interpreter lock in their kernels), each on one torch thread as on a worker: the
+    same sums in the same order, the same bits (tested, for bursts too: the last-bit differences
+    once seen between two bursts assembled at once were :data:`hbis_torch.capture.burst.LSTSQ_DRIVER`'s
+    cause)."""
+    from concurrent.futures import ThreadPoolExecutor
 
-    Not side by side on threads: two bursts assembled at once in one process were measured to
-    differ, for 1 to 3 bursts in 25, in their last bits (gain and offset) from the same bursts
-    assembled alone, with torch and BLAS on one thread each, so something under
-    :func:`hbis_torch.capture.burst.assemble_burst` is not safe to run concurrently in one process.
-    Dask's workers are processes."""
     import torch
 
-    before = torch.get_num_threads()
+    from hbis_torch.progress import progress_enabled, set_progress
+
+    before, inner = torch.get_num_threads(), progress_enabled()
     torch.set_num_threads(1)
+    set_progress(False)  # no bars inside: tasks run side by side
     try:
-        for i, (source, out) in enumerate(zip(sources, outputs)):
-            report(i, run_task(job, source, out))
-            bar.update()
+        with ThreadPoolExecutor(max_workers=max(1, min(jobs, len(sources)))) as pool:
+            futures = [pool.submit(run_task, job, source, out, overwrite) for source, out in zip(sources, outputs)]
+            for i, future in enumerate(futures):
+                report(i, future.result())
+                bar.update()
     finally:
+        set_progress(None if inner else False)
         torch.set_num_threads(before)
 
 
-def _run_on(client, job, sources, outputs, report, bar) -> None:
+def _run_on(client, job, sources, outputs, report, overwrite, bar) -> None:
     """Submit one task per source and report each as the scheduler says it is finished."""
     distributed = import_distributed()
 
     token = uuid.uuid4().hex[:8]
     # The job travels with each task (a few kB: the options): scattered data would be lost with
     # the last worker holding it, a task's own arguments never are.
-    futures = [client.submit(run_task, job, str(source), str(out), pure=False,
+    futures = [client.submit(run_task, job, str(source), str(out), overwrite, pure=False,
                              key=f"hbis-{token}-{i}-{Path(out).name}")
                for i, (source, out) in enumerate(zip(sources, outputs))]
     index = {future.key: i for i, future in enumerate(futures)}

@@ -4,7 +4,8 @@ Every example of a pool has its own seed, :func:`hbis_torch.training.data.exampl
 seed, index), so example i is the same whichever process simulates it; here each example is one
 task (``builder(h, count, size, seed, [i])``) and the results come back in index order, equal bit
 for bit to ``builder(h, count, size, seed, indices)`` in one process (tested). ``training/train_sr.py``
-takes it with ``pool_scheduler=ADDRESS`` or ``pool_scheduler=local:N``.
+takes it with ``pool_scheduler=ADDRESS`` (not ``local:N``: its spawned workers would run the
+script, which has no main guard, again).
 """
 
 from __future__ import annotations

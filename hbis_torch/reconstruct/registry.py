@@ -25,7 +25,7 @@ import dataclasses
 import importlib
 from typing import TYPE_CHECKING, Any, Callable
 
-from hbis_torch.checks import bounded_float
+from hbis_torch.checks import auto_or, bounded_float
 from hbis_torch.errors import HbisInputError
 
 if TYPE_CHECKING:
@@ -209,10 +209,11 @@ register(Method(
     options=(
         Option("--no-deblur", "deblur", "interpolation only, without the Wiener deblurring",
                {"action": "store_false"}),
-        Option("--psf-sigma", "lens_sigma", "a Gaussian lens blur (standard deviation, LR px, from a calibration "
-               "such as a slanted edge) that the deblurring undoes beyond the pixel's area and the optics' "
-               "diffraction; default 0: none. Too large a value rings and costs more than too small a one "
-               "(docs/real-bursts.md)", {"type": bounded_float(0.0, 3.0), "metavar": "PX"}),
+        Option("--psf-sigma", "lens_sigma", "a Gaussian lens blur (standard deviation, LR px) that the deblurring "
+               "undoes beyond the pixel's area and the optics' diffraction: a number (from a calibration such as "
+               "a slanted edge; 0: none) or 'auto', the default: bursts measure it on their own straight edges "
+               "and say what they found, scans take none. Too large a value rings and costs more than too small "
+               "a one (docs/real-bursts.md)", {"type": auto_or(bounded_float(0.0, 3.0)), "metavar": "PX|auto"}),
     ),
 ))
 

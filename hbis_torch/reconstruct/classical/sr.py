@@ -61,7 +61,7 @@ def classical_sr(
     noise_params_out: list | None = None,
     noise_floor: float | None = None,
     mixed_offsets: bool = False,
-    lens_sigma: float = 0.0,
+    lens_sigma: float | None = 0.0,
 ) -> Tensor:
     """Super-resolve frames whose samples' positions are known.
 
@@ -111,10 +111,10 @@ def classical_sr(
         Samples of many frames at different offsets share the lattice's nodes (a burst): the
         first-order correction of :func:`~hbis_torch.reconstruct.classical.splat.snap_to_lattice`
         then measures the pilot's bias.
-    lens_sigma : float
+    lens_sigma : float or None
         A Gaussian lens blur (LR px) that the deblurring undoes, beyond ``cutoff``'s diffraction
         (a burst's: measured by :func:`~hbis_torch.reconstruct.classical.lens_blur.estimate_lens_sigma`
-        or given); 0: none.
+        in :func:`~hbis_torch.reconstruct.burst.reconstruct_burst`, or given); 0 or None: none.
 
     Returns
     -------
@@ -126,6 +126,8 @@ def classical_sr(
     h = check_h(h)
     frames, positions, weights = _check_inputs(frames, positions, weights, fill_factor, kernel_sigma,
                                                cutoff, strength, noise, noise_floor)
+    if lens_sigma is None:  # "auto": a burst's is measured before it gets here (reconstruct_burst); a scan's is 0
+        lens_sigma = 0.0
     if not (isinstance(lens_sigma, (int, float)) and math.isfinite(lens_sigma) and 0 <= lens_sigma <= MAX_LENS_SIGMA):
         raise HbisInputError(f"the lens blur (--psf-sigma) must be a number in [0, {MAX_LENS_SIGMA}] LR px, "
                              f"got {lens_sigma!r}")

@@ -1,0 +1,359 @@
+"""The lens blur of a burst, measured on its own straight edges (a slanted-edge fit on every edge).
+
+A burst's frames sample the scene at many sub-pixel offsets. Around a straight edge, every
+frame's pixels, placed at their measured positions in the reference frame, trace the edge's
+profile finely, as the slanted-edge method (ISO 12233) does with a tilted target. Each short
+straight edge is fitted, on the raw samples (no reconstruction, no regularisation between), with
+the model
+
+    value(p) = c0 + c1 * E(n . p - t),   E = step * pixel * Gaussian(sigma),
+
+the step blurred by the pixel's area projected on the edge's normal ``n`` (two boxes of widths
+aperture x abs(cos theta) and aperture x abs(sin theta), in closed form) and by a Gaussian lens of
+standard deviation ``sigma`` (LR px). Scenes have soft edges as well as sharp ones (shadows,
+defocus, texture), and a soft edge only ever adds to the fitted sigma. The lens is common to
+every edge; the scene's softness varies from edge to edge. So the lens shows as a **pile-up of
+the sharpest edges at one sigma**: the estimate is the median of the lowest tight group of
+:func:`sharpest_group` (at least :data:`MIN_EDGES` edges, and a tenth of the accepted ones,
+within :data:`GROUP_WIDTH`, starting among the lowest few); where the sharpest edges spread
+instead (a soft scene: a raster enlarged, a photograph's own blur), nothing is undone, since the
+burst cannot tell its lens from its scene there, and undoing blur that is not the lens costs
+several dB.
+
+An edge is accepted when its window holds one straight edge (the structure tensor's coherence),
+its step stands :data:`MIN_CONTRAST_NOISE` times above the samples' noise, the fit explains the
+samples to within the noise (and a share of the step, for registration errors), and sigma's own
+standard error is small.
+
+The estimate is what the burst path's Wiener filter undoes (``classical_sr(lens_sigma=)``);
+``hbis reconstruct`` prints it, and ``--psf-sigma`` sets it instead.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+TILE_PX = 8
+"""Side of the square tiles (reference LR px) that each give at most one edge point."""
+HALF_ACROSS, HALF_ALONG = 3.5, 4.0
+"""The window of samples around an edge point (LR px), across the edge and along it."""
+MAX_EDGES = 80
+"""Edge points fitted at most: the strongest coherent ones (about 10 ms each)."""
+MIN_COHERENCE = 0.7
+"""The structure tensor's (l1 - l2) / (l1 + l2) over a tile: 1 for one straight edge."""
+MIN_CONTRAST_NOISE = 12.0
+"""The step (c1) over the samples' noise that an edge needs."""
+MAX_SIGMA_ERROR = 0.06
+"""Largest standard error of an edge's sigma (LR px) that is accepted."""
+MAX_RESIDUAL_NOISE = 2.0
+MAX_RESIDUAL_STEP = 0.06
+"""Largest RMS residual of an edge's fit: MAX_RESIDUAL_NOISE times the samples' noise plus
+MAX_RESIDUAL_STEP times the step (registration errors of a few hundredths of a pixel leave
+residuals in proportion to the step; a second edge or a thin line in the window leaves more)."""
+MIN_EDGES = 8
+"""The fewest edges in the sharpest group (module docstring)."""
+GROUP_SHARE = 0.1
+"""The sharpest group holds at least this share of the accepted edges (at most
+:data:`MAX_EDGES` are fitted, so a larger frame does not make a chance group easier)."""
+GROUP_WIDTH = (0.05, 0.05)
+"""The sharpest group's spread of sigma may reach a + b x its lowest sigma (LR px): edges that
+share one lens agree to a few hundredths of a pixel (their fits' standard errors)."""
+GROUP_START = 3
+"""The sharpest group starts among the lowest this many edges (a stray fit or two may lie below)."""
+MAX_SIGMA = 3.0
+"""The largest sigma (LR px) a fit may reach."""
+SCENE_MARGIN = 0.1
+"""Sigma (LR px) taken off the sharpest group's in quadrature before it is undone: even a scene's
+sharpest edges are a little soft, and undoing too much blur costs far more than too little
+(on the training simulator's bursts, 0.1 LR px too much cost 0.35 dB, 0.2 cost 2.5 dB)."""
+MAX_TRUSTED = 0.7
+"""Sharpest edges that agree on a sigma above this (LR px) are not taken for a focused lens: a
+scene drawn uniformly soft (an enlarged raster) or a lens out of focus, which a burst cannot tell
+apart; nothing is undone (a calibrated ``--psf-sigma`` still is). A Gaussian of 0.7 LR px leaves
+9 % of the contrast at the pixel's Nyquist frequency."""
+
+
+class LensEstimate(NamedTuple):
+    """What :func:`estimate_lens_sigma` measured.
+
+    ``sharpest``: the sigma the sharpest edges agree on (LR px; None: too few clean edges, or
+    they do not agree); ``group``: how many agree;
+    ``sigma``: the lens blur to undo, LR px (``sharpest`` less :data:`SCENE_MARGIN` in quadrature;
+    0 where ``sharpest`` is None or above :data:`MAX_TRUSTED`); ``edges``: the accepted edges;
+    ``edge_sigmas``: each accepted edge's sigma (LR px), sorted; ``tried``: the edges fitted.
+    """
+
+    sharpest: float | None
+    sigma: float
+    group: int
+    edges: int
+    edge_sigmas: np.ndarray
+    tried: int
+
+    def describe(self) -> str:
+        """One line for the user."""
+        if self.sharpest is None:
+            low = ", ".join(f"{v:.2f}" for v in self.edge_sigmas[:4])
+            why = (f"the sharpest of {self.edges} straight edges do not agree ({low}, ... LR px): a scene's own "
+                   "softness, not one lens" if self.edges >= MIN_EDGES else
+                   f"{self.edges} clean straight edges of {self.tried} tried, {MIN_EDGES} needed")
+            return f"lens blur: not measured ({why}); none undone (set one with --psf-sigma)"
+        found = f"{self.group} of {self.edges} straight edges agree on sigma {self.sharpest:.2f} LR px"
+        if self.sharpest > MAX_TRUSTED:
+            return (f"lens blur: not undone: {found}, softer than any focused lens (a scene without sharp "
+                    "edges, or a lens out of focus); set one with --psf-sigma")
+        return f"lens blur: {found}; undoing sigma {self.sigma:.2f} LR px (--psf-sigma overrides)"
+
+
+def sharpest_group(sigmas: np.ndarray) -> tuple[float, int] | None:
+    """The median sigma and size of the lowest tight group of ``sigmas`` (sorted, LR px): at least
+    max(:data:`MIN_EDGES`, :data:`GROUP_SHARE` x their number) of them within
+    :data:`GROUP_WIDTH`, starting among the lowest :data:`GROUP_START`; None where there is none."""
+    size = max(MIN_EDGES, math.ceil(GROUP_SHARE * len(sigmas)))
+    for start in range(min(GROUP_START, len(sigmas) - size + 1)):
+        group = sigmas[start:start + size]
+        if group[-1] - group[0] <= GROUP_WIDTH[0] + GROUP_WIDTH[1] * group[0]:
+            members = np.count_nonzero(np.abs(sigmas - np.median(group)) <= GROUP_WIDTH[0] + GROUP_WIDTH[1] * group[0])
+            return float(np.median(group)), int(members)
+    return None
+
+
+def _antiderivatives(x: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the Gaussian step Phi(x / sigma): its second antiderivative F2, F2's derivative in x
+    (the first antiderivative F1) and F2's derivative in sigma (sigma Phi)."""
+    from scipy.special import ndtr
+
+    z = x / sigma
+    cdf = ndtr(z)
+    pdf = np.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
+    f2 = 0.5 * (x * x + sigma * sigma) * cdf + 0.5 * x * sigma * pdf
+    return f2, x * cdf + sigma * pdf, sigma * cdf
+
+
+def _profile(d: np.ndarray, theta: float, sigma: float, aperture: float):
+    """:func:`edge_profile` and its derivatives in ``d`` and in ``sigma``."""
+    a = max(aperture * abs(math.cos(theta)), 1e-2)
+    b = max(aperture * abs(math.sin(theta)), 1e-2)
+    out = np.zeros((3,) + d.shape)
+    for shift, sign in (((a + b) / 2, 1), ((a - b) / 2, -1), (-(a - b) / 2, -1), (-(a + b) / 2, 1)):
+        for i, part in enumerate(_antiderivatives(d + shift, sigma)):
+            out[i] += sign * part
+    return out / (a * b)
+
+
+def edge_profile(d: np.ndarray, theta: float, sigma: float, aperture: float = 1.0) -> np.ndarray:
+    """The response of a pixel to a unit step at signed distance ``d`` (LR px) from its centre.
+
+    The step, blurred by the Gaussian lens, averaged over the pixel's area: along the edge's
+    normal the area is two boxes, of widths aperture x abs(cos theta) and aperture x abs(sin
+    theta), so the average is four terms of the blurred step's second antiderivative.
+
+    Parameters
+    ----------
+    d : np.ndarray
+        Distance of the pixel's centre from the edge along the edge's normal, LR px.
+    theta : float
+        The normal's angle to the pixel's x axis, radians.
+    sigma : float
+        The Gaussian lens's standard deviation, LR px (> 0).
+    aperture : float
+        The pixel's sensitive side, LR px (1: the whole pixel).
+
+    Returns
+    -------
+    np.ndarray
+        In [0, 1]: 0 far on the dark side, 1 far on the bright side (d > 0).
+    """
+    return _profile(np.asarray(d, dtype=np.float64), theta, sigma, aperture)[0]
+
+
+def _edge_points(reference: np.ndarray, noise: float) -> list[tuple[float, float, float]]:
+    """Points (x, y, normal's angle) on strong straight edges of ``reference``: in each
+    :data:`TILE_PX` tile, the pixel of the steepest gradient, where the local structure tensor
+    says one straight edge; strongest first, at most :data:`MAX_EDGES`."""
+    from scipy.ndimage import gaussian_filter
+
+    gy, gx = np.gradient(gaussian_filter(reference, 0.7))
+    jxx, jyy, jxy = (gaussian_filter(a, 1.5) for a in (gx * gx, gy * gy, gx * gy))
+    root = np.sqrt((jxx - jyy) ** 2 + 4 * jxy * jxy)
+    coherence = root / np.maximum(jxx + jyy, 1e-30)
+    magnitude = np.hypot(gx, gy)
+    T, m = TILE_PX, TILE_PX  # a margin of a tile: room for the motions and the window
+    H, W = reference.shape
+    rows, cols = (H - 2 * m) // T, (W - 2 * m) // T
+    if rows < 1 or cols < 1:
+        return []
+    tiles = magnitude[m:m + rows * T, m:m + cols * T].reshape(rows, T, cols, T).transpose(0, 2, 1, 3)
+    flat = tiles.reshape(rows, cols, T * T)
+    best = flat.argmax(axis=2)
+    ys = m + np.arange(rows)[:, None] * T + best // T
+    xs = m + np.arange(cols)[None, :] * T + best % T
+    peak = np.take_along_axis(flat, best[..., None], axis=2)[..., 0]
+    # A step of height c blurred to about a pixel has a peak gradient near c / 2.5 after the
+    # smoothing: the step must stand MIN_CONTRAST_NOISE noise's above the floor.
+    keep = (coherence[ys, xs] > MIN_COHERENCE) & (peak > MIN_CONTRAST_NOISE * noise / 2.5)
+    order = np.argsort(-np.where(keep, peak, -1), axis=None)[:int(keep.sum())][:MAX_EDGES]
+    out = []
+    for flat_index in order:
+        r, c = divmod(int(flat_index), cols)
+        y, x = int(ys[r, c]), int(xs[r, c])
+        out.append((float(x), float(y), 0.5 * math.atan2(2 * jxy[y, x], jxx[y, x] - jyy[y, x])))
+    return out
+
+
+def _samples(frames, positions, weights, x: float, y: float, theta: float):
+    """Every frame's samples within :data:`HALF_ACROSS` LR px of the edge point (x, y) across the
+    edge and :data:`HALF_ALONG` along it: positions (N, 2) relative to the point, and values (N,)."""
+    F, H, W = frames.shape[:3]
+    reach = int(math.ceil(math.hypot(HALF_ACROSS, HALF_ALONG))) + 2
+    normal = np.array([math.cos(theta), math.sin(theta)])
+    along = np.array([-normal[1], normal[0]])
+    xy, values = [], []
+    for k in range(F):
+        d = positions[k, int(y), int(x)] - np.array([x, y])  # where frame k's pixel (y, x) lies, relative
+        r0, r1 = max(int(math.floor(y - d[1])) - reach, 0), min(int(math.ceil(y - d[1])) + reach + 1, H)
+        c0, c1 = max(int(math.floor(x - d[0])) - reach, 0), min(int(math.ceil(x - d[0])) + reach + 1, W)
+        if r1 <= r0 or c1 <= c0:
+            continue
+        p = positions[k, r0:r1, c0:c1].reshape(-1, 2) - np.array([x, y])
+        inside = ((np.abs(p @ normal) < HALF_ACROSS) & (np.abs(p @ along) < HALF_ALONG)
+                  & (weights[k, r0:r1, c0:c1].reshape(-1) > 0.5))
+        xy.append(p[inside])
+        values.append(frames[k, r0:r1, c0:c1].reshape(-1)[inside])
+    return np.concatenate(xy), np.concatenate(values)
+
+
+def _fit_edge(xy: np.ndarray, values: np.ndarray, theta0: float, noise: float, aperture: float):
+    """Fit one edge's samples (module docstring): the parameters (c0, c1, t, theta, sigma).
+    Returns (sigma, its standard error, c1, RMS residual in noise units) or None where the fit
+    fails."""
+    from scipy.optimize import least_squares
+
+    if len(values) < 40:
+        return None
+    proj = xy @ np.array([math.cos(theta0), math.sin(theta0)])
+    low, high = values[proj < -1.5], values[proj > 1.5]
+    if len(low) < 10 or len(high) < 10:
+        return None
+    lo, hi = float(np.median(low)), float(np.median(high))  # the start: a step through the middle
+
+    def model(q):
+        c0, c1, t, th, sigma = q
+        normal = np.array([math.cos(th), math.sin(th)])
+        return _profile(xy @ normal - t, th, sigma, aperture), normal
+
+    def residual(q):
+        (e, _, _), _ = model(q)
+        return (q[0] + q[1] * e - values) / noise
+
+    def jacobian(q):
+        # theta moves d (exactly) and the pixel's footprint on the normal (a far smaller term, left out)
+        (e, e_d, e_s), normal = model(q)
+        c1 = q[1]
+        across = xy @ np.array([-normal[1], normal[0]])
+        return np.stack([np.ones_like(e), e, -c1 * e_d, c1 * e_d * across, c1 * e_s], axis=1) / noise
+
+    start = [lo, hi - lo, 0.0, theta0, 0.4]
+    try:
+        fit = least_squares(residual, start, jac=jacobian,
+                            bounds=([-np.inf, -np.inf, -2, theta0 - 0.5, 0.02], [np.inf, np.inf, 2, theta0 + 0.5, MAX_SIGMA]),
+                            loss="soft_l1", f_scale=3.0, x_scale=[0.1, 0.1, 0.1, 0.05, 0.1], max_nfev=40)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    c0, c1, t, th, sigma = fit.x
+    if abs(t) > 1.5:  # the edge left the window's middle: one side barely sampled
+        return None
+    J = jacobian(fit.x)
+    try:
+        cov = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return None
+    r = residual(fit.x)
+    rms = float(np.sqrt(np.mean(r * r)))
+    return float(sigma), math.sqrt(max(cov[4, 4], 0.0)) * max(rms, 1.0), float(c1), rms
+
+
+def frame_noise(image: np.ndarray) -> float:
+    """The noise standard deviation of one frame, from the median absolute response to the 3 x 3
+    mask of Immerkaer (1996), which cancels every plane and most smooth structure (its norm is 6);
+    edges and texture are a minority of pixels, so the median stays with the noise."""
+    from scipy.ndimage import convolve
+
+    mask = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
+    response = convolve(np.asarray(image, dtype=np.float64), mask, mode="reflect")[1:-1, 1:-1]
+    return float(1.4826 * np.median(np.abs(response)) / 6.0)
+
+
+def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float,
+                        aperture: float = 1.0) -> LensEstimate:
+    """The Gaussian lens blur of a burst, from its straight edges (module docstring).
+
+    Parameters
+    ----------
+    frames : array, shape (F, H, W), float32
+        The brightness-corrected grey frames.
+    positions : array, shape (F, H, W, 2), float64
+        Each pixel's (x, y) in the reference frame, LR px.
+    weights : array, shape (F, H, W)
+        The samples' weights (robustness x trust); samples under 0.5 are left out.
+    reference : int
+        The reference frame's index (its edges are the ones looked for).
+    noise : float
+        The noise standard deviation of one sample (frames' units).
+    aperture : float
+        The pixel's sensitive side, LR px.
+
+    Returns
+    -------
+    LensEstimate
+    """
+    frames, positions, weights = (np.asarray(a) for a in (frames, positions, weights))
+    noise = max(float(noise), 1e-4)
+    points = _edge_points(frames[reference].astype(np.float64), noise)
+    sigmas = []
+    for x, y, theta in points:
+        xy, values = _samples(frames, positions, weights, x, y, theta)
+        fit = _fit_edge(xy, values.astype(np.float64), theta, noise, aperture)
+        if fit is None:
+            continue
+        s, error, c1, rms = fit
+        contrast = abs(c1) / noise
+        if error < MAX_SIGMA_ERROR and contrast > MIN_CONTRAST_NOISE and \
+                rms < MAX_RESIDUAL_NOISE + MAX_RESIDUAL_STEP * contrast:
+            sigmas.append(s)
+    sigmas = np.sort(np.array(sigmas))
+    found = sharpest_group(sigmas) if len(sigmas) >= MIN_EDGES else None
+    if found is None:
+        return LensEstimate(None, 0.0, 0, len(sigmas), sigmas, len(points))
+    sharpest, group = found
+    sigma = math.sqrt(max(sharpest**2 - SCENE_MARGIN**2, 0.0)) if sharpest <= MAX_TRUSTED else 0.0
+    return LensEstimate(sharpest, sigma, group, len(sigmas), sigmas, len(points))
+
+
+def burst_lens_sigma(frames, positions, weights, reference: int, notes: list | None = None) -> float:
+    """The lens blur a burst's deblurring undoes when none is given: :func:`estimate_lens_sigma`
+    on the grey (or luminance) frames, its line added to ``notes``; 0 where it cannot say.
+
+    Parameters
+    ----------
+    frames : Tensor, shape (F, H, W) or (F, H, W, 3), float32
+    positions : Tensor, shape (F, H, W, 2), float64
+    weights : Tensor, shape (F, H, W), float64
+    reference : int
+    notes : list, optional
+
+    Returns
+    -------
+    float
+        Sigma, LR px.
+    """
+    grey = frames if frames.ndim == 3 else frames @ frames.new_tensor([0.299, 0.587, 0.114])
+    grey = grey.numpy()
+    noise = frame_noise(grey[reference])
+    estimate = estimate_lens_sigma(grey, positions.numpy(), weights.numpy(), reference, noise)
+    if notes is not None:
+        notes.append(estimate.describe())
+    return estimate.sigma

@@ -1,0 +1,95 @@
+"""The lens blur measured on a burst's own straight edges (hbis_torch/reconstruct/classical/lens_blur.py)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.special import ndtr
+
+from hbis_torch.capture.burst import assemble_burst
+from hbis_torch.cli import main
+from hbis_torch.reconstruct.burst import burst_samples
+from hbis_torch.reconstruct.classical.burst import burst_sample_noise
+from hbis_torch.reconstruct.classical.lens_blur import edge_profile, estimate_lens_sigma, sharpest_group
+from hbis_torch.reconstruct.registry import reconstruct
+from hbis_torch.simulate.burst import random_motions, simulate_burst
+from hbis_torch.training.burst_data import truth_raster
+
+
+@pytest.mark.parametrize("theta, sigma, aperture", [(0.0, 0.3, 1.0), (0.4, 0.1, 1.0), (1.2, 0.6, 0.8)])
+def test_the_edge_profile_is_the_step_through_the_pixel_and_the_lens(theta, sigma, aperture):
+    """The closed form against a brute-force average of the blurred step over the pixel's area."""
+    d = np.linspace(-2.5, 2.5, 41)
+    q = (np.arange(400) + 0.5) / 400 - 0.5
+    u, v = np.meshgrid(q * aperture, q * aperture)
+    across = u * math.cos(theta) + v * math.sin(theta)  # each point's offset along the normal
+    brute = np.array([ndtr((x + across) / sigma).mean() for x in d])
+    np.testing.assert_allclose(edge_profile(d, theta, sigma, aperture), brute, atol=2e-4)
+
+
+def _burst(scene: str, blur: float, size: int = 160, frames: int = 8, seed: int = 1):
+    rng = np.random.default_rng(seed)
+    truth = truth_raster(scene, 2, size, 10 + seed, 0.8)
+    motions = random_motions(frames, (size, size), rng, max_shift=2.0, max_rotation_deg=0.5)
+    burst = simulate_burst(truth, 2, motions, noise=0.01, seed=seed, blur_px=blur)
+    stack, _ = assemble_burst(burst.frames, 2)
+    return burst, stack
+
+
+def _estimate(stack):
+    frames, positions, _, weights = burst_samples(stack)
+    noise = burst_sample_noise(frames, positions, weights)
+    return estimate_lens_sigma(frames.numpy(), positions.numpy(), weights.numpy(), stack.reference_index, noise)
+
+
+@pytest.mark.parametrize("blur", [0.0, 0.3, 0.6])
+def test_a_known_lens_blur_is_recovered_from_the_burst(blur):
+    _, stack = _burst("edges", blur)
+    found = _estimate(stack)
+    assert found.sharpest is not None and abs(found.sharpest - blur) < 0.08, (blur, found)
+
+
+def test_a_burst_without_straight_edges_undoes_no_lens():
+    _, stack = _burst("texture", 0.3, size=96)
+    found = _estimate(stack)
+    assert found.sharpest is None and found.sigma == 0, found
+    assert "not measured" in found.describe() and "clean straight edges" in found.describe()
+
+
+def test_the_lens_is_the_sharpest_edges_pile_up_not_their_spread():
+    """One lens: the sharpest edges agree, a few stray fits below them; a soft scene: they spread."""
+    rng = np.random.default_rng(0)
+    lens = np.sort(np.concatenate([[0.12, 0.2], 0.3 + rng.normal(0, 0.01, 20), rng.uniform(0.35, 1.2, 30)]))
+    sigma, members = sharpest_group(lens)
+    assert abs(sigma - 0.3) < 0.01 and members >= 18
+    assert sharpest_group(np.sort(rng.uniform(0.4, 1.0, 40))) is None
+    # more stray fits below the group than a few: not one lens either
+    assert sharpest_group(np.sort(np.concatenate([[0.1, 0.15, 0.2, 0.25], 0.3 + rng.normal(0, 0.01, 20)]))) is None
+
+
+def test_reconstruct_measures_the_lens_by_default_and_says_so():
+    burst, stack = _burst("edges", 0.5)
+    said: list[str] = []
+    auto = reconstruct(stack, "classical", messages=said)
+    none = reconstruct(stack, "classical", lens_sigma=0.0)
+    assert any(line.startswith("lens blur: ") and "undoing sigma" in line for line in said), said
+    truth = burst.truth
+
+    def error(image):
+        return float(np.mean((image - truth) ** 2))
+
+    assert error(auto) < 0.8 * error(none)
+
+
+@pytest.mark.parametrize("value, accepted", [("auto", True), ("0.3", True), ("nope", False), ("4", False)])
+def test_psf_sigma_takes_auto_or_a_number(tmp_path, capsys, value, accepted):
+    """A bad value is refused before the stack is looked for; a good one goes on to find it missing."""
+    args = ["reconstruct", str(tmp_path / "no-such-stack.tif"), "--method", "classical", "--psf-sigma", value,
+            "--out", str(tmp_path / "sr.tif")]
+    try:
+        code = main(args)
+    except SystemExit as stop:
+        code = stop.code
+    err = capsys.readouterr().err
+    assert code == 2
+    assert ("no such file" in err) == accepted and ("--psf-sigma" in err) != accepted, err
