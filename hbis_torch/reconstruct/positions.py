@@ -98,8 +98,7 @@ class BurstPositions:
 
     def __getitem__(self, index) -> Tensor:
         """``positions[frames]``, ``positions[frames, rows]`` or ``positions[frames, rows, cols]``,
-        each an int or a slice (the rows' positions are computed whole, then the columns taken),
-        as the whole array's indexing gives them."""
+        each an int or a slice (only those computed), as the whole array's indexing gives them."""
         index = index if isinstance(index, tuple) else (index,)
         if len(index) > 3 or not all(isinstance(i, (slice, int, np.integer)) for i in index):
             raise TypeError("BurstPositions takes up to three indices (frames, rows, columns), each an int or a slice")
@@ -110,16 +109,16 @@ class BurstPositions:
         for i, size in zip(index, (count, height, width)):
             if not isinstance(i, slice) and not -size <= int(i) < size:
                 raise IndexError(f"index {int(i)} is out of bounds for size {size}")
-        out = self._band(as_slices[0], as_slices[1])[:, :, as_slices[2]]
+        out = self._band(as_slices[0], as_slices[1], as_slices[2])
         drop = tuple(0 if not isinstance(i, slice) else slice(None) for i in index)
         return out[drop]
 
-    def _band(self, frames: slice, rows: slice) -> Tensor:
+    def _band(self, frames: slice, rows: slice, cols: slice = slice(None)) -> Tensor:
         from hbis_torch.registration import apply_homography_to_grid
 
         _, height, width, _ = self.shape
         picked = torch.arange(height, dtype=torch.float64)[rows]
-        positions = apply_homography_to_grid(self.motions[frames], picked, torch.arange(width, dtype=torch.float64))
+        positions = apply_homography_to_grid(self.motions[frames], picked, torch.arange(width, dtype=torch.float64)[cols])
         if self.offsets is not None:  # the smooth field of shifts on top of each homography
             from hbis_torch.registration.local import add_offsets
 

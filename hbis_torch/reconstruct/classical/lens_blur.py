@@ -213,12 +213,12 @@ def _samples(frames, positions, weights, x: float, y: float, theta: float):
     along = np.array([-normal[1], normal[0]])
     xy, values = [], []
     for k in range(F):
-        d = positions[k, int(y), int(x)] - np.array([x, y])  # where frame k's pixel (y, x) lies, relative
+        d = np.asarray(positions[k, int(y), int(x)]) - np.array([x, y])  # where frame k's pixel (y, x) lies, relative
         r0, r1 = max(int(math.floor(y - d[1])) - reach, 0), min(int(math.ceil(y - d[1])) + reach + 1, H)
         c0, c1 = max(int(math.floor(x - d[0])) - reach, 0), min(int(math.ceil(x - d[0])) + reach + 1, W)
         if r1 <= r0 or c1 <= c0:
             continue
-        p = positions[k, r0:r1, c0:c1].reshape(-1, 2) - np.array([x, y])
+        p = np.asarray(positions[k, r0:r1, c0:c1]).reshape(-1, 2) - np.array([x, y])
         inside = ((np.abs(p @ normal) < HALF_ACROSS) & (np.abs(p @ along) < HALF_ALONG)
                   & (weights[k, r0:r1, c0:c1].reshape(-1) > 0.5))
         xy.append(p[inside])
@@ -295,8 +295,9 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     ----------
     frames : array, shape (F, H, W), float32
         The brightness-corrected grey frames.
-    positions : array, shape (F, H, W, 2), float64
-        Each pixel's (x, y) in the reference frame, LR px.
+    positions : array, shape (F, H, W, 2), float64, or BurstPositions
+        Each pixel's (x, y) in the reference frame, LR px (a burst's lazy positions are read a
+        window at a time).
     weights : array, shape (F, H, W)
         The samples' weights (robustness x trust); samples under 0.5 are left out.
     reference : int
@@ -310,7 +311,9 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     -------
     LensEstimate
     """
-    frames, positions, weights = (np.asarray(a) for a in (frames, positions, weights))
+    frames, weights = np.asarray(frames), np.asarray(weights)
+    if not hasattr(positions, "whole"):  # a BurstPositions is read a window at a time
+        positions = np.asarray(positions)
     noise = max(float(noise), 1e-4)
     points = _edge_points(frames[reference].astype(np.float64), noise)
     sigmas = []
@@ -340,8 +343,8 @@ def burst_lens_sigma(frames, positions, weights, reference: int, notes: list | N
     Parameters
     ----------
     frames : Tensor, shape (F, H, W) or (F, H, W, 3), float32
-    positions : Tensor, shape (F, H, W, 2), float64
-    weights : Tensor, shape (F, H, W), float64
+    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
+    weights : Tensor, shape (F, H, W), float64 or float32
     reference : int
     notes : list, optional
 
@@ -353,7 +356,7 @@ def burst_lens_sigma(frames, positions, weights, reference: int, notes: list | N
     grey = frames if frames.ndim == 3 else frames @ frames.new_tensor([0.299, 0.587, 0.114])
     grey = grey.numpy()
     noise = frame_noise(grey[reference])
-    estimate = estimate_lens_sigma(grey, positions.numpy(), weights.numpy(), reference, noise)
+    estimate = estimate_lens_sigma(grey, positions, weights.numpy(), reference, noise)
     if notes is not None:
         notes.append(estimate.describe())
     return estimate.sigma
