@@ -86,6 +86,8 @@ class BurstPositions:
     """
 
     dtype = torch.float64
+    #: What the classical method checks for (it does not import this package's modules).
+    computed_where_read = True
 
     def __init__(self, motions: np.ndarray, height: int, width: int, offsets: Tensor | None = None,
                  tile: int = 32):

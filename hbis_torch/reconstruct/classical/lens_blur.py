@@ -312,7 +312,7 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     LensEstimate
     """
     frames, weights = np.asarray(frames), np.asarray(weights)
-    if not hasattr(positions, "whole"):  # a BurstPositions is read a window at a time
+    if not getattr(positions, "computed_where_read", False):  # a BurstPositions is read a window at a time
         positions = np.asarray(positions)
     noise = max(float(noise), 1e-4)
     points = _edge_points(frames[reference].astype(np.float64), noise)

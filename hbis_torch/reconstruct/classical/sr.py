@@ -24,7 +24,6 @@ from hbis_torch.reconstruct.classical.splat import (
     typical_weight,
 )
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
-from hbis_torch.reconstruct.positions import BurstPositions
 from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 
 # Samples per batch in lattice_image (a band of rows of every frame: lattice.batch_slices):
@@ -188,7 +187,7 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
     if isinstance(positions, NodePositions):
         shape = (positions.values.shape[0], positions.height, positions.width, 2)
         as_float64_tensor(positions.values, "positions")
-    elif isinstance(positions, BurstPositions):  # computed a band at a time where they are read
+    elif getattr(positions, "computed_where_read", False):  # a BurstPositions: a band at a time
         shape = positions.shape
     else:
         positions = as_float64_tensor(positions, "positions")
