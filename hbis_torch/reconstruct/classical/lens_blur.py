@@ -212,18 +212,39 @@ def _samples(frames, positions, weights, x: float, y: float, theta: float):
     normal = np.array([math.cos(theta), math.sin(theta)])
     along = np.array([-normal[1], normal[0]])
     xy, values = [], []
+    # where each frame's pixel (y, x) lies, relative
+    shift = np.asarray(positions[:, int(y), int(x)]) - np.array([x, y])
+    block = _block(positions, shift, x, y, reach, H, W)
     for k in range(F):
-        d = np.asarray(positions[k, int(y), int(x)]) - np.array([x, y])  # where frame k's pixel (y, x) lies, relative
+        d = shift[k]
         r0, r1 = max(int(math.floor(y - d[1])) - reach, 0), min(int(math.ceil(y - d[1])) + reach + 1, H)
         c0, c1 = max(int(math.floor(x - d[0])) - reach, 0), min(int(math.ceil(x - d[0])) + reach + 1, W)
         if r1 <= r0 or c1 <= c0:
             continue
-        p = np.asarray(positions[k, r0:r1, c0:c1]).reshape(-1, 2) - np.array([x, y])
+        if block is not None:
+            (R0, C0), window = block
+            window = window[k, r0 - R0:r1 - R0, c0 - C0:c1 - C0]
+        else:
+            window = positions[k, r0:r1, c0:c1]
+        p = np.asarray(window).reshape(-1, 2) - np.array([x, y])
         inside = ((np.abs(p @ normal) < HALF_ACROSS) & (np.abs(p @ along) < HALF_ALONG)
                   & (weights[k, r0:r1, c0:c1].reshape(-1) > 0.5))
         xy.append(p[inside])
         values.append(frames[k, r0:r1, c0:c1].reshape(-1)[inside])
     return np.concatenate(xy), np.concatenate(values)
+
+
+def _block(positions, shift: np.ndarray, x: float, y: float, reach: int, H: int, W: int):
+    """Lazy positions (a burst's BurstPositions) of every frame over the rows and columns that all
+    frames' windows around (x, y) span, in one call: ((first row, first column), (F, rows, cols,
+    2) array); None for an array (indexed as it is) or where the frames' windows lie far apart."""
+    if not getattr(positions, "computed_where_read", False) or not np.isfinite(shift).all():
+        return None
+    r0, r1 = max(int(math.floor(y - shift[:, 1].max())) - reach, 0), min(int(math.ceil(y - shift[:, 1].min())) + reach + 1, H)
+    c0, c1 = max(int(math.floor(x - shift[:, 0].max())) - reach, 0), min(int(math.ceil(x - shift[:, 0].min())) + reach + 1, W)
+    if r1 <= r0 or c1 <= c0 or (r1 - r0) * (c1 - c0) > 16 * (2 * reach + 2) ** 2:
+        return None
+    return (r0, c0), np.asarray(positions[:, r0:r1, c0:c1])
 
 
 def _fit_edge(xy: np.ndarray, values: np.ndarray, theta0: float, noise: float, aperture: float):
