@@ -1,7 +1,7 @@
 """Time and memory of a hand-held burst's assemble + classical, against an FFT floor and the peer.
 
     python benchmarks/bench_handheld.py [--sizes 640x480 4000x3000] [--frames 16] [--scale 2]
-        [--no-vidsr] [--no-learned] [--json benchmarks/results/bench_handheld.json]
+        [--threads N] [--no-vidsr] [--no-learned] [--json benchmarks/results/bench_handheld.json]
 
 For each size, a burst of :func:`hbis_torch.training.handheld_render.render_burst` (``--motion``,
 by default ``all``: turn, perspective, rolling shutter, a moving object, brightness; 16-bit) is rendered
@@ -148,6 +148,9 @@ def main(argv=None) -> int:
                    "start-up burst; the fastest counts (default 3; one above 1 MP)")
     p.add_argument("--max-gb", type=float, default=14.0, help="address space a full-burst process may take, GiB "
                    "(default 14; 0: no limit): above it the run fails with MemoryError rather than crowd the machine")
+    p.add_argument("--threads", type=int, default=0, help="threads of each burst's process (OMP_NUM_THREADS; "
+                   "default 0: torch's own choice, one a core). On a machine shared with other jobs one thread "
+                   "keeps the time beside the floor's (one FFT worker) from the cost of contended threads")
     p.add_argument("--no-learned", action="store_true")
     p.add_argument("--no-vidsr", action="store_true")
     p.add_argument("--json", type=Path, help="write the results here (atomically)")
@@ -169,9 +172,12 @@ def main(argv=None) -> int:
     if args.motion not in MOTIONS:
         print(f"bench_handheld: --motion must be one of {', '.join(MOTIONS)}", file=sys.stderr)
         return 2
-    if args.frames < 2 or not 1 <= args.scale <= 8 or args.repeats < 1:
-        print("bench_handheld: --frames must be 2 or more, --scale 1..8 and --repeats 1 or more", file=sys.stderr)
+    if args.frames < 2 or not 1 <= args.scale <= 8 or args.repeats < 1 or args.threads < 0:
+        print("bench_handheld: --frames must be 2 or more, --scale 1..8, --repeats 1 or more and --threads 0 or "
+              "more", file=sys.stderr)
         return 2
+    if args.threads:  # the children inherit it
+        os.environ["OMP_NUM_THREADS"] = str(args.threads)
     if args.cache is not None and not args.cache.is_dir():
         print(f"bench_handheld: --cache {args.cache}: the folder does not exist", file=sys.stderr)
         return 2
@@ -222,8 +228,8 @@ def main(argv=None) -> int:
     if args.json is not None:
         from hbis_torch.provenance import write_results
 
-        write_results(args.json, {"rows": rows, "load_average_1_5_15_min": {"before": load_before,
-                                                                              "after": os.getloadavg()}},
+        write_results(args.json, {"rows": rows, "threads": args.threads or "default",
+                                  "load_average_1_5_15_min": {"before": load_before, "after": os.getloadavg()}},
                       argv=sys.argv[1:] if argv is None else argv)
     for r in rows:
         print(summary(r))

@@ -66,8 +66,8 @@ def test_moving_object_is_not_smeared():
     import hbis_torch.reconstruct.burst as rb
     plain = rb.robustness_weights
     try:
-        rb.robustness_weights = lambda grey, positions, trusted, reference: trusted[:, None, None].double().expand(
-            grey.shape).clone()
+        rb.robustness_weights = lambda grey, positions, trusted, reference, *tally: trusted[:, None, None].double(
+            ).expand(grey.shape).clone()  # (a tally it is handed is left to the caller to fill)
         smeared = reconstruct(stack, "classical")
     finally:
         rb.robustness_weights = plain

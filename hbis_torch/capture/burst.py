@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from hbis_torch.capture.frames import bit_depth_hint
 from hbis_torch.errors import HbisInputError
@@ -88,15 +89,18 @@ class BurstMotion:
 
 
 def luminance(frames: np.ndarray) -> torch.Tensor:
-    """(F, H, W) float32 in [0, 1] from stored frames (F, H, W) or (F, H, W, 3) (BT.601 luma)."""
+    """(F, H, W) float32 in [0, 1] from stored frames (F, H, W) or (F, H, W, 3) (BT.601 luma),
+    converted a frame at a time (frames memory-mapped from disk are read once, and no float
+    copy of the whole burst is made beside the result)."""
     frames = np.asarray(frames)
-    if frames.dtype == np.uint8 or frames.dtype == np.uint16:
-        x = frames.astype(np.float32) / float(np.iinfo(frames.dtype).max)
-    else:
-        x = frames.astype(np.float32)
-    if x.ndim == 4:
-        x = x @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
-    return torch.from_numpy(np.ascontiguousarray(x))
+    top = float(np.iinfo(frames.dtype).max) if frames.dtype in (np.uint8, np.uint16) else None
+    out = np.empty(frames.shape[:3], dtype=np.float32)
+    for k, frame in enumerate(frames):
+        x = frame.astype(np.float32)
+        if top is not None:
+            x /= top
+        out[k] = x @ np.array([0.299, 0.587, 0.114], dtype=np.float32) if x.ndim == 3 else x
+    return torch.from_numpy(out)
 
 
 def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
@@ -234,17 +238,20 @@ def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: li
     from hbis_torch.registration import N_PARAMS
 
     F, H, W = grey.shape
-    blurred = kornia.filters.gaussian_blur2d(grey[:, None], (5, 5), (1.0, 1.0), border_type="replicate")[:, 0]
+
+    def blurred(k: int) -> Tensor:  # a frame at a time: no blurred copy of the burst
+        return kornia.filters.gaussian_blur2d(grey[k][None, None], (5, 5), (1.0, 1.0), border_type="replicate")[0, 0]
+
     step = max(1, int(np.sqrt(H * W / EVIDENCE_POINTS)))
     v, u = torch.meshgrid(torch.arange(3, H - 3, step, dtype=torch.float64),
                           torch.arange(3, W - 3, step, dtype=torch.float64), indexing="ij")
     points = torch.stack((u.reshape(-1), v.reshape(-1), torch.ones(u.numel(), dtype=torch.float64)))
-    ref = blurred[reference][None, None]
+    ref = blurred(reference)[None, None]
     # Residuals of the blurred frames are correlated over about 4 pi px^2.
     independent = max(1.0, (H - 6) * (W - 6) / (4 * np.pi))
     out = {m: {} for m in motions}
     for k in frames:
-        values = blurred[k].reshape(-1)[(v.reshape(-1) * W + u.reshape(-1)).long()].double()
+        values = blurred(k).reshape(-1)[(v.reshape(-1) * W + u.reshape(-1)).long()].double()
         for model, found in motions.items():
             q = torch.from_numpy(found[k]) @ points
             qu, qv = q[0] / q[2], q[1] / q[2]
@@ -502,7 +509,7 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
     frames, roi = check_burst_input(frames, scale, reference, motion, roi, bit_depth)
     grey = luminance(frames)
     if bit_depth is not None and frames.dtype != np.float32:
-        grey = grey * ((2 ** (frames.dtype.itemsize * 8) - 1) / (2 ** bit_depth - 1))
+        grey.mul_((2 ** (frames.dtype.itemsize * 8) - 1) / (2 ** bit_depth - 1))
     found = register_burst(grey, reference, motion, names)
     messages = list(found.messages)
     hint = bit_depth_hint(frames) if bit_depth is None else None

@@ -38,6 +38,8 @@ References
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import Tensor
@@ -65,10 +67,10 @@ RUN_FILL = 0.5
 
 def corrected_frames(stack) -> Tensor:
     """The stack's frames with each frame's gain and offset applied, float32 in [0, 1]."""
-    frames = stack.to_float()
+    frames = stack.to_float()  # a fresh tensor: corrected in place (a 12 MP burst's is 768 MB)
     go = torch.from_numpy(stack.gain_offset.astype(np.float32))
     shape = (-1,) + (1,) * (frames.ndim - 1)
-    return (frames * go[:, 0].reshape(shape) + go[:, 1].reshape(shape)).clamp_(0, 1)
+    return frames.mul_(go[:, 0].reshape(shape)).add_(go[:, 1].reshape(shape)).clamp_(0, 1)
 
 
 def _luma(frames: Tensor) -> Tensor:
@@ -84,69 +86,162 @@ def _blur(images: Tensor) -> Tensor:
                                           border_type="replicate")[:, 0]
 
 
-def _sample(image: Tensor, positions: Tensor) -> Tensor:
-    """Bilinear values of ``image`` (H, W) at ``positions`` (F, H, W, 2) (u, v), border-clamped."""
-    H, W = image.shape
+def _sample(images: Tensor, positions: Tensor) -> Tensor:
+    """Bilinear values of ``images`` (C, H, W) at ``positions`` (..., 2) (u, v), border-clamped:
+    (C, ...)."""
+    C, H, W = images.shape
     grid = torch.stack((2 * positions[..., 0] / max(W - 1, 1) - 1, 2 * positions[..., 1] / max(H - 1, 1) - 1), -1)
-    F = positions.shape[0]
-    return torch.nn.functional.grid_sample(image[None, None].expand(F, 1, H, W).to(torch.float32),
-                                           grid.to(torch.float32), mode="bilinear", padding_mode="border",
-                                           align_corners=True)[:, 0]
+    flat = grid.reshape(1, 1, -1, 2).to(torch.float32)
+    out = torch.nn.functional.grid_sample(images[None].to(torch.float32), flat, mode="bilinear",
+                                          padding_mode="border", align_corners=True)
+    return out.reshape((C,) + positions.shape[:-1])
 
 
-def robustness_weights(grey: Tensor, positions: Tensor, trusted: Tensor, reference: int) -> Tensor:
+def _inside(positions: Tensor, shape: tuple[int, int]) -> Tensor:
+    """Whether each position (..., 2) lies on the reference frame of ``shape`` (H, W)."""
+    H, W = shape
+    u, v = positions[..., 0], positions[..., 1]
+    return (u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= H - 0.5)
+
+
+def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int, tally=None) -> Tensor:
     """Per-sample weights in [0, 1]: 1 where the motion explains the sample, towards 0 where not.
+
+    Computed a frame at a time (its positions, blur and comparison), so that no array of every
+    sample's position or blurred value is held beside the frames.
 
     Parameters
     ----------
     grey : Tensor, shape (F, H, W), float32
         Brightness-corrected luminance of the frames.
-    positions : Tensor, shape (F, H, W, 2), float64
-        Where each sample lies on the reference grid.
+    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
+        Where each sample lies on the reference grid (``positions[k]``: frame k's).
     trusted : Tensor, shape (F,), bool
         Frames whose motion is trusted (the others get 0).
     reference : int
+    tally : _Tally, optional
+        Is handed every frame's positions and weights with any weight (:meth:`_Tally.add`),
+        which then need not be computed again.
 
     Returns
     -------
-    Tensor, shape (F, H, W), float64
-        1 for the reference's samples; 0 for samples outside the reference frame.
+    Tensor, shape (F, H, W), float32
+        1 for the reference's samples; 0 for samples outside the reference frame and for
+        untrusted frames. (Each weight is a float32 value, so float32 holds it exactly: half
+        the memory of float64, the same numbers.)
     """
     from hbis_torch.sensor.noise import noise_sigma
 
     F, H, W = grey.shape
-    blurred = _blur(grey)
-    ref = blurred[reference]
-    at_ref = _sample(ref, positions)
+    ref = _blur(grey[reference][None])[0]
     local = torch.nn.functional.avg_pool2d(torch.stack((ref, ref * ref))[:, None], 3, 1, 1,
                                            count_include_pad=False)[:, 0]
-    contrast = _sample((local[1] - local[0] ** 2).clamp_min(0).sqrt(), positions)
+    both = torch.stack((ref, (local[1] - local[0] ** 2).clamp_min(0).sqrt()))  # the reference and its contrast
+    del local
     # Noise of a difference of two frames blurred by a Gaussian of s px: sqrt(2) / (2 sqrt(pi) s).
     noise = float(noise_sigma(grey[reference][None])[0]) * 2 ** 0.5 / (2 * np.pi ** 0.5 * COMPARE_BLUR_PX)
-    tau = NOISE_TOLERANCE * max(noise, 1e-4) + CONTRAST_TOLERANCE * contrast
-    weight = torch.exp(-((blurred - at_ref) / tau) ** 2)
-    weight = -torch.nn.functional.max_pool2d(-weight[:, None], 3, 1, 1)[:, 0]  # grow each rejection a pixel
-    u, v = positions[..., 0], positions[..., 1]
-    inside = (u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= H - 0.5)
-    weight = weight.double() * inside * trusted[:, None, None]
-    weight[reference] = 1.0
-    return weight
+    weights = torch.zeros((F, H, W), dtype=torch.float32)
+    for k in range(F):
+        if k == reference or not bool(trusted[k]):
+            continue
+        where = positions[k]
+        at_ref, tau = _sample(both, where)  # one grid for both images
+        tau.mul_(CONTRAST_TOLERANCE).add_(NOISE_TOLERANCE * max(noise, 1e-4))
+        weight = torch.exp(-((_blur(grey[k][None])[0] - at_ref) / tau) ** 2)
+        weight = -torch.nn.functional.max_pool2d(-weight[None, None], 3, 1, 1)[0, 0]  # grow each rejection a pixel
+        weights[k] = weight * _inside(where, (H, W))
+        if tally is not None:
+            tally.add(k, where, weights[k])
+    weights[reference] = 1.0
+    if tally is not None:
+        tally.add(reference, positions[reference], weights[reference])
+    return weights
 
 
-def coverage(positions: Tensor, weights: Tensor, reference: int) -> np.ndarray:
-    """How much the frames other than the reference put into each reference pixel: the sum of
-    their samples' weights over the pixel each lands in, (H, W) float64."""
+class _Tally:
+    """What :func:`coverage` and :func:`scale_to_run` add up over the frames, a frame at a time
+    (its positions and weights), for frames of ``shape`` (H, W) and the output scales ``scales``."""
+
+    def __init__(self, shape: tuple[int, int], reference: int, scales=()):
+        H, W = shape
+        self.shape, self.reference = shape, reference
+        # framed by one node each way (:meth:`_framed_index`)
+        self.cover = torch.zeros((H + 2) * (W + 2), dtype=torch.float64)
+        self.hits = {s: torch.zeros((s * H + 2) * (s * W + 2), dtype=torch.bool) for s in scales}
+        self.added = 0  # frames added
+
+    def add(self, k: int, where: Tensor, weight: Tensor) -> None:
+        """Frame ``k``'s positions (H, W, 2) and weights (H, W).
+
+        Samples beyond the grid go to a one-node frame around it (indices clamped), which is
+        dropped, and samples that add nothing (weight 0, or at most 0.1 for the fill) to one
+        node of it: no boolean selection of the samples (a third of the time), the same sums
+        (a weight of 0 adds nothing, and the others are added in the same order)."""
+        H, W = self.shape
+        self.added += 1
+        if not math.isfinite(float(where.sum())):  # (a degenerate motion) such samples land nowhere
+            keep = torch.isfinite(where).all(-1)
+            where, weight = torch.where(keep[..., None], where, -2.0), weight * keep
+        if k != self.reference:  # coverage: the other frames' weights in the pixel each sample lands in
+            index = self._framed_index(where, 1, H, W)
+            self.cover.index_add_(0, index, weight.reshape(-1).to(torch.float64))
+        for s, hit in self.hits.items():  # the lattice nodes that samples of weight > 0.1 land on
+            index = self._framed_index(where, s, s * H, s * W)
+            hit[torch.where(weight.reshape(-1) > 0.1, index, 0)] = True
+
+    @staticmethod
+    def _framed_index(where: Tensor, s: int, rows: int, cols: int) -> Tensor:
+        """Flat index (N,) int64 in a (rows + 2, cols + 2) grid framed by one node of the node
+        nearest each position (H, W, 2) on the s-times grid, clamped to the frame."""
+        u = (s * (where[..., 0] + 0.5) - 0.5) if s != 1 else where[..., 0]
+        v = (s * (where[..., 1] + 0.5) - 0.5) if s != 1 else where[..., 1]
+        u = u.round().clamp_(-1, cols).to(torch.int64)
+        v = v.round().clamp_(-1, rows).to(torch.int64)
+        return v.add_(1).mul_(cols + 2).add_(u).add_(1).reshape(-1)
+
+    def coverage(self) -> np.ndarray:
+        H, W = self.shape
+        return self.cover.reshape(H + 2, W + 2)[1:-1, 1:-1].numpy().copy()
+
+    def fill(self, s: int) -> np.ndarray:
+        """:func:`_lattice_fill` at scale ``s``."""
+        H, W = self.shape
+        size = 2 * s + 1
+        hit = self.hits[s].reshape(s * H + 2, s * W + 2)[1:-1, 1:-1].to(torch.float32)
+        fill = torch.nn.functional.avg_pool2d(hit.reshape(1, 1, s * H, s * W), size, 1, size // 2,
+                                              count_include_pad=False)[0, 0]
+        return ((fill - NO_FILL) / (FULL_FILL - NO_FILL)).clamp(0, 1).numpy()
+
+    def run_scale(self, scale: int) -> tuple[int, np.ndarray]:
+        """:func:`scale_to_run` from the hits at ``scale`` down to 2."""
+        first = None
+        for s in range(scale, 1, -1):
+            fill = self.fill(s)
+            first = fill if first is None else first
+            if float(fill.mean()) >= RUN_FILL:
+                return s, fill
+        return scale, first
+
+
+def _tally(positions, weights: Tensor, reference: int, scales=()) -> _Tally:
+    """:class:`_Tally` of every frame with any weight (a frame's positions computed once)."""
     F, H, W = weights.shape
-    others = torch.arange(F) != reference
-    u = positions[others][..., 0].round().long().reshape(-1)
-    v = positions[others][..., 1].round().long().reshape(-1)
-    w = weights[others].reshape(-1)
-    keep = (u >= 0) & (u < W) & (v >= 0) & (v < H) & (w > 0)
-    total = torch.zeros(H * W, dtype=torch.float64).index_add_(0, (v * W + u)[keep], w[keep])
-    return total.reshape(H, W).numpy()
+    tally = _Tally((H, W), reference, scales)
+    for k in range(F):
+        if bool((weights[k] > 0).any()):
+            tally.add(k, positions[k], weights[k])
+    return tally
 
 
-def burst_samples(stack, frames: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+def coverage(positions, weights: Tensor, reference: int) -> np.ndarray:
+    """How much the frames other than the reference put into each reference pixel: the sum of
+    their samples' weights over the pixel each lands in, (H, W) float64. ``positions`` as
+    :func:`robustness_weights`'; weights (F, H, W)."""
+    return _tally(positions, weights, reference).coverage()
+
+
+def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
+                  tally: _Tally | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Steps 1 to 3 of the module docstring: what every method's burst path is handed.
 
     Parameters
@@ -155,21 +250,32 @@ def burst_samples(stack, frames: Tensor | None = None) -> tuple[Tensor, Tensor, 
         A burst stack.
     frames : Tensor, optional
         Its :func:`corrected_frames`, where the caller has them already.
+    lazy : bool
+        Positions as a :class:`~hbis_torch.reconstruct.positions.BurstPositions` (computed a
+        band at a time where they are read) and weights in float32 (the same values), not the
+        whole float64 arrays: 24 bytes a sample less (a 12 MP burst of 16 frames: 4.6 GB).
+    tally : _Tally, optional
+        :func:`robustness_weights`'.
 
     Returns
     -------
     frames : Tensor, shape (F, H, W) or (F, H, W, 3), float32
         Brightness-corrected.
-    positions : Tensor, shape (F, H, W, 2), float64
+    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
     trusted : Tensor, shape (F,), bool
-    weights : Tensor, shape (F, H, W), float64
+    weights : Tensor, shape (F, H, W), float64 (float32 if ``lazy``)
         The robustness weights (:func:`robustness_weights`).
     """
     from hbis_torch.reconstruct.positions import burst_positions
 
     frames = corrected_frames(stack) if frames is None else frames
-    positions, trusted = burst_positions(stack)
-    weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index)
+    positions, trusted = burst_positions(stack, lazy=True)
+    if tally is None:
+        weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index)
+    else:
+        weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index, tally)
+    if not lazy:
+        positions, weights = positions.whole(), weights.double()
     return frames, positions, trusted, weights
 
 
@@ -218,14 +324,24 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
                          "single-frame estimate (the reference frame enlarged, bicubic); capture the burst "
                          "again, moving the camera a little between frames"))
         return fallback
-    frames, positions, trusted, weights = burst_samples(stack, frames)
-    cover = coverage(positions, weights, ref)
+    # the coverage and the lattice's fill added up beside the weights (each frame's positions once)
+    tally = _Tally(tuple(frames.shape[1:3]), ref, range(scale, 1, -1))
+    frames, positions, trusted, weights = burst_samples(stack, frames, lazy=True, tally=tally)
+    if not tally.added:  # weights from elsewhere (a robustness_weights that takes no tally)
+        tally = _tally(positions, weights, ref, range(scale, 1, -1))
+    cover = tally.coverage()
     if float(cover.max()) == 0.0:
         notes.append("no frame but the reference could be used (none registered, or none agrees with it): the output "
                      "is the single-frame estimate (the reference frame enlarged, bicubic)")
         return fallback
     _report_weights(weights, trusted, ref, notes)
-    run_scale, fill = scale_to_run(positions, weights, scale)
+    if scale == 1:  # the reference's own grid: nothing to fill
+        run_scale, fill = 1, np.ones(cover.shape, dtype=np.float32)
+    else:
+        run_scale, fill = tally.run_scale(scale)
+    del tally
+    if not getattr(run, "streams", False):  # a method that wants the whole arrays gets them
+        positions, weights = positions.whole(), weights.double()
     target = stack
     if run_scale != scale:
         notes.append(f"the frames' samples fill too little of the S = {scale} lattice: reconstructed at "
@@ -257,11 +373,15 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
 
 
 def _luma_and_chroma(run, stack, frames, positions, weights, messages, kw) -> np.ndarray:
-    from hbis_torch.reconstruct.colour import rgb_to_ycbcr, upsample, ycbcr_to_rgb
+    from hbis_torch.reconstruct.colour import LUMA, rgb_to_ycbcr, upsample, ycbcr_to_rgb
 
-    ycc = rgb_to_ycbcr(frames.numpy().astype(np.float64))
-    y = run(stack, torch.from_numpy(ycc[..., 0].astype(np.float32)), positions, weights, messages=messages, **kw)
-    chroma = upsample(ycc[stack.reference_index, ..., 1:], stack.h)
+    # the luma a frame at a time (in float64, as rgb_to_ycbcr takes it), the chroma of the reference alone
+    luma = torch.empty(frames.shape[:3], dtype=torch.float32)
+    for k in range(len(frames)):
+        luma[k] = torch.from_numpy((frames[k].numpy().astype(np.float64) @ LUMA).astype(np.float32))
+    y = run(stack, luma, positions, weights, messages=messages, **kw)
+    reference = rgb_to_ycbcr(frames[stack.reference_index].numpy().astype(np.float64))
+    chroma = upsample(reference[..., 1:], stack.h)
     return ycbcr_to_rgb(np.concatenate((np.asarray(y, dtype=np.float64)[..., None], chroma), axis=-1))
 
 
@@ -274,39 +394,25 @@ def _blend_weight(cover: np.ndarray, scale: int) -> np.ndarray:
     return np.clip(zoom(alpha, scale, order=1, mode="nearest", grid_mode=True), 0, 1).astype(np.float32)
 
 
-def _lattice_fill(positions: Tensor, weights: Tensor, scale: int) -> np.ndarray:
+def _lattice_fill(positions, weights: Tensor, scale: int) -> np.ndarray:
     """The method's share (S H, S W) float32 from how the samples fill the output lattice: the
     share of output pixels near each (within S px) that a sample of weight > 0.5 lands on; 1 from
     :data:`FULL_FILL` up, 0 at :data:`NO_FILL` and below. A few frames leave whole sub-pixel
     phases empty, and deblurring the filled-in lattice then costs more than it gains (4 random
     frames at S = 2: 2 to 4 dB under the single frame on simulated bursts; 8: 5 dB over it)."""
-    F, H, W = weights.shape
-    U = (scale * (positions[..., 0] + 0.5) - 0.5).round().long()
-    V = (scale * (positions[..., 1] + 0.5) - 0.5).round().long()
-    keep = (weights > 0.1) & (U >= 0) & (U < scale * W) & (V >= 0) & (V < scale * H)
-    hit = torch.zeros(scale * H * scale * W, dtype=torch.float32)
-    hit[(V * scale * W + U)[keep]] = 1.0
-    size = 2 * scale + 1
-    fill = torch.nn.functional.avg_pool2d(hit.reshape(1, 1, scale * H, scale * W), size, 1, size // 2,
-                                          count_include_pad=False)[0, 0]
-    return ((fill - NO_FILL) / (FULL_FILL - NO_FILL)).clamp(0, 1).numpy()
+    return _tally(positions, weights, -1, (scale,)).fill(scale)
 
 
-def scale_to_run(positions: Tensor, weights: Tensor, scale: int) -> tuple[int, np.ndarray]:
+def scale_to_run(positions, weights: Tensor, scale: int) -> tuple[int, np.ndarray]:
     """The scale a burst is reconstructed at: the largest s from ``scale`` down to 2 whose lattice
     the samples fill (the mean of :func:`_lattice_fill` at s at least :data:`RUN_FILL`), else
     ``scale`` (the fallback's blend then leans on the single frame); and :func:`_lattice_fill` at
     it. A scale the samples do not fill leaves whole sub-pixel phases empty; at a coarser one the
-    same samples still add what they resolve, and the image is enlarged to the scale asked for."""
+    same samples still add what they resolve, and the image is enlarged to the scale asked for.
+    ``positions`` as :func:`robustness_weights`'; weights (F, H, W)."""
     if scale == 1:  # the reference's own grid: nothing to fill
         return 1, np.ones((weights.shape[1], weights.shape[2]), dtype=np.float32)
-    first = None
-    for s in range(scale, 1, -1):
-        fill = _lattice_fill(positions, weights, s)
-        first = fill if first is None else first
-        if float(fill.mean()) >= RUN_FILL:
-            return s, fill
-    return scale, first
+    return _tally(positions, weights, -1, range(scale, 1, -1)).run_scale(scale)
 
 
 def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: list) -> None:
@@ -314,7 +420,7 @@ def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: lis
     left_out = [k for k in range(len(trusted)) if not bool(trusted[k])]
     if left_out:
         notes.append(f"left out {len(left_out)} frame(s) whose motion is not trusted: {left_out}")
-    mean = weights.mean((1, 2))
+    mean = weights.mean((1, 2), dtype=torch.float64)
     low = [k for k in range(len(mean)) if k != reference and bool(trusted[k]) and float(mean[k]) < 0.5]
     if low:
         notes.append(f"frame(s) {low}: most samples down-weighted (the motion does not explain them: a moving "

@@ -62,40 +62,103 @@ EXACT_SAMPLES_PER_CALL = 1 << 22
 
 
 
-def burst_positions(stack) -> tuple[Tensor, Tensor]:
+class BurstPositions:
+    """Where the samples of a burst lie on the reference grid, computed a band at a time.
+
+    A burst's positions are each frame's homography (and local shifts) applied to its pixel
+    centres: 16 bytes a sample in float64, 3 GB for 16 frames of 12 MP. This object holds the
+    motions alone and computes the positions of the frames and rows asked for, with the same
+    bits as the whole array (:meth:`whole`): ``positions[k]`` is frame k's (H, W, 2),
+    ``positions[frames, rows]`` (two slices, any step) the band's (f, r, W, 2), float64.
+    The burst path (:func:`hbis_torch.reconstruct.burst.burst_samples` with ``lazy=True``) and
+    the classical method's lattice take it wherever they take a positions tensor.
+
+    Parameters
+    ----------
+    motions : np.ndarray, shape (F, 3, 3), float64
+        Frame px -> reference px.
+    height, width : int
+        The frames' size, px.
+    offsets : Tensor, shape (F, rows, cols, 2), float64, or None
+        Local shifts on top of each motion (:mod:`hbis_torch.registration.local`).
+    tile : int
+        Their tiles' side, px.
+    """
+
+    dtype = torch.float64
+    #: What the classical method checks for (it does not import this package's modules).
+    computed_where_read = True
+
+    def __init__(self, motions: np.ndarray, height: int, width: int, offsets: Tensor | None = None,
+                 tile: int = 32):
+        self.motions = torch.as_tensor(np.asarray(motions, dtype=np.float64))
+        self.offsets, self.tile = offsets, int(tile)
+        self.shape = (len(self.motions), int(height), int(width), 2)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, index) -> Tensor:
+        """``positions[frames]``, ``positions[frames, rows]`` or ``positions[frames, rows, cols]``,
+        each an int or a slice (only those computed), as the whole array's indexing gives them."""
+        index = index if isinstance(index, tuple) else (index,)
+        if len(index) > 3 or not all(isinstance(i, (slice, int, np.integer)) for i in index):
+            raise TypeError("BurstPositions takes up to three indices (frames, rows, columns), each an int or a slice")
+        index = index + (slice(None),) * (3 - len(index))
+        # ints as one-long slices, dropped again after
+        as_slices = [slice(int(i), int(i) + 1 or None) if not isinstance(i, slice) else i for i in index]
+        count, height, width, _ = self.shape
+        for i, size in zip(index, (count, height, width)):
+            if not isinstance(i, slice) and not -size <= int(i) < size:
+                raise IndexError(f"index {int(i)} is out of bounds for size {size}")
+        out = self._band(as_slices[0], as_slices[1], as_slices[2])
+        drop = tuple(0 if not isinstance(i, slice) else slice(None) for i in index)
+        return out[drop]
+
+    def _band(self, frames: slice, rows: slice, cols: slice = slice(None)) -> Tensor:
+        from hbis_torch.registration import apply_homography_to_grid
+
+        _, height, width, _ = self.shape
+        picked = torch.arange(height, dtype=torch.float64)[rows]
+        positions = apply_homography_to_grid(self.motions[frames], picked, torch.arange(width, dtype=torch.float64)[cols])
+        if self.offsets is not None:  # the smooth field of shifts on top of each homography
+            from hbis_torch.registration.local import add_offsets
+
+            add_offsets(self.offsets[frames], positions, self.tile)
+        return positions
+
+    def whole(self) -> Tensor:
+        """Every sample's position, (F, H, W, 2) float64: what the object stands for."""
+        return self._band(slice(None), slice(None))
+
+
+def burst_positions(stack, lazy: bool = False) -> tuple[Tensor | BurstPositions, Tensor]:
     """Where every sample of a burst stack lies on the reference frame's grid.
 
     Parameters
     ----------
     stack : hbis_torch.stack_io.Stack
         A burst (``stack.kind == "burst"``).
+    lazy : bool
+        Return a :class:`BurstPositions`, which computes them a band at a time, instead of
+        the whole array.
 
     Returns
     -------
-    positions : Tensor, shape (F, H, W, 2), float64
+    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
         (u, v) of every sample in the reference frame's LR pixel coordinates: the frame's
         homography (``stack.motions``) applied to its pixel centres, plus the stack's local
         shifts there where it has them (``local_motion``, :mod:`hbis_torch.registration.local`).
     trusted : Tensor, shape (F,), bool
         Frames whose confidence is at least :data:`BURST_MIN_CONFIDENCE` (the reference always).
     """
-    from hbis_torch.registration import apply_homography
-
-    motions = torch.from_numpy(stack.motions)
     count, height, width = stack.frames.shape[:3]
-    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
-                          indexing="ij")
-    grid = torch.stack((u, v), -1).reshape(1, -1, 2).expand(count, -1, -1)
-    positions = apply_homography(motions, grid).reshape(count, height, width, 2)
     local = stack.meta.get("local_motion")
-    if local is not None:  # the smooth field of shifts on top of each homography
-        from hbis_torch.registration.local import sample_offsets
-
-        offsets = torch.tensor(local["offsets"], dtype=torch.float64)
-        positions = positions + sample_offsets(offsets, positions, int(local["tile_px"]))
+    offsets = None if local is None else torch.tensor(local["offsets"], dtype=torch.float64)
+    positions = BurstPositions(stack.motions, height, width, offsets, 32 if local is None else int(local["tile_px"]))
     trusted = torch.from_numpy(stack.confidence >= BURST_MIN_CONFIDENCE)
     trusted[stack.reference_index] = True
-    return positions, trusted
+    return (positions if lazy else positions.whole()), trusted
 
 
 def check_registration(registration: str) -> str:

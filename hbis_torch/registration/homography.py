@@ -56,6 +56,38 @@ def apply_homography(homographies: Tensor, points: Tensor) -> Tensor:
     return mapped[..., :2] / mapped[..., 2:]
 
 
+def apply_homography_to_grid(homographies: Tensor, rows: Tensor, cols: Tensor) -> Tensor:
+    """:func:`apply_homography` of every pixel (u, v) = (cols[j], rows[i]) of a grid.
+
+    Each row of ``H [u, v, 1]`` is ``a u + (b v + c)``: a column term plus a row term, one add a
+    pixel, where :func:`apply_homography` builds and multiplies (N, 3) matrices (on a 12 MP
+    frame a tenth of its time and no (N, 3) temporaries). The sums are associated differently,
+    so the two agree to float64 rounding (within four roundings of the coordinate, 7e-12 px on
+    frames up to 8192 px; tests check it), not bit for bit.
+
+    Parameters
+    ----------
+    homographies : Tensor, shape (F, 3, 3), float64
+    rows, cols : Tensor, shape (R,) and (C,)
+        The grid's v and u coordinates, px.
+
+    Returns
+    -------
+    Tensor, shape (F, R, C, 2), float64
+        (u, v) after the mapping.
+    """
+    h = homographies.to(torch.float64)
+    rows, cols = rows.to(torch.float64), cols.to(torch.float64)
+    out = torch.empty((len(h), len(rows), len(cols), 2), dtype=torch.float64)
+    w = torch.empty((len(rows), len(cols)), dtype=torch.float64)
+    for k, m in enumerate(h):
+        torch.add((m[2, 1] * rows + m[2, 2])[:, None], (m[2, 0] * cols)[None, :], out=w)
+        for axis in (0, 1):
+            torch.add((m[axis, 1] * rows + m[axis, 2])[:, None], (m[axis, 0] * cols)[None, :], out=out[k, ..., axis])
+            out[k, ..., axis].div_(w)
+    return out
+
+
 def homographies_from_positions(positions, step: int = 4) -> Tensor:
     """Least-squares homographies that best map each frame's pixel grid onto given positions.
 

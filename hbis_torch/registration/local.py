@@ -58,23 +58,44 @@ def sample_offsets(offsets: Tensor, points: Tensor, tile: int = TILE_PX) -> Tens
     -------
     Tensor, shape of ``points``, in ``points``' dtype
     """
+    out = _field_at(offsets, points, tile)  # (F, 2, N)
+    return out.permute(0, 2, 1).reshape(points.shape).to(points.dtype)
+
+
+def add_offsets(offsets: Tensor, points: Tensor, tile: int = TILE_PX) -> Tensor:
+    """``points += sample_offsets(offsets, points, tile)``, in place (no copy of the points in
+    the field's float32 or back): ``points``, a contiguous (F, ..., 2) tensor."""
+    F = offsets.shape[0]
+    points.view(F, -1, 2).add_(_field_at(offsets, points, tile).permute(0, 2, 1).contiguous())
+    return points
+
+
+def _field_at(offsets: Tensor, points: Tensor, tile: int) -> Tensor:
+    """The field (F, rows, cols, 2) read at ``points`` (F, ..., 2): (F, 2, N) float32 (grid_sample)."""
     F, rows, cols, _ = offsets.shape
-    lead = points.shape[1:-1]
-    flat = points.reshape(F, 1, -1, 2)
-    # Tile (i, j)'s centre is at ((j + 0.5) tile - 0.5, (i + 0.5) tile - 0.5).
-    gu = ((flat[..., 0] + 0.5) / tile - 0.5) * (2 / max(cols - 1, 1)) - 1
-    gv = ((flat[..., 1] + 0.5) / tile - 0.5) * (2 / max(rows - 1, 1)) - 1
-    grid = torch.stack((gu, gv), -1).to(torch.float32)
+    flat = points.reshape(F, -1, 2)
+    # Tile (i, j)'s centre is at ((j + 0.5) tile - 0.5, (i + 0.5) tile - 0.5): grid_sample's
+    # coordinate of u is ((u + 0.5) / tile - 0.5) 2 / (cols - 1) - 1, i.e. u a + b, computed in
+    # the points' dtype and written in float32.
+    grid = torch.empty((F, 1, flat.shape[1], 2), dtype=torch.float32)
+    for axis, count in ((0, cols), (1, rows)):
+        a = 2 / (tile * max(count - 1, 1))
+        b = (0.5 / tile - 0.5) * (2 / max(count - 1, 1)) - 1
+        torch.add(torch.tensor(b, dtype=flat.dtype), flat[..., axis], alpha=a, out=grid[:, 0, :, axis])
     field = offsets.permute(0, 3, 1, 2).to(torch.float32)
     out = torch.nn.functional.grid_sample(field, grid, mode="bilinear", padding_mode="border", align_corners=True)
-    return out[:, :, 0].permute(0, 2, 1).reshape((F,) + lead + (2,)).to(points.dtype)
+    return out[:, :, 0]
 
 
-def _shift(image: Tensor, field: Tensor) -> Tensor:
-    """``image`` (F, C, H, W) read at x + field(x), ``field`` (F, H, W, 2) in px, bilinear."""
+def _shift(image: Tensor, field: Tensor, pixels: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    """``image`` (F, C, H, W) read at x + field(x), ``field`` (F, H, W, 2) in px, bilinear;
+    ``pixels``: the (v, u) pixel grids (H, W) float32, where the caller keeps them."""
     F, _, H, W = image.shape
-    v, u = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
-    grid = torch.stack(((u + field[..., 0]) * (2 / (W - 1)) - 1, (v + field[..., 1]) * (2 / (H - 1)) - 1), -1)
+    v, u = pixels or torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32),
+                                    indexing="ij")
+    grid = torch.empty((F, H, W, 2), dtype=torch.float32)  # written in place: no stacking copy
+    torch.add(u, field[..., 0], out=grid[..., 0]).mul_(2 / (W - 1)).sub_(1)
+    torch.add(v, field[..., 1], out=grid[..., 1]).mul_(2 / (H - 1)).sub_(1)
     return torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
 
 
@@ -118,6 +139,7 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     # Noise of a blurred difference of two frames, for the shrinkage of poorly pinned tiles.
     noise = float(noise_sigma(grey[reference][None])[0]) * 2 ** 0.5 / (2 * np.pi ** 0.5 * BLUR_PX)
     pool = (lambda x: torch.nn.functional.avg_pool2d(x, tile, tile, ceil_mode=True, count_include_pad=False) * tile * tile)
+    pixels = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
     for k in use:
         g, o = gain_offset[k]
         frame = (g * grey[k] + o)[None, None]
@@ -128,12 +150,16 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
         valid = (warped[:, 1:] > 0.999).float()
         valid[..., :2, :], valid[..., -2:, :], valid[..., :2], valid[..., -2:] = 0, 0, 0, 0
         d = torch.zeros(1, rows, cols, 2)
+        terms = torch.empty((1, 6, H, W))  # the products the tiles sum, written in place (no concatenation)
+        terms[:, 5:] = valid
         for _ in range(ITERATIONS):
             field = _field(d, (H, W), tile)
-            at = _shift(ref_and_gradient, field)
+            at = _shift(ref_and_gradient, field, pixels)
             r = (warped[:, :1] - at[:, :1]) * valid
             gx, gy = at[:, 1:2] * valid, at[:, 2:3] * valid
-            sums = pool(torch.cat((gx * gx, gx * gy, gy * gy, gx * r, gy * r, valid), 1))[0]
+            for i, (a, b) in enumerate(((gx, gx), (gx, gy), (gy, gy), (gx, r), (gy, r))):
+                torch.mul(a, b, out=terms[:, i:i + 1])
+            sums = pool(terms)[0]
             axx, axy, ayy, bx, by, n = sums
             # Tikhonov: a tile whose texture is at the noise's level keeps (nearly) its shift.
             lam = (noise ** 2) * n.clamp_min(1) * 4.0

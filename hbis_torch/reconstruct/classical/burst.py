@@ -73,3 +73,9 @@ def classical_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *
 
     Returns (S H, S W) float32 in [0, 1]."""
     return burst_sr(frames, positions, stack.h, weights, deblur, **kw).numpy()
+
+
+# Takes the positions as :class:`~hbis_torch.reconstruct.positions.BurstPositions` and the weights
+# in float32 (:func:`~hbis_torch.reconstruct.burst.reconstruct_burst` reads this): the lattice
+# reads both a band at a time.
+classical_burst.streams = True

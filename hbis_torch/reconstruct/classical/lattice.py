@@ -141,16 +141,18 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
         keep = None
         if weights is not None:
             keep = weights[part][:, every_nth_row(part, row_step)].reshape(-1) > 0
-        spline = None
+        spline = taken = None
         if isinstance(positions, NodePositions):
             spline = _spline_parts(positions, part, h, (0.0, 0.0), row_step)
+        else:  # only the rows taken (a burst's positions are computed where they are read)
+            rows = range(height)[part[1]][every_nth_row(part, row_step)]
+            taken = positions[part[0], slice(rows.start, rows.stop, rows.step)]
         for axis in (0, 1):
             if spline is not None:
                 rest = spline[axis].rest.reshape(-1)
                 rest = rest.sub_(torch.round(rest))  # the integer part adds nothing to the angle
             else:
-                taken = positions[part][:, every_nth_row(part, row_step), :, axis]
-                coord = (taken.reshape(-1) + 0.5) * h - 0.5
+                coord = (taken[..., axis].reshape(-1) + 0.5) * h - 0.5
                 rest = coord.sub_(torch.round(coord)).to(torch.float32)
             if keep is not None:
                 rest = rest[keep]
@@ -170,8 +172,9 @@ def node_batch(frames: Tensor, positions, part: tuple[slice, slice], h: int, off
     Parameters
     ----------
     frames : Tensor, shape (F, H, W)
-    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions
-        The samples' ROI-local reference LR coordinates (or the nodes they are interpolated from).
+    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions or BurstPositions
+        The samples' ROI-local reference LR coordinates (or the nodes they are interpolated from,
+        or a burst's motions: ``positions[part]`` computes the part's).
     part : (slice, slice)
     h : int
     offset : (float, float)
@@ -183,13 +186,17 @@ def node_batch(frames: Tensor, positions, part: tuple[slice, slice], h: int, off
     """
     cols = torch.arange(frames.shape[2], dtype=torch.int32)
     rows = torch.arange(frames.shape[1], dtype=torch.int32)[part[1]]
-    spline = _spline_parts(positions, part, h, offset) if isinstance(positions, NodePositions) else None
+    spline = where = None
+    if isinstance(positions, NodePositions):
+        spline = _spline_parts(positions, part, h, offset)
+    else:  # read once (a burst's positions are computed where they are read)
+        where = positions[part]
     nodes, gaps, reach = [], [], 0.0
     for axis, (pixel, dim) in enumerate(((cols, 2), (rows, 1))):
         if spline is not None:
             node, gap, far = _nearest_node(spline[axis], pixel, dim, h, offset[axis])
         else:
-            coord = ((positions[part][..., axis] + 0.5) * h - 0.5) - offset[axis]
+            coord = ((where[..., axis] + 0.5) * h - 0.5) - offset[axis]
             nearest = torch.round(coord)
             gap = (nearest - coord).to(torch.float32)
             far = float(gap.abs().max()) if gap.numel() else 0.0

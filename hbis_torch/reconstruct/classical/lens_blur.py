@@ -216,18 +216,39 @@ def _samples(frames, positions, weights, x: float, y: float, theta: float):
     normal = np.array([math.cos(theta), math.sin(theta)])
     along = np.array([-normal[1], normal[0]])
     xy, values = [], []
+    # where each frame's pixel (y, x) lies, relative
+    shift = np.asarray(positions[:, int(y), int(x)]) - np.array([x, y])
+    block = _block(positions, shift, x, y, reach, H, W)
     for k in np.unique(np.linspace(0, F - 1, min(F, MAX_FRAMES)).round().astype(int)):
-        d = positions[k, int(y), int(x)] - np.array([x, y])  # where frame k's pixel (y, x) lies, relative
+        d = shift[k]
         r0, r1 = max(int(math.floor(y - d[1])) - reach, 0), min(int(math.ceil(y - d[1])) + reach + 1, H)
         c0, c1 = max(int(math.floor(x - d[0])) - reach, 0), min(int(math.ceil(x - d[0])) + reach + 1, W)
         if r1 <= r0 or c1 <= c0:
             continue
-        p = positions[k, r0:r1, c0:c1].reshape(-1, 2) - np.array([x, y])
+        if block is not None:
+            (R0, C0), window = block
+            window = window[k, r0 - R0:r1 - R0, c0 - C0:c1 - C0]
+        else:
+            window = positions[k, r0:r1, c0:c1]
+        p = np.asarray(window).reshape(-1, 2) - np.array([x, y])
         inside = ((np.abs(p @ normal) < HALF_ACROSS) & (np.abs(p @ along) < HALF_ALONG)
                   & (weights[k, r0:r1, c0:c1].reshape(-1) > 0.5))
         xy.append(p[inside])
         values.append(frames[k, r0:r1, c0:c1].reshape(-1)[inside])
     return np.concatenate(xy), np.concatenate(values)
+
+
+def _block(positions, shift: np.ndarray, x: float, y: float, reach: int, H: int, W: int):
+    """Lazy positions (a burst's BurstPositions) of every frame over the rows and columns that all
+    frames' windows around (x, y) span, in one call: ((first row, first column), (F, rows, cols,
+    2) array); None for an array (indexed as it is) or where the frames' windows lie far apart."""
+    if not getattr(positions, "computed_where_read", False) or not np.isfinite(shift).all():
+        return None
+    r0, r1 = max(int(math.floor(y - shift[:, 1].max())) - reach, 0), min(int(math.ceil(y - shift[:, 1].min())) + reach + 1, H)
+    c0, c1 = max(int(math.floor(x - shift[:, 0].max())) - reach, 0), min(int(math.ceil(x - shift[:, 0].min())) + reach + 1, W)
+    if r1 <= r0 or c1 <= c0 or (r1 - r0) * (c1 - c0) > 16 * (2 * reach + 2) ** 2:
+        return None
+    return (r0, c0), np.asarray(positions[:, r0:r1, c0:c1])
 
 
 def _fit_edge(xy: np.ndarray, values: np.ndarray, theta0: float, noise: float, aperture: float):
@@ -303,8 +324,9 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     ----------
     frames : array, shape (F, H, W), float32
         The brightness-corrected grey frames.
-    positions : array, shape (F, H, W, 2), float64
-        Each pixel's (x, y) in the reference frame, LR px.
+    positions : array, shape (F, H, W, 2), float64, or BurstPositions
+        Each pixel's (x, y) in the reference frame, LR px (a burst's lazy positions are read a
+        window at a time).
     weights : array, shape (F, H, W)
         The samples' weights (robustness x trust); samples under 0.5 are left out.
     reference : int
@@ -318,7 +340,9 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     -------
     LensEstimate
     """
-    frames, positions, weights = (np.asarray(a) for a in (frames, positions, weights))
+    frames, weights = np.asarray(frames), np.asarray(weights)
+    if not getattr(positions, "computed_where_read", False):  # a BurstPositions is read a window at a time
+        positions = np.asarray(positions)
     noise = max(float(noise), 1e-4)
     points = _edge_points(frames[reference].astype(np.float64), noise)
     sigmas = []
@@ -348,8 +372,8 @@ def burst_lens_sigma(frames, positions, weights, reference: int, notes: list | N
     Parameters
     ----------
     frames : Tensor, shape (F, H, W) or (F, H, W, 3), float32
-    positions : Tensor, shape (F, H, W, 2), float64
-    weights : Tensor, shape (F, H, W), float64
+    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
+    weights : Tensor, shape (F, H, W), float64 or float32
     reference : int
     notes : list, optional
 
@@ -361,7 +385,7 @@ def burst_lens_sigma(frames, positions, weights, reference: int, notes: list | N
     grey = frames if frames.ndim == 3 else frames @ frames.new_tensor([0.299, 0.587, 0.114])
     grey = grey.numpy()
     noise = frame_noise(grey[reference])
-    estimate = estimate_lens_sigma(grey, positions.numpy(), weights.numpy(), reference, noise)
+    estimate = estimate_lens_sigma(grey, positions, weights.numpy(), reference, noise)
     if notes is not None:
         notes.append(estimate.describe())
     return estimate.sigma

@@ -29,6 +29,9 @@ from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 # Samples per batch in lattice_image (a band of rows of every frame: lattice.batch_slices):
 # its temporaries (some 150 bytes a sample) stay near 150 MB whatever the stack's size.
 BATCH_SAMPLES = 1 << 20
+# A burst of up to this many samples keeps its lattice batches (24 bytes a sample: 200 MB) for the
+# splat's second pass rather than computing their positions again (16 frames of 640 x 480: 5M).
+KEEP_SAMPLES = 1 << 23
 # Rows used to find the samples' common sub-pixel offset: every 4th, and on frames of over 512
 # rows every (rows // 64)-th, at most every 16th (on a full frame at h = 4 the offset moves by
 # 8e-5 HR px from every row's, against 5e-5 with every 4th, which cost 0.05 s more). Small frames
@@ -70,14 +73,17 @@ def classical_sr(
         (ROI-local), for example from
         :func:`~hbis_torch.reconstruct.positions.stack_sample_positions`; or the spline nodes
         they are interpolated from (:func:`~hbis_torch.reconstruct.positions.stack_sample_nodes`,
-        values (F, n_v, n_u, 2)), then interpolated a batch of frames at a time, never held whole.
+        values (F, n_v, n_u, 2)), then interpolated a batch of frames at a time, never held whole;
+        or a burst's :class:`~hbis_torch.reconstruct.positions.BurstPositions`, computed a band
+        at a time.
     h : int
         Resolution improvement factor: the output is (h*H, h*W).
     deblur : bool
         Apply the Wiener deblurring (False: the normalized-convolution interpolation alone,
         resampled onto the output grid).
     weights : Tensor, shape (F,) or (F, H, W), optional
-        Per-frame or per-sample weights in [0, 1] (0 leaves a frame or sample out).
+        Per-frame or per-sample weights in [0, 1] (0 leaves a frame or sample out); a float32
+        tensor is read as it is (the lattice sums in float32), anything else as float64.
     kernel_sigma : float
         Splat Gaussian in HR px.
     noise : float, optional
@@ -165,8 +171,8 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
     Returns
     -------
     frames : Tensor, shape (F, H, W), float64 (float32 if given as a float32 tensor)
-    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions (as given, checked)
-    weights : Tensor, shape (F, H, W), float64, or None
+    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions or BurstPositions (as given, checked)
+    weights : Tensor, shape (F, H, W), float64 (float32 if given so), or None
         Per-frame weights expanded to every sample.
     """
     if isinstance(frames, Tensor) and frames.dtype == torch.float32:
@@ -181,6 +187,8 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
     if isinstance(positions, NodePositions):
         shape = (positions.values.shape[0], positions.height, positions.width, 2)
         as_float64_tensor(positions.values, "positions")
+    elif getattr(positions, "computed_where_read", False):  # a BurstPositions: a band at a time
+        shape = positions.shape
     else:
         positions = as_float64_tensor(positions, "positions")
         shape = tuple(positions.shape)
@@ -195,12 +203,13 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
     if not (math.isfinite(strength) and strength > 0):
         raise HbisInputError(f"strength must be a positive number, got {strength!r}")
     if weights is not None:
-        weights = as_float64_tensor(weights, "weights")
+        if not (isinstance(weights, Tensor) and weights.dtype == torch.float32 and _all_finite(weights)):
+            weights = as_float64_tensor(weights, "weights")  # float32 weights are read as they are
         if weights.shape == (F,):
             weights = weights[:, None, None].expand(F, H, W)
-        if tuple(weights.shape) != (F, H, W) or bool((weights < 0).any()):
+        if tuple(weights.shape) != (F, H, W) or float(weights.min()) < 0:
             raise HbisInputError(f"weights must be non-negative, shape ({F},) or {(F, H, W)}")
-        if not bool((weights > 0).any()):
+        if float(weights.max()) <= 0:
             raise HbisInputError("every sample has weight 0: nothing to reconstruct")
     for name, level in (("noise", noise), ("noise_floor", noise_floor)):
         if level is not None and not (math.isfinite(level) and level >= 0):
@@ -215,9 +224,9 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
     Parameters
     ----------
     frames : Tensor, shape (F, H, W), float64 or float32
-    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions
+    positions : Tensor, shape (F, H, W, 2), float64, or NodePositions or BurstPositions
         ROI-local reference LR coordinates of the samples (or the nodes they are interpolated
-        from, a batch of frames at a time).
+        from, a batch of frames at a time; or a burst's motions, applied a batch at a time).
     h : int
     kernel_sigma : float
     weights : Tensor, shape (F, H, W), optional
@@ -248,9 +257,10 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         # to take, and where there are several batches fewer positions to interpolate.
         row_step = OFFSET_ROW_STRIDE if H <= 512 else min(16, H // 64)
         offset = common_offset_of(positions, slices, h, weights, row_step)
-        # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2) it is
-        # computed once for both passes over the samples.
-        kept = [node_batch(frames, positions, slices[0], h, offset, weights)] if len(slices) == 1 else None
+        # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2), or a burst
+        # (two passes) of up to KEEP_SAMPLES, the batches are computed once for both passes.
+        keep = len(slices) == 1 or (mixed_offsets and F * H * W <= KEEP_SAMPLES)
+        kept = [node_batch(frames, positions, part, h, offset, weights) for part in slices] if keep else None
 
         def batches():
             return kept or (node_batch(frames, positions, part, h, offset, weights) for part in slices)

@@ -1,0 +1,111 @@
+"""A burst's samples are read a band at a time: every sample's position is never held whole
+(issue [handheld], item 3: 16 frames of 12 MP would take 3 GB in float64), and the image is
+the one the whole arrays give."""
+
+import numpy as np
+import pytest
+import torch
+from skimage import data, transform
+
+from hbis_torch.capture.burst import assemble_burst
+from hbis_torch.reconstruct.registry import reconstruct
+from hbis_torch.registration import apply_homography, apply_homography_to_grid
+from hbis_torch.simulate.burst import random_motions, simulate_burst
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+SIZE = 128  # large enough for the pyramid and the local field's tiles
+
+
+@pytest.fixture(scope="module")
+def stack():
+    truth = transform.resize(data.camera().astype(float) / 255, (2 * SIZE, 2 * SIZE), anti_aliasing=True)
+    motions = random_motions(6, (SIZE, SIZE), np.random.default_rng(4), 2.0, 1.0)
+    burst = simulate_burst(truth, 2, motions, noise=0.005, seed=4)
+    found, _ = assemble_burst(burst.frames, 2)
+    assert found.meta.get("local_motion") is not None  # the positions carry the local field too
+    return found
+
+
+def test_the_grid_form_of_a_homography_matches_the_point_form():
+    rng = np.random.default_rng(0)
+    m = np.eye(3) + rng.normal(0, 1e-3, (3, 3, 3)) * np.array([[1, 1, 1000], [1, 1, 1000], [1e-3, 1e-3, 0]])
+    rows = torch.tensor([0.0, 1.0, 2047.0, 5000.0, 8191.0])
+    cols = torch.tensor([0.0, 3.0, 4095.0, 8191.0])
+    grid = apply_homography_to_grid(torch.from_numpy(m), rows, cols)
+    v, u = torch.meshgrid(rows.double(), cols.double(), indexing="ij")
+    points = torch.stack((u, v), -1).reshape(1, -1, 2).expand(3, -1, -1)
+    exact = apply_homography(torch.from_numpy(m), points).reshape(grid.shape)
+    assert float((grid - exact).abs().max()) <= 4 * np.spacing(8192.0)  # a few roundings: 7e-12 px
+
+
+def test_burst_positions_index_as_the_whole_array(stack):
+    from hbis_torch.reconstruct.positions import burst_positions
+
+    lazy, trusted = burst_positions(stack, lazy=True)
+    whole, same = burst_positions(stack)
+    assert torch.equal(trusted, same) and lazy.shape == tuple(whole.shape)
+    assert torch.equal(lazy.whole(), whole)
+    for index in (3, -1, (2, 5), (1, slice(7, 90, 4)), (slice(1, 4), slice(None, None, 3)),
+                  (2, slice(10, 20), slice(30, 41)), (0, 5, 7), (slice(None), 100, slice(2, 9))):
+        assert torch.equal(lazy[index], whole[index]), index
+    with pytest.raises(TypeError):
+        lazy[[0, 1]]
+    with pytest.raises(IndexError):
+        lazy[len(lazy)]
+
+
+def test_the_burst_path_never_holds_every_samples_position(stack, monkeypatch):
+    """The classical method reads the positions a band at a time, the robustness, coverage and
+    fill a frame at a time; the image is the one the whole arrays give, bit for bit."""
+    import hbis_torch.reconstruct.classical.burst as classical_burst
+    import hbis_torch.reconstruct.classical.sr as sr
+    from hbis_torch.reconstruct.positions import BurstPositions
+
+    F, H, W = stack.frames.shape
+    monkeypatch.setattr(sr, "BATCH_SAMPLES", 2 * W * F)  # bands of two rows of every frame
+    largest, band = [0], BurstPositions._band
+
+    def counted(self, frames, rows, cols=slice(None)):
+        out = band(self, frames, rows, cols)
+        largest[0] = max(largest[0], out[..., 0].numel())
+        return out
+
+    def refused(self):
+        raise AssertionError("every sample's position was asked for at once")
+
+    monkeypatch.setattr(BurstPositions, "_band", counted)
+    monkeypatch.setattr(BurstPositions, "whole", refused)
+    streamed = reconstruct(stack, "classical")
+    assert 0 < largest[0] <= H * W  # one frame at most, never the burst's F H W
+    monkeypatch.setattr(BurstPositions, "whole", lambda self: band(self, slice(None), slice(None)))
+    monkeypatch.setattr(classical_burst.classical_burst, "streams", False)  # the whole arrays instead
+    assert np.array_equal(reconstruct(stack, "classical"), streamed)
+
+
+def test_the_lazy_samples_keep_the_weights_values_in_float32(stack):
+    from hbis_torch.reconstruct.burst import burst_samples
+    from hbis_torch.reconstruct.positions import BurstPositions
+
+    _, lazy, _, light = burst_samples(stack, lazy=True)
+    _, whole, _, heavy = burst_samples(stack)
+    assert isinstance(lazy, BurstPositions) and light.dtype == torch.float32
+    assert whole.dtype == torch.float64 and heavy.dtype == torch.float64
+    assert torch.equal(light.double(), heavy) and float(heavy[1:].min()) < 1.0  # weights, not all ones
+
+
+def test_the_tally_drops_samples_beyond_the_grid_or_without_weight():
+    from hbis_torch.reconstruct.burst import _Tally
+
+    tally = _Tally((4, 5), 0, (2,))
+    where = torch.zeros(4, 5, 2, dtype=torch.float64)
+    where[1, 2], where[2, 3], where[3, 4] = float("nan"), float("inf"), 7.0  # nowhere, nowhere, beyond
+    where[0, 1] = torch.tensor([4.0, 3.0])  # the last pixel
+    weight = torch.ones(4, 5)
+    weight[0, 0] = 0.05  # counted in the coverage, too light for the fill
+    tally.add(1, where, weight)
+    cover = tally.coverage()
+    assert cover[0, 0] == pytest.approx(15.05) and cover[3, 4] == 1.0 and cover.sum() == pytest.approx(16.05)
+    tally.add(0, where, weight)  # the reference: only the fill
+    assert np.array_equal(tally.coverage(), cover) and tally.added == 2
+    hit = tally.hits[2].reshape(10, 12)[1:-1, 1:-1]
+    assert bool(hit[0, 0]) and bool(hit[6, 8]) and int(hit.sum()) == 2  # the nodes nearest (0, 0) and (4, 3)
