@@ -1,4 +1,4 @@
-"""The lens blur measured on a burst's own straight edges (hbis_torch/reconstruct/classical/lens_blur.py)."""
+"""The lens blur measured on a burst's own straight edges (hbis_torch/reconstruct/lens_blur.py)."""
 
 import math
 
@@ -10,7 +10,7 @@ from hbis_torch.capture.burst import assemble_burst
 from hbis_torch.cli import main
 from hbis_torch.reconstruct.burst import burst_samples
 from hbis_torch.reconstruct.classical.burst import burst_sample_noise
-from hbis_torch.reconstruct.classical.lens_blur import edge_profile, estimate_lens_sigma, sharpest_group
+from hbis_torch.reconstruct.lens_blur import edge_profile, estimate_lens_sigma, sharpest_group
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.simulate.burst import random_motions, simulate_burst
 from hbis_torch.training.burst_data import truth_raster

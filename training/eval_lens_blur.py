@@ -9,7 +9,7 @@ Two sources, both at S = 2 with 12 frames that turn by up to half a degree:
 * **held-out**: the hand-held renderer (``hbis_torch.training.handheld_render``, photographs no
   training used, a translation burst), which the thresholds never saw.
 
-Each row: the blur rendered, what :func:`~hbis_torch.reconstruct.classical.lens_blur.estimate_lens_sigma`
+Each row: the blur rendered, what :func:`~hbis_torch.reconstruct.lens_blur.estimate_lens_sigma`
 found (the sharpest group's sigma, the sigma undone, or nothing), and the classical image's PSNR
 against the truth with no lens undone, with the estimate (the default) and with the true blur.
 
@@ -53,7 +53,7 @@ def evaluate(truth: np.ndarray, frames: np.ndarray, blur: float) -> dict:
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.metrics import psnr
     from hbis_torch.reconstruct.burst import burst_samples
-    from hbis_torch.reconstruct.classical.lens_blur import burst_lens_sigma
+    from hbis_torch.reconstruct.lens_blur import burst_lens_sigma
     from hbis_torch.reconstruct.registry import reconstruct
 
     stack, _ = assemble_burst(frames, SCALE)

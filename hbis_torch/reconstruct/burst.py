@@ -46,6 +46,7 @@ from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
+from hbis_torch.reconstruct.lens_blur import burst_lens_sigma
 from hbis_torch.reconstruct.single_frame import enlarge, single_frame
 
 # Robustness: a sample keeps weight exp(-(d / tau)^2), d the blurred difference to the reference
@@ -348,8 +349,6 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
                      f"S = {run_scale} and enlarged to S = {scale} (bicubic)")
         target = type(stack)(stack.frames, {**stack.meta, "h": run_scale})
     if "lens_sigma" in method.keywords and kw.get("lens_sigma") is None and kw.get("deblur", True):
-        from hbis_torch.reconstruct.classical.lens_blur import burst_lens_sigma  # (the classical package imports this one)
-
         kw["lens_sigma"] = burst_lens_sigma(frames, positions, weights, ref, notes)
     said: list[str] = []  # the method's lines, once each (a colour burst runs it per channel)
     if not rgb:

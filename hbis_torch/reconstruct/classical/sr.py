@@ -112,7 +112,7 @@ def classical_sr(
         then measures the pilot's bias.
     lens_sigma : float or None
         A Gaussian lens blur (LR px) that the deblurring undoes, beyond ``cutoff``'s diffraction
-        (a burst's: measured by :func:`~hbis_torch.reconstruct.classical.lens_blur.estimate_lens_sigma`
+        (a burst's: measured by :func:`~hbis_torch.reconstruct.lens_blur.estimate_lens_sigma`
         in :func:`~hbis_torch.reconstruct.burst.reconstruct_burst`, or given); 0 or None: none.
 
     Returns
