@@ -307,10 +307,37 @@ def test_pool_on_the_cluster_is_the_local_pool(cluster):
             assert a[key].dtype == b[key].dtype and np.array_equal(a[key], b[key]), key
 
 
+def test_simulate_many_on_the_cluster_matches_in_process_and_one_at_a_time(cluster, tmp_path, capsys, one_thread):
+    """hbis simulate of many scenes and seeds: the same bytes on the cluster, in process, and as
+    single commands; each stack's truth beside it; a rerun skips what is done."""
+    import hashlib
+
+    def digests(folder):
+        return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.glob("*.tif"))}
+
+    common = ["--h", "2", "--roi", "600,400,24,24", "--with-truth"]
+    scenes = ["simulate", "--scene", "bars", "siemens-star", "--seed", "0", "3"]
+    assert main(scenes + common + ["--out-dir", str(tmp_path / "here")]) == 0
+    assert main(scenes + common + ["--out-dir", str(tmp_path / "there"), "--scheduler", cluster]) == 0
+    here, there = digests(tmp_path / "here"), digests(tmp_path / "there")
+    assert len(here) == 8 and here == there  # 4 stacks, 4 truths
+    assert main(["simulate", "--scene", "siemens-star", "--seed", "3", "--h", "2", "--roi", "600,400,24,24",
+                 "--out", str(tmp_path / "one.tif"), "--truth", str(tmp_path / "one.truth.tif")]) == 0
+    assert np.array_equal(read_stack(tmp_path / "one.tif").frames,
+                          read_stack(tmp_path / "here" / "siemens-star.seed3.tif").frames)
+    capsys.readouterr()
+    assert main(scenes + common + ["--out-dir", str(tmp_path / "here")]) == 0
+    assert "4 done before, skipped" in capsys.readouterr().out and digests(tmp_path / "here") == here
+
+
 @pytest.mark.parametrize("argv, message", [
     (["reconstruct", "a.tif", "--out", "x.tif", "--scheduler", "local:2"], "--scheduler needs --out-dir"),
     (["validate", "a.tif", "b.tif"], "--out-dir"),
     (["assemble", "a.avi", "--out-dir", "d", "--phases", "p.json"], "--out-dir is for bursts"),
+    (["simulate", "--scene", "bars", "edges", "--h", "2", "--out", "x.tif"], "give --out-dir"),
+    (["simulate", "--scene", "bars", "--h", "2", "--out", "x.tif", "--scheduler", "local:2"], "--scheduler needs --out-dir"),
+    (["simulate", "--scene", "bars", "nope", "--h", "2", "--out-dir", "d"], "neither a built-in scene nor a file"),
+    (["simulate", "--scene", "bars", "--h", "2", "--out", "x.tif", "--out-dir", "d"], "not both"),
 ])
 def test_refused_before_any_work(argv, message, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)

@@ -10,6 +10,8 @@ from hbis_torch.budget import add_force_arg
 from hbis_torch.checks import bounded_float, bounded_int
 from hbis_torch.cli import examples
 from hbis_torch.cli.common import H_ARG, SEED_ARG, add_overwrite_arg, add_system_args, system_from_args
+from hbis_torch.cli.many import add_scheduler_argument
+from hbis_torch.errors import HbisInputError
 
 DEFAULT_CROP = 256
 SUMMARY = "synthesise a stack (and its ground truth) through the Risley model"
@@ -66,10 +68,16 @@ def register(sub) -> None:
         ),
         epilog=examples("hbis simulate --scene siemens-star --h 4 --out star.tif --truth star_truth.tif"),
     )
-    p.add_argument("--scene", required=True, help="built-in scene name or image path")
+    p.add_argument("--scene", required=True, nargs="+", help="built-in scene name or image path; several (or several "
+                   "--seed values) with --out-dir: one stack each")
     p.add_argument("--h", type=H_ARG, required=True, help="resolution improvement factor (h x h frames)")
-    p.add_argument("--out", required=True, help="output stack (hbis-stack/1 TIFF)")
-    p.add_argument("--truth", help="also write the ground truth here (float32 TIFF)")
+    p.add_argument("--out", help="output stack (hbis-stack/1 TIFF); or --out-dir for many")
+    p.add_argument("--truth", help="also write the ground truth here (float32 TIFF); with --out-dir: --with-truth")
+    p.add_argument("--out-dir", type=Path, metavar="DIR",
+                   help="one stack per scene and seed, DIR/SCENE.seedN.tif, side by side on threads of this process "
+                   "or on --scheduler; stacks that exist are skipped (--overwrite replaces them), so a rerun resumes")
+    p.add_argument("--with-truth", action="store_true", help="with --out-dir: each stack's truth beside it, "
+                   "DIR/SCENE.seedN.truth.tif")
     g = p.add_argument_group("scan and scene")
     g.add_argument("--roi", type=_roi, default=None,
                    help=f"frame region U0,V0,WIDTH,HEIGHT in sensor pixels, or 'full' "
@@ -80,7 +88,8 @@ def register(sub) -> None:
                    help="scan-plan inverse: exact (default) or the paper's eqs. 8-9")
     g.add_argument("--scene-size-mm", type=lambda t: _numbers(t, (1, 2), float, "--scene-size-mm"),
                    help="scene size on the object plane WIDTH[,HEIGHT] in mm (default: cover the view)")
-    g.add_argument("--seed", type=SEED_ARG, default=0, help="seed of the noise and of random scenes (default 0)")
+    g.add_argument("--seed", type=SEED_ARG, nargs="+", default=[0],
+                   help="seed of the noise and of random scenes (default 0); several with --out-dir")
     g.add_argument("--phase-error-deg", type=bounded_float(0.0, 10.0), default=0.0,
                    help="std. dev. of random prism phase errors [deg]; frames are rendered at the "
                    "erroneous phases, the stack records the planned ones (default 0)")
@@ -106,6 +115,7 @@ def register(sub) -> None:
     add_system_args(p)
     add_force_arg(p)
     add_overwrite_arg(p)
+    add_scheduler_argument(p)
     p.set_defaults(func=run)
 
 
@@ -116,18 +126,40 @@ def default_roi(camera) -> tuple[int, int, int, int]:
 
 
 def run(args) -> int:
-    from hbis_torch.checks import check_h, check_roi
-    from hbis_torch.scan import plan_scan
-    from hbis_torch.simulate import SensorModel, simulate_stack
-    from hbis_torch.simulate.stacks import scene_for_roi
+    if args.out_dir is not None:
+        from hbis_torch.cli.many import run_simulations
+
+        return run_simulations(args, simulate_one, check_common, SCENES)
+    if args.scheduler is not None:
+        raise HbisInputError("--scheduler needs --out-dir DIR (one stack per scene and seed)")
+    if len(args.scene) > 1 or len(args.seed) > 1:
+        raise HbisInputError(f"{len(args.scene)} scene(s) and {len(args.seed)} seed(s) given: give --out-dir DIR for "
+                             "one stack each")
+    if args.out is None:
+        raise HbisInputError("--out is required (or --out-dir DIR for many scenes or seeds)")
+    if args.with_truth:
+        raise HbisInputError("--with-truth is for --out-dir; with --out, name the truth with --truth PATH")
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
-    from hbis_torch.stack_io import object_pixel_um, write_image, write_stack
 
     check_output_path(args.out, overwrite=args.overwrite)
     if args.truth is not None:
         check_output_path(args.truth, "--truth", overwrite=args.overwrite)
-    scene_file = args.scene if Path(args.scene).exists() else None
+    scene = args.scene[0]
+    scene_file = scene if Path(scene).exists() else None
     check_distinct_paths({"--scene": scene_file}, {"--out": args.out, "--truth": args.truth})
+    check_common(args)
+    message = f"wrote {args.out}: " + simulate_one(args, scene, args.seed[0], Path(args.out), args.truth)
+    if args.truth:
+        message += f"; truth {args.truth}"
+    print(message)
+    return 0
+
+
+def check_common(args):
+    """What every scene of a run shares, checked before any work: (system, roi)."""
+    from hbis_torch.budget import check_budget, estimate_simulate
+    from hbis_torch.checks import check_h, check_roi
+
     system = system_from_args(args)
     check_h(args.h)
     if args.roi is None:
@@ -136,6 +168,19 @@ def run(args) -> int:
         roi = check_roi(system.camera, None)
     else:
         roi = check_roi(system.camera, args.roi)
+    check_budget(estimate_simulate(args.h**2, roi[2], roi[3]), args.force)
+    return system, roi
+
+
+def simulate_one(args, scene_name: str, seed: int, out: Path, truth_path=None, stack_name: str | None = None) -> str:
+    """Simulate one scene at one seed into ``out`` (and its truth into ``truth_path``, which names
+    its stack ``stack_name``, default ``out``'s name); what was written, in words."""
+    from hbis_torch.scan import plan_scan
+    from hbis_torch.simulate import SensorModel, simulate_stack
+    from hbis_torch.simulate.stacks import scene_for_roi
+    from hbis_torch.stack_io import object_pixel_um, write_image, write_stack
+
+    system, roi = check_common(args)
     sensor = SensorModel(
         fill_factor=args.fill_factor,
         defocus_um=args.defocus_um,
@@ -145,26 +190,22 @@ def run(args) -> int:
         bit_depth=args.bit_depth,
         noise=not args.no_noise,
     )
-    from hbis_torch.budget import check_budget, estimate_simulate
-
-    check_budget(estimate_simulate(args.h**2, roi[2], roi[3]), args.force)
     plan = plan_scan(system, args.h, args.phases_deg, method=args.method)
     size = args.scene_size_mm
     if size is not None and len(size) == 1:
         size = size[0]
-    scene = scene_for_roi(args.scene, system, roi, args.h, args.seed, size, args.margin_px, args.oversample)
-    stack, truth = simulate_stack(scene, system, plan, roi, sensor, seed=args.seed,
+    scene = scene_for_roi(scene_name, system, roi, args.h, seed, size, args.margin_px, args.oversample)
+    stack, truth = simulate_stack(scene, system, plan, roi, sensor, seed=seed,
                                   phase_error_deg=args.phase_error_deg, oversample=args.oversample,
                                   margin_px=args.margin_px)
-    out = Path(args.out)
-    write_stack(out, stack)
-    message = (f"wrote {out}: {stack.frames.shape[0]} frames of {roi[2]} x {roi[3]} px "
-               f"({stack.frames.dtype}), h = {args.h}, roi {list(roi)}, scene {scene.name} "
-               f"{scene.size_mm[0]:.3f} x {scene.size_mm[1]:.3f} mm")
-    if args.truth:
-        write_image(args.truth, truth, {"format": "hbis-truth/1", "h": args.h, "roi": list(roi),
-                                        "reference_index": stack.reference_index, "stack": out.name},
+    if truth_path:
+        write_image(truth_path, truth, {"format": "hbis-truth/1", "h": args.h, "roi": list(roi),
+                                        "reference_index": stack.reference_index,
+                                        "stack": stack_name or Path(out).name},
                     pixel_size_um=object_pixel_um(system, args.h))
-        message += f"; truth {args.truth}: {truth.shape[1]} x {truth.shape[0]} px float32"
-    print(message)
-    return 0
+    write_stack(out, stack)
+    said = (f"{stack.frames.shape[0]} frames of {roi[2]} x {roi[3]} px ({stack.frames.dtype}), h = {args.h}, roi "
+            f"{list(roi)}, scene {scene.name} {scene.size_mm[0]:.3f} x {scene.size_mm[1]:.3f} mm")
+    if truth_path:
+        said += f"; truth {truth.shape[1]} x {truth.shape[0]} px float32"
+    return said

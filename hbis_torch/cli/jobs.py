@@ -142,3 +142,42 @@ class ValidateJob:
         report = json_report(result, Path(source).name, stack.kind)
         Path(staging).write_text(json.dumps(report, indent=1) + "\n")
         return messages
+
+
+SCENE_SEED = "#seed="
+"""Between the scene and the seed in a simulation's input name (``SCENE#seed=N``)."""
+
+
+@dataclass
+class SimulateJob:
+    """``hbis simulate``'s work on one scene at one seed (the input ``SCENE#seed=N``): the stack,
+    and with ``--with-truth`` its truth, moved whole to ``STEM.truth.tif`` before the stack is
+    published, so that a stack a rerun finds has its truth."""
+
+    args: argparse.Namespace
+    simulate_one: Callable  # cmd_simulate.simulate_one (passed in: the command imports this module)
+
+    def warm(self) -> None:
+        """Import what a task needs (once per worker, before the first task)."""
+        import hbis_torch.simulate  # noqa: F401
+
+    def __call__(self, source, staging) -> list[str]:
+        import os
+
+        from hbis_torch.cluster.engine import output_of
+
+        scene, _, seed = str(source).rpartition(SCENE_SEED)
+        out = Path(output_of(staging))
+        truth = None
+        if self.args.with_truth:
+            truth = truth_path(out)
+            temporary = truth.with_name(f".{truth.name}.{os.getpid()}.tmp")
+        self.simulate_one(self.args, scene, int(seed), Path(staging), temporary if truth else None, out.name)
+        if truth:
+            os.replace(temporary, truth)
+        return []
+
+
+def truth_path(out: Path) -> Path:
+    """Where ``--with-truth`` puts the truth of the stack ``out`` (``STEM.truth.tif``)."""
+    return out.with_name(out.name.removesuffix(".tif") + ".truth.tif")

@@ -1,5 +1,5 @@
 """The command line's side of the engine: ``--scheduler`` and many inputs for ``hbis reconstruct``,
-``hbis assemble --burst`` and ``hbis validate`` (docs/scale-out.md).
+``hbis assemble --burst``, ``hbis validate`` and ``hbis simulate`` (docs/scale-out.md).
 
 Each command calls :func:`add_scheduler_argument` once when it builds its parser and branches
 once in its handler (:func:`run_reconstruct`, :func:`run_many`); everything else is here.
@@ -11,6 +11,8 @@ once in its handler (:func:`run_reconstruct`, :func:`run_many`); everything else
   file or a multi-page TIFF, to ``DIR/STEM.burst.tif``.
 * ``hbis validate STACK... --out-dir DIR [--scheduler S]``: to ``DIR/STEM.validate.json``, the
   object ``hbis validate --json`` prints.
+* ``hbis simulate --scene SCENE... --seed N... --out-dir DIR [--with-truth] [--scheduler S]``: one
+  stack per scene and seed, to ``DIR/SCENE.seedN.tif`` (and its truth, ``.truth.tif``).
 
 Checked before any work (exit 2, one line): no input, a missing one, one named twice, two
 inputs with one output, an output that is an input, an output folder that cannot be written,
@@ -189,3 +191,29 @@ def _run_validate(args) -> int:
     summary = _execute(ValidateJob(plain_args(args), names, options), sources, outputs, args,
                        desc="validate", prefix="hbis validate")
     return _finish(summary, "validated", "stacks", args.out_dir)
+
+
+def run_simulations(args, simulate_one, check_common, scenes) -> int:
+    """``hbis simulate --scene A B ... --seed 0 1 ... --out-dir DIR [--scheduler S]``: one task
+    per scene and seed, to ``DIR/SCENE.seedN.tif`` (``simulate_one``, ``check_common`` and the
+    built-in ``scenes``: :mod:`hbis_torch.cli.cmd_simulate`'s, passed in: it imports this module)."""
+    from hbis_torch.cli.jobs import SCENE_SEED, SimulateJob, plain_args
+    from hbis_torch.cli.reconstruct_batch import check_replaceable
+    from hbis_torch.io_utils import check_output_dir
+
+    if args.out is not None or args.truth is not None:
+        raise HbisInputError("give --out (and --truth) or --out-dir (and --with-truth), not both")
+    check_output_dir(args.out_dir, "--out-dir")
+    unknown = [scene for scene in args.scene if scene not in scenes and not Path(scene).is_file()]
+    if unknown:
+        raise HbisInputError(f"--scene {unknown[0]}: neither a built-in scene nor a file")
+    stems = [Path(scene).stem if Path(scene).is_file() else scene for scene in args.scene]
+    if len(set(stems)) < len(stems) or len(set(args.seed)) < len(args.seed):
+        raise HbisInputError("two scenes (or seeds) would have one output: give each once, with distinct file names")
+    check_common(args)
+    sources = [f"{scene}{SCENE_SEED}{seed}" for scene in args.scene for seed in args.seed]
+    outputs = [args.out_dir / f"{stem}.seed{seed}.tif" for stem in stems for seed in args.seed]
+    check_replaceable(outputs, args.overwrite)
+    job = SimulateJob(plain_args(args), simulate_one)
+    summary = _execute(job, sources, outputs, args, desc="simulate", prefix="hbis simulate")
+    return _finish(summary, "simulated", "stacks", args.out_dir)
