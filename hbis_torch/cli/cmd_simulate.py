@@ -148,10 +148,7 @@ def run(args) -> int:
     scene_file = scene if Path(scene).exists() else None
     check_distinct_paths({"--scene": scene_file}, {"--out": args.out, "--truth": args.truth})
     check_common(args)
-    message = f"wrote {args.out}: " + simulate_one(args, scene, args.seed[0], Path(args.out), args.truth)
-    if args.truth:
-        message += f"; truth {args.truth}"
-    print(message)
+    print(f"wrote {args.out}: " + simulate_one(args, scene, args.seed[0], Path(args.out), args.truth))
     return 0
 
 
@@ -207,5 +204,5 @@ def simulate_one(args, scene_name: str, seed: int, out: Path, truth_path=None, s
     said = (f"{stack.frames.shape[0]} frames of {roi[2]} x {roi[3]} px ({stack.frames.dtype}), h = {args.h}, roi "
             f"{list(roi)}, scene {scene.name} {scene.size_mm[0]:.3f} x {scene.size_mm[1]:.3f} mm")
     if truth_path:
-        said += f"; truth {truth.shape[1]} x {truth.shape[0]} px float32"
+        said += "; truth " + (f"{truth_path}: " if stack_name is None else "") + f"{truth.shape[1]} x {truth.shape[0]} px float32"
     return said
