@@ -147,7 +147,6 @@ def run(args) -> int:
     scene = args.scene[0]
     scene_file = scene if Path(scene).exists() else None
     check_distinct_paths({"--scene": scene_file}, {"--out": args.out, "--truth": args.truth})
-    check_common(args)
     print(f"wrote {args.out}: " + simulate_one(args, scene, args.seed[0], Path(args.out), args.truth))
     return 0
 

@@ -349,7 +349,7 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
                      f"S = {run_scale} and enlarged to S = {scale} (bicubic)")
         target = type(stack)(stack.frames, {**stack.meta, "h": run_scale})
     if "lens_sigma" in method.keywords and kw.get("lens_sigma") is None and kw.get("deblur", True):
-        kw["lens_sigma"] = burst_lens_sigma(frames, positions, weights, ref, notes)
+        kw["lens_sigma"] = burst_lens_sigma(_luma(frames), positions, weights, ref, notes)
     said: list[str] = []  # the method's lines, once each (a colour burst runs it per channel)
     if not rgb:
         image = run(target, frames, positions, weights, messages=said, **kw)

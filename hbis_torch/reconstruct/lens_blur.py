@@ -305,17 +305,6 @@ def _fit_edge(xy: np.ndarray, values: np.ndarray, theta0: float, noise: float, a
     return float(sigma), math.sqrt(max(cov[4, 4], 0.0)) * max(rms, 1.0), float(c1), rms
 
 
-def frame_noise(image: np.ndarray) -> float:
-    """The noise standard deviation of one frame, from the median absolute response to the 3 x 3
-    mask of Immerkaer (1996), which cancels every plane and most smooth structure (its norm is 6);
-    edges and texture are a minority of pixels, so the median stays with the noise."""
-    from scipy.ndimage import convolve
-
-    mask = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]])
-    response = convolve(np.asarray(image, dtype=np.float64), mask, mode="reflect")[1:-1, 1:-1]
-    return float(1.4826 * np.median(np.abs(response)) / 6.0)
-
-
 def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float,
                         aperture: float = 1.0) -> LensEstimate:
     """The Gaussian lens blur of a burst, from its straight edges (module docstring).
@@ -365,15 +354,20 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     return LensEstimate(sharpest, sigma, group, len(sigmas), sigmas, len(points))
 
 
-def burst_lens_sigma(frames, positions, weights, reference: int, notes: list | None = None) -> float:
+def burst_lens_sigma(grey, positions, weights, reference: int, notes: list | None = None) -> float:
     """The lens blur a burst's deblurring undoes when none is given: :func:`estimate_lens_sigma`
     on the grey (or luminance) frames, its line added to ``notes``; 0 where it cannot say.
 
+    The samples' noise is the reference frame's, by the median of Immerkaer's operator
+    (:func:`hbis_torch.sensor.noise.immerkaer`) over all its pixels: edges and texture are a
+    minority of pixels, so the median stays with the noise.
+
     Parameters
     ----------
-    frames : Tensor, shape (F, H, W) or (F, H, W, 3), float32
+    grey : Tensor, shape (F, H, W), float32
+        The frames' luminance (``reconstruct.burst._luma``).
     positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
-    weights : Tensor, shape (F, H, W), float64 or float32
+    weights : Tensor, shape (F, H, W)
     reference : int
     notes : list, optional
 
@@ -382,9 +376,10 @@ def burst_lens_sigma(frames, positions, weights, reference: int, notes: list | N
     float
         Sigma, LR px.
     """
-    grey = frames if frames.ndim == 3 else frames @ frames.new_tensor([0.299, 0.587, 0.114])
+    from hbis_torch.sensor.noise import immerkaer
+
     grey = grey.numpy()
-    noise = frame_noise(grey[reference])
+    noise = 1.4826 * float(np.median(np.abs(immerkaer(grey[reference].astype(np.float64))))) / 6.0
     estimate = estimate_lens_sigma(grey, positions, weights.numpy(), reference, noise)
     if notes is not None:
         notes.append(estimate.describe())
