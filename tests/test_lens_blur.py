@@ -10,7 +10,8 @@ from hbis_torch.capture.burst import assemble_burst
 from hbis_torch.cli import main
 from hbis_torch.reconstruct.burst import burst_samples
 from hbis_torch.reconstruct.classical.burst import burst_sample_noise
-from hbis_torch.reconstruct.lens_blur import edge_profile, estimate_lens_sigma, sharpest_group
+from hbis_torch.reconstruct.lens_blur import (FULL_TRUST, MAX_TRUSTED, SCENE_MARGIN, edge_profile, estimate_lens_sigma,
+                                              sharpest_group, sigma_to_undo)
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.simulate.burst import random_motions, simulate_burst
 from hbis_torch.training.burst_data import truth_raster
@@ -65,6 +66,29 @@ def test_the_lens_is_the_sharpest_edges_pile_up_not_their_spread():
     assert sharpest_group(np.sort(rng.uniform(0.4, 1.0, 40))) is None
     # more stray fits below the group than a few: not one lens either
     assert sharpest_group(np.sort(np.concatenate([[0.1, 0.15, 0.2, 0.25], 0.3 + rng.normal(0, 0.01, 20)]))) is None
+
+
+def test_stray_fits_below_the_lens_may_grow_with_the_edges():
+    """Among 60 edges, 5 stray fits below a pile-up of 30 still leave it the lens (a tenth may stray)."""
+    rng = np.random.default_rng(1)
+    strays = [0.1, 0.14, 0.18, 0.22, 0.26]
+    many = np.sort(np.concatenate([strays, 0.4 + rng.normal(0, 0.005, 30), rng.uniform(0.45, 1.2, 25)]))
+    found = sharpest_group(many)
+    assert found is not None and abs(found[0] - 0.4) < 0.01, found
+    # the same strays below a pile-up of 20 among 25 edges are more than a tenth: not one lens
+    few = np.sort(np.concatenate([strays, 0.4 + rng.normal(0, 0.005, 20)]))
+    assert sharpest_group(few) is None
+
+
+def test_soft_edges_have_a_share_of_their_blur_undone_falling_to_none():
+    """Full below FULL_TRUST (less the scene's margin), nothing from MAX_TRUSTED on, continuous and
+    never rising between: no two nearly equal bursts get answers a lens apart."""
+    assert sigma_to_undo(0.3) == pytest.approx(math.sqrt(0.3**2 - SCENE_MARGIN**2))
+    assert sigma_to_undo(FULL_TRUST) == pytest.approx(math.sqrt(FULL_TRUST**2 - SCENE_MARGIN**2))
+    assert sigma_to_undo(MAX_TRUSTED) == 0 and sigma_to_undo(1.5) == 0
+    grid = np.linspace(FULL_TRUST, MAX_TRUSTED, 301)
+    undone = np.array([sigma_to_undo(float(s)) for s in grid])
+    assert np.all(np.diff(undone) <= 1e-12) and np.max(np.abs(np.diff(undone))) < 0.01
 
 
 def test_reconstruct_measures_the_lens_by_default_and_says_so():

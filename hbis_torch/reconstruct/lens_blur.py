@@ -15,10 +15,12 @@ defocus, texture), and a soft edge only ever adds to the fitted sigma. The lens 
 every edge; the scene's softness varies from edge to edge. So the lens shows as a **pile-up of
 the sharpest edges at one sigma**: the estimate is the median of the lowest tight group of
 :func:`sharpest_group` (at least :data:`MIN_EDGES` edges, and a tenth of the accepted ones,
-within :data:`GROUP_WIDTH`, starting among the lowest few); where the sharpest edges spread
+within :data:`GROUP_WIDTH`, starting among the lowest tenth: stray fits lie below, of noise or of
+edges sharpened by the scene's own processing, as a camera's); where the sharpest edges spread
 instead (a soft scene: a raster enlarged, a photograph's own blur), nothing is undone, since the
 burst cannot tell its lens from its scene there, and undoing blur that is not the lens costs
-several dB.
+several dB. For the same reason a group softer than :data:`FULL_TRUST` has only a share of its
+blur undone, none from :data:`MAX_TRUSTED` on (:func:`sigma_to_undo`).
 
 An edge is accepted when its window holds one straight edge (the structure tensor's coherence),
 its step stands :data:`MIN_CONTRAST_NOISE` times above the samples' noise, the fit explains the
@@ -63,19 +65,24 @@ GROUP_SHARE = 0.1
 GROUP_WIDTH = (0.05, 0.05)
 """The sharpest group's spread of sigma may reach a + b x its lowest sigma (LR px): edges that
 share one lens agree to a few hundredths of a pixel (their fits' standard errors)."""
-GROUP_START = 3
-"""The sharpest group starts among the lowest this many edges (a stray fit or two may lie below)."""
+GROUP_START, GROUP_START_SHARE = 3, 0.1
+"""The sharpest group starts among the lowest max(GROUP_START, GROUP_START_SHARE x the accepted)
+edges: stray fits may lie below the lens (noise; an edge the scene's own processing sharpened, as
+a camera's does), and their number grows with the edges fitted."""
 MAX_SIGMA = 3.0
 """The largest sigma (LR px) a fit may reach."""
 SCENE_MARGIN = 0.1
 """Sigma (LR px) taken off the sharpest group's in quadrature before it is undone: even a scene's
 sharpest edges are a little soft, and undoing too much blur (ringing) costs far more than too
 little (some blur left)."""
-MAX_TRUSTED = 0.7
-"""Sharpest edges that agree on a sigma above this (LR px) are not taken for a focused lens: a
-scene drawn uniformly soft (an enlarged raster) or a lens out of focus, which a burst cannot tell
-apart; nothing is undone (a calibrated ``--psf-sigma`` still is). A Gaussian of 0.7 LR px leaves
-9 % of the contrast at the pixel's Nyquist frequency."""
+FULL_TRUST, MAX_TRUSTED = 0.5, 0.8
+"""Sharpest edges that agree on a sigma up to FULL_TRUST (LR px) are taken for the lens; above
+it, they may as well be a scene drawn uniformly soft (an enlarged raster, a print) as a lens out
+of focus, which a burst cannot tell apart, and a share of the blur is undone that falls linearly
+to nothing at MAX_TRUSTED (a calibrated ``--psf-sigma`` is undone whole): undoing a scene's own
+softness costs several dB, undoing too little only leaves some blur, and a ramp keeps two nearly
+equal bursts from getting answers a whole lens apart. A Gaussian of 0.8 LR px leaves 4 % of the
+contrast at the pixel's Nyquist frequency."""
 
 
 class LensEstimate(NamedTuple):
@@ -83,8 +90,8 @@ class LensEstimate(NamedTuple):
 
     ``sharpest``: the sigma the sharpest edges agree on (LR px; None: too few clean edges, or
     they do not agree); ``group``: how many agree;
-    ``sigma``: the lens blur to undo, LR px (``sharpest`` less :data:`SCENE_MARGIN` in quadrature;
-    0 where ``sharpest`` is None or above :data:`MAX_TRUSTED`); ``edges``: the accepted edges;
+    ``sigma``: the lens blur to undo, LR px (:func:`sigma_to_undo` of ``sharpest``; 0 where it is
+    None); ``edges``: the accepted edges;
     ``edge_sigmas``: each accepted edge's sigma (LR px), sorted; ``tried``: the edges fitted.
     """
 
@@ -106,18 +113,23 @@ class LensEstimate(NamedTuple):
                     f"... LR px, the scene's own softness rather than one lens); none undone. The lens is at most "
                     f"{np.median(self.edge_sigmas[:3]):.2f} LR px (the sharpest edges): set it with --psf-sigma")
         found = f"{self.group} of {self.edges} straight edges agree on sigma {self.sharpest:.2f} LR px"
-        if self.sharpest > MAX_TRUSTED:
+        if self.sigma == 0:
             return (f"lens blur: not undone: {found}, softer than any focused lens (a scene without sharp "
                     "edges, or a lens out of focus); set one with --psf-sigma")
+        if self.sharpest > FULL_TRUST:
+            return (f"lens blur: {found}, so soft that it may be the scene's own; undoing only sigma "
+                    f"{self.sigma:.2f} LR px (--psf-sigma sets it)")
         return f"lens blur: {found}; undoing sigma {self.sigma:.2f} LR px (--psf-sigma overrides)"
 
 
 def sharpest_group(sigmas: np.ndarray) -> tuple[float, int] | None:
     """The median sigma and size of the lowest tight group of ``sigmas`` (sorted, LR px): at least
     max(:data:`MIN_EDGES`, :data:`GROUP_SHARE` x their number) of them within
-    :data:`GROUP_WIDTH`, starting among the lowest :data:`GROUP_START`; None where there is none."""
+    :data:`GROUP_WIDTH`, starting among the lowest max(:data:`GROUP_START`, :data:`GROUP_START_SHARE`
+    x their number); None where there is none."""
     size = max(MIN_EDGES, math.ceil(GROUP_SHARE * len(sigmas)))
-    for start in range(min(GROUP_START, len(sigmas) - size + 1)):
+    starts = max(GROUP_START, math.ceil(GROUP_START_SHARE * len(sigmas)))
+    for start in range(min(starts, len(sigmas) - size + 1)):
         group = sigmas[start:start + size]
         if group[-1] - group[0] <= GROUP_WIDTH[0] + GROUP_WIDTH[1] * group[0]:
             members = np.count_nonzero(np.abs(sigmas - np.median(group)) <= GROUP_WIDTH[0] + GROUP_WIDTH[1] * group[0])
@@ -350,8 +362,15 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     if found is None:
         return LensEstimate(None, 0.0, 0, len(sigmas), sigmas, len(points))
     sharpest, group = found
-    sigma = math.sqrt(max(sharpest**2 - SCENE_MARGIN**2, 0.0)) if sharpest <= MAX_TRUSTED else 0.0
-    return LensEstimate(sharpest, sigma, group, len(sigmas), sigmas, len(points))
+    return LensEstimate(sharpest, sigma_to_undo(sharpest), group, len(sigmas), sigmas, len(points))
+
+
+def sigma_to_undo(sharpest: float) -> float:
+    """The lens blur (LR px) undone for sharpest edges that agree on ``sharpest`` (LR px): less
+    :data:`SCENE_MARGIN` in quadrature, and a share of it falling from 1 at :data:`FULL_TRUST` to
+    0 at :data:`MAX_TRUSTED`."""
+    share = min(max((MAX_TRUSTED - sharpest) / (MAX_TRUSTED - FULL_TRUST), 0.0), 1.0)
+    return share * math.sqrt(max(sharpest**2 - SCENE_MARGIN**2, 0.0))
 
 
 def burst_lens_sigma(grey, positions, weights, reference: int, notes: list | None = None) -> float:
