@@ -10,8 +10,8 @@ from hbis_torch.capture.burst import assemble_burst
 from hbis_torch.cli import main
 from hbis_torch.reconstruct.burst import burst_samples
 from hbis_torch.reconstruct.classical.burst import burst_sample_noise
-from hbis_torch.reconstruct.lens_blur import (FULL_TRUST, MAX_TRUSTED, SCENE_MARGIN, edge_profile, estimate_lens_sigma,
-                                              sharpest_group, sigma_to_undo)
+from hbis_torch.reconstruct.lens_blur import (FULL_TRUST, GROUP_WIDTH, LOOSE_WIDTH, MAX_TRUSTED, SCENE_MARGIN,
+                                              edge_profile, estimate_lens_sigma, sharpest_group, sigma_to_undo)
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.simulate.burst import random_motions, simulate_burst
 from hbis_torch.training.burst_data import truth_raster
@@ -61,11 +61,22 @@ def test_the_lens_is_the_sharpest_edges_pile_up_not_their_spread():
     """One lens: the sharpest edges agree, a few stray fits below them; a soft scene: they spread."""
     rng = np.random.default_rng(0)
     lens = np.sort(np.concatenate([[0.12, 0.2], 0.3 + rng.normal(0, 0.01, 20), rng.uniform(0.35, 1.2, 30)]))
-    sigma, members = sharpest_group(lens)
-    assert abs(sigma - 0.3) < 0.01 and members >= 18
-    assert sharpest_group(np.sort(rng.uniform(0.4, 1.0, 40))) is None
+    sigma, members, agreement = sharpest_group(lens)
+    assert abs(sigma - 0.3) < 0.01 and members >= 18 and agreement == 1
+    spread = sharpest_group(np.sort(np.linspace(0.4, 1.0, 40)))  # evenly spread: no pile-up, a trace at most
+    assert spread is None or spread[2] < 0.05, spread
     # more stray fits below the group than a few: not one lens either
     assert sharpest_group(np.sort(np.concatenate([[0.1, 0.15, 0.2, 0.25], 0.3 + rng.normal(0, 0.01, 20)]))) is None
+
+
+def test_a_loose_group_has_a_share_of_its_lens_undone():
+    """Agreement 1 within GROUP_WIDTH, falling linearly to 0 at LOOSE_WIDTH times it: a group spread
+    halfway between counts half."""
+    width = GROUP_WIDTH[0] + GROUP_WIDTH[1] * 0.3
+    loose = 0.3 + np.linspace(0, (1 + LOOSE_WIDTH) / 2 * width, 8)
+    sigma, members, agreement = sharpest_group(np.sort(np.concatenate([loose, [0.9, 1.0, 1.1]])))
+    assert agreement == pytest.approx(0.5) and abs(sigma - np.median(loose)) < 1e-12
+    assert sharpest_group(0.3 + np.linspace(0, 1.01 * LOOSE_WIDTH * width, 8)) is None
 
 
 def test_stray_fits_below_the_lens_may_grow_with_the_edges():
@@ -74,10 +85,10 @@ def test_stray_fits_below_the_lens_may_grow_with_the_edges():
     strays = [0.1, 0.14, 0.18, 0.22, 0.26]
     many = np.sort(np.concatenate([strays, 0.4 + rng.normal(0, 0.005, 30), rng.uniform(0.45, 1.2, 25)]))
     found = sharpest_group(many)
-    assert found is not None and abs(found[0] - 0.4) < 0.01, found
+    assert found is not None and abs(found[0] - 0.4) < 0.01 and found[2] == 1, found
     # the same strays below a pile-up of 20 among 25 edges are more than a tenth: not one lens
     few = np.sort(np.concatenate([strays, 0.4 + rng.normal(0, 0.005, 20)]))
-    assert sharpest_group(few) is None
+    assert sharpest_group(few) is None or sharpest_group(few)[0] < 0.3
 
 
 def test_soft_edges_have_a_share_of_their_blur_undone_falling_to_none():

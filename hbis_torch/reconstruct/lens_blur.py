@@ -65,6 +65,9 @@ GROUP_SHARE = 0.1
 GROUP_WIDTH = (0.05, 0.05)
 """The sharpest group's spread of sigma may reach a + b x its lowest sigma (LR px): edges that
 share one lens agree to a few hundredths of a pixel (their fits' standard errors)."""
+LOOSE_WIDTH = 1.5
+"""A group spread up to this many times :data:`GROUP_WIDTH` still counts, with less weight
+(:func:`sharpest_group`); edges spread evenly over a range (a soft scene) do not reach it."""
 GROUP_START, GROUP_START_SHARE = 3, 0.1
 """The sharpest group starts among the lowest max(GROUP_START, GROUP_START_SHARE x the accepted)
 edges: stray fits may lie below the lens (noise; an edge the scene's own processing sharpened, as
@@ -89,9 +92,10 @@ class LensEstimate(NamedTuple):
     """What :func:`estimate_lens_sigma` measured.
 
     ``sharpest``: the sigma the sharpest edges agree on (LR px; None: too few clean edges, or
-    they do not agree); ``group``: how many agree;
-    ``sigma``: the lens blur to undo, LR px (:func:`sigma_to_undo` of ``sharpest``; 0 where it is
-    None); ``edges``: the accepted edges;
+    they do not agree); ``group``: how many agree; ``agreement``: how well, in [0, 1]
+    (:func:`sharpest_group`);
+    ``sigma``: the lens blur to undo, LR px (``agreement`` x :func:`sigma_to_undo` of ``sharpest``;
+    0 where it is None); ``edges``: the accepted edges;
     ``edge_sigmas``: each accepted edge's sigma (LR px), sorted; ``tried``: the edges fitted.
     """
 
@@ -101,6 +105,7 @@ class LensEstimate(NamedTuple):
     edges: int
     edge_sigmas: np.ndarray
     tried: int
+    agreement: float = 1.0
 
     def describe(self) -> str:
         """One line for the user."""
@@ -113,28 +118,43 @@ class LensEstimate(NamedTuple):
                     f"... LR px, the scene's own softness rather than one lens); none undone. The lens is at most "
                     f"{np.median(self.edge_sigmas[:3]):.2f} LR px (the sharpest edges): set it with --psf-sigma")
         found = f"{self.group} of {self.edges} straight edges agree on sigma {self.sharpest:.2f} LR px"
-        if self.sigma == 0:
+        if self.agreement < 1:
+            found = (f"the sharpest {self.group} of {self.edges} straight edges agree only loosely on sigma "
+                     f"{self.sharpest:.2f} LR px")
+        if self.sharpest >= MAX_TRUSTED:
             return (f"lens blur: not undone: {found}, softer than any focused lens (a scene without sharp "
                     "edges, or a lens out of focus); set one with --psf-sigma")
-        if self.sharpest > FULL_TRUST:
-            return (f"lens blur: {found}, so soft that it may be the scene's own; undoing only sigma "
-                    f"{self.sigma:.2f} LR px (--psf-sigma sets it)")
+        if self.sharpest > FULL_TRUST or self.agreement < 1:
+            why = "so soft that it may be the scene's own" if self.sharpest > FULL_TRUST else "it may be the scene's own"
+            return (f"lens blur: {found}, {why}; undoing only sigma {self.sigma:.2f} LR px "
+                    "(--psf-sigma sets it)")
         return f"lens blur: {found}; undoing sigma {self.sigma:.2f} LR px (--psf-sigma overrides)"
 
 
-def sharpest_group(sigmas: np.ndarray) -> tuple[float, int] | None:
-    """The median sigma and size of the lowest tight group of ``sigmas`` (sorted, LR px): at least
-    max(:data:`MIN_EDGES`, :data:`GROUP_SHARE` x their number) of them within
-    :data:`GROUP_WIDTH`, starting among the lowest max(:data:`GROUP_START`, :data:`GROUP_START_SHARE`
-    x their number); None where there is none."""
+def sharpest_group(sigmas: np.ndarray) -> tuple[float, int, float] | None:
+    """The lowest tight group of ``sigmas`` (sorted, LR px): at least max(:data:`MIN_EDGES`,
+    :data:`GROUP_SHARE` x their number) of them, starting among the lowest max(:data:`GROUP_START`,
+    :data:`GROUP_START_SHARE` x their number).
+
+    Returns (median sigma, members, agreement), None where no group agrees at all. ``agreement``
+    is 1 where the group's spread is within :data:`GROUP_WIDTH` and falls linearly to 0 at
+    :data:`LOOSE_WIDTH` times that width (the group of the best agreement counts, the lowest among equals): edges that share
+    one lens agree to their fits' errors, which are not much smaller than that width, so an
+    all-or-nothing test gives two nearly equal bursts answers a whole lens apart.
+    """
     size = max(MIN_EDGES, math.ceil(GROUP_SHARE * len(sigmas)))
     starts = max(GROUP_START, math.ceil(GROUP_START_SHARE * len(sigmas)))
+    best = None
     for start in range(min(starts, len(sigmas) - size + 1)):
         group = sigmas[start:start + size]
-        if group[-1] - group[0] <= GROUP_WIDTH[0] + GROUP_WIDTH[1] * group[0]:
-            members = np.count_nonzero(np.abs(sigmas - np.median(group)) <= GROUP_WIDTH[0] + GROUP_WIDTH[1] * group[0])
-            return float(np.median(group)), int(members)
-    return None
+        width = GROUP_WIDTH[0] + GROUP_WIDTH[1] * group[0]
+        agreement = min(max((LOOSE_WIDTH - (group[-1] - group[0]) / width) / (LOOSE_WIDTH - 1), 0.0), 1.0)
+        if agreement > 0 and (best is None or agreement > best[2]):
+            members = np.count_nonzero(np.abs(sigmas - np.median(group)) <= width)
+            best = (float(np.median(group)), int(members), agreement)
+        if agreement == 1:
+            break
+    return best
 
 
 def _antiderivatives(x: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -360,9 +380,10 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     sigmas = np.sort(np.array(sigmas))
     found = sharpest_group(sigmas) if len(sigmas) >= MIN_EDGES else None
     if found is None:
-        return LensEstimate(None, 0.0, 0, len(sigmas), sigmas, len(points))
-    sharpest, group = found
-    return LensEstimate(sharpest, sigma_to_undo(sharpest), group, len(sigmas), sigmas, len(points))
+        return LensEstimate(None, 0.0, 0, len(sigmas), sigmas, len(points), 0.0)
+    sharpest, group, agreement = found
+    return LensEstimate(sharpest, agreement * sigma_to_undo(sharpest), group, len(sigmas), sigmas, len(points),
+                        agreement)
 
 
 def sigma_to_undo(sharpest: float) -> float:
