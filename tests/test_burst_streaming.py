@@ -59,9 +59,11 @@ def test_the_burst_path_never_holds_every_samples_position(stack, monkeypatch):
     fill a frame at a time; the image is the one the whole arrays give, bit for bit."""
     import hbis_torch.reconstruct.classical.burst as classical_burst
     import hbis_torch.reconstruct.classical.sr as sr
+    import hbis_torch.reconstruct.positions as positions
     from hbis_torch.reconstruct.positions import BurstPositions
 
     F, H, W = stack.frames.shape
+    monkeypatch.setattr(positions, "CACHE_BYTES", 0)  # a large burst's: none kept
     monkeypatch.setattr(sr, "BATCH_SAMPLES", 2 * W * F)  # bands of two rows of every frame
     largest, band = [0], BurstPositions._band
 
@@ -80,6 +82,34 @@ def test_the_burst_path_never_holds_every_samples_position(stack, monkeypatch):
     monkeypatch.setattr(BurstPositions, "whole", lambda self: band(self, slice(None), slice(None)))
     monkeypatch.setattr(classical_burst.classical_burst, "streams", False)  # the whole arrays instead
     assert np.array_equal(reconstruct(stack, "classical"), streamed)
+
+
+def test_a_small_bursts_positions_are_computed_once_with_the_same_bits(stack, monkeypatch):
+    import hbis_torch.reconstruct.positions as positions
+    from hbis_torch.reconstruct.positions import BurstPositions, burst_positions
+
+    computed, band = [], BurstPositions._band
+
+    def counted(self, frames, rows, cols=slice(None)):
+        computed.append(range(self.shape[0])[frames])
+        return band(self, frames, rows, cols)
+
+    monkeypatch.setattr(BurstPositions, "_band", counted)
+    kept, _ = burst_positions(stack, lazy=True)
+    monkeypatch.setattr(positions, "CACHE_BYTES", 0)
+    streamed, _ = burst_positions(stack, lazy=True)
+    F, H, W = stack.frames.shape
+    for index in (3, (2, 5), (1, slice(7, 90, 4)), (slice(1, 4), slice(None, None, 3)), (0, 5, 7),
+                  (slice(None), 100, slice(2, 9)), (slice(None, None, 2), slice(10, 20), slice(30, 41))):
+        assert torch.equal(kept[index], streamed[index]), index
+    assert torch.equal(kept.whole(), streamed.whole())
+    computed.clear()
+    for _ in range(3):  # every frame is kept now: read again without computing
+        kept[:, :, 5], kept[2]
+    assert not computed
+    whole = kept.whole()
+    whole += 1.0  # the whole array is the caller's own
+    assert torch.equal(kept[1], streamed[1])
 
 
 def test_the_lazy_samples_keep_the_weights_values_in_float32(stack):
