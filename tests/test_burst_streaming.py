@@ -139,3 +139,17 @@ def test_the_tally_drops_samples_beyond_the_grid_or_without_weight():
     assert np.array_equal(tally.coverage(), cover) and tally.added == 2
     hit = tally.hits[2].reshape(10, 12)[1:-1, 1:-1]
     assert bool(hit[0, 0]) and bool(hit[6, 8]) and int(hit.sum()) == 2  # the nodes nearest (0, 0) and (4, 3)
+
+
+def test_the_rejections_grow_by_the_3x3_minimum():
+    from hbis_torch.reconstruct.burst import _minimum_3x3
+
+    rng = torch.Generator().manual_seed(1)
+    for shape in ((37, 53), (1, 9), (8, 1), (2, 2)):
+        image = torch.rand(shape, generator=rng)
+        pooled = -torch.nn.functional.max_pool2d(-image[None, None], 3, 1, 1)[0, 0]
+        assert torch.equal(_minimum_3x3(image), pooled), shape
+    spot = torch.ones(5, 6)
+    spot[0, 0] = 0.25
+    grown = _minimum_3x3(spot)
+    assert torch.equal(grown[:2, :2], torch.full((2, 2), 0.25)) and float(grown[2:].min()) == 1.0
