@@ -105,8 +105,9 @@ class BurstPositions:
         self.offsets, self.tile = offsets, int(tile)
         self.shape = (len(self.motions), int(height), int(width), 2)
         count = self.shape[0] * self.shape[1] * self.shape[2]
-        # each frame's positions once computed (small bursts: CACHE_BYTES), and which frames they are
-        self._kept = None if 16 * count > CACHE_BYTES else torch.empty(self.shape, dtype=torch.float64)
+        # each frame's positions once computed (small bursts: CACHE_BYTES; allocated at the first
+        # read), and which frames they are
+        self._keep, self._kept = 16 * count <= CACHE_BYTES, None
         self._done = [False] * self.shape[0]
 
     def __len__(self) -> int:
@@ -125,7 +126,7 @@ class BurstPositions:
         for i, size in zip(index, (count, height, width)):
             if not isinstance(i, slice) and not -size <= int(i) < size:
                 raise IndexError(f"index {int(i)} is out of bounds for size {size}")
-        if self._kept is not None:
+        if self._keep:
             out = self._cached(*as_slices)
         else:
             out = self._band(as_slices[0], as_slices[1], as_slices[2])
@@ -134,6 +135,8 @@ class BurstPositions:
 
     def _cached(self, frames: slice, rows: slice, cols: slice) -> Tensor:
         """The band from the kept frames (a view), computing the frames not yet kept, whole."""
+        if self._kept is None:
+            self._kept = torch.empty(self.shape, dtype=torch.float64)
         for k in range(self.shape[0])[frames]:
             if not self._done[k]:
                 self._kept[k] = self._band(slice(k, k + 1), slice(None))[0]
@@ -155,7 +158,7 @@ class BurstPositions:
     def whole(self) -> Tensor:
         """Every sample's position, (F, H, W, 2) float64: what the object stands for (a
         tensor of its own, which the caller may change)."""
-        if self._kept is not None:
+        if self._keep:
             return self._cached(slice(None), slice(None), slice(None)).clone()
         return self._band(slice(None), slice(None))
 
