@@ -59,9 +59,11 @@ def test_the_burst_path_never_holds_every_samples_position(stack, monkeypatch):
     fill a frame at a time; the image is the one the whole arrays give, bit for bit."""
     import hbis_torch.reconstruct.classical.burst as classical_burst
     import hbis_torch.reconstruct.classical.sr as sr
+    import hbis_torch.reconstruct.positions as positions
     from hbis_torch.reconstruct.positions import BurstPositions
 
     F, H, W = stack.frames.shape
+    monkeypatch.setattr(positions, "CACHE_BYTES", 0)  # a large burst's: none kept
     monkeypatch.setattr(sr, "BATCH_SAMPLES", 2 * W * F)  # bands of two rows of every frame
     largest, band = [0], BurstPositions._band
 
@@ -80,6 +82,34 @@ def test_the_burst_path_never_holds_every_samples_position(stack, monkeypatch):
     monkeypatch.setattr(BurstPositions, "whole", lambda self: band(self, slice(None), slice(None)))
     monkeypatch.setattr(classical_burst.classical_burst, "streams", False)  # the whole arrays instead
     assert np.array_equal(reconstruct(stack, "classical"), streamed)
+
+
+def test_a_small_bursts_positions_are_computed_once_with_the_same_bits(stack, monkeypatch):
+    import hbis_torch.reconstruct.positions as positions
+    from hbis_torch.reconstruct.positions import BurstPositions, burst_positions
+
+    computed, band = [], BurstPositions._band
+
+    def counted(self, frames, rows, cols=slice(None)):
+        computed.append(range(self.shape[0])[frames])
+        return band(self, frames, rows, cols)
+
+    monkeypatch.setattr(BurstPositions, "_band", counted)
+    kept, _ = burst_positions(stack, lazy=True)
+    monkeypatch.setattr(positions, "CACHE_BYTES", 0)
+    streamed, _ = burst_positions(stack, lazy=True)
+    F, H, W = stack.frames.shape
+    for index in (3, (2, 5), (1, slice(7, 90, 4)), (slice(1, 4), slice(None, None, 3)), (0, 5, 7),
+                  (slice(None), 100, slice(2, 9)), (slice(None, None, 2), slice(10, 20), slice(30, 41))):
+        assert torch.equal(kept[index], streamed[index]), index
+    assert torch.equal(kept.whole(), streamed.whole())
+    computed.clear()
+    for _ in range(3):  # every frame is kept now: read again without computing
+        kept[:, :, 5], kept[2]
+    assert not computed
+    whole = kept.whole()
+    whole += 1.0  # the whole array is the caller's own
+    assert torch.equal(kept[1], streamed[1])
 
 
 def test_the_lazy_samples_keep_the_weights_values_in_float32(stack):
@@ -109,3 +139,32 @@ def test_the_tally_drops_samples_beyond_the_grid_or_without_weight():
     assert np.array_equal(tally.coverage(), cover) and tally.added == 2
     hit = tally.hits[2].reshape(10, 12)[1:-1, 1:-1]
     assert bool(hit[0, 0]) and bool(hit[6, 8]) and int(hit.sum()) == 2  # the nodes nearest (0, 0) and (4, 3)
+
+
+def test_the_rejections_grow_by_the_3x3_minimum():
+    from hbis_torch.reconstruct.burst import _minimum_3x3
+
+    rng = torch.Generator().manual_seed(1)
+    for shape in ((37, 53), (1, 9), (8, 1), (2, 2)):
+        image = torch.rand(shape, generator=rng)
+        pooled = -torch.nn.functional.max_pool2d(-image[None, None], 3, 1, 1)[0, 0]
+        assert torch.equal(_minimum_3x3(image), pooled), shape
+    spot = torch.ones(5, 6)
+    spot[0, 0] = 0.25
+    grown = _minimum_3x3(spot)
+    assert torch.equal(grown[:2, :2], torch.full((2, 2), 0.25)) and float(grown[2:].min()) == 1.0
+
+
+def test_the_blend_weight_is_the_coverage_enlarged_bilinear():
+    from scipy.ndimage import zoom
+
+    from hbis_torch.reconstruct.burst import FULL_COVERAGE, _blend_weight
+
+    rng = np.random.default_rng(3)
+    for shape, scale in (((23, 31), 2), ((7, 5), 3), ((4, 9), 4), ((6, 6), 1)):
+        cover = rng.random(shape) * 3 * FULL_COVERAGE * (rng.random(shape) > 0.3)
+        alpha = np.clip(cover / FULL_COVERAGE, 0, 1)
+        expected = np.clip(zoom(alpha, scale, order=1, mode="nearest", grid_mode=True), 0, 1).astype(np.float32)
+        got = _blend_weight(cover, scale)
+        assert got.dtype == np.float32 and got.shape == expected.shape
+        assert np.array_equal(got, expected), (shape, scale)

@@ -187,3 +187,16 @@ def test_wiener_inverse_in_place_gives_the_same_image(monkeypatch):
         in_place = wiener_deblur(image, **kw)
         monkeypatch.undo()
         assert float((whole - in_place).abs().max()) < 1e-6
+
+
+def test_the_separable_blur_is_the_blur_at_the_holes_at_every_node():
+    from hbis_torch.reconstruct.classical.splat import _separable_blur
+
+    gen = torch.Generator().manual_seed(7)
+    for shape in ((60, 70), (9, 40), (5, 5)):
+        img = torch.rand(shape, generator=gen, dtype=torch.float64)
+        rows, cols = (g.reshape(-1) for g in torch.meshgrid(torch.arange(shape[0]), torch.arange(shape[1]), indexing="ij"))
+        for sigma in (1.0, 2.0):
+            whole = _separable_blur(img, sigma)
+            assert whole.shape == img.shape
+            assert float((whole.reshape(-1) - _blur_at(img, sigma, rows, cols)).abs().max()) < 1e-12, (shape, sigma)

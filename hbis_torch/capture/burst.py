@@ -342,8 +342,9 @@ def trimmed_line_mse(x: torch.Tensor, y: torch.Tensor) -> float:
     an offset), over the best :data:`TRIM` of the points: a moving object's are left out."""
     A = torch.stack((x, torch.ones_like(x)), -1)
     fit = A @ torch.linalg.lstsq(A, y[:, None], driver=LSTSQ_DRIVER).solution
-    squared = (fit[:, 0] - y).pow(2).sort().values
-    return float(squared[:int(TRIM * len(squared))].mean())
+    squared = (fit[:, 0] - y).pow(2)
+    # the smallest TRIM of them, unsorted (a selection: a fifth of a sort's time, the same values)
+    return float(torch.topk(squared, int(TRIM * len(squared)), largest=False, sorted=False).values.mean())
 
 
 def overlap(motion: np.ndarray, shape) -> float:

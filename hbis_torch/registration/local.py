@@ -140,6 +140,7 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     noise = float(noise_sigma(grey[reference][None])[0]) * 2 ** 0.5 / (2 * np.pi ** 0.5 * BLUR_PX)
     pool = (lambda x: torch.nn.functional.avg_pool2d(x, tile, tile, ceil_mode=True, count_include_pad=False) * tile * tile)
     pixels = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
+    spread = (_spread(H, rows, tile), _spread(W, cols, tile).T.contiguous())
     for k in use:
         g, o = gain_offset[k]
         frame = (g * grey[k] + o)[None, None]
@@ -152,9 +153,10 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
         d = torch.zeros(1, rows, cols, 2)
         terms = torch.empty((1, 6, H, W))  # the products the tiles sum, written in place (no concatenation)
         terms[:, 5:] = valid
-        for _ in range(ITERATIONS):
-            field = _field(d, (H, W), tile)
-            at = _shift(ref_and_gradient, field, pixels)
+        for step in range(ITERATIONS):
+            # the first step starts from no shift: the reference as it is (reading it at x + 0 would
+            # only add roundings of 1e-7 px)
+            at = ref_and_gradient if step == 0 else _shift(ref_and_gradient, _field(d, (H, W), tile, spread), pixels)
             r = (warped[:, :1] - at[:, :1]) * valid
             gx, gy = at[:, 1:2] * valid, at[:, 2:3] * valid
             for i, (a, b) in enumerate(((gx, gx), (gx, gy), (gy, gy), (gx, r), (gy, r))):
@@ -174,14 +176,31 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     return out
 
 
-def _field(offsets: Tensor, shape: tuple[int, int], tile: int) -> Tensor:
-    """The offsets (F, rows, cols, 2) at every pixel of a (H, W) grid: (F, H, W, 2).
+def _field(offsets: Tensor, shape: tuple[int, int], tile: int, spread: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    """The offsets (F, rows, cols, 2) at every pixel of a (H, W) grid: (F, H, W, 2) float32.
 
-    The same bilinear field as :func:`sample_offsets`, by one enlargement: with
-    ``align_corners=False`` a tile's value sits at its centre and is held beyond the outer
-    centres."""
+    The same bilinear field as :func:`sample_offsets` (a tile's value sits at its centre and is
+    held beyond the outer centres), as torch's bilinear enlargement (``align_corners=False``)
+    by ``tile`` gives it, written as two matrix products, (H, rows) x (rows, cols) x (cols, W)
+    (:func:`_spread`): a tenth of the enlargement's time, the same values to float32 rounding.
+    ``spread``: the two matrices (the second transposed), where the caller keeps them."""
     H, W = shape
     F, rows, cols, _ = offsets.shape
-    big = torch.nn.functional.interpolate(offsets.permute(0, 3, 1, 2).to(torch.float32), size=(rows * tile, cols * tile),
-                                          mode="bilinear", align_corners=False)
-    return big[:, :, :H, :W].permute(0, 2, 3, 1)
+    down, across = spread or (_spread(H, rows, tile), _spread(W, cols, tile).T.contiguous())
+    out = down @ offsets.permute(0, 3, 1, 2).to(torch.float32) @ across  # (F, 2, H, W)
+    return out.permute(0, 2, 3, 1)
+
+
+def _spread(size: int, count: int, tile: int) -> Tensor:
+    """(size, count) float32: the weights of ``count`` tile centres ``tile`` px apart at each of
+    ``size`` pixels, bilinear, held beyond the first and last centres (as torch's bilinear
+    enlargement with ``align_corners=False`` weighs them)."""
+    source = ((torch.arange(size, dtype=torch.float32) + 0.5) / tile - 0.5).clamp_min(0)
+    first = source.floor().to(torch.int64).clamp_max(count - 1)
+    second = (first + 1).clamp_max(count - 1)
+    far = (source - first).clamp_max(1.0)
+    out = torch.zeros((size, count), dtype=torch.float32)
+    rows = torch.arange(size)
+    out.index_put_((rows, first), 1 - far, accumulate=True)
+    out.index_put_((rows, second), far, accumulate=True)
+    return out
