@@ -301,19 +301,21 @@ class _Splat:
         near = (xi >= -1) & (xi <= cols) & (yi >= -1) & (yi <= rows)
         fx = torch.where(near, x - xi, 0.0).to(torch.float32)
         fy = torch.where(near, y - yi, 0.0).to(torch.float32)
-        base = yi.clamp_(-1, rows).add_(2).mul_(self.stride).add_(xi.clamp_(-1, cols).add_(2)).to(torch.int64)
+        # the flat index of the node up and left of the nearest (the first tap): each tap adds
+        # at the same index into the sums seen from its own offset (a view), no index per tap
+        first = yi.clamp_(-1, rows).add_(1).mul_(self.stride).add_(xi.clamp_(-1, cols).add_(1)).to(torch.int64)
         del xi, yi
         w = weights.to(SPLAT_DTYPE) * near
         parts = [values.to(SPLAT_DTYPE) * w, w] + ([lost.to(SPLAT_DTYPE) * near] if lost is not None else [])
         # the node at (xi + d) is d - f from the sample: the Gaussian along each axis
         gx = [torch.exp((d - fx).square_().mul_(self.c)) for d in (-1.0, 0.0, 1.0)]
         gy = [torch.exp((d - fy).square_().mul_(self.c)) for d in (-1.0, 0.0, 1.0)]
-        for a, dy in enumerate((-1, 0, 1)):
-            for b, dx in enumerate((-1, 0, 1)):
+        size = len(self.sums[0]) - 2 * self.stride - 2
+        for a in range(3):
+            for b in range(3):
                 g = gy[a] * gx[b]
-                index = base + (dy * self.stride + dx)
                 for total, part in zip(self.sums, parts):
-                    total.index_add_(0, index, part * g)
+                    total.narrow(0, a * self.stride + b, size).index_add_(0, first, part * g)
 
     def result(self, k: int) -> Tensor:
         """Sum ``k`` (0 numerator, 1 denominator, 2 the second denominator) on the grid, (rows, cols)
