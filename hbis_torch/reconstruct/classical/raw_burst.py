@@ -308,14 +308,17 @@ class _Splat:
         w = weights.to(SPLAT_DTYPE) * near
         parts = [values.to(SPLAT_DTYPE) * w, w] + ([lost.to(SPLAT_DTYPE) * near] if lost is not None else [])
         # the node at (xi + d) is d - f from the sample: the Gaussian along each axis
-        gx = [torch.exp((d - fx).square_().mul_(self.c)) for d in (-1.0, 0.0, 1.0)]
-        gy = [torch.exp((d - fy).square_().mul_(self.c)) for d in (-1.0, 0.0, 1.0)]
+        # (in float32, then in the sums' dtype: a product of two dtypes costs as much as three of one)
+        gx = [torch.exp((d - fx).square_().mul_(self.c)).to(SPLAT_DTYPE) for d in (-1.0, 0.0, 1.0)]
+        gy = [torch.exp((d - fy).square_().mul_(self.c)).to(SPLAT_DTYPE) for d in (-1.0, 0.0, 1.0)]
         size = len(self.sums[0]) - 2 * self.stride - 2
+        g = torch.empty_like(gx[0])
+        term = torch.empty_like(gx[0])
         for a in range(3):
             for b in range(3):
-                g = gy[a] * gx[b]
+                torch.mul(gy[a], gx[b], out=g)
                 for total, part in zip(self.sums, parts):
-                    total.narrow(0, a * self.stride + b, size).index_add_(0, first, part * g)
+                    total.narrow(0, a * self.stride + b, size).index_add_(0, first, torch.mul(part, g, out=term))
 
     def result(self, k: int) -> Tensor:
         """Sum ``k`` (0 numerator, 1 denominator, 2 the second denominator) on the grid, (rows, cols)
