@@ -403,6 +403,65 @@ def _colour_weights(cell_weights: Tensor, unclipped: Tensor | None, where: list[
     return torch.cat(parts).contiguous()
 
 
+def _blur_pair(num: Tensor, den: Tensor, sigma: float) -> Tensor:
+    """:func:`~hbis_torch.reconstruct.classical.splat._gaussian_blur` of ``num`` and ``den``
+    (rows, cols) in one batch of FFTs, in float32: (2, rows, cols) float32."""
+    import math
+
+    rows, cols = num.shape
+    pad = min(math.ceil(4 * sigma), rows - 1, cols - 1)
+    both = torch.stack((num, den)).to(torch.float32)
+    p = torch.nn.functional.pad(both[None], (pad, pad, pad, pad), mode="reflect")[0]
+    del both
+    fy = torch.fft.fftfreq(p.shape[1], dtype=torch.float32)[:, None]
+    fx = torch.fft.rfftfreq(p.shape[2], dtype=torch.float32)[None, :]
+    g = torch.exp((fx * fx + fy * fy).mul_(-2 * math.pi ** 2 * sigma ** 2))
+    spectrum = torch.fft.rfft2(p)
+    shape = p.shape[1:]
+    del p
+    out = torch.fft.irfft2(spectrum.mul_(g), s=shape)
+    return out[:, pad:pad + rows, pad:pad + cols]
+
+
+def _fill_holes(num: Tensor, den: Tensor) -> Tensor:
+    """:func:`~hbis_torch.reconstruct.classical.splat.fill_holes` (``num / den``, nodes of little
+    weight from the sums blurred wider and wider) of float64 sums, with its blurs of the whole
+    image (where the holes are many: the red and blue planes at S = 2 have one sample per node)
+    in float32 and both sums in one batch (:func:`_blur_pair`): two thirds of the time. The holes
+    and the typical weight are found on the float64 sums as there (their values come in few
+    distinct sums of the splat's weights, and float32's rounding would tip some across the
+    threshold), and the blurred values at the holes differ from float64's by float32's rounding.
+    (rows, cols) float64."""
+    import math
+
+    from hbis_torch.reconstruct.classical.splat import _blur_at, _holes, typical_weight
+
+    typical = typical_weight(den)
+    if typical == 0.0:
+        raise HbisInputError("no sample falls on the output grid")
+    rows, cols = _holes(den, 0.25 * typical)
+    fills = []
+    sigma = 1.0
+    while len(rows) and sigma <= 64:
+        taps = 2 * math.ceil(4 * sigma) + 1
+        if len(rows) * taps * taps <= num.numel() // 4:
+            n2, d2 = _blur_at(num, sigma, rows, cols), _blur_at(den, sigma, rows, cols)
+        else:
+            blurred = _blur_pair(num, den, sigma)
+            n2, d2 = blurred[0][rows, cols].to(num.dtype), blurred[1][rows, cols].to(den.dtype)
+            del blurred
+        ok = d2 >= 0.05 * typical
+        fills.append((rows[ok], cols[ok], n2[ok] / d2[ok].clamp_min(1e-12)))
+        rows, cols = rows[~ok], cols[~ok]
+        sigma *= 2
+    if len(rows):
+        fills.append((rows, cols, num.sum() / den.sum()))
+    image = num / den.clamp_min(1e-12)
+    for rows, cols, values in fills:
+        image[rows, cols] = values
+    return image
+
+
 def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, shape: tuple, sigma: float,
                 batch: int = 1 << 20, sums: bool = False):
     """Scattered samples -> one plane of the output grid: the classical method's Gaussian splat
@@ -432,8 +491,6 @@ def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, 
     -------
     np.ndarray, shape (rows, cols), float64
     """
-    from hbis_torch.reconstruct.classical.splat import fill_holes
-
     acc = _Splat(shape, sigma)
     for start in range(0, len(values), batch):
         part = slice(start, start + batch)
@@ -445,7 +502,7 @@ def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, 
         return num, den
     if not bool((den > 0).any()):
         raise HbisInputError("no sample falls on the output grid")
-    return fill_holes(num, den).numpy()
+    return _fill_holes(num, den).numpy()
 
 
 def sharp_green(values: Tensor, positions, weights: Tensor, cfa: str, scale: int,
@@ -539,8 +596,6 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     np.ndarray, shape (S H, S W, 3), float32 in [0, 1]
         Camera RGB, linear; 1 at the clip level.
     """
-    from hbis_torch.reconstruct.classical.splat import fill_holes
-
     F, H, W = values.shape
     positions = _lazy_positions(motions, H, W, local)
     frames = torch.from_numpy(np.ascontiguousarray(values, dtype=np.float32))
@@ -589,13 +644,13 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         num, den = acc.result(0), acc.result(1)
         missing = acc.result(2) if some_lost else None
         del acc
-        plane = fill_holes(num, den)
+        plane = _fill_holes(num, den)
         if colour != "G" and differences:
             plane += planes["G"]
         if missing is not None:
             # the unclipped samples' share of the splat's weight (holes filled from around them),
             # from the splat of the (few) clipped samples alone
-            share = fill_holes(den, den + missing)
+            share = _fill_holes(den, den + missing)
             plane = torch.where(share < CLIPPED_SHARE, 1.0, plane)
             del share
         del num, den, missing
