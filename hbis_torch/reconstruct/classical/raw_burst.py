@@ -645,22 +645,25 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         missing = acc.result(2) if some_lost else None
         del acc
         plane = _fill_holes(num, den)
+        del num
         if colour != "G" and differences:
             plane += planes["G"]
         if missing is not None:
             # the unclipped samples' share of the splat's weight (holes filled from around them),
             # from the splat of the (few) clipped samples alone
-            share = _fill_holes(den, den + missing)
-            plane = torch.where(share < CLIPPED_SHARE, 1.0, plane)
+            total = missing.add_(den)
+            share = _fill_holes(den, total)
+            del total, missing
+            plane.masked_fill_(share < CLIPPED_SHARE, 1.0)
             del share
-        del num, den, missing
+        del den
         planes[colour] = plane
     result = np.empty(out + (3,), dtype=np.float32)
     change = None if sharp is None else torch.from_numpy(sharp).sub_(planes["G"])  # the sharpened green
     for i, colour in enumerate("RGB"):
         plane = planes.pop(colour)
         if change is not None:  # red and blue move with the green; a colour at the clip level stays there
-            plane = torch.where(plane >= 1.0, plane, plane + change)
+            plane.add_(torch.where(plane >= 1.0, 0.0, change))
         result[..., i] = plane.clamp_(0, 1).numpy()
     return result
 
