@@ -297,16 +297,25 @@ class _Splat:
         y = i) float64; ``lost``: the weights of the second denominator."""
         rows, cols = self.shape
         xi, yi = torch.round(x), torch.round(y)
-        # samples whose nearest node is two or more beyond the grid reach no node of it
-        near = (xi >= -1) & (xi <= cols) & (yi >= -1) & (yi <= rows)
-        fx = torch.where(near, x - xi, 0.0).to(torch.float32)
-        fy = torch.where(near, y - yi, 0.0).to(torch.float32)
+        (x_lo, x_hi), (y_lo, y_hi) = torch.aminmax(xi), torch.aminmax(yi)
+        # samples whose nearest node is two or more beyond the grid reach no node of it (where
+        # there are any, or non-finite positions, they are masked: weight 0, at the frame)
+        near = None
+        if not (x_lo >= -1 and x_hi <= cols and y_lo >= -1 and y_hi <= rows):
+            near = (xi >= -1) & (xi <= cols) & (yi >= -1) & (yi <= rows)
+        fx, fy = (x - xi).to(torch.float32), (y - yi).to(torch.float32)
+        if near is not None:
+            fx.masked_fill_(~near, 0.0)
+            fy.masked_fill_(~near, 0.0)
+            xi, yi = xi.nan_to_num_(0).clamp_(-1, cols), yi.nan_to_num_(0).clamp_(-1, rows)
         # the flat index of the node up and left of the nearest (the first tap): each tap adds
         # at the same index into the sums seen from its own offset (a view), no index per tap
-        first = yi.clamp_(-1, rows).add_(1).mul_(self.stride).add_(xi.clamp_(-1, cols).add_(1)).to(torch.int64)
+        first = yi.add_(1).mul_(self.stride).add_(xi.add_(1)).to(torch.int64)
         del xi, yi
-        w = weights.to(SPLAT_DTYPE) * near
-        parts = [values.to(SPLAT_DTYPE) * w, w] + ([lost.to(SPLAT_DTYPE) * near] if lost is not None else [])
+        w = weights.to(SPLAT_DTYPE) if near is None else weights.to(SPLAT_DTYPE) * near
+        parts = [values.to(SPLAT_DTYPE) * w, w]
+        if lost is not None:
+            parts.append(lost.to(SPLAT_DTYPE) if near is None else lost.to(SPLAT_DTYPE) * near)
         # the node at (xi + d) is d - f from the sample: the Gaussian along each axis
         # (in float32, then in the sums' dtype: a product of two dtypes costs as much as three of one)
         gx = [torch.exp((d - fx).square_().mul_(self.c)).to(SPLAT_DTYPE) for d in (-1.0, 0.0, 1.0)]
