@@ -329,11 +329,14 @@ class _Splat:
                 for total, part in zip(self.sums, parts):
                     total.narrow(0, a * self.stride + b, size).index_add_(0, first, torch.mul(part, g, out=term))
 
-    def result(self, k: int) -> Tensor:
+    def result(self, k: int, release: bool = False) -> Tensor:
         """Sum ``k`` (0 numerator, 1 denominator, 2 the second denominator) on the grid, (rows, cols)
-        float64."""
+        float64; ``release`` frees the framed sum (no more samples can be added to it)."""
         rows, cols = self.shape
-        return self.sums[k].view(rows + 4, cols + 4)[2:-2, 2:-2].contiguous()
+        out = self.sums[k].view(rows + 4, cols + 4)[2:-2, 2:-2].contiguous()
+        if release:
+            self.sums[k] = None
+        return out
 
 
 # Samples splatted at a time (a band of rows of every frame: the frames overlay the same scene,
@@ -435,7 +438,7 @@ def _blur_pair(num: Tensor, den: Tensor, sigma: float) -> Tensor:
     return out[:, pad:pad + rows, pad:pad + cols]
 
 
-def _fill_holes(num: Tensor, den: Tensor) -> Tensor:
+def _fill_holes(num: Tensor, den: Tensor, in_place: bool = False) -> Tensor:
     """:func:`~hbis_torch.reconstruct.classical.splat.fill_holes` (``num / den``, nodes of little
     weight from the sums blurred wider and wider) of float64 sums, with its blurs of the whole
     image (where the holes are many: the red and blue planes at S = 2 have one sample per node)
@@ -443,7 +446,7 @@ def _fill_holes(num: Tensor, den: Tensor) -> Tensor:
     and the typical weight are found on the float64 sums as there (their values come in few
     distinct sums of the splat's weights, and float32's rounding would tip some across the
     threshold), and the blurred values at the holes differ from float64's by float32's rounding.
-    (rows, cols) float64."""
+    (rows, cols) float64; ``in_place`` writes it over ``num``."""
     import math
 
     from hbis_torch.reconstruct.classical.splat import _blur_at, _holes, typical_weight
@@ -468,7 +471,10 @@ def _fill_holes(num: Tensor, den: Tensor) -> Tensor:
         sigma *= 2
     if len(rows):
         fills.append((rows, cols, num.sum() / den.sum()))
-    image = num / den.clamp_min(1e-12)
+    if in_place and 0.25 * typical >= 1e-12:
+        image = num.div_(den)  # every node below 1e-12 (0/0 among them) is a hole, overwritten below
+    else:
+        image = num / den.clamp_min(1e-12)
     for rows, cols, values in fills:
         image[rows, cols] = values
     return image
@@ -611,52 +617,63 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     F, H, W = values.shape
     positions = _lazy_positions(motions, H, W, local)
     frames = torch.from_numpy(np.ascontiguousarray(values, dtype=np.float32))
-    clipped = np.asarray(clipped, dtype=bool)
-    clipped_t = torch.from_numpy(clipped)
-    unclipped = None if not clipped.any() else torch.from_numpy(~clipped)
+    clipped_t = torch.from_numpy(np.asarray(clipped, dtype=bool))
+    any_clipped = bool(clipped_t.any())
     weights = torch.as_tensor(weights)
     per_sample = tuple(weights.shape) == (F, H, W)
     cell = None if per_sample else weights.to(torch.float32)
 
-    def colour_weights(where, of):
-        """The weights (len(where) F, H / 2, W / 2) float32 of a colour's samples, times ``of``
-        (F, H, W) bool (the unclipped or the clipped samples; None: all)."""
-        parts = [weights[:, dv::2, du::2].to(torch.float32) if per_sample else cell for dv, du in where]
-        if of is not None:
-            parts = [w * of[:, dv::2, du::2] for w, (dv, du) in zip(parts, where)]
-        return torch.cat(parts).contiguous()
+    def colour_weights(where, rows=slice(None), which="kept"):
+        """The weights (len(where) F, r, W / 2) float32 of a colour's samples in a band of rows
+        of its pattern positions' grids: of the unclipped samples (``"kept"``: 0 for clipped
+        ones) or of the clipped ones (``"lost"``)."""
+        parts = []
+        for dv, du in where:
+            w = weights[:, dv::2, du::2][:, rows].to(torch.float32) if per_sample else cell[:, rows]
+            if any_clipped:
+                hit = clipped_t[:, dv::2, du::2][:, rows]
+                w = w * (hit if which == "lost" else hit.logical_not())
+            parts.append(w)
+        return torch.cat(parts) if len(parts) > 1 else parts[0]
+
+    def colour_samples(where, rows=slice(None)):
+        parts = [frames[:, dv::2, du::2][:, rows] for dv, du in where]
+        return torch.cat(parts) if len(parts) > 1 else parts[0]
 
     out = (scale * H, scale * W)
     planes = {}
     sharp = None
     for colour in "GRB":  # green first: red and blue are splatted as differences from it
         where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == colour]
-        kept = colour_weights(where, unclipped)
-        if not bool((kept > 0).any()):  # clipped everywhere: at the clip level
-            planes[colour] = torch.ones(out, dtype=torch.float32)
-            continue
-        data = _colour_samples(frames, where)
         if colour == "G" and deblur:
-            sharp = _sharp_green(data, _PlanePositions(positions, where), kept, scale, kernel_sigma)
-        some_lost = unclipped is not None and any(bool(clipped_t[:, dv::2, du::2].any()) for dv, du in where)
-        lost = colour_weights(where, clipped_t) if some_lost else None
+            kept = colour_weights(where)
+            if bool((kept > 0).any()):
+                sharp = _sharp_green(colour_samples(where).contiguous(), _PlanePositions(positions, where),
+                                     kept.contiguous(), scale, kernel_sigma)
+            del kept
+        some_lost = any_clipped and any(bool(clipped_t[:, dv::2, du::2].any()) for dv, du in where)
         at = _PlanePositions(positions, where, half=False)
         acc = _Splat(out, kernel_sigma, lost=some_lost)
-        count, rows = data.shape[:2]
-        for band in _bands(count, rows, data.shape[2]):
+        any_kept = False
+        for band in _bands(len(where) * F, H // 2, W // 2):  # a band of rows of every frame, its weights and samples
+            kept = colour_weights(where, band)
+            any_kept = any_kept or bool((kept > 0).any())
             where_band = at[:, band]  # (2F or F, r, W / 2, 2)
             x = (where_band[..., 0].reshape(-1) + 0.5).mul_(scale).sub_(0.5)
             y = (where_band[..., 1].reshape(-1) + 0.5).mul_(scale).sub_(0.5)
-            v = data[:, band].reshape(-1)
+            v = colour_samples(where, band).reshape(-1)
             if colour != "G" and differences:
                 v = v - _bilinear(planes["G"], where_band, scale).reshape(-1)
-            acc.add(v, x, y, kept[:, band].reshape(-1), None if lost is None else lost[:, band].reshape(-1))
-            del where_band, x, y, v
-        del data
-        num, den = acc.result(0), acc.result(1)
-        missing = acc.result(2) if some_lost else None
+            lost = colour_weights(where, band, "lost").reshape(-1) if some_lost else None
+            acc.add(v, x, y, kept.reshape(-1), lost)
+            del where_band, x, y, v, kept, lost
+        if not any_kept:  # clipped everywhere: at the clip level
+            planes[colour] = torch.ones(out, dtype=torch.float32)
+            continue
+        num, den = acc.result(0, release=True), acc.result(1, release=True)
+        missing = acc.result(2, release=True) if some_lost else None
         del acc
-        plane = _fill_holes(num, den)
+        plane = _fill_holes(num, den, in_place=True)  # over num's memory
         del num
         if colour != "G" and differences:
             plane += planes["G"]
@@ -664,7 +681,7 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
             # the unclipped samples' share of the splat's weight (holes filled from around them),
             # from the splat of the (few) clipped samples alone
             total = missing.add_(den)
-            share = _fill_holes(den, total)
+            share = _fill_holes(den, total, in_place=True)
             del total, missing
             plane.masked_fill_(share < CLIPPED_SHARE, 1.0)
             del share
