@@ -418,14 +418,15 @@ def _colour_weights(cell_weights: Tensor, unclipped: Tensor | None, where: list[
     return torch.cat(parts).contiguous()
 
 
-def _blur_pair(num: Tensor, den: Tensor, sigma: float) -> Tensor:
-    """:func:`~hbis_torch.reconstruct.classical.splat._gaussian_blur` of ``num`` and ``den``
-    (rows, cols) in one batch of FFTs, in float32: (2, rows, cols) float32."""
+def _blur_pair(*images: Tensor, sigma: float) -> Tensor:
+    """:func:`~hbis_torch.reconstruct.classical.splat._gaussian_blur` of ``images`` (each (rows,
+    cols); ``num`` and ``den``) in one batch of FFTs, in float32: (len(images), rows, cols)
+    float32."""
     import math
 
-    rows, cols = num.shape
+    rows, cols = images[0].shape
     pad = min(math.ceil(4 * sigma), rows - 1, cols - 1)
-    both = torch.stack((num, den)).to(torch.float32)
+    both = torch.stack(images).to(torch.float32)
     p = torch.nn.functional.pad(both[None], (pad, pad, pad, pad), mode="reflect")[0]
     del both
     fy = torch.fft.fftfreq(p.shape[1], dtype=torch.float32)[:, None]
@@ -438,7 +439,7 @@ def _blur_pair(num: Tensor, den: Tensor, sigma: float) -> Tensor:
     return out[:, pad:pad + rows, pad:pad + cols]
 
 
-def _fill_holes(num: Tensor, den: Tensor, in_place: bool = False) -> Tensor:
+def _fill_holes(num: Tensor, den: Tensor, in_place: bool = False, blur=None) -> Tensor:
     """:func:`~hbis_torch.reconstruct.classical.splat.fill_holes` (``num / den``, nodes of little
     weight from the sums blurred wider and wider) of float64 sums, with its blurs of the whole
     image (where the holes are many: the red and blue planes at S = 2 have one sample per node)
@@ -446,7 +447,8 @@ def _fill_holes(num: Tensor, den: Tensor, in_place: bool = False) -> Tensor:
     and the typical weight are found on the float64 sums as there (their values come in few
     distinct sums of the splat's weights, and float32's rounding would tip some across the
     threshold), and the blurred values at the holes differ from float64's by float32's rounding.
-    (rows, cols) float64; ``in_place`` writes it over ``num``."""
+    (rows, cols) float64; ``in_place`` writes it over ``num``; ``blur``: sigma -> the blurred
+    ``num`` and ``den`` (2, rows, cols), where the caller has them (default :func:`_blur_pair`)."""
     import math
 
     from hbis_torch.reconstruct.classical.splat import _blur_at, _holes, typical_weight
@@ -462,7 +464,7 @@ def _fill_holes(num: Tensor, den: Tensor, in_place: bool = False) -> Tensor:
         if len(rows) * taps * taps <= num.numel() // 4:
             n2, d2 = _blur_at(num, sigma, rows, cols), _blur_at(den, sigma, rows, cols)
         else:
-            blurred = _blur_pair(num, den, sigma)
+            blurred = _blur_pair(num, den, sigma=sigma) if blur is None else blur(sigma)
             n2, d2 = blurred[0][rows, cols].to(num.dtype), blurred[1][rows, cols].to(den.dtype)
             del blurred
         ok = d2 >= 0.05 * typical
@@ -673,16 +675,32 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         num, den = acc.result(0, release=True), acc.result(1, release=True)
         missing = acc.result(2, release=True) if some_lost else None
         del acc
-        plane = _fill_holes(num, den, in_place=True)  # over num's memory
+        den_blurs = {}  # den's whole-image blurs, which the clipped share below reads again
+
+        def plane_blur(sigma):
+            blurred = _blur_pair(num, den, sigma=sigma)
+            if missing is not None:
+                den_blurs[sigma] = blurred[1].clone()
+            return blurred
+
+        plane = _fill_holes(num, den, in_place=True, blur=plane_blur)  # over num's memory
         del num
         if colour != "G" and differences:
             plane += planes["G"]
         if missing is not None:
             # the unclipped samples' share of the splat's weight (holes filled from around them),
-            # from the splat of the (few) clipped samples alone
+            # from the splat of the (few) clipped samples alone; where den's blur is known, the
+            # total's is den's plus the clipped samples' (a blur is linear: one FFT, not two)
+            missing_blurs = {sigma: _blur_pair(missing, sigma=sigma)[0] for sigma in den_blurs}
             total = missing.add_(den)
-            share = _fill_holes(den, total, in_place=True)
-            del total, missing
+
+            def share_blur(sigma):
+                if sigma not in den_blurs:
+                    return _blur_pair(den, total, sigma=sigma)
+                return torch.stack((den_blurs[sigma], den_blurs[sigma] + missing_blurs[sigma]))
+
+            share = _fill_holes(den, total, in_place=True, blur=share_blur)
+            del total, missing, den_blurs, missing_blurs
             plane.masked_fill_(share < CLIPPED_SHARE, 1.0)
             del share
         del den
