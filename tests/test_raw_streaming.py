@@ -53,6 +53,11 @@ def test_plane_positions_are_the_whole_array_s_pattern_positions(stack):
         assert torch.allclose(planes[4:9, 3:11], expected[4:9, 3:11], rtol=0, atol=1e-9)  # across the two
         assert torch.allclose(planes[7], expected[7], rtol=0, atol=1e-9)
         assert torch.allclose(planes[:, 5], expected[:, 5], rtol=0, atol=1e-9)
+        # over a whole positions tensor (a caller's), read without writing over it
+        kept = whole.clone()
+        assert torch.allclose(rb._PlanePositions(whole, where, half=half)[4:9, 3:11], expected[4:9, 3:11], rtol=0,
+                              atol=1e-9)
+        assert torch.equal(whole, kept)
 
 
 def test_joint_planes_are_the_splat_of_each_colour_s_samples(stack):

@@ -400,7 +400,8 @@ class _PlanePositions:
                 continue
             full_rows = slice(2 * sub.start + dv, 2 * sub.stop + dv, 2 * sub.step) if len(sub) else slice(0, 0)
             band = self.positions[slice(first - p * self.count, last - p * self.count), full_rows, slice(du, None, 2)]
-            parts.append(band.add_(0.5).div_(2).sub_(0.5) if self.half else band)
+            # (a whole positions tensor gives a view of itself: not written over)
+            parts.append(band.add(0.5).div_(2).sub_(0.5) if self.half else band)
         if not parts:
             return torch.empty((0, len(sub), self.shape[2], 2), dtype=torch.float64)
         return parts[0] if len(parts) == 1 else torch.cat(parts)
