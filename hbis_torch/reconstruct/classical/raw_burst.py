@@ -268,8 +268,8 @@ def _bilinear(image: Tensor, positions: Tensor, scale: int) -> Tensor:
 class _Splat:
     """The classical method's Gaussian splat (:func:`~hbis_torch.reconstruct.classical.splat.splat`:
     each sample onto the 3 x 3 nodes around its nearest, the Gaussian's weight times its own) of
-    samples in any arrangement, added a batch at a time: the numerator and denominator, and
-    with ``lost`` a second denominator (of the clipped samples, :func:`joint_demosaick_sr`).
+    samples in any arrangement, added a batch at a time: the numerator and denominator, or the
+    denominator alone (``count`` 1: the clipped samples' weights, :func:`joint_demosaick_sr`).
 
     The same sums as ``splat``'s in a third of its time: the Gaussian's nine weights are the
     products of three along each axis (in float32; the sums in float64, :data:`SPLAT_DTYPE`), and
@@ -282,19 +282,19 @@ class _Splat:
         The output grid, (S H, S W).
     sigma : float
         The Gaussian, output px (at most 0.6: the 3 x 3 footprint).
-    lost : bool
-        Keep the second denominator.
+    count : int
+        2: the numerator and the denominator; 1: the denominator alone.
     """
 
-    def __init__(self, shape: tuple[int, int], sigma: float, lost: bool = False):
+    def __init__(self, shape: tuple[int, int], sigma: float, count: int = 2):
         rows, cols = shape
         self.shape, self.stride = (rows, cols), cols + 4
         self.c = -1.0 / (2 * sigma * sigma)
-        self.sums = [torch.zeros((rows + 4) * (cols + 4), dtype=SPLAT_DTYPE) for _ in range(3 if lost else 2)]
+        self.sums = [torch.zeros((rows + 4) * (cols + 4), dtype=SPLAT_DTYPE) for _ in range(count)]
 
-    def add(self, values: Tensor, x: Tensor, y: Tensor, weights: Tensor, lost: Tensor | None = None) -> None:
-        """Samples (N,): values and weights, grid coordinates ``x``, ``y`` (node (i, j) at x = j,
-        y = i) float64; ``lost``: the weights of the second denominator."""
+    def add(self, values: Tensor | None, x: Tensor, y: Tensor, weights: Tensor) -> None:
+        """Samples (N,): values (None with ``count`` 1) and weights, grid coordinates ``x``, ``y``
+        (node (i, j) at x = j, y = i) float64."""
         rows, cols = self.shape
         xi, yi = torch.round(x), torch.round(y)
         (x_lo, x_hi), (y_lo, y_hi) = torch.aminmax(xi), torch.aminmax(yi)
@@ -313,9 +313,7 @@ class _Splat:
         first = yi.add_(1).mul_(self.stride).add_(xi.add_(1)).to(torch.int64)
         del xi, yi
         w = weights.to(SPLAT_DTYPE) if near is None else weights.to(SPLAT_DTYPE) * near
-        parts = [values.to(SPLAT_DTYPE) * w, w]
-        if lost is not None:
-            parts.append(lost.to(SPLAT_DTYPE) if near is None else lost.to(SPLAT_DTYPE) * near)
+        parts = [w] if len(self.sums) == 1 else [values.to(SPLAT_DTYPE) * w, w]
         # the node at (xi + d) is d - f from the sample: the Gaussian along each axis
         # (in float32, then in the sums' dtype: a product of two dtypes costs as much as three of one)
         gx = [torch.exp((d - fx).square_().mul_(self.c)).to(SPLAT_DTYPE) for d in (-1.0, 0.0, 1.0)]
@@ -330,8 +328,9 @@ class _Splat:
                     total.narrow(0, a * self.stride + b, size).index_add_(0, first, torch.mul(part, g, out=term))
 
     def result(self, k: int, release: bool = False) -> Tensor:
-        """Sum ``k`` (0 numerator, 1 denominator, 2 the second denominator) on the grid, (rows, cols)
-        float64; ``release`` frees the framed sum (no more samples can be added to it)."""
+        """Sum ``k`` (0 the numerator, 1 the denominator; 0 the denominator with ``count`` 1) on
+        the grid, (rows, cols) float64; ``release`` frees the framed sum (no more samples can be
+        added to it)."""
         rows, cols = self.shape
         out = self.sums[k].view(rows + 4, cols + 4)[2:-2, 2:-2].contiguous()
         if release:
@@ -656,7 +655,9 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
             del kept
         some_lost = any_clipped and any(bool(clipped_t[:, dv::2, du::2].any()) for dv, du in where)
         at = _PlanePositions(positions, where, half=False)
-        acc = _Splat(out, kernel_sigma, lost=some_lost)
+        acc = _Splat(out, kernel_sigma)
+        # the clipped samples' own weights, splatted alone (they are few: a pass over them only)
+        lost_acc = _Splat(out, kernel_sigma, count=1) if some_lost else None
         any_kept = False
         for band in _bands(len(where) * F, H // 2, W // 2):  # a band of rows of every frame, its weights and samples
             kept = colour_weights(where, band)
@@ -667,15 +668,20 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
             v = colour_samples(where, band).reshape(-1)
             if colour != "G" and differences:
                 v = v - _bilinear(planes["G"], where_band, scale).reshape(-1)
-            lost = colour_weights(where, band, "lost").reshape(-1) if some_lost else None
-            acc.add(v, x, y, kept.reshape(-1), lost)
-            del where_band, x, y, v, kept, lost
+            acc.add(v, x, y, kept.reshape(-1))
+            if lost_acc is not None:
+                lost = colour_weights(where, band, "lost").reshape(-1)
+                hit = lost > 0
+                if bool(hit.any()):
+                    lost_acc.add(None, x[hit], y[hit], lost[hit])
+                del lost, hit
+            del where_band, x, y, v, kept
         if not any_kept:  # clipped everywhere: at the clip level
             planes[colour] = torch.ones(out, dtype=torch.float32)
             continue
         num, den = acc.result(0, release=True), acc.result(1, release=True)
-        missing = acc.result(2, release=True) if some_lost else None
-        del acc
+        missing = lost_acc.result(0, release=True) if some_lost else None
+        del acc, lost_acc
         den_blurs = {}  # den's whole-image blurs, which the clipped share below reads again
 
         def plane_blur(sigma):
