@@ -644,7 +644,7 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
 
     out = (scale * H, scale * W)
     planes = {}
-    sharp = None
+    sharp = change = None
     for colour in "GRB":  # green first: red and blue are splatted as differences from it
         where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == colour]
         if colour == "G" and deblur:
@@ -712,14 +712,25 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
             del share
         del den
         planes[colour] = plane
+        if colour == "G":
+            # the sharpened green's change (written over it), which red and blue follow
+            change = None if sharp is None else torch.from_numpy(sharp).sub_(plane)
+            sharp = None
+        else:  # red or blue done: moved with the green, in the output's float32 (half the memory)
+            planes[colour] = _finished(plane, change)
     result = np.empty(out + (3,), dtype=np.float32)
-    change = None if sharp is None else torch.from_numpy(sharp).sub_(planes["G"])  # the sharpened green
     for i, colour in enumerate("RGB"):
         plane = planes.pop(colour)
-        if change is not None:  # red and blue move with the green; a colour at the clip level stays there
-            plane.add_(torch.where(plane >= 1.0, 0.0, change))
-        result[..., i] = plane.clamp_(0, 1).numpy()
+        result[..., i] = (_finished(plane, change) if colour == "G" else plane).numpy()
     return result
+
+
+def _finished(plane: Tensor, change: Tensor | None) -> Tensor:
+    """A colour plane (float64) moved with the sharpened green by ``change`` (the green's
+    sharpening), except where it is at the clip level, and clamped to [0, 1], float32."""
+    if change is not None:  # a colour at the clip level stays there
+        plane.add_(torch.where(plane >= 1.0, 0.0, change))
+    return plane.clamp_(0, 1).to(torch.float32)
 
 
 def raw_inputs(stack) -> dict:
