@@ -447,8 +447,9 @@ def _fill_holes(num: Tensor, den: Tensor, in_place: bool = False, blur=None) -> 
     and the typical weight are found on the float64 sums as there (their values come in few
     distinct sums of the splat's weights, and float32's rounding would tip some across the
     threshold), and the blurred values at the holes differ from float64's by float32's rounding.
-    (rows, cols) float64; ``in_place`` writes it over ``num``; ``blur``: sigma -> the blurred
-    ``num`` and ``den`` (2, rows, cols), where the caller has them (default :func:`_blur_pair`)."""
+    (rows, cols) float64; ``in_place`` writes it over ``num``; ``blur``: (num, den, sigma) -> the
+    blurred ``num`` and ``den`` (2, rows, cols), where the caller has them or keeps them (default
+    :func:`_blur_pair`)."""
     import math
 
     from hbis_torch.reconstruct.classical.splat import _blur_at, _holes, typical_weight
@@ -464,7 +465,7 @@ def _fill_holes(num: Tensor, den: Tensor, in_place: bool = False, blur=None) -> 
         if len(rows) * taps * taps <= num.numel() // 4:
             n2, d2 = _blur_at(num, sigma, rows, cols), _blur_at(den, sigma, rows, cols)
         else:
-            blurred = _blur_pair(num, den, sigma=sigma) if blur is None else blur(sigma)
+            blurred = _blur_pair(num, den, sigma=sigma) if blur is None else blur(num, den, sigma)
             n2, d2 = blurred[0][rows, cols].to(num.dtype), blurred[1][rows, cols].to(den.dtype)
             del blurred
         ok = d2 >= 0.05 * typical
@@ -682,16 +683,17 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         num, den = acc.result(0, release=True), acc.result(1, release=True)
         missing = lost_acc.result(0, release=True) if some_lost else None
         del acc, lost_acc
-        den_blurs = {}  # den's whole-image blurs, which the clipped share below reads again
+        den_blurs: dict = {}  # den's whole-image blurs, which the clipped share below reads again
+        keep = missing is not None
 
-        def plane_blur(sigma):
-            blurred = _blur_pair(num, den, sigma=sigma)
-            if missing is not None:
+        def plane_blur(n, d, sigma):
+            blurred = _blur_pair(n, d, sigma=sigma)
+            if keep:
                 den_blurs[sigma] = blurred[1].clone()
             return blurred
 
         plane = _fill_holes(num, den, in_place=True, blur=plane_blur)  # over num's memory
-        del num
+        del num, plane_blur
         if colour != "G" and differences:
             plane += planes["G"]
         if missing is not None:
@@ -701,13 +703,13 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
             missing_blurs = {sigma: _blur_pair(missing, sigma=sigma)[0] for sigma in den_blurs}
             total = missing.add_(den)
 
-            def share_blur(sigma):
-                if sigma not in den_blurs:
-                    return _blur_pair(den, total, sigma=sigma)
-                return torch.stack((den_blurs[sigma], den_blurs[sigma] + missing_blurs[sigma]))
+            def share_blur(n, d, sigma, known=den_blurs, more=missing_blurs):
+                if sigma not in known:
+                    return _blur_pair(n, d, sigma=sigma)
+                return torch.stack((known[sigma], known[sigma] + more[sigma]))
 
             share = _fill_holes(den, total, in_place=True, blur=share_blur)
-            del total, missing, den_blurs, missing_blurs
+            del total, missing, den_blurs, missing_blurs, share_blur
             plane.masked_fill_(share < CLIPPED_SHARE, 1.0)
             del share
         del den
