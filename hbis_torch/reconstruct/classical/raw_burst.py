@@ -176,23 +176,23 @@ def kernel_for_noise(noise: np.ndarray) -> float:
     return float(SHARP_SIGMA + t * (SMOOTH_SIGMA - SHARP_SIGMA))
 
 
-def _positions(motions: np.ndarray, height: int, width: int, local: dict | None = None) -> Tensor:
+def _lazy_positions(motions: np.ndarray, height: int, width: int, local: dict | None = None):
     """Every pixel (u, v) of every frame moved by its homography, plus the local shifts there
-    (``local``: a stack's ``local_motion``, :mod:`hbis_torch.registration.local`), (F, H, W, 2)
-    float64."""
-    from hbis_torch.registration import apply_homography
+    (``local``: a stack's ``local_motion``, :mod:`hbis_torch.registration.local`), computed where
+    they are read (:class:`~hbis_torch.reconstruct.positions.BurstPositions`: ``[k]`` frame k's
+    (H, W, 2), ``[frames, rows, cols]`` a band's, float64): 16 bytes a sample held whole would be
+    3 GB for 16 frames of 12 MP."""
+    from hbis_torch.reconstruct.positions import BurstPositions
 
-    motions = torch.as_tensor(np.asarray(motions, dtype=np.float64))
-    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
-                          indexing="ij")
-    grid = torch.stack((u, v), -1).reshape(1, -1, 2).expand(motions.shape[0], -1, -1)
-    positions = apply_homography(motions, grid).reshape(motions.shape[0], height, width, 2)
-    if local is not None:
-        from hbis_torch.registration.local import sample_offsets
+    if local is None:
+        return BurstPositions(motions, height, width)
+    offsets = torch.as_tensor(np.asarray(local["offsets"], dtype=np.float64))
+    return BurstPositions(motions, height, width, offsets, int(local["tile_px"]))
 
-        offsets = torch.as_tensor(np.asarray(local["offsets"], dtype=np.float64))
-        positions = positions + sample_offsets(offsets, positions, int(local["tile_px"]))
-    return positions
+
+def _positions(motions: np.ndarray, height: int, width: int, local: dict | None = None) -> Tensor:
+    """:func:`_lazy_positions` held whole, (F, H, W, 2) float64."""
+    return _lazy_positions(motions, height, width, local).whole()
 
 
 def _cell_local(local: dict | None) -> dict | None:
@@ -203,8 +203,11 @@ def _cell_local(local: dict | None) -> dict | None:
 
 
 def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: np.ndarray, reference: int,
-                   balance, noise: np.ndarray, robust: bool = True, local: dict | None = None) -> Tensor:
-    """The robustness weight of every sample (module docstring), (F, H, W) float64.
+                   balance, noise: np.ndarray, robust: bool = True, local: dict | None = None,
+                   cells: bool = False) -> Tensor:
+    """The robustness weight of every sample (module docstring), (F, H, W) float64, or with
+    ``cells`` of every 2 x 2 cell (F, H / 2, W / 2) float32 (the same values: a cell's weight
+    goes to its four samples; a quarter of the memory in float32, an eighth of float64's).
 
     Parameters
     ----------
@@ -221,6 +224,8 @@ def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: n
         False: every trusted sample gets 1 (for comparisons).
     local : dict, optional
         The stack's ``local_motion`` (pixels), if any.
+    cells : bool
+        Return the cells' weights.
     """
     from hbis_torch.capture.raw import cell_luminance
     from hbis_torch.registration.pyramid import to_level
@@ -229,24 +234,253 @@ def sample_weights(values: np.ndarray, cfa: str, motions: np.ndarray, trusted: n
     F, H, W = values.shape
     trusted_t = torch.as_tensor(np.asarray(trusted, dtype=bool))
     if not robust:
+        if cells:
+            return trusted_t[:, None, None].to(torch.float32).expand(F, H // 2, W // 2).clone()
         return trusted_t[:, None, None].to(torch.float64).expand(F, H, W).clone()
-    grey = stabilise(cell_luminance(values, cfa, balance), noise, balance)
-    cells = _positions(to_level(motions, 1), H // 2, W // 2, _cell_local(local))
-    weights = robustness_weights(torch.from_numpy(grey), cells, trusted_t, reference)
-    return weights.repeat_interleave(2, 1).repeat_interleave(2, 2)
+    grey = np.empty((F, H // 2, W // 2), dtype=np.float32)
+    for k in range(F):  # a frame at a time: the transform's float64 temporaries stay a frame's
+        grey[k] = stabilise(cell_luminance(values[k:k + 1], cfa, balance), noise, balance)[0]
+    cell_positions = _lazy_positions(to_level(motions, 1), H // 2, W // 2, _cell_local(local))
+    weights = robustness_weights(torch.from_numpy(grey), cell_positions, trusted_t, reference)
+    if cells:
+        return weights
+    return weights.double().repeat_interleave(2, 1).repeat_interleave(2, 2)
 
 
-def _bilinear(image: np.ndarray, positions: Tensor, scale: int) -> Tensor:
+def _bilinear(image: Tensor, positions: Tensor, scale: int) -> Tensor:
     """Values of an output-grid image (S H, S W) at sample positions (..., 2) in reference LR px
-    (bilinear, border-clamped), float64."""
+    (bilinear, border-clamped, as ``grid_sample`` with ``align_corners`` and border padding), in
+    the image's dtype: the coordinates in float64, the four values gathered and blended (no
+    copy of the image, which at S = 2 of 12 MP frames is 48 million values)."""
     rows, cols = image.shape
-    x = (positions[..., 0] + 0.5) * scale - 0.5
-    y = (positions[..., 1] + 0.5) * scale - 0.5
-    grid = torch.stack((2 * x / max(cols - 1, 1) - 1, 2 * y / max(rows - 1, 1) - 1), -1).reshape(1, -1, 1, 2)
-    out = torch.nn.functional.grid_sample(torch.from_numpy(np.ascontiguousarray(image, dtype=np.float64))[None, None],
-                                          grid.to(torch.float64), mode="bilinear", padding_mode="border",
-                                          align_corners=True)
-    return out.reshape(positions.shape[:-1])
+    flat = image.reshape(-1)
+    x = ((positions[..., 0] + 0.5) * scale - 0.5).clamp_(0, cols - 1)
+    y = ((positions[..., 1] + 0.5) * scale - 0.5).clamp_(0, rows - 1)
+    x0, y0 = x.floor().clamp_(max=max(cols - 2, 0)), y.floor().clamp_(max=max(rows - 2, 0))
+    fx, fy = (x - x0).to(image.dtype), (y - y0).to(image.dtype)
+    i00 = (y0 * cols + x0).to(torch.int64)
+    step_x, step_y = int(cols > 1), cols * int(rows > 1)
+    top = torch.lerp(flat[i00], flat[i00 + step_x], fx)
+    bottom = torch.lerp(flat[i00 + step_y], flat[i00 + step_y + step_x], fx)
+    return torch.lerp(top, bottom, fy)
+
+
+class _Splat:
+    """The classical method's Gaussian splat (:func:`~hbis_torch.reconstruct.classical.splat.splat`:
+    each sample onto the 3 x 3 nodes around its nearest, the Gaussian's weight times its own) of
+    samples in any arrangement, added a batch at a time: the numerator and denominator, or the
+    denominator alone (``count`` 1: the clipped samples' weights, :func:`joint_demosaick_sr`).
+
+    The same sums as ``splat``'s in a third of its time: the Gaussian's nine weights are the
+    products of three along each axis (in float32; the sums in float64, :data:`SPLAT_DTYPE`), and
+    the sums have a frame of two nodes around the grid, where the taps beyond it land (no test
+    per tap).
+
+    Parameters
+    ----------
+    shape : (rows, cols)
+        The output grid, (S H, S W).
+    sigma : float
+        The Gaussian, output px (at most 0.6: the 3 x 3 footprint).
+    count : int
+        2: the numerator and the denominator; 1: the denominator alone.
+    """
+
+    def __init__(self, shape: tuple[int, int], sigma: float, count: int = 2):
+        rows, cols = shape
+        self.shape, self.stride = (rows, cols), cols + 4
+        self.c = -1.0 / (2 * sigma * sigma)
+        self.sums = [torch.zeros((rows + 4) * (cols + 4), dtype=SPLAT_DTYPE) for _ in range(count)]
+
+    def add(self, values: Tensor | None, x: Tensor, y: Tensor, weights: Tensor) -> None:
+        """Samples (N,): values (None with ``count`` 1) and weights, grid coordinates ``x``, ``y``
+        (node (i, j) at x = j, y = i) float64."""
+        rows, cols = self.shape
+        xi, yi = torch.round(x), torch.round(y)
+        (x_lo, x_hi), (y_lo, y_hi) = torch.aminmax(xi), torch.aminmax(yi)
+        # samples whose nearest node is two or more beyond the grid reach no node of it (where
+        # there are any, or non-finite positions, they are masked: weight 0, at the frame)
+        near = None
+        if not (x_lo >= -1 and x_hi <= cols and y_lo >= -1 and y_hi <= rows):
+            near = (xi >= -1) & (xi <= cols) & (yi >= -1) & (yi <= rows)
+        fx, fy = (x - xi).to(torch.float32), (y - yi).to(torch.float32)
+        if near is not None:
+            fx.masked_fill_(~near, 0.0)
+            fy.masked_fill_(~near, 0.0)
+            xi, yi = xi.nan_to_num_(0).clamp_(-1, cols), yi.nan_to_num_(0).clamp_(-1, rows)
+        # the flat index of the node up and left of the nearest (the first tap): each tap adds
+        # at the same index into the sums seen from its own offset (a view), no index per tap
+        first = yi.add_(1).mul_(self.stride).add_(xi.add_(1)).to(torch.int64)
+        del xi, yi
+        w = weights.to(SPLAT_DTYPE) if near is None else weights.to(SPLAT_DTYPE) * near
+        parts = [w] if len(self.sums) == 1 else [values.to(SPLAT_DTYPE) * w, w]
+        # the node at (xi + d) is d - f from the sample: the Gaussian along each axis
+        # (in float32, then in the sums' dtype: a product of two dtypes costs as much as three of one)
+        gx = [torch.exp((d - fx).square_().mul_(self.c)).to(SPLAT_DTYPE) for d in (-1.0, 0.0, 1.0)]
+        gy = [torch.exp((d - fy).square_().mul_(self.c)).to(SPLAT_DTYPE) for d in (-1.0, 0.0, 1.0)]
+        size = len(self.sums[0]) - 2 * self.stride - 2
+        g = torch.empty_like(gx[0])
+        term = torch.empty_like(gx[0])
+        for a in range(3):
+            for b in range(3):
+                torch.mul(gy[a], gx[b], out=g)
+                for total, part in zip(self.sums, parts):
+                    total.narrow(0, a * self.stride + b, size).index_add_(0, first, torch.mul(part, g, out=term))
+
+    def result(self, k: int, release: bool = False) -> Tensor:
+        """Sum ``k`` (0 the numerator, 1 the denominator; 0 the denominator with ``count`` 1) on
+        the grid, (rows, cols) float64; ``release`` frees the framed sum (no more samples can be
+        added to it)."""
+        rows, cols = self.shape
+        out = self.sums[k].view(rows + 4, cols + 4)[2:-2, 2:-2].contiguous()
+        if release:
+            self.sums[k] = None
+        return out
+
+
+# Samples splatted at a time (a band of rows of every frame: the frames overlay the same scene,
+# so a band's scatter-adds meet the same few rows of the output grid). The green of a 2000 x 1500
+# burst of 16 frames at S = 2, positions and splat: 4.6-4.9 s CPU in bands of 2^20 samples,
+# 3.3-3.4 s of 2^18, 3.4-3.6 s of 2^17, 3.8 s of 2^16 (the splat alone kept falling; the
+# positions' calls cost more).
+BAND_SAMPLES = 1 << 18
+# The splat's sums: float64, as splat.splat's. In float32 (a quarter less time) a few nodes of a
+# 1024 x 768 burst at S = 2 crossed fill_holes' threshold the other way (6 of 9.4 million output
+# values moved, by up to 0.006).
+SPLAT_DTYPE = torch.float64
+
+
+def _bands(frames: int, rows: int, cols: int) -> list[slice]:
+    """Slices of rows of a colour plane (rows, cols) whose band of every frame holds about
+    :data:`BAND_SAMPLES` samples."""
+    step = max(1, BAND_SAMPLES // max(frames * cols, 1))
+    return [slice(r, min(r + step, rows)) for r in range(0, rows, step)]
+
+
+class _PlanePositions:
+    """The positions of the samples at some pattern positions (a colour's), each pattern
+    position's a grid of half the frames' size (pitch 2 px), computed where read from the
+    bursts' (:func:`_lazy_positions`): frame ``p F + k`` is frame k's samples at pattern
+    position ``where[p]``. ``half``: in the half-size grid's pixels (``(x + 0.5) / 2 - 0.5``),
+    as :func:`sharp_green` hands them to the burst path; else in the reference's px.
+
+    Indexed as :class:`~hbis_torch.reconstruct.positions.BurstPositions`: ``[j]`` (h, w, 2),
+    ``[frames, rows]`` (f, r, w, 2), float64, slices with step 1 for the frames.
+    """
+
+    dtype = torch.float64
+    computed_where_read = True
+
+    def __init__(self, positions, where: list[tuple[int, int]], half: bool = True):
+        F, H, W, _ = positions.shape
+        self.positions, self.where, self.count, self.half = positions, where, F, half
+        self.shape = (len(where) * F, H // 2, W // 2, 2)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, index) -> Tensor:
+        index = index if isinstance(index, tuple) else (index,)
+        if len(index) > 2:
+            raise TypeError("_PlanePositions takes up to two indices (frames, rows)")
+        frames, rows = (index + (slice(None),))[:2]
+        if not isinstance(frames, slice):
+            return self[slice(int(frames), int(frames) + 1), rows][0]
+        if not isinstance(rows, slice):
+            return self[frames, slice(int(rows), int(rows) + 1)][:, 0]
+        picked = range(self.shape[0])[frames]
+        sub = range(self.shape[1])[rows]
+        if picked.step != 1:
+            raise TypeError("_PlanePositions takes frames with a step of 1")
+        parts = []
+        for p, (dv, du) in enumerate(self.where):
+            first, last = max(picked.start, p * self.count), min(picked.stop, (p + 1) * self.count)
+            if first >= last:
+                continue
+            full_rows = slice(2 * sub.start + dv, 2 * sub.stop + dv, 2 * sub.step) if len(sub) else slice(0, 0)
+            band = self.positions[slice(first - p * self.count, last - p * self.count), full_rows, slice(du, None, 2)]
+            # (a whole positions tensor gives a view of itself: not written over)
+            parts.append(band.add(0.5).div_(2).sub_(0.5) if self.half else band)
+        if not parts:
+            return torch.empty((0, len(sub), self.shape[2], 2), dtype=torch.float64)
+        return parts[0] if len(parts) == 1 else torch.cat(parts)
+
+
+def _colour_samples(frames: Tensor, where: list[tuple[int, int]]) -> Tensor:
+    """A colour's samples of every frame, (len(where) F, H / 2, W / 2): frame ``p F + k`` is frame
+    k's at pattern position ``where[p]``."""
+    return torch.cat([frames[:, dv::2, du::2] for dv, du in where]).contiguous()
+
+
+def _colour_weights(cell_weights: Tensor, unclipped: Tensor | None, where: list[tuple[int, int]]) -> Tensor:
+    """:func:`_colour_samples`' weights: the cells' (F, H / 2, W / 2), 0 for clipped samples."""
+    parts = [cell_weights if unclipped is None else cell_weights * unclipped[:, dv::2, du::2] for dv, du in where]
+    return torch.cat(parts).contiguous()
+
+
+def _blur_pair(*images: Tensor, sigma: float) -> Tensor:
+    """:func:`~hbis_torch.reconstruct.classical.splat._gaussian_blur` of ``images`` (each (rows,
+    cols); ``num`` and ``den``) in one batch of FFTs, in float32: (len(images), rows, cols)
+    float32."""
+    import math
+
+    rows, cols = images[0].shape
+    pad = min(math.ceil(4 * sigma), rows - 1, cols - 1)
+    both = torch.stack(images).to(torch.float32)
+    p = torch.nn.functional.pad(both[None], (pad, pad, pad, pad), mode="reflect")[0]
+    del both
+    fy = torch.fft.fftfreq(p.shape[1], dtype=torch.float32)[:, None]
+    fx = torch.fft.rfftfreq(p.shape[2], dtype=torch.float32)[None, :]
+    g = torch.exp((fx * fx + fy * fy).mul_(-2 * math.pi ** 2 * sigma ** 2))
+    spectrum = torch.fft.rfft2(p)
+    shape = p.shape[1:]
+    del p
+    out = torch.fft.irfft2(spectrum.mul_(g), s=shape)
+    return out[:, pad:pad + rows, pad:pad + cols]
+
+
+def _fill_holes(num: Tensor, den: Tensor, in_place: bool = False, blur=None) -> Tensor:
+    """:func:`~hbis_torch.reconstruct.classical.splat.fill_holes` (``num / den``, nodes of little
+    weight from the sums blurred wider and wider) of float64 sums, with its blurs of the whole
+    image (where the holes are many: the red and blue planes at S = 2 have one sample per node)
+    in float32 and both sums in one batch (:func:`_blur_pair`): two thirds of the time. The holes
+    and the typical weight are found on the float64 sums as there (their values come in few
+    distinct sums of the splat's weights, and float32's rounding would tip some across the
+    threshold), and the blurred values at the holes differ from float64's by float32's rounding.
+    (rows, cols) float64; ``in_place`` writes it over ``num``; ``blur``: (num, den, sigma) -> the
+    blurred ``num`` and ``den`` (2, rows, cols), where the caller has them or keeps them (default
+    :func:`_blur_pair`)."""
+    import math
+
+    from hbis_torch.reconstruct.classical.splat import _blur_at, _holes, typical_weight
+
+    typical = typical_weight(den)
+    if typical == 0.0:
+        raise HbisInputError("no sample falls on the output grid")
+    rows, cols = _holes(den, 0.25 * typical)
+    fills = []
+    sigma = 1.0
+    while len(rows) and sigma <= 64:
+        taps = 2 * math.ceil(4 * sigma) + 1
+        if len(rows) * taps * taps <= num.numel() // 4:
+            n2, d2 = _blur_at(num, sigma, rows, cols), _blur_at(den, sigma, rows, cols)
+        else:
+            blurred = _blur_pair(num, den, sigma=sigma) if blur is None else blur(num, den, sigma)
+            n2, d2 = blurred[0][rows, cols].to(num.dtype), blurred[1][rows, cols].to(den.dtype)
+            del blurred
+        ok = d2 >= 0.05 * typical
+        fills.append((rows[ok], cols[ok], n2[ok] / d2[ok].clamp_min(1e-12)))
+        rows, cols = rows[~ok], cols[~ok]
+        sigma *= 2
+    if len(rows):
+        fills.append((rows, cols, num.sum() / den.sum()))
+    if in_place and 0.25 * typical >= 1e-12:
+        image = num.div_(den)  # every node below 1e-12 (0/0 among them) is a hole, overwritten below
+    else:
+        image = num / den.clamp_min(1e-12)
+    for rows, cols, values in fills:
+        image[rows, cols] = values
+    return image
 
 
 def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, shape: tuple, sigma: float,
@@ -255,7 +489,7 @@ def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, 
     and hole filling (:func:`~hbis_torch.reconstruct.classical.splat.splat`,
     :func:`~hbis_torch.reconstruct.classical.splat.fill_holes`: what
     :func:`~hbis_torch.reconstruct.classical.classical_sr` does without its Wiener step), on
-    samples in any arrangement, values not clamped.
+    samples in any arrangement, values not clamped (:class:`_Splat`).
 
     Parameters
     ----------
@@ -263,7 +497,7 @@ def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, 
     positions : Tensor, shape (N, 2), float64
         (u, v) in reference LR px.
     weights : Tensor, shape (N,)
-        0 leaves a sample out (it is not splatted at all).
+        0 leaves a sample out (it adds nothing).
     scale : int
     shape : (rows, cols)
         The output grid, (S H, S W).
@@ -278,27 +512,21 @@ def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, 
     -------
     np.ndarray, shape (rows, cols), float64
     """
-    from hbis_torch.reconstruct.classical.splat import fill_holes, splat
-
-    keep = weights > 0
-    values, positions, weights = values[keep], positions[keep], weights[keep].to(torch.float64)
-    num = den = 0
+    acc = _Splat(shape, sigma)
     for start in range(0, len(values), batch):
         part = slice(start, start + batch)
-        x = (positions[part, 0] + 0.5) * scale - 0.5
-        y = (positions[part, 1] + 0.5) * scale - 0.5
-        n, d = splat(values[part].to(torch.float64), x, y, shape, sigma, weights[part])
-        num, den = num + n, den + d
-    if isinstance(num, int):
-        if sums:
-            return torch.zeros(shape, dtype=torch.float64), torch.zeros(shape, dtype=torch.float64)
-        raise HbisInputError("no sample falls on the output grid")
+        x = (positions[part, 0].to(torch.float64) + 0.5) * scale - 0.5
+        y = (positions[part, 1].to(torch.float64) + 0.5) * scale - 0.5
+        acc.add(values[part].to(torch.float32), x, y, weights[part].to(torch.float32))
+    num, den = acc.result(0), acc.result(1)
     if sums:
         return num, den
-    return fill_holes(num, den).numpy()
+    if not bool((den > 0).any()):
+        raise HbisInputError("no sample falls on the output grid")
+    return _fill_holes(num, den).numpy()
 
 
-def sharp_green(values: Tensor, positions: Tensor, weights: Tensor, cfa: str, scale: int,
+def sharp_green(values: Tensor, positions, weights: Tensor, cfa: str, scale: int,
                 kernel_sigma: float) -> np.ndarray | None:
     """The green plane through the classical burst path with its Wiener deblurring
     (:func:`~hbis_torch.reconstruct.classical.burst.burst_sr`), or None where the green samples
@@ -308,34 +536,44 @@ def sharp_green(values: Tensor, positions: Tensor, weights: Tensor, cfa: str, sc
     The green samples of each pattern position form a grid of half the frames' size, pitch 2 px:
     they go to ``burst_sr`` as frames of that grid (positions in its pixels, scale 2 S, so that
     its output is the S-times grid of the full frames), with a fill factor of 1/4 (the pixel is
-    1 px of the 2 px pitch).
+    1 px of the 2 px pitch). Their positions are computed a band at a time where the burst path
+    reads them (:class:`_PlanePositions`).
 
     Parameters
     ----------
     values : Tensor, shape (F, H, W), float32
-    positions : Tensor, shape (F, H, W, 2), float64
+    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
         Full-resolution reference px.
-    weights : Tensor, shape (F, H, W), float64
-        Already 0 for clipped samples.
+    weights : Tensor, shape (F, H, W) or, per 2 x 2 cell, (F, H / 2, W / 2)
+        Already 0 for clipped samples where per sample; per cell, clipped samples are not told
+        apart (:func:`joint_demosaick_sr` passes the green's own weights instead).
     cfa : str
     scale : int
     kernel_sigma : float
 
     Returns
     -------
-    np.ndarray, shape (S H, S W), float64, or None
+    np.ndarray, shape (S H, S W), float32, or None
     """
+    F, H, W = values.shape
+    where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == "G"]
+    if tuple(weights.shape[1:]) == (H, W):
+        w = torch.cat([weights[:, dv::2, du::2] for dv, du in where]).to(torch.float32).contiguous()
+    else:
+        w = _colour_weights(weights.to(torch.float32), None, where)
+    return _sharp_green(_colour_samples(values, where), _PlanePositions(positions, where), w, scale, kernel_sigma)
+
+
+def _sharp_green(data: Tensor, half, w: Tensor, scale: int, kernel_sigma: float) -> np.ndarray | None:
+    """:func:`sharp_green` of the green samples ``data`` (2 F, H / 2, W / 2) float32, their
+    :class:`_PlanePositions` and weights (float32, 0 for clipped samples)."""
     from hbis_torch.reconstruct.classical.burst import burst_sr
 
-    where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == "G"]
-    F, H, W = values.shape
-    w = torch.cat([weights[:, dv::2, du::2] for dv, du in where])
-    if float((w > 0.5).sum()) < DEBLUR_SAMPLES_PER_NODE * scale * scale * H * W:
+    _, h, w_ = data.shape
+    if float((w > 0.5).sum()) < DEBLUR_SAMPLES_PER_NODE * scale * scale * 4 * h * w_:
         return None
-    data = torch.cat([values[:, dv::2, du::2] for dv, du in where]).contiguous()
-    half = (torch.cat([positions[:, dv::2, du::2] for dv, du in where]) + 0.5) / 2 - 0.5
-    return burst_sr(data, half.contiguous(), 2 * scale, w.contiguous(), True, fill_factor=0.25,
-                    kernel_sigma=min(max(kernel_sigma, 0.2), 0.6)).numpy().astype(np.float64)
+    return burst_sr(data, half, 2 * scale, w, True, fill_factor=0.25,
+                    kernel_sigma=min(max(kernel_sigma, 0.2), 0.6)).numpy()
 
 
 def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motions: np.ndarray, scale: int,
@@ -347,6 +585,11 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     splat of their samples' differences from green at their own positions (the difference of
     colours is smoother than either, so the splat blurs less of it); without, each plane alone.
 
+    No array of every sample's position is made: the positions are computed a band of rows at
+    a time where they are read (:func:`_lazy_positions`), and the weights are the cells'
+    (``weights`` (F, H / 2, W / 2)), so that 16 frames of 12 MP fit in memory as [handheld]'s
+    grey path's do.
+
     Parameters
     ----------
     values : np.ndarray, shape (F, H, W), float32
@@ -357,8 +600,9 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         Frame px -> reference px.
     scale : int
         S (1: a burst demosaick).
-    weights : Tensor, shape (F, H, W), float64
-        Per-sample weights in [0, 1] (:func:`sample_weights`).
+    weights : Tensor, shape (F, H, W) or (F, H / 2, W / 2)
+        Per-sample weights in [0, 1] (:func:`sample_weights`), or per 2 x 2 cell (its four
+        samples' weight: ``sample_weights(..., cells=True)``).
     kernel_sigma : float
         The splat Gaussian, output px (0.2 to 0.6).
     differences : bool
@@ -373,49 +617,122 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     np.ndarray, shape (S H, S W, 3), float32 in [0, 1]
         Camera RGB, linear; 1 at the clip level.
     """
-    from hbis_torch.reconstruct.classical.splat import fill_holes
-
     F, H, W = values.shape
-    positions = _positions(motions, H, W, local)
+    positions = _lazy_positions(motions, H, W, local)
     frames = torch.from_numpy(np.ascontiguousarray(values, dtype=np.float32))
-    unclipped = torch.from_numpy(~np.asarray(clipped, dtype=bool))
-    weights = torch.as_tensor(weights, dtype=torch.float64)
+    clipped_t = torch.from_numpy(np.asarray(clipped, dtype=bool))
+    any_clipped = bool(clipped_t.any())
+    weights = torch.as_tensor(weights)
+    per_sample = tuple(weights.shape) == (F, H, W)
+    cell = None if per_sample else weights.to(torch.float32)
+
+    def colour_weights(where, rows=slice(None), which="kept"):
+        """The weights (len(where) F, r, W / 2) float32 of a colour's samples in a band of rows
+        of its pattern positions' grids: of the unclipped samples (``"kept"``: 0 for clipped
+        ones) or of the clipped ones (``"lost"``)."""
+        parts = []
+        for dv, du in where:
+            w = weights[:, dv::2, du::2][:, rows].to(torch.float32) if per_sample else cell[:, rows]
+            if any_clipped:
+                hit = clipped_t[:, dv::2, du::2][:, rows]
+                w = w * (hit if which == "lost" else hit.logical_not())
+            parts.append(w)
+        return torch.cat(parts) if len(parts) > 1 else parts[0]
+
+    def colour_samples(where, rows=slice(None)):
+        parts = [frames[:, dv::2, du::2][:, rows] for dv, du in where]
+        return torch.cat(parts) if len(parts) > 1 else parts[0]
+
     out = (scale * H, scale * W)
-
-    def samples(colour, *arrays):
-        """One colour's samples only, flattened: the splat touches a quarter (red, blue) or half
-        (green) of the burst."""
-        where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == colour]
-        return [torch.cat([a[:, dv::2, du::2].reshape(-1, *a.shape[3:]) for dv, du in where]) for a in arrays]
-
     planes = {}
-    sharp = None
-    if deblur:
-        sharp = sharp_green(frames, positions, weights * unclipped, cfa, scale, kernel_sigma)
+    sharp = change = None
     for colour in "GRB":  # green first: red and blue are splatted as differences from it
-        data, where, w, ok = samples(colour, frames, positions, weights, unclipped)
-        kept = w * ok
-        if not bool((kept > 0).any()):  # clipped everywhere: at the clip level
-            planes[colour] = np.ones(out)
+        where = [(k // 2, k % 2) for k, c in enumerate(cfa) if c == colour]
+        if colour == "G" and deblur:
+            kept = colour_weights(where)
+            if bool((kept > 0).any()):
+                sharp = _sharp_green(colour_samples(where).contiguous(), _PlanePositions(positions, where),
+                                     kept.contiguous(), scale, kernel_sigma)
+            del kept
+        some_lost = any_clipped and any(bool(clipped_t[:, dv::2, du::2].any()) for dv, du in where)
+        at = _PlanePositions(positions, where, half=False)
+        acc = _Splat(out, kernel_sigma)
+        # the clipped samples' own weights, splatted alone (they are few: a pass over them only)
+        lost_acc = _Splat(out, kernel_sigma, count=1) if some_lost else None
+        any_kept = False
+        for band in _bands(len(where) * F, H // 2, W // 2):  # a band of rows of every frame, its weights and samples
+            kept = colour_weights(where, band)
+            any_kept = any_kept or bool((kept > 0).any())
+            where_band = at[:, band]  # (2F or F, r, W / 2, 2)
+            x = (where_band[..., 0].reshape(-1) + 0.5).mul_(scale).sub_(0.5)
+            y = (where_band[..., 1].reshape(-1) + 0.5).mul_(scale).sub_(0.5)
+            v = colour_samples(where, band).reshape(-1)
+            if colour != "G" and differences:
+                v = v - _bilinear(planes["G"], where_band, scale).reshape(-1)
+            acc.add(v, x, y, kept.reshape(-1))
+            if lost_acc is not None:
+                lost = colour_weights(where, band, "lost").reshape(-1)
+                hit = lost > 0
+                if bool(hit.any()):
+                    lost_acc.add(None, x[hit], y[hit], lost[hit])
+                del lost, hit
+            del where_band, x, y, v, kept
+        if not any_kept:  # clipped everywhere: at the clip level
+            planes[colour] = torch.ones(out, dtype=torch.float32)
             continue
+        num, den = acc.result(0, release=True), acc.result(1, release=True)
+        missing = lost_acc.result(0, release=True) if some_lost else None
+        del acc, lost_acc
+        den_blurs: dict = {}  # den's whole-image blurs, which the clipped share below reads again
+        keep = missing is not None
+
+        def plane_blur(n, d, sigma):
+            blurred = _blur_pair(n, d, sigma=sigma)
+            if keep:
+                den_blurs[sigma] = blurred[1].clone()
+            return blurred
+
+        plane = _fill_holes(num, den, in_place=True, blur=plane_blur)  # over num's memory
+        del num, plane_blur
         if colour != "G" and differences:
-            data = data - _bilinear(planes["G"], where, scale).to(torch.float32)
-        num, den = splat_plane(data, where, kept, scale, out, kernel_sigma, sums=True)
-        planes[colour] = fill_holes(num, den).numpy()
-        if colour != "G" and differences:
-            planes[colour] = planes[colour] + planes["G"]
-        if not bool(ok.all()):
+            plane += planes["G"]
+        if missing is not None:
             # the unclipped samples' share of the splat's weight (holes filled from around them),
-            # from a second splat of the (few) clipped samples alone
-            _, lost = splat_plane(torch.ones(len(ok)), where, w * ~ok, scale, out, kernel_sigma, sums=True)
-            share = fill_holes(den, den + lost).numpy()
-            planes[colour] = np.where(share < CLIPPED_SHARE, 1.0, planes[colour])
-    if sharp is not None:  # the sharpened green, and red and blue moved with it
-        change = sharp - planes["G"]
-        for colour in "RGB":  # a colour at the clip level stays there
-            planes[colour] = np.where(planes[colour] >= 1.0, planes[colour], planes[colour] + change)
-    planes = [planes[c] for c in "RGB"]
-    return np.clip(np.stack(planes, -1), 0, 1).astype(np.float32)
+            # from the splat of the (few) clipped samples alone; where den's blur is known, the
+            # total's is den's plus the clipped samples' (a blur is linear: one FFT, not two)
+            missing_blurs = {sigma: _blur_pair(missing, sigma=sigma)[0] for sigma in den_blurs}
+            total = missing.add_(den)
+
+            def share_blur(n, d, sigma, known=den_blurs, more=missing_blurs):
+                if sigma not in known:
+                    return _blur_pair(n, d, sigma=sigma)
+                return torch.stack((known[sigma], known[sigma] + more[sigma]))
+
+            share = _fill_holes(den, total, in_place=True, blur=share_blur)
+            del total, missing, den_blurs, missing_blurs, share_blur
+            plane.masked_fill_(share < CLIPPED_SHARE, 1.0)
+            del share
+        del den
+        planes[colour] = plane
+        if colour == "G":
+            # the sharpened green's change (written over it), which red and blue follow
+            change = None if sharp is None else torch.from_numpy(sharp).sub_(plane)
+            sharp = None
+        else:  # red or blue done: moved with the green, in the output's float32 (half the memory)
+            planes[colour] = _finished(plane, change)
+    result = np.empty(out + (3,), dtype=np.float32)
+    for i, colour in enumerate("RGB"):
+        plane = planes.pop(colour)
+        result[..., i] = (_finished(plane, change) if colour == "G" else plane).numpy()
+    return result
+
+
+def _finished(plane: Tensor, change: Tensor | None) -> Tensor:
+    """A colour plane (float64) moved with the sharpened green by ``change`` (the green's
+    sharpening), except where it is at the clip level, and clamped to [0, 1], float32."""
+    if change is not None:  # a colour at the clip level stays there
+        plane.add_(torch.where(plane >= 1.0, 0.0, change))
+    return plane.clamp_(0, 1).to(torch.float32)
 
 
 def raw_inputs(stack) -> dict:
@@ -436,7 +753,8 @@ def raw_inputs(stack) -> dict:
         per_colour = np.array([1.0 / balance["RGB".index(c)] for c in cfa], dtype=np.float64).reshape(2, 2)
         H, W = values.shape[1:]
         tile = np.tile(per_colour, ((H + 1) // 2, (W + 1) // 2))[:H, :W]
-        values = (go[:, 0, None, None] * values + go[:, 1, None, None] * top * tile[None]).astype(np.float32)
+        for k in range(len(values)):  # in place, a frame at a time (in float64, as the whole burst was)
+            values[k] = go[k, 0] * values[k] + go[k, 1] * top * tile
     if raw.get("noise_profile") is not None:
         noise, source = np.asarray(raw["noise_profile"], dtype=np.float64), "the DNG noise profile"
     else:
@@ -508,7 +826,8 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
         notes.append(f"{100 * share:.2f} % of the samples are clipped: left out of their colour, which is set to "
                      "the clip level where only clipped samples remain")
     weights = sample_weights(inputs["values"], inputs["cfa"], inputs["motions"], inputs["trusted"],
-                             inputs["reference"], inputs["balance"], inputs["noise"], robust, inputs["local"])
+                             inputs["reference"], inputs["balance"], inputs["noise"], robust, inputs["local"],
+                             cells=True)
     if kernel_sigma is None:
         kernel_sigma = kernel_for_noise(inputs["noise"])
     return joint_demosaick_sr(inputs["values"], inputs["clipped"], inputs["cfa"], inputs["motions"], stack.h,
