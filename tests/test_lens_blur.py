@@ -128,3 +128,17 @@ def test_psf_sigma_takes_auto_or_a_number(tmp_path, capsys, value, accepted):
     err = capsys.readouterr().err
     assert code == 2
     assert ("no such file" in err) == accepted and ("--psf-sigma" in err) != accepted, err
+
+
+@pytest.mark.parametrize("sharpest, sigma, agreement, said", [
+    (0.3, 0.28, 1.0, "undoing sigma 0.28"),
+    (0.3, 0.2, 0.7, "agree only loosely"),
+    (0.6, 0.3, 1.0, "so soft that it may be the scene's own; undoing a share, sigma 0.30"),
+    (0.05, 0.0, 1.0, "within the scene's own margin"),
+    (0.85, 0.0, 1.0, "softer than any focused lens"),
+])
+def test_the_line_says_how_much_of_the_lens_is_undone_and_why(sharpest, sigma, agreement, said):
+    from hbis_torch.reconstruct.lens_blur import LensEstimate
+
+    line = LensEstimate(sharpest, sigma, 8, 40, np.linspace(0.1, 1, 40), 80, agreement).describe()
+    assert line.startswith("lens blur: ") and said in line, line

@@ -121,13 +121,14 @@ class LensEstimate(NamedTuple):
         if self.agreement < 1:
             found = (f"the sharpest {self.group} of {self.edges} straight edges agree only loosely on sigma "
                      f"{self.sharpest:.2f} LR px")
+        if self.sigma == 0 and self.sharpest < MAX_TRUSTED:
+            return f"lens blur: {found}, within the scene's own margin ({SCENE_MARGIN} LR px); none undone"
         if self.sharpest >= MAX_TRUSTED:
             return (f"lens blur: not undone: {found}, softer than any focused lens (a scene without sharp "
                     "edges, or a lens out of focus); set one with --psf-sigma")
         if self.sharpest > FULL_TRUST or self.agreement < 1:
-            why = "so soft that it may be the scene's own" if self.sharpest > FULL_TRUST else "it may be the scene's own"
-            return (f"lens blur: {found}, {why}; undoing only sigma {self.sigma:.2f} LR px "
-                    "(--psf-sigma sets it)")
+            soft = ", so soft that it may be the scene's own" if self.sharpest > FULL_TRUST else ""
+            return f"lens blur: {found}{soft}; undoing a share, sigma {self.sigma:.2f} LR px (--psf-sigma sets it)"
         return f"lens blur: {found}; undoing sigma {self.sigma:.2f} LR px (--psf-sigma overrides)"
 
 
