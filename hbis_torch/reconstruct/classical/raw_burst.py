@@ -419,10 +419,17 @@ def _colour_weights(cell_weights: Tensor, unclipped: Tensor | None, where: list[
 
 
 def _blur_pair(*images: Tensor, sigma: float) -> Tensor:
-    """:func:`~hbis_torch.reconstruct.classical.splat._gaussian_blur` of ``images`` (each (rows,
-    cols); ``num`` and ``den``) in one batch of FFTs, in float32: (len(images), rows, cols)
-    float32."""
+    """The whole-image blur of :func:`~hbis_torch.reconstruct.classical.splat.fill_holes` of
+    ``images`` (each (rows, cols); ``num`` and ``den``) in float32: (len(images), rows, cols)
+    float32. As there, shifted adds of the sampled taps up to
+    :data:`~hbis_torch.reconstruct.classical.splat.SEPARABLE_MAX_SIGMA`, else the FFT's Gaussian
+    (:func:`~hbis_torch.reconstruct.classical.splat._gaussian_blur`), all images in one batch."""
     import math
+
+    from hbis_torch.reconstruct.classical.splat import SEPARABLE_MAX_SIGMA, _separable_blur
+
+    if sigma <= SEPARABLE_MAX_SIGMA:
+        return torch.stack([_separable_blur(image.to(torch.float32), sigma) for image in images])
 
     rows, cols = images[0].shape
     pad = min(math.ceil(4 * sigma), rows - 1, cols - 1)
@@ -450,37 +457,12 @@ def _fill_holes(num: Tensor, den: Tensor, in_place: bool = False, blur=None) -> 
     (rows, cols) float64; ``in_place`` writes it over ``num``; ``blur``: (num, den, sigma) -> the
     blurred ``num`` and ``den`` (2, rows, cols), where the caller has them or keeps them (default
     :func:`_blur_pair`)."""
-    import math
+    from hbis_torch.reconstruct.classical.splat import fill_holes
 
-    from hbis_torch.reconstruct.classical.splat import _blur_at, _holes, typical_weight
-
-    typical = typical_weight(den)
-    if typical == 0.0:
-        raise HbisInputError("no sample falls on the output grid")
-    rows, cols = _holes(den, 0.25 * typical)
-    fills = []
-    sigma = 1.0
-    while len(rows) and sigma <= 64:
-        taps = 2 * math.ceil(4 * sigma) + 1
-        if len(rows) * taps * taps <= num.numel() // 4:
-            n2, d2 = _blur_at(num, sigma, rows, cols), _blur_at(den, sigma, rows, cols)
-        else:
-            blurred = _blur_pair(num, den, sigma=sigma) if blur is None else blur(num, den, sigma)
-            n2, d2 = blurred[0][rows, cols].to(num.dtype), blurred[1][rows, cols].to(den.dtype)
-            del blurred
-        ok = d2 >= 0.05 * typical
-        fills.append((rows[ok], cols[ok], n2[ok] / d2[ok].clamp_min(1e-12)))
-        rows, cols = rows[~ok], cols[~ok]
-        sigma *= 2
-    if len(rows):
-        fills.append((rows, cols, num.sum() / den.sum()))
-    if in_place and 0.25 * typical >= 1e-12:
-        image = num.div_(den)  # every node below 1e-12 (0/0 among them) is a hole, overwritten below
-    else:
-        image = num / den.clamp_min(1e-12)
-    for rows, cols, values in fills:
-        image[rows, cols] = values
-    return image
+    if blur is None:
+        def blur(n, d, sigma):
+            return _blur_pair(n, d, sigma=sigma)
+    return fill_holes(num, den, in_place=in_place, blur=blur)
 
 
 def splat_plane(values: Tensor, positions: Tensor, weights: Tensor, scale: int, shape: tuple, sigma: float,

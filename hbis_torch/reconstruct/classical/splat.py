@@ -550,13 +550,16 @@ def _holes(den: Tensor, below: float) -> tuple[Tensor, Tensor]:
     return torch.from_numpy(rows), torch.from_numpy(cols)
 
 
-def fill_holes(num: Tensor, den: Tensor, typical: float | None = None, *, in_place: bool = False) -> Tensor:
+def fill_holes(num: Tensor, den: Tensor, typical: float | None = None, *, in_place: bool = False,
+               blur=None) -> Tensor:
     """num / den, with nodes of little weight taken from the sums blurred wider and wider.
 
     Only the holes' blurred values are used: where there are few of them (a frame's border)
     they are computed at the holes alone (:func:`_blur_at`), else by blurring the whole image.
     Shapes (rows, cols); ``typical`` is :func:`typical_weight` of ``den``, if the caller has it;
-    ``in_place`` writes the image over ``num`` (no image-sized temporaries).
+    ``in_place`` writes the image over ``num`` (no image-sized temporaries); ``blur``, (num, den,
+    sigma) -> the two blurred whole (2, rows, cols), replaces the whole image's blur (the raw
+    planes blur both sums in one float32 batch).
     """
     if typical is None:
         typical = typical_weight(den)
@@ -569,9 +572,13 @@ def fill_holes(num: Tensor, den: Tensor, typical: float | None = None, *, in_pla
         taps = 2 * math.ceil(4 * sigma) + 1
         if len(rows) * taps * taps <= num.numel() // 4:
             n2, d2 = _blur_at(num, sigma, rows, cols), _blur_at(den, sigma, rows, cols)
-        else:  # the whole image blurred: shifted adds for a few taps, else the FFT
+        elif blur is None:  # the whole image blurred: shifted adds for a few taps, else the FFT
             whole = _separable_blur if sigma <= SEPARABLE_MAX_SIGMA else _gaussian_blur
             n2, d2 = whole(num, sigma)[rows, cols], whole(den, sigma)[rows, cols]
+        else:
+            blurred = blur(num, den, sigma)
+            n2, d2 = blurred[0][rows, cols].to(num.dtype), blurred[1][rows, cols].to(den.dtype)
+            del blurred
         ok = d2 >= 0.05 * typical
         fills.append((rows[ok], cols[ok], n2[ok] / d2[ok].clamp_min(1e-12)))
         rows, cols = rows[~ok], cols[~ok]
