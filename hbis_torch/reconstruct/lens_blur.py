@@ -139,9 +139,10 @@ def sharpest_group(sigmas: np.ndarray) -> tuple[float, int, float] | None:
 
     Returns (median sigma, members, agreement), None where no group agrees at all. ``agreement``
     is 1 where the group's spread is within :data:`GROUP_WIDTH` and falls linearly to 0 at
-    :data:`LOOSE_WIDTH` times that width (the group of the best agreement counts, the lowest among equals): edges that share
-    one lens agree to their fits' errors, which are not much smaller than that width, so an
-    all-or-nothing test gives two nearly equal bursts answers a whole lens apart.
+    :data:`LOOSE_WIDTH` times that width (the group of the best agreement counts, the lowest
+    among equals): edges that share one lens agree to their fits' errors, which are not much
+    smaller than that width, so an all-or-nothing test gives two nearly equal bursts answers a
+    whole lens apart.
     """
     size = max(MIN_EDGES, math.ceil(GROUP_SHARE * len(sigmas)))
     starts = max(GROUP_START, math.ceil(GROUP_START_SHARE * len(sigmas)))

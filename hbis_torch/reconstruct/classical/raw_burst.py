@@ -567,10 +567,8 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     splat of their samples' differences from green at their own positions (the difference of
     colours is smoother than either, so the splat blurs less of it); without, each plane alone.
 
-    No array of every sample's position is made: the positions are computed a band of rows at
-    a time where they are read (:func:`_lazy_positions`), and the weights are the cells'
-    (``weights`` (F, H / 2, W / 2)), so that 16 frames of 12 MP fit in memory as [handheld]'s
-    grey path's do.
+    No array of every sample's position is made (:func:`_lazy_positions`: a band of rows at a
+    time where read; cell weights): 16 frames of 12 MP fit in memory as the grey path's do.
 
     Parameters
     ----------
@@ -662,39 +660,12 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         if not any_kept:  # clipped everywhere: at the clip level
             planes[colour] = torch.ones(out, dtype=torch.float32)
             continue
-        num, den = acc.result(0, release=True), acc.result(1, release=True)
-        missing = lost_acc.result(0, release=True) if some_lost else None
+        plane, at_clip = _plane_from_sums(acc, lost_acc)
         del acc, lost_acc
-        den_blurs: dict = {}  # den's whole-image blurs, which the clipped share below reads again
-        keep = missing is not None
-
-        def plane_blur(n, d, sigma):
-            blurred = _blur_pair(n, d, sigma=sigma)
-            if keep:
-                den_blurs[sigma] = blurred[1].clone()
-            return blurred
-
-        plane = _fill_holes(num, den, in_place=True, blur=plane_blur)  # over num's memory
-        del num, plane_blur
         if colour != "G" and differences:
             plane += planes["G"]
-        if missing is not None:
-            # the unclipped samples' share of the splat's weight (holes filled from around them),
-            # from the splat of the (few) clipped samples alone; where den's blur is known, the
-            # total's is den's plus the clipped samples' (a blur is linear: one FFT, not two)
-            missing_blurs = {sigma: _blur_pair(missing, sigma=sigma)[0] for sigma in den_blurs}
-            total = missing.add_(den)
-
-            def share_blur(n, d, sigma, known=den_blurs, more=missing_blurs):
-                if sigma not in known:
-                    return _blur_pair(n, d, sigma=sigma)
-                return torch.stack((known[sigma], known[sigma] + more[sigma]))
-
-            share = _fill_holes(den, total, in_place=True, blur=share_blur)
-            del total, missing, den_blurs, missing_blurs, share_blur
-            plane.masked_fill_(share < CLIPPED_SHARE, 1.0)
-            del share
-        del den
+        if at_clip is not None:
+            plane.masked_fill_(at_clip, 1.0)
         planes[colour] = plane
         if colour == "G":
             # the sharpened green's change (written over it), which red and blue follow
@@ -707,6 +678,40 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         plane = planes.pop(colour)
         result[..., i] = (_finished(plane, change) if colour == "G" else plane).numpy()
     return result
+
+
+def _plane_from_sums(acc: "_Splat", lost_acc: "_Splat | None") -> tuple[Tensor, Tensor | None]:
+    """A colour's plane from its splat's sums (both released): num / den with the holes filled
+    (:func:`_fill_holes`, over num's memory), and where the clipped samples, splatted alone in
+    ``lost_acc`` (None: none clipped), carry the most of a node's weight, the mask of the nodes that
+    go to the clip level (the unclipped samples' share of the weight below :data:`CLIPPED_SHARE`;
+    its holes filled from around them). Returns (plane (S H, S W) float64, mask or None)."""
+    num, den = acc.result(0, release=True), acc.result(1, release=True)
+    missing = lost_acc.result(0, release=True) if lost_acc is not None else None
+    den_blurs: dict = {}  # den's whole-image blurs, which the clipped share below reads again
+
+    def plane_blur(n, d, sigma):
+        blurred = _blur_pair(n, d, sigma=sigma)
+        if missing is not None:
+            den_blurs[sigma] = blurred[1].clone()
+        return blurred
+
+    plane = _fill_holes(num, den, in_place=True, blur=plane_blur)
+    del num
+    if missing is None:
+        return plane, None
+    # where den's blur is known, the total's is den's plus the clipped samples' (a blur is
+    # linear: one FFT, not two)
+    missing_blurs = {sigma: _blur_pair(missing, sigma=sigma)[0] for sigma in den_blurs}
+    total = missing.add_(den)
+
+    def share_blur(n, d, sigma):
+        if sigma not in den_blurs:
+            return _blur_pair(n, d, sigma=sigma)
+        return torch.stack((den_blurs[sigma], den_blurs[sigma] + missing_blurs[sigma]))
+
+    share = _fill_holes(den, total, in_place=True, blur=share_blur)
+    return plane, share < CLIPPED_SHARE
 
 
 def _finished(plane: Tensor, change: Tensor | None) -> Tensor:
