@@ -671,6 +671,9 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
             # the sharpened green's change (written over it), which red and blue follow
             change = None if sharp is None else torch.from_numpy(sharp).sub_(plane)
             sharp = None
+            # kept in the output's float32 while red and blue are made (the sums were float64;
+            # the green's values move by float32's rounding only): half its memory at the peak
+            planes[colour] = plane = plane.to(torch.float32)
         else:  # red or blue done: moved with the green, in the output's float32 (half the memory)
             planes[colour] = _finished(plane, change)
     result = np.empty(out + (3,), dtype=np.float32)
