@@ -669,11 +669,8 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         planes[colour] = plane
         if colour == "G":
             # the sharpened green's change (written over it), which red and blue follow
-            change = None if sharp is None else torch.from_numpy(sharp).sub_(plane)
-            sharp = None
-            # kept in the output's float32 while red and blue are made (the sums were float64;
-            # the green's values move by float32's rounding only): half its memory at the peak
-            planes[colour] = plane = plane.to(torch.float32)
+            change, sharp = (None if sharp is None else torch.from_numpy(sharp).sub_(plane)), None
+            planes[colour] = plane = plane.to(torch.float32)  # as the output: half the memory at the peak
         else:  # red or blue done: moved with the green, in the output's float32 (half the memory)
             planes[colour] = _finished(plane, change)
     result = np.empty(out + (3,), dtype=np.float32)
