@@ -115,8 +115,9 @@ def main(argv=None) -> int:
     for name in ("photos_size", "held_out_size"):
         try:
             sizes[name] = tuple(int(v) for v in getattr(args, name).lower().split("x"))
-            assert len(sizes[name]) == 2 and min(sizes[name]) >= 64
-        except (ValueError, AssertionError):
+        except ValueError:
+            sizes[name] = ()
+        if len(sizes[name]) != 2 or min(sizes[name]) < 64:
             p.error(f"--{name.replace('_', '-')} {getattr(args, name)!r}: give WxH, each 64 px or more")
     jobs = [("training", scene, blur) for scene in TRAINING_SCENES for blur in BLURS]
     jobs += [("training photographs", "photographs", blur) for blur in BLURS]
