@@ -1,4 +1,4 @@
-"""The raw joint path in bounded memory (hbis_torch/reconstruct/classical/raw_burst.py): its
+"""The raw joint path in bounded memory (hbis_torch/reconstruct/classical/raw_burst.py and raw_splat.py): its
 splat, its positions computed a band at a time and its cell weights give what the whole arrays
 give (docs/raw-bursts.md, time and memory)."""
 
@@ -10,6 +10,7 @@ pytest.importorskip("skimage")
 
 from hbis_torch.capture.raw import normalised, raw_burst_stack  # noqa: E402
 from hbis_torch.reconstruct.classical import raw_burst as rb  # noqa: E402
+from hbis_torch.reconstruct.classical.raw_splat import PlanePositions, Splat  # noqa: E402
 from hbis_torch.reconstruct.classical.splat import fill_holes, splat  # noqa: E402
 from hbis_torch.reconstruct.positions import BurstPositions  # noqa: E402
 from hbis_torch.training.heldout_burst import BurstCondition  # noqa: E402
@@ -29,7 +30,7 @@ def test_splat_sums_are_the_classical_splat_s_in_and_beyond_the_grid():
     y = torch.rand(n, generator=g, dtype=torch.float64) * 30 - 5
     values, weights = torch.rand(n, generator=g), torch.rand(n, generator=g)
     x[3], weights[3] = float("nan"), 0.0  # a degenerate motion's sample, left out
-    acc = rb._Splat((rows, cols), 0.45)
+    acc = Splat((rows, cols), 0.45)
     for part in (slice(0, 1500), slice(1500, None)):  # in two batches
         acc.add(values[part], x[part], y[part], weights[part])
     keep = weights > 0
@@ -45,7 +46,7 @@ def test_plane_positions_are_the_whole_array_s_pattern_positions(stack):
     whole = lazy.whole()
     where = [(0, 0), (1, 1)]  # GBRG's greens
     for half in (True, False):
-        planes = rb._PlanePositions(lazy, where, half=half)
+        planes = PlanePositions(lazy, where, half=half)
         expected = torch.cat([whole[:, dv::2, du::2] for dv, du in where])
         if half:
             expected = (expected + 0.5) / 2 - 0.5
@@ -55,7 +56,7 @@ def test_plane_positions_are_the_whole_array_s_pattern_positions(stack):
         assert torch.allclose(planes[:, 5], expected[:, 5], rtol=0, atol=1e-9)
         # over a whole positions tensor (a caller's), read without writing over it
         kept = whole.clone()
-        assert torch.allclose(rb._PlanePositions(whole, where, half=half)[4:9, 3:11], expected[4:9, 3:11], rtol=0,
+        assert torch.allclose(PlanePositions(whole, where, half=half)[4:9, 3:11], expected[4:9, 3:11], rtol=0,
                               atol=1e-9)
         assert torch.equal(whole, kept)
 
