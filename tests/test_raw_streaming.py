@@ -1,6 +1,6 @@
-"""The raw joint path in bounded memory (hbis_torch/reconstruct/classical/raw_burst.py and raw_splat.py): its
-splat, its positions computed a band at a time and its cell weights give what the whole arrays
-give (docs/raw-bursts.md, time and memory)."""
+"""The raw joint path in bounded memory (hbis_torch/reconstruct/classical/raw_burst.py and
+raw_splat.py): its splat, its positions computed a band at a time and its cell weights give what
+the whole arrays give (docs/raw-bursts.md, time and memory)."""
 
 import numpy as np
 import pytest
