@@ -23,7 +23,8 @@ class Splat:
     """The classical method's Gaussian splat (:func:`~hbis_torch.reconstruct.classical.splat.splat`:
     each sample onto the 3 x 3 nodes around its nearest, the Gaussian's weight times its own) of
     samples in any arrangement, added a batch at a time: the numerator and denominator, or the
-    denominator alone (``count`` 1: the clipped samples' weights, :func:`~hbis_torch.reconstruct.classical.raw_burst.joint_demosaick_sr`).
+    denominator alone (``count`` 1: the clipped samples' weights,
+    :func:`~hbis_torch.reconstruct.classical.raw_burst.joint_demosaick_sr`).
 
     The same sums as ``splat``'s in a third of its time: the Gaussian's nine weights are the
     products of three along each axis (in float32; the sums in float64, :data:`SPLAT_DTYPE`), and
@@ -114,9 +115,10 @@ def bands(frames: int, rows: int, cols: int) -> list[slice]:
 class PlanePositions:
     """The positions of the samples at some pattern positions (a colour's), each pattern
     position's a grid of half the frames' size (pitch 2 px), computed where read from the
-    burst's (a :class:`~hbis_torch.reconstruct.positions.BurstPositions`): frame ``p F + k`` is frame k's samples at pattern
-    position ``where[p]``. ``half``: in the half-size grid's pixels (``(x + 0.5) / 2 - 0.5``),
-    as :func:`~hbis_torch.reconstruct.classical.raw_burst.sharp_green` hands them to the burst path; else in the reference's px.
+    burst's (a :class:`~hbis_torch.reconstruct.positions.BurstPositions`): frame ``p F + k`` is
+    frame k's samples at pattern position ``where[p]``. ``half``: in the half-size grid's pixels (``(x + 0.5) / 2 - 0.5``),
+    as :func:`~hbis_torch.reconstruct.classical.raw_burst.sharp_green` hands them to the burst
+    path; else in the reference's px.
 
     Indexed as :class:`~hbis_torch.reconstruct.positions.BurstPositions`: ``[j]`` (h, w, 2),
     ``[frames, rows]`` (f, r, w, 2), float64, slices with step 1 for the frames.
