@@ -16,7 +16,8 @@ every edge; the scene's softness varies from edge to edge. So the lens shows as 
 the sharpest edges at one sigma**: the estimate is the median of the lowest tight group of
 :func:`sharpest_group` (at least :data:`MIN_EDGES` edges, and a tenth of the accepted ones,
 within :data:`GROUP_WIDTH`, starting among the lowest tenth: stray fits lie below, of noise or of
-edges sharpened by the scene's own processing, as a camera's); where the sharpest edges spread
+edges sharpened by the scene's own processing, as a camera's; a group above more strays keeps a
+falling share of its weight, :func:`stray_share`); where the sharpest edges spread
 instead (a soft scene: a raster enlarged, a photograph's own blur), nothing is undone, since the
 burst cannot tell its lens from its scene there, and undoing blur that is not the lens costs
 several dB. For the same reason a group softer than :data:`FULL_TRUST` has only a share of its
@@ -69,9 +70,12 @@ LOOSE_WIDTH = 1.5
 """A group spread up to this many times :data:`GROUP_WIDTH` still counts, with less weight
 (:func:`sharpest_group`); edges spread evenly over a range (a soft scene) do not reach it."""
 GROUP_START, GROUP_START_SHARE = 3, 0.1
-"""The sharpest group starts among the lowest max(GROUP_START, GROUP_START_SHARE x the accepted)
-edges: stray fits may lie below the lens (noise; an edge the scene's own processing sharpened, as
-a camera's does), and their number grows with the edges fitted."""
+"""The sharpest group may lie above up to a = max(GROUP_START, GROUP_START_SHARE x the accepted)
+sharper fits: stray fits may lie below the lens (noise; an edge the scene's own processing
+sharpened, as a camera's does), and their number grows with the edges fitted. A group above more
+strays than that keeps a share of its weight, falling linearly to none at 2a strays
+(:func:`stray_share`): a count of a few strays varies by about its square root from burst to
+burst, so an all-or-nothing limit gives two nearly equal bursts answers a whole lens apart."""
 MAX_SIGMA = 3.0
 """The largest sigma (LR px) a fit may reach."""
 SCENE_MARGIN = 0.1
@@ -106,6 +110,7 @@ class LensEstimate(NamedTuple):
     edge_sigmas: np.ndarray
     tried: int
     agreement: float = 1.0
+    below: int = 0
 
     def describe(self) -> str:
         """One line for the user."""
@@ -118,9 +123,12 @@ class LensEstimate(NamedTuple):
                     f"... LR px, the scene's own softness rather than one lens); none undone. The lens is at most "
                     f"{np.median(self.edge_sigmas[:3]):.2f} LR px (the sharpest edges): set it with --psf-sigma")
         found = f"{self.group} of {self.edges} straight edges agree on sigma {self.sharpest:.2f} LR px"
-        if self.agreement < 1:
+        strays = stray_share(self.below, self.edges) < 1
+        if self.agreement < 1 and not strays:
             found = (f"the sharpest {self.group} of {self.edges} straight edges agree only loosely on sigma "
                      f"{self.sharpest:.2f} LR px")
+        if strays:
+            found += f", above {self.below} sharper fits (a burst's stray fits are about a tenth of its edges)"
         if self.sigma == 0 and self.sharpest < MAX_TRUSTED:
             return f"lens blur: {found}, within the scene's own margin ({SCENE_MARGIN} LR px); none undone"
         if self.sharpest >= MAX_TRUSTED:
@@ -132,30 +140,38 @@ class LensEstimate(NamedTuple):
         return f"lens blur: {found}; undoing sigma {self.sigma:.2f} LR px (--psf-sigma overrides)"
 
 
-def sharpest_group(sigmas: np.ndarray) -> tuple[float, int, float] | None:
-    """The lowest tight group of ``sigmas`` (sorted, LR px): at least max(:data:`MIN_EDGES`,
-    :data:`GROUP_SHARE` x their number) of them, starting among the lowest max(:data:`GROUP_START`,
-    :data:`GROUP_START_SHARE` x their number).
+def stray_share(start: int, accepted: int) -> float:
+    """The weight of a group above ``start`` sharper fits among ``accepted`` edges: 1 up to a
+    (:data:`GROUP_START`), falling linearly to 0 at 2a."""
+    a = max(GROUP_START, GROUP_START_SHARE * accepted)
+    return min(max(2.0 - start / a, 0.0), 1.0)
 
-    Returns (median sigma, members, agreement), None where no group agrees at all. ``agreement``
-    is 1 where the group's spread is within :data:`GROUP_WIDTH` and falls linearly to 0 at
-    :data:`LOOSE_WIDTH` times that width (the group of the best agreement counts, the lowest
-    among equals): edges that share one lens agree to their fits' errors, which are not much
-    smaller than that width, so an all-or-nothing test gives two nearly equal bursts answers a
-    whole lens apart.
+
+def sharpest_group(sigmas: np.ndarray) -> tuple[float, int, float, int] | None:
+    """The lowest tight group of ``sigmas`` (sorted, LR px): at least max(:data:`MIN_EDGES`,
+    :data:`GROUP_SHARE` x their number) of them, starting among the lowest ones
+    (:data:`GROUP_START`).
+
+    Returns (median sigma, members, agreement, below), None where no group counts at all.
+    ``agreement`` in [0, 1] is the group's weight: 1 where its spread is within
+    :data:`GROUP_WIDTH`, falling linearly to 0 at :data:`LOOSE_WIDTH` times that width (edges
+    that share one lens agree to their fits' errors, which are not much smaller than that width,
+    so an all-or-nothing test gives two nearly equal bursts answers a whole lens apart), times
+    :func:`stray_share` of the ``below`` sharper fits under it. The group of the highest weight
+    counts, the lowest among equals.
     """
     size = max(MIN_EDGES, math.ceil(GROUP_SHARE * len(sigmas)))
-    starts = max(GROUP_START, math.ceil(GROUP_START_SHARE * len(sigmas)))
     best = None
-    for start in range(min(starts, len(sigmas) - size + 1)):
+    for start in range(len(sigmas) - size + 1):
+        share = stray_share(start, len(sigmas))
+        if share == 0 or (best is not None and share <= best[2]):
+            break  # no later group can weigh more
         group = sigmas[start:start + size]
         width = GROUP_WIDTH[0] + GROUP_WIDTH[1] * group[0]
-        agreement = min(max((LOOSE_WIDTH - (group[-1] - group[0]) / width) / (LOOSE_WIDTH - 1), 0.0), 1.0)
+        agreement = share * min(max((LOOSE_WIDTH - (group[-1] - group[0]) / width) / (LOOSE_WIDTH - 1), 0.0), 1.0)
         if agreement > 0 and (best is None or agreement > best[2]):
             members = np.count_nonzero(np.abs(sigmas - np.median(group)) <= width)
-            best = (float(np.median(group)), int(members), agreement)
-        if agreement == 1:
-            break
+            best = (float(np.median(group)), int(members), agreement, start)
     return best
 
 
@@ -383,9 +399,9 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     found = sharpest_group(sigmas) if len(sigmas) >= MIN_EDGES else None
     if found is None:
         return LensEstimate(None, 0.0, 0, len(sigmas), sigmas, len(points), 0.0)
-    sharpest, group, agreement = found
+    sharpest, group, agreement, below = found
     return LensEstimate(sharpest, agreement * sigma_to_undo(sharpest), group, len(sigmas), sigmas, len(points),
-                        agreement)
+                        agreement, below)
 
 
 def sigma_to_undo(sharpest: float) -> float:
