@@ -12,7 +12,10 @@ without its Wiener step, as for raw Bayer scans,
 colour's samples alone.
 
 Green then goes through the classical burst path's Wiener deblurring of the pixel area where its
-samples fill the output grid (:func:`sharp_green`), and red and blue move with it.
+samples fill the output grid (:func:`sharp_green`), and red and blue move with it. In noisy frames
+red and blue's differences from green go through a guided filter with the sharpened green the
+guide (:func:`~hbis_torch.reconstruct.classical.raw_splat.guided_difference`): in dim light a
+node's difference rests on a sample or two and is mostly noise.
 
 Per sample, the weight is
 
@@ -27,8 +30,8 @@ Per sample, the weight is
 
 The raw noise (variance ``S x + O`` of a normalised sample x, per colour) is the DNG's
 NoiseProfile where the files have one, else measured on the reference frame's four colour planes
-(:func:`estimate_noise`). It sets the robustness transform and the splat's width
-(:func:`kernel_for_noise`), and is reported.
+(:func:`estimate_noise`). It sets the robustness transform, the splat's width
+(:func:`kernel_for_noise`) and the guided filter's share (:func:`chroma_for_noise`), and is reported.
 
 The output is the camera's linear RGB (not white-balanced; 1 = the white level),
 (S H, S W, 3) float32; :func:`hbis_torch.reconstruct.raw_output.camera_to_srgb` applies the white
