@@ -15,6 +15,7 @@ from hbis_torch.capture.dng import write_mosaic_dng  # noqa: E402
 from hbis_torch.capture.raw import normalised, raw_burst_stack, read_raw  # noqa: E402
 from hbis_torch.cli import main  # noqa: E402
 from hbis_torch.reconstruct.classical.raw_burst import (  # noqa: E402
+    chroma_for_noise,
     estimate_noise,
     joint_demosaick_sr,
     reconstruct_raw_burst,
@@ -22,7 +23,8 @@ from hbis_torch.reconstruct.classical.raw_burst import (  # noqa: E402
 )
 from hbis_torch.stack_io import read_stack  # noqa: E402
 from hbis_torch.training.heldout_burst import BurstCondition  # noqa: E402
-from hbis_torch.training.heldout_raw import BLACK, WHITE, make_raw_burst  # noqa: E402
+from hbis_torch.reconstruct.classical.raw_splat import guided_difference  # noqa: E402
+from hbis_torch.training.heldout_raw import BLACK, LIGHT_LEVELS, WHITE, make_raw_burst  # noqa: E402
 
 # XYZ (D65) -> camera, as a DNG's ColorMatrix1 (a real camera's shape of matrix)
 CAMERA_MATRIX = np.array([[0.6722, -0.0635, -0.0963], [-0.4287, 1.2460, 0.2028], [-0.0908, 0.2162, 0.5668]])
@@ -127,6 +129,58 @@ def test_noise_is_measured_from_one_frame():
     at = 0.3  # a mid-tone's variance within a factor of 2
     ratio = (found[:, 0] * at + found[:, 1]) / (true[:, 0] * at + true[:, 1])
     assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
+
+
+def test_chroma_filter_grows_with_the_noise():
+    """None in bright or indoor light, most of it in dim light; less with more frames or at S = 1."""
+    def at(light, scale=2, frames=12):
+        full_well, read = {name: (fw, rn) for name, fw, rn in LIGHT_LEVELS}[light]
+        noise = np.tile([1.0 / full_well, (read / full_well) ** 2], (3, 1))
+        return chroma_for_noise(noise, scale, frames)
+
+    assert at("bright") == 0.0 and at("indoor") == 0.0
+    assert at("dim") > 0.5
+    assert at("dim", frames=48) < at("dim") and at("dim", scale=1, frames=8) < at("dim")
+    assert at("dim", frames=2) == 1.0
+
+
+def test_guided_difference_is_kornias_guided_filter_in_bands():
+    import torch
+
+    kornia = pytest.importorskip("kornia")
+    gen = torch.Generator().manual_seed(0)
+    green = torch.rand(37, 29, generator=gen, dtype=torch.float64)
+    plane = 0.3 * green + 0.1 * torch.rand(37, 29, generator=gen, dtype=torch.float64)
+    want = kornia.filters.guided_blur(green[None, None].float(), plane[None, None].float(), 3, 1e-4,
+                                      border_type="reflect")[0, 0].double()
+    for rows in (1024, 5, 2):  # bands of rows, each with its halo as it was before the band above was written
+        assert torch.allclose(guided_difference(plane.clone(), green, 1.0, 1e-4, rows=rows), want, atol=1e-6)
+    half = guided_difference(plane.clone(), green - 0.1, 0.5, 1e-4, change=torch.full_like(green, 0.1), rows=4)
+    assert torch.allclose(half, plane + 0.5 * (want - plane), atol=1e-6)
+
+
+def test_dim_burst_chroma_error_falls_and_bright_burst_is_untouched():
+    """In dim light the differences from green are mostly noise: the guided filter lowers the error
+    of red and blue against green and leaves green alone; in bright light it does nothing. (The
+    true noise as the DNG's noise profile: on frames this small, texture passes for noise.)"""
+    def chroma_error(image, truth):
+        a, b = np.asarray(image, np.float64)[4:-4, 4:-4], np.asarray(truth, np.float64)[4:-4, 4:-4]
+        return [float(np.sqrt(np.mean(((a[..., c] - a[..., 1]) - (b[..., c] - b[..., 1])) ** 2))) for c in (0, 2)]
+
+    burst = make_raw_burst("astronaut", "GBRG", "dim", 2, 48, 11, BurstCondition("raw", frames=12))
+    stack, _ = raw_burst_stack(burst.mosaics, "GBRG", burst.raw | {"noise_profile": burst.noise.tolist()}, 2)
+    notes = []
+    filtered = reconstruct_raw_burst(stack, messages=notes)
+    plain = reconstruct_raw_burst(stack, chroma=0.0)
+    assert any("guided by green" in n for n in notes)
+    assert np.array_equal(filtered[..., 1], plain[..., 1])
+    before, after = chroma_error(plain, burst.truth), chroma_error(filtered, burst.truth)
+    assert all(a < 0.9 * b for a, b in zip(after, before)), (before, after)
+    assert _psnr(filtered, burst.truth) > _psnr(plain, burst.truth) + 0.1
+
+    bright = make_raw_burst("astronaut", "GBRG", "bright", 2, 48, 11, BurstCondition("raw", frames=12))
+    stack, _ = raw_burst_stack(bright.mosaics, "GBRG", bright.raw | {"noise_profile": bright.noise.tolist()}, 2)
+    assert np.array_equal(reconstruct_raw_burst(stack), reconstruct_raw_burst(stack, chroma=0.0))
 
 
 def test_clipped_samples_never_pull_a_colour():
