@@ -142,34 +142,35 @@ def fit_edges(xy: Tensor, values: Tensor, valid: Tensor, start: Tensor, lower: T
         (infinite where the Jacobian is singular).
     """
     scale = valid / noise
-    q = torch.maximum(torch.minimum(start.clone(), upper), lower)
+    eye, tolerance = torch.eye(5, dtype=torch.float64), STEP_TOLERANCE * torch.tensor(SCALES, dtype=torch.float64)
+    q = torch.maximum(torch.minimum(start, upper), lower)
     r, jac = _model(q, xy, values, scale, aperture)
     cost = _cost(r)
-    damping, growth = torch.full((len(q),), DAMPING, dtype=q.dtype), torch.full((len(q),), 2.0, dtype=q.dtype)
+    damping, growth = torch.full_like(cost, DAMPING), torch.full_like(cost, 2.0)
     todo = torch.arange(len(q))
     for _ in range(MAX_ITERATIONS):
         if len(todo) == 0:
             break
-        rt, jt, qt, lo, hi = r[todo], jac[todo], q[todo], lower[todo], upper[todo]
+        rows = slice(None) if len(todo) == len(q) else todo  # every edge: views, not copies
+        qt, rt, jt, lo, hi, before = q[rows].clone(), r[rows], jac[rows], lower[rows], upper[rows], cost[rows].clone()
         slope = 1 / torch.sqrt(1 + (rt / F_SCALE) ** 2)  # the loss's rho'(z), z = r^2 / C^2
         gradient = (jt @ (slope * rt)[..., None])[..., 0]
         hessian = (jt * slope[:, None, :] ** 3) @ jt.transpose(1, 2)  # rho' + 2 z rho'' = rho'^3
         held = ((qt <= lo) & (gradient > 0)) | ((qt >= hi) & (gradient < 0))
-        eye = torch.eye(5, dtype=q.dtype)
-        system = hessian + damping[todo, None, None] * hessian.diagonal(dim1=1, dim2=2).clamp(min=1e-300)[:, None] * eye
-        system = torch.where(held[:, :, None] | held[:, None, :], eye, system)
         gradient = gradient.masked_fill(held, 0.0)
+        system = hessian + damping[rows, None, None] * hessian.diagonal(dim1=1, dim2=2).clamp(min=1e-300)[:, None] * eye
+        system = torch.where(held[:, :, None] | held[:, None, :], eye, system)
         step = -torch.linalg.solve_ex(system, gradient)[0]  # a singular system: a step that fails
         trial = torch.maximum(torch.minimum(qt + step, hi), lo)
         step = trial - qt
-        r_new, jac_new = _model(trial, xy[todo], values[todo], scale[todo], aperture)
-        cost_new = _cost(r_new)
-        gain = (cost[todo] - cost_new) / -(2 * (gradient * step).sum(1) + (step * (hessian @ step[..., None])[..., 0]).sum(1))
-        better = cost_new < cost[todo]
-        done = (step.abs() <= STEP_TOLERANCE * torch.tensor(SCALES, dtype=q.dtype)).all(1)
-        done |= better & (cost[todo] - cost_new <= COST_TOLERANCE * cost[todo])
+        r_new, jac_new = _model(trial, xy[rows], values[rows], scale[rows], aperture)
+        after = _cost(r_new)
+        better = after < before
+        gain = (before - after) / -(2 * (gradient * step).sum(1) + (step * (hessian @ step[..., None])[..., 0]).sum(1))
+        done = (step.abs() <= tolerance).all(1) | (better & (before - after <= COST_TOLERANCE * before))
         kept = todo[better]
-        q[kept], r[kept], jac[kept], cost[kept] = trial[better], r_new[better], jac_new[better], cost_new[better]
+        q[kept], r[kept], jac[kept], cost[kept] = trial[better], r_new[better], jac_new[better], after[better]
+        # Nielsen: a step that gained as predicted lowers the damping, a failed one raises it faster each time
         damping[todo] = torch.where(better, damping[todo] * (1 - (2 * gain - 1) ** 3).clamp(min=1 / 3),
                                     damping[todo] * growth[todo])
         growth[todo] = torch.where(better, 2.0, growth[todo] * 2)
