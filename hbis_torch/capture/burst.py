@@ -469,10 +469,11 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     use = (x > lo) & (x < hi) & (y > lo) & (y < hi)
     gain, offset = 1.0, 0.0
     for _ in range(2):
-        if int(use.sum()) < 16 or float(x[use].std()) < 1e-4:
+        x_used, y_used = x[use], y[use]  # gathered once: most of the fit's time went on gathers
+        if len(x_used) < 16 or float(x_used.std()) < 1e-4:
             return 1.0, 0.0
-        A = torch.stack((x[use], torch.ones_like(x[use])), -1)
-        gain, offset = torch.linalg.lstsq(A, y[use][:, None], driver=LSTSQ_DRIVER).solution[:, 0].tolist()
+        A = torch.stack((x_used, torch.ones_like(x_used)), -1)
+        gain, offset = torch.linalg.lstsq(A, y_used[:, None], driver=LSTSQ_DRIVER).solution[:, 0].tolist()
         r = y - (gain * x + offset)
         spread = 1.4826 * float(r[use].abs().median()) + 1e-6
         use = use & (r.abs() < 3 * spread)
