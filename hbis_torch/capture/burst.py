@@ -135,7 +135,7 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     BurstMotion
     """
     from hbis_torch.progress import progress
-    from hbis_torch.registration import ALL_MODELS, register_stack
+    from hbis_torch.registration import ALL_MODELS, register_models
     from hbis_torch.registration.pyramid import coarse_to_fine, project
 
     F = grey.shape[0]
@@ -155,13 +155,12 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     if start is None:  # frames too small for a pyramid: each frame's own ladder (_register_pair)
         candidates = ()
     bar = progress(desc="registering the burst", total=len(candidates) + 1, unit="step")
-    fits = {}
+    predictions = {}
     for model in candidates:
-        prediction = project(start, model, shape)
-        prediction[reference] = np.eye(3)
-        fits[model] = register_stack(grey, reference, prediction=prediction, model=model,
-                                     motion_tolerance_px=MODEL_TOLERANCE_PX)
-        bar.update()
+        predictions[model] = project(start, model, shape)
+        predictions[model][reference] = np.eye(3)
+    # every model's fit from the same preparation of the frames (register_models)
+    fits = register_models(grey, reference, predictions, lambda _: bar.update(), motion_tolerance_px=MODEL_TOLERANCE_PX)
     if fits:
         evidence = model_evidence(grey, reference, {m: r.homographies.numpy() for m, r in fits.items()}, todo)
         for k in todo:
