@@ -37,7 +37,6 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-import torch
 
 TILE_PX = 8
 """Side of the square tiles (reference LR px) that each give at most one edge point."""
@@ -183,6 +182,8 @@ def edge_profile(d: np.ndarray, theta: float, sigma: float, aperture: float = 1.
     np.ndarray
         In [0, 1]: 0 far on the dark side, 1 far on the bright side (d > 0).
     """
+    import torch
+
     from hbis_torch.reconstruct.edge_fit import profile
 
     d = torch.as_tensor(np.asarray(d, dtype=np.float64))
@@ -268,12 +269,15 @@ def _block(positions, shift: np.ndarray, x: float, y: float, reach: int, H: int,
 
 
 def _fit_edges(samples: list, thetas: list, noise: float, aperture: float) -> list:
-    """Fit every edge's samples at once (the module docstring's model, :mod:`edge_fit`).
+    """Fit every edge's samples at once: the module docstring's model, solved by
+    :func:`~hbis_torch.reconstruct.edge_fit.fit_edges` for all edges together.
 
     ``samples``: each edge's (positions (N, 2) relative to its point, values (N,)), as
     :func:`_samples` gives them; ``thetas``: each edge's normal's angle (radians) to start from.
     Returns, for each edge, (sigma, its standard error, c1, RMS residual in noise units), or None
     where the edge has too few samples on a side or its fit leaves the window's middle."""
+    import torch
+
     from hbis_torch.reconstruct.edge_fit import fit_edges
 
     fitted, start = [], []
@@ -292,9 +296,10 @@ def _fit_edges(samples: list, thetas: list, noise: float, aperture: float) -> li
     n = max(len(samples[k][1]) for k in kept)
     xy, values = torch.zeros((len(kept), 2, n), dtype=torch.float64), torch.zeros((len(kept), n), dtype=torch.float64)
     valid = torch.zeros((len(kept), n), dtype=torch.bool)
-    for i, k in enumerate(kept):
+    for i, k in enumerate(kept):  # the edges padded to the most samples, the padding not valid
         m = len(samples[k][1])
-        xy[i, :, :m], values[i, :m], valid[i, :m] = torch.from_numpy(samples[k][0].T), torch.from_numpy(samples[k][1]), True
+        xy[i, :, :m], values[i, :m] = torch.from_numpy(samples[k][0].T), torch.from_numpy(samples[k][1])
+        valid[i, :m] = True
     start = torch.tensor(start, dtype=torch.float64)
     theta = start[:, 3]
     inf, ones = torch.full_like(theta, math.inf), torch.ones_like(theta)
