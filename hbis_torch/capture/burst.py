@@ -195,9 +195,10 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
             if k in todo and confidence[k] > 0:
                 neighbour = motions[k]
     bar.update()
+    reduced = gain_fit_reference(ref)  # once, not once a frame
     for k in todo:
         if confidence[k] > 0:
-            gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k])
+            gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k], reduced)
     local = None
     if start is not None:  # frames large enough for a pyramid are large enough to tile
         from hbis_torch.registration.local import local_offsets
@@ -440,7 +441,19 @@ def warp_to_reference(frame: torch.Tensor, motion: np.ndarray) -> tuple[torch.Te
     return out[0], out[1] > 0.999
 
 
-def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.ndarray) -> tuple[float, float]:
+def gain_fit_reference(reference: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """The reference (H, W) as :func:`fit_gain_offset` compares frames with it, halved as they
+    are, and how many times."""
+    from hbis_torch.registration.pyramid import pyramid
+
+    levels = 0
+    while min(reference.shape) >> levels >= 2 * GAIN_FIT_SIDE:
+        levels += 1
+    return (pyramid(reference[None], levels)[-1][0] if levels else reference), levels
+
+
+def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.ndarray,
+                    reduced: tuple | None = None) -> tuple[float, float]:
     """(g, o) with ``g * frame + o`` matching the reference where both see the same scene.
 
     A least-squares line through the warped frame's and the reference's pixels (both blurred a
@@ -448,17 +461,16 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     (a moving object) and without saturated pixels. A fit that is not sensible (g outside
     [0.5, 2]) is refused in favour of (1, 0). Frames larger than :data:`GAIN_FIT_SIDE` twice
     over are halved (a Gaussian pyramid) until they are not: two numbers need no millions of
-    pixels, and the warp's cost was most of a large burst's brightness fit.
+    pixels, and the warp's cost was most of a large burst's brightness fit. ``reduced``:
+    :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a burst's frames.
     """
     import kornia
 
     from hbis_torch.registration.pyramid import pyramid, to_level
 
-    levels = 0
-    while min(frame.shape) >> levels >= 2 * GAIN_FIT_SIDE:
-        levels += 1
+    reference, levels = gain_fit_reference(reference) if reduced is None else reduced
     if levels:
-        frame, reference = (pyramid(x[None], levels)[-1][0] for x in (frame, reference))
+        frame = pyramid(frame[None], levels)[-1][0]
         motion = to_level(np.asarray(motion)[None], levels)[0]
     warped, valid = warp_to_reference(frame, motion)
     blur = kornia.filters.gaussian_blur2d(torch.stack((warped, reference))[:, None], (5, 5), (1.0, 1.0),
