@@ -269,3 +269,26 @@ def test_results_are_ordinary_tensors_callers_may_modify(frames):
         assert not t.is_inference()
     reg.homographies[1, 0, 2] += 1.0  # an in-place edit outside inference mode
     assert torch.isfinite(reg.homographies).all()
+
+
+def test_several_models_share_one_preparation_and_register_as_one_at_a_time(monkeypatch):
+    """register_models: the same registrations as register_stack model by model, bit for bit, with
+    the reference's splines and the compared points prepared once."""
+    from hbis_torch.registration import register_models, stack
+
+    frames = shifted_frames([(0.0, 0.0), (0.4, -0.3), (-1.2, 0.7)])
+    prediction = np.repeat(np.eye(3)[None], 3, 0)
+    models = ("translation", "similarity", "homography")
+    alone = {m: register_stack(frames, 0, prediction=prediction, model=m) for m in models}
+    calls = []
+    original = stack._compared_points
+    monkeypatch.setattr(stack, "_compared_points", lambda *a, **k: calls.append(1) or original(*a, **k))
+    done = []
+    together = register_models(frames, 0, {m: prediction for m in models}, done.append)
+    assert len(calls) == 1 and done == list(models)
+    for m in models:
+        for name in ("homographies", "confidence", "precision_px", "residual"):
+            assert torch.equal(getattr(alone[m], name), getattr(together[m], name)), (m, name)
+        assert alone[m].model == together[m].model and alone[m].messages == together[m].messages
+    register_stack(frames, 0, model="translation")  # and nothing is kept after
+    assert len(calls) == 2

@@ -135,7 +135,7 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     BurstMotion
     """
     from hbis_torch.progress import progress
-    from hbis_torch.registration import ALL_MODELS, register_stack
+    from hbis_torch.registration import ALL_MODELS, register_models
     from hbis_torch.registration.pyramid import coarse_to_fine, project
 
     F = grey.shape[0]
@@ -155,13 +155,12 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     if start is None:  # frames too small for a pyramid: each frame's own ladder (_register_pair)
         candidates = ()
     bar = progress(desc="registering the burst", total=len(candidates) + 1, unit="step")
-    fits = {}
+    predictions = {}
     for model in candidates:
-        prediction = project(start, model, shape)
-        prediction[reference] = np.eye(3)
-        fits[model] = register_stack(grey, reference, prediction=prediction, model=model,
-                                     motion_tolerance_px=MODEL_TOLERANCE_PX)
-        bar.update()
+        predictions[model] = project(start, model, shape)
+        predictions[model][reference] = np.eye(3)
+    # every model's fit from the same preparation of the frames (register_models)
+    fits = register_models(grey, reference, predictions, lambda _: bar.update(), motion_tolerance_px=MODEL_TOLERANCE_PX)
     if fits:
         evidence = model_evidence(grey, reference, {m: r.homographies.numpy() for m, r in fits.items()}, todo)
         for k in todo:
@@ -196,9 +195,10 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
             if k in todo and confidence[k] > 0:
                 neighbour = motions[k]
     bar.update()
+    reduced = gain_fit_reference(ref)  # once, not once a frame
     for k in todo:
         if confidence[k] > 0:
-            gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k])
+            gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k], reduced)
     local = None
     if start is not None:  # frames large enough for a pyramid are large enough to tile
         from hbis_torch.registration.local import local_offsets
@@ -441,7 +441,19 @@ def warp_to_reference(frame: torch.Tensor, motion: np.ndarray) -> tuple[torch.Te
     return out[0], out[1] > 0.999
 
 
-def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.ndarray) -> tuple[float, float]:
+def gain_fit_reference(reference: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """The reference (H, W) as :func:`fit_gain_offset` compares frames with it, halved as they
+    are, and how many times."""
+    from hbis_torch.registration.pyramid import pyramid
+
+    levels = 0
+    while min(reference.shape) >> levels >= 2 * GAIN_FIT_SIDE:
+        levels += 1
+    return (pyramid(reference[None], levels)[-1][0] if levels else reference), levels
+
+
+def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.ndarray,
+                    reduced: tuple | None = None) -> tuple[float, float]:
     """(g, o) with ``g * frame + o`` matching the reference where both see the same scene.
 
     A least-squares line through the warped frame's and the reference's pixels (both blurred a
@@ -449,17 +461,16 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     (a moving object) and without saturated pixels. A fit that is not sensible (g outside
     [0.5, 2]) is refused in favour of (1, 0). Frames larger than :data:`GAIN_FIT_SIDE` twice
     over are halved (a Gaussian pyramid) until they are not: two numbers need no millions of
-    pixels, and the warp's cost was most of a large burst's brightness fit.
+    pixels, and the warp's cost was most of a large burst's brightness fit. ``reduced``:
+    :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a burst's frames.
     """
     import kornia
 
     from hbis_torch.registration.pyramid import pyramid, to_level
 
-    levels = 0
-    while min(frame.shape) >> levels >= 2 * GAIN_FIT_SIDE:
-        levels += 1
+    reference, levels = gain_fit_reference(reference) if reduced is None else reduced
     if levels:
-        frame, reference = (pyramid(x[None], levels)[-1][0] for x in (frame, reference))
+        frame = pyramid(frame[None], levels)[-1][0]
         motion = to_level(np.asarray(motion)[None], levels)[0]
     warped, valid = warp_to_reference(frame, motion)
     blur = kornia.filters.gaussian_blur2d(torch.stack((warped, reference))[:, None], (5, 5), (1.0, 1.0),
@@ -469,10 +480,11 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     use = (x > lo) & (x < hi) & (y > lo) & (y < hi)
     gain, offset = 1.0, 0.0
     for _ in range(2):
-        if int(use.sum()) < 16 or float(x[use].std()) < 1e-4:
+        x_used, y_used = x[use], y[use]  # gathered once: most of the fit's time went on gathers
+        if len(x_used) < 16 or float(x_used.std()) < 1e-4:
             return 1.0, 0.0
-        A = torch.stack((x[use], torch.ones_like(x[use])), -1)
-        gain, offset = torch.linalg.lstsq(A, y[use][:, None], driver=LSTSQ_DRIVER).solution[:, 0].tolist()
+        A = torch.stack((x_used, torch.ones_like(x_used)), -1)
+        gain, offset = torch.linalg.lstsq(A, y_used[:, None], driver=LSTSQ_DRIVER).solution[:, 0].tolist()
         r = y - (gain * x + offset)
         spread = 1.4826 * float(r[use].abs().median()) + 1e-6
         use = use & (r.abs() < 3 * spread)

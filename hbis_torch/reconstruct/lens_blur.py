@@ -175,29 +175,6 @@ def sharpest_group(sigmas: np.ndarray) -> tuple[float, int, float, int] | None:
     return best
 
 
-def _antiderivatives(x: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For the Gaussian step Phi(x / sigma): its second antiderivative F2, F2's derivative in x
-    (the first antiderivative F1) and F2's derivative in sigma (sigma Phi)."""
-    from scipy.special import ndtr
-
-    z = x / sigma
-    cdf = ndtr(z)
-    pdf = np.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
-    f2 = 0.5 * (x * x + sigma * sigma) * cdf + 0.5 * x * sigma * pdf
-    return f2, x * cdf + sigma * pdf, sigma * cdf
-
-
-def _profile(d: np.ndarray, theta: float, sigma: float, aperture: float):
-    """:func:`edge_profile` and its derivatives in ``d`` and in ``sigma``."""
-    a = max(aperture * abs(math.cos(theta)), 1e-2)
-    b = max(aperture * abs(math.sin(theta)), 1e-2)
-    out = np.zeros((3,) + d.shape)
-    for shift, sign in (((a + b) / 2, 1), ((a - b) / 2, -1), (-(a - b) / 2, -1), (-(a + b) / 2, 1)):
-        for i, part in enumerate(_antiderivatives(d + shift, sigma)):
-            out[i] += sign * part
-    return out / (a * b)
-
-
 def edge_profile(d: np.ndarray, theta: float, sigma: float, aperture: float = 1.0) -> np.ndarray:
     """The response of a pixel to a unit step at signed distance ``d`` (LR px) from its centre.
 
@@ -221,7 +198,13 @@ def edge_profile(d: np.ndarray, theta: float, sigma: float, aperture: float = 1.
     np.ndarray
         In [0, 1]: 0 far on the dark side, 1 far on the bright side (d > 0).
     """
-    return _profile(np.asarray(d, dtype=np.float64), theta, sigma, aperture)[0]
+    import torch
+
+    from hbis_torch.reconstruct.edge_fit import profile
+
+    d = torch.as_tensor(np.asarray(d, dtype=np.float64))
+    return profile(d, torch.tensor(float(theta), dtype=torch.float64), torch.tensor(float(sigma), dtype=torch.float64),
+                   aperture, derivatives=False).numpy()
 
 
 def _edge_points(reference: np.ndarray, noise: float) -> list[tuple[float, float, float]]:
@@ -301,58 +284,56 @@ def _block(positions, shift: np.ndarray, x: float, y: float, reach: int, H: int,
     return (r0, c0), np.asarray(positions[:, r0:r1, c0:c1])
 
 
+def _fit_edges(samples: list, thetas: list, noise: float, aperture: float) -> list:
+    """Fit every edge's samples at once: the module docstring's model, solved by
+    :func:`~hbis_torch.reconstruct.edge_fit.fit_edges` for all edges together.
+
+    ``samples``: each edge's (positions (N, 2) relative to its point, values (N,)), as
+    :func:`_samples` gives them; ``thetas``: each edge's normal's angle (radians) to start from.
+    Returns, for each edge, (sigma, its standard error, c1, RMS residual in noise units), or None
+    where the edge has too few samples on a side or its fit leaves the window's middle."""
+    import torch
+
+    from hbis_torch.reconstruct.edge_fit import fit_edges
+
+    fitted, start = [], []
+    for (xy, values), theta in zip(samples, thetas):
+        proj = xy @ np.array([math.cos(theta), math.sin(theta)])
+        low, high = values[proj < -1.5], values[proj > 1.5]
+        if len(values) >= 40 and len(low) >= 10 and len(high) >= 10:
+            lo, hi = float(np.median(low)), float(np.median(high))  # the start: a step through the middle
+            fitted.append(len(start))
+            start.append([lo, hi - lo, 0.0, theta, 0.4])
+        else:
+            fitted.append(None)
+    if not start:
+        return [None] * len(samples)
+    kept = [k for k, f in enumerate(fitted) if f is not None]
+    n = max(len(samples[k][1]) for k in kept)
+    xy, values = torch.zeros((len(kept), 2, n), dtype=torch.float64), torch.zeros((len(kept), n), dtype=torch.float64)
+    valid = torch.zeros((len(kept), n), dtype=torch.bool)
+    for i, k in enumerate(kept):  # the edges padded to the most samples, the padding not valid
+        m = len(samples[k][1])
+        xy[i, :, :m], values[i, :m] = torch.from_numpy(samples[k][0].T), torch.from_numpy(samples[k][1])
+        valid[i, :m] = True
+    start = torch.tensor(start, dtype=torch.float64)
+    theta = start[:, 3]
+    inf, ones = torch.full_like(theta, math.inf), torch.ones_like(theta)
+    lower = torch.stack([-inf, -inf, -2 * ones, theta - 0.5, 0.02 * ones], 1)
+    upper = torch.stack([inf, inf, 2 * ones, theta + 0.5, MAX_SIGMA * ones], 1)
+    q, rms, error = fit_edges(xy, values, valid, start, lower, upper, noise, aperture)
+    out = []
+    for f in fitted:
+        # None where the edge left the window's middle: one side barely sampled
+        out.append(None if f is None or abs(float(q[f, 2])) > 1.5 else
+                   (float(q[f, 4]), float(error[f]), float(q[f, 1]), float(rms[f])))
+    return out
+
+
 def _fit_edge(xy: np.ndarray, values: np.ndarray, theta0: float, noise: float, aperture: float):
-    """Fit one edge's samples (module docstring): the parameters (c0, c1, t, theta, sigma).
-    Returns (sigma, its standard error, c1, RMS residual in noise units) or None where the fit
-    fails."""
-    from scipy.optimize import least_squares
-
-    if len(values) < 40:
-        return None
-    proj = xy @ np.array([math.cos(theta0), math.sin(theta0)])
-    low, high = values[proj < -1.5], values[proj > 1.5]
-    if len(low) < 10 or len(high) < 10:
-        return None
-    lo, hi = float(np.median(low)), float(np.median(high))  # the start: a step through the middle
-
-    last: list = [None, None]  # least_squares asks for the residual and the Jacobian at the same point
-
-    def model(q):
-        if last[0] is None or not np.array_equal(last[0], q):
-            c0, c1, t, th, sigma = q
-            normal = np.array([math.cos(th), math.sin(th)])
-            last[:] = [np.array(q, dtype=np.float64), (_profile(xy @ normal - t, th, sigma, aperture), normal)]
-        return last[1]
-
-    def residual(q):
-        (e, _, _), _ = model(q)
-        return (q[0] + q[1] * e - values) / noise
-
-    def jacobian(q):
-        # theta moves d (exactly) and the pixel's footprint on the normal (a far smaller term, left out)
-        (e, e_d, e_s), normal = model(q)
-        c1 = q[1]
-        across = xy @ np.array([-normal[1], normal[0]])
-        return np.stack([np.ones_like(e), e, -c1 * e_d, c1 * e_d * across, c1 * e_s], axis=1) / noise
-
-    start = [lo, hi - lo, 0.0, theta0, 0.4]
-    try:
-        fit = least_squares(residual, start, jac=jacobian,
-                            bounds=([-np.inf, -np.inf, -2, theta0 - 0.5, 0.02], [np.inf, np.inf, 2, theta0 + 0.5, MAX_SIGMA]),
-                            loss="soft_l1", f_scale=3.0, x_scale=[0.1, 0.1, 0.1, 0.05, 0.1], max_nfev=40)
-    except (ValueError, np.linalg.LinAlgError):
-        return None
-    c0, c1, t, th, sigma = fit.x
-    if abs(t) > 1.5:  # the edge left the window's middle: one side barely sampled
-        return None
-    J = jacobian(fit.x)
-    try:
-        cov = np.linalg.inv(J.T @ J)
-    except np.linalg.LinAlgError:
-        return None
-    r = residual(fit.x)
-    rms = float(np.sqrt(np.mean(r * r)))
-    return float(sigma), math.sqrt(max(cov[4, 4], 0.0)) * max(rms, 1.0), float(c1), rms
+    """One edge's fit (:func:`_fit_edges`): (sigma, its standard error, c1, RMS residual in noise
+    units) or None."""
+    return _fit_edges([(xy, values)], [theta0], noise, aperture)[0]
 
 
 def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float,
@@ -384,10 +365,12 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
         positions = np.asarray(positions)
     noise = max(float(noise), 1e-4)
     points = _edge_points(frames[reference].astype(np.float64), noise)
-    sigmas = []
+    samples = []
     for x, y, theta in points:
         xy, values = _samples(frames, positions, weights, x, y, theta)
-        fit = _fit_edge(xy, values.astype(np.float64), theta, noise, aperture)
+        samples.append((xy, values.astype(np.float64)))
+    sigmas = []
+    for fit in _fit_edges(samples, [theta for _, _, theta in points], noise, aperture):
         if fit is None:
             continue
         s, error, c1, rms = fit

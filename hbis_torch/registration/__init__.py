@@ -51,7 +51,7 @@ from hbis_torch.registration.homography import (
 )
 from hbis_torch.registration.lucas_kanade import COARSE_POINTS
 from hbis_torch.registration.phase_correlation import phase_correlation_shifts
-from hbis_torch.registration.stack import Registration, register_stack
+from hbis_torch.registration.stack import Registration, register_models, register_stack
 from hbis_torch.sensor.noise import noise_sigma
 
 __all__ = [
@@ -74,5 +74,6 @@ __all__ = [
     "noise_sigma",
     "phase_correlation_shifts",
     "prefilter",
+    "register_models",
     "register_stack",
 ]

@@ -1,4 +1,5 @@
-"""The registration of a stack: the :class:`Registration` result and :func:`register_stack`.
+"""The registration of a stack: the :class:`Registration` result and :func:`register_stack`
+(:func:`register_models`: several models of one stack, from one preparation).
 
 ``register_stack`` checks its input, normalises the frames photometrically, picks the points to
 compare, starts every frame from the prediction or phase correlation, fits it
@@ -9,6 +10,7 @@ frame px -> reference px; per-frame results are (F,); precision and thresholds a
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import functools
 import math
@@ -126,10 +128,17 @@ def _in_inference_mode(fn):
     def wrapper(*args, **kwargs):
         with torch.inference_mode():
             result = fn(*args, **kwargs)
-        tensors = {name: value.clone() for name, value in vars(result).items() if isinstance(value, Tensor)}
-        return dataclasses.replace(result, **tensors)
+        if isinstance(result, dict):
+            return {key: _plain(value) for key, value in result.items()}
+        return _plain(result)
 
     return wrapper
+
+
+def _plain(result):
+    """``result`` (a dataclass) with ordinary copies of its inference-mode tensors."""
+    tensors = {name: value.clone() for name, value in vars(result).items() if isinstance(value, Tensor)}
+    return dataclasses.replace(result, **tensors)
 
 
 @_in_inference_mode
@@ -197,11 +206,8 @@ def register_stack(
                                                keep_fraction, max_points, dtype)
     F, H, W = frames.shape
     frames = frames.to(dtype)
-    mean, spread, flat, reference = _normalisation(frames, ref)
-    noise = noise_sigma(reference[None]).expand(F)  # the same sensor: one frame says enough
-    kernel, margin = _blur_and_margin(H, W, blur_sigma, dtype)
-    coefficients, points, samples, corr_area = _compared_points(frames, reference, mean, spread, kernel, margin,
-                                                                blur_sigma, keep_fraction, max_points)
+    flat, noise, coefficients, points, samples, corr_area, margin = _prepare(frames, ref, blur_sigma, keep_fraction,
+                                                                            max_points, dtype)
     init = _starting_motion(frames, ref, prediction)
     lk = _LucasKanade(coefficients, samples, points, margin)
 
@@ -224,6 +230,53 @@ def register_stack(
     residual = fit.sigma.clone()
     residual[ref] = 0.0
     return Registration(Hk, chosen, confidence, ok, messages, precision, residual, out_of_order)
+
+
+#: Set while :func:`register_models` runs: the preparations its fits share, by their settings.
+_SHARED: contextvars.ContextVar[dict | None] = contextvars.ContextVar("shared_preparation", default=None)
+
+
+@_in_inference_mode
+def register_models(frames, reference_index: int, predictions: dict, done=None, **options) -> dict:
+    """:func:`register_stack` of one stack for each model of ``predictions`` (model -> its
+    prediction, (F, 3, 3) or None), ``options`` its keywords: the same registrations, with what the
+    fits share (the frames' normalisation, the reference's splines and the points compared)
+    prepared once rather than once a model. ``done``, if given, is called with each model once
+    it is fitted (a progress bar's update).
+
+    Returns
+    -------
+    dict of str -> Registration
+    """
+    token, out = _SHARED.set({}), {}
+    try:
+        for model, prediction in predictions.items():
+            out[model] = register_stack.__wrapped__(frames, reference_index, prediction, model, **options)
+            if done is not None:
+                done(model)
+    finally:
+        _SHARED.reset(token)
+    return out
+
+
+def _prepare(frames: Tensor, ref: int, blur_sigma: float, keep_fraction: float, max_points: int, dtype):
+    """What every fit of ``frames`` (F, H, W) shares, for :func:`register_stack`: which frames are
+    flat (F,), the noise (F,), the reference's spline coefficients, the points compared and the
+    frames' samples there, the correlated area and the margin (:func:`_compared_points`); kept
+    for the next model while :func:`register_models` runs."""
+    shared, key = _SHARED.get(), (ref, blur_sigma, keep_fraction, max_points, dtype)
+    if shared is not None and key in shared:
+        return shared[key]
+    F, H, W = frames.shape
+    mean, spread, flat, reference = _normalisation(frames, ref)
+    noise = noise_sigma(reference[None]).expand(F)  # the same sensor: one frame says enough
+    kernel, margin = _blur_and_margin(H, W, blur_sigma, dtype)
+    coefficients, points, samples, corr_area = _compared_points(frames, reference, mean, spread, kernel, margin,
+                                                                blur_sigma, keep_fraction, max_points)
+    prepared = flat, noise, coefficients, points, samples, corr_area, margin
+    if shared is not None:
+        shared[key] = prepared
+    return prepared
 
 
 def _check_arguments(frames, reference_index, prediction, model: str, blur_sigma: float, keep_fraction: float,
