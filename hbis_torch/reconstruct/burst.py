@@ -19,7 +19,8 @@ function of its :class:`~hbis_torch.reconstruct.registry.Method`):
    burst whose frames are all copies of the reference gets the single-frame estimate, and says so.
    A burst whose samples fill too little of the S-times lattice (a few frames, or many left out,
    at S = 3 or 4) is reconstructed at the largest smaller scale they fill and enlarged to S
-   (:func:`scale_to_run`).
+   (:func:`scale_to_run`). The classical method's image is blended by the lattice's fill only
+   for bursts asked at S = 2 or that fill no scale's lattice (:data:`RUN_FILL`'s notes).
 
 Colour bursts are registered once (on the luminance) and go through the method per channel
 (``colour="channels"``, the default) or as luminance plus interpolated chroma (``"luma"``), as
@@ -63,12 +64,15 @@ FULL_COVERAGE = 2.0
 NO_FILL, FULL_FILL = 0.4, 0.8
 # A burst is reconstructed at the largest scale (from S down to 2) where the mean of that share
 # reaches this (:func:`scale_to_run`). A method's burst function with an attribute ``fill_blend_to``
-# gets the fill's blend only at run scales up to it (the classical method's: 2); at those above, the
-# scale's choice alone guards the lattice (it has been filled on average) and the coverage's blend
-# the frame's edges. On the training simulator (photographs, 640 x 480, lens blur 0.3 LR px, 3
-# seeds) the blend cost the classical method 0.6 / 0.5 dB at S = 3 and 0.9 / 0.9 dB at S = 4 with
-# the lens given / estimated (F = 8 and 16; 1.5 dB at worst), where the frames leave a third of the
-# S = 3 nodes empty and the deblurred lattice still beats the enlarged reference everywhere.
+# gets the fill's blend only for bursts asked at scales up to it (the classical method's: 2), or
+# where no scale's lattice reaches RUN_FILL; above it, the run scale's choice guards the lattice (it
+# is filled on average) and the coverage's blend the frame's edges. On the training simulator
+# (photographs, 640 x 480, lens blur 0.3 LR px, 3 seeds) the blend cost the classical method
+# 0.6 / 0.5 dB at S = 3 and 0.9 / 0.9 dB at S = 4 with the lens given / estimated (F = 8 and 16;
+# 1.5 dB at worst), where the frames leave a third of the S = 3 nodes empty and the deblurred
+# lattice still beats the enlarged reference everywhere; and 0.6 to 0.9 dB at S = 3 with F = 4,
+# reconstructed at S = 2. At S = 2 itself it is kept: on 40 x 40 px bursts of 3 to 6 frames it
+# gains 0.4 to 1.1 dB (benchmarks/bench_few_frames.py).
 RUN_FILL = 0.5
 
 
@@ -384,7 +388,7 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
         image = _luma_and_chroma(run, target, frames, positions, weights, said, kw)
     notes.extend(dict.fromkeys(said))
     alpha = _blend_weight(cover, run_scale)
-    if run_scale <= getattr(run, "fill_blend_to", run_scale):  # (RUN_FILL's notes)
+    if scale <= getattr(run, "fill_blend_to", scale) or float(fill.mean()) < RUN_FILL:  # (RUN_FILL's notes)
         alpha = np.minimum(alpha, fill)
     if run_scale != scale:
         size = fallback.shape[:2]
