@@ -67,12 +67,13 @@ NO_FILL, FULL_FILL = 0.4, 0.8
 # gets the fill's blend only for bursts asked at scales up to it (the classical method's: 2), or
 # where no scale's lattice reaches RUN_FILL; above it, the run scale's choice guards the lattice (it
 # is filled on average) and the coverage's blend the frame's edges. On the training simulator
-# (photographs, 640 x 480, lens blur 0.3 LR px, 3 seeds) the blend cost the classical method
-# 0.6 / 0.5 dB at S = 3 and 0.9 / 0.9 dB at S = 4 with the lens given / estimated (F = 8 and 16;
-# 1.5 dB at worst), where the frames leave a third of the S = 3 nodes empty and the deblurred
-# lattice still beats the enlarged reference everywhere; and 0.6 to 0.9 dB at S = 3 with F = 4,
-# reconstructed at S = 2. At S = 2 itself it is kept: on 40 x 40 px bursts of 3 to 6 frames it
-# gains 0.4 to 1.1 dB (benchmarks/bench_few_frames.py).
+# (photographs, 640 x 480, lens blur 0.3 LR px given / estimated, shifts to 2 px and turns to
+# 0.5 deg, 3 seeds) leaving it out there gained the classical method +1.15 / +0.88 dB at S = 3 with
+# F = 8, +0.10 / +0.11 with F = 16, +0.92 / +0.88 and +1.00 / +1.00 at S = 4 with F = 8 and 16, and
+# +0.6 to +1.0 dB at S = 3 with F = 4 (run at S = 2), never less; with shifts alone (whole sub-pixel
+# phases empty) +0.03 to +1.05 dB in every burst: the deblurred lattice beats its blend with the
+# enlarged reference even where a third of the nodes are empty. At S = 2 itself it is kept: on
+# 40 x 40 px bursts of 3 to 6 frames it gains 0.4 to 1.1 dB (benchmarks/bench_few_frames.py).
 RUN_FILL = 0.5
 
 
