@@ -277,3 +277,52 @@ def test_sixteen_bit_frames_with_few_bits_get_a_hint_and_the_same_image():
     plain = reconstruct(assemble_burst(burst.frames, 2)[0], "classical")
     # 32.83 against 32.44 dB (the brightness fit differs)
     assert psnr(np.clip(dark, 0, 1), burst.truth) > psnr(plain, burst.truth) - 0.5
+
+
+def test_the_classical_fill_blend_holds_at_scale_two_only(monkeypatch):
+    # The lattice fill's blend with the single frame guards S = 2 (a few frames leave whole
+    # sub-pixel phases empty); asked at S = 3 and 4, once the run scale's lattice is filled on
+    # average, the classical image is not blended (it cost 0.5 to 0.9 dB on the training
+    # simulator), but it is where no scale's lattice is filled.
+    import hbis_torch.reconstruct.burst as burst_module
+    from hbis_torch.reconstruct.burst import burst_samples, scale_to_run
+    from hbis_torch.reconstruct.classical.burst import classical_burst
+
+    def run_and_fill(stack):
+        _, positions, _, weights = burst_samples(stack)
+        return scale_to_run(positions, weights, stack.h)
+
+    def unblended(stack):  # every node counts as filled: no fill blend (and the run at S itself)
+        with monkeypatch.context() as m:
+            m.setattr(burst_module, "NO_FILL", -1.0)
+            m.setattr(burst_module, "FULL_FILL", -0.5)
+            return reconstruct(stack, "classical", lens_sigma=0.0)
+
+    def blended(stack):  # a method without the attribute is blended by the fill at every scale
+        with monkeypatch.context() as m:
+            m.delattr(classical_burst, "fill_blend_to")
+            return reconstruct(stack, "classical", lens_sigma=0.0)
+
+    def burst(count, scale, seed):
+        motions = random_motions(count, (SIZE, SIZE), np.random.default_rng(seed), 1.5, 1.0)
+        return assemble_burst(simulate_burst(_truth(scale), scale, motions, noise=0.005, seed=seed).frames, scale)[0]
+
+    # ten frames at S = 3: run at 3, its lattice filled on average but not everywhere
+    stack = burst(10, 3, 1)
+    run, fill = run_and_fill(stack)
+    assert run == 3 and float(fill.min()) < 0.9 and float(fill.mean()) >= burst_module.RUN_FILL
+    shipped = reconstruct(stack, "classical", lens_sigma=0.0)
+    assert np.array_equal(shipped, unblended(stack)) and not np.array_equal(shipped, blended(stack))
+    # eight frames at S = 3: run at 2, whose lattice they fill: not blended either
+    stack = burst(8, 3, 4)
+    run, fill = run_and_fill(stack)
+    assert run == 2 and float(fill.min()) < 0.9
+    assert not np.array_equal(reconstruct(stack, "classical", lens_sigma=0.0), blended(stack))
+    # four frames at S = 2, and two at S = 3 (no scale filled: run at 3): blended
+    stack = burst(4, 2, 2)
+    shipped = reconstruct(stack, "classical", lens_sigma=0.0)
+    assert np.array_equal(shipped, blended(stack)) and not np.array_equal(shipped, unblended(stack))
+    stack = burst(2, 3, 1)
+    run, fill = run_and_fill(stack)
+    assert run == 3 and float(fill.mean()) < burst_module.RUN_FILL
+    assert np.array_equal(reconstruct(stack, "classical", lens_sigma=0.0), blended(stack))

@@ -79,3 +79,7 @@ def classical_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *
 # in float32 (:func:`~hbis_torch.reconstruct.burst.reconstruct_burst` reads this): the lattice
 # reads both a band at a time.
 classical_burst.streams = True
+# The lattice fill's blend with the single frame only for bursts asked at S = 2 (or filling no
+# scale's lattice): above it, a scale the samples fill on average deblurs better than the blend
+# (hbis_torch.reconstruct.burst.RUN_FILL's notes).
+classical_burst.fill_blend_to = 2
