@@ -326,3 +326,12 @@ def test_the_classical_fill_blend_holds_at_scale_two_only(monkeypatch):
     run, fill = run_and_fill(stack)
     assert run == 3 and float(fill.mean()) < burst_module.RUN_FILL
     assert np.array_equal(reconstruct(stack, "classical", lens_sigma=0.0), blended(stack))
+
+
+def test_the_learned_method_is_blended_as_the_classical_one():
+    # the network refines the classical image: the fill's blend is left out where the classical
+    # image's is (a method without the attribute is blended at every scale)
+    from hbis_torch.reconstruct.classical.burst import classical_burst
+    from hbis_torch.reconstruct.learned.burst import learned_burst
+
+    assert learned_burst.fill_blend_to == classical_burst.fill_blend_to == 2
