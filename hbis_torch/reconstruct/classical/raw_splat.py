@@ -245,24 +245,15 @@ def plane_from_sums(acc: "Splat", lost_acc: "Splat | None") -> tuple[Tensor, Ten
     return plane, share < CLIPPED_SHARE
 
 
-def _box3(image: Tensor) -> Tensor:
-    """The mean of each 3 x 3 window of ``image`` (rows, cols), mirrored borders (as
-    ``kornia.filters.box_blur``'s ``reflect``), in shifted adds."""
-    rows, cols = image.shape
-    p = torch.nn.functional.pad(image[None, None], (1, 1, 1, 1), mode="reflect")[0, 0]
-    down = p[:rows] + p[1:rows + 1] + p[2:rows + 2]
-    return (down[:, :cols] + down[:, 1:cols + 1] + down[:, 2:cols + 2]).div_(9)
-
-
 def guided_difference(plane: Tensor, green: Tensor, strength: float, eps: float, change: Tensor | None = None,
                       rows: int = 1024) -> Tensor:
     """A colour's difference from green moved, in place, ``strength`` of the way to the guided
     filter of it (He et al., "Guided image filtering", IEEE TPAMI 35(6), 2013: in each 3 x 3
     window the difference is fitted as ``a green + b``, ``a = cov / (var + eps)``, and the
-    windows' fits are averaged; the same values as ``kornia.filters.guided_blur`` with
-    ``reflect`` borders), in bands of ``rows`` rows in float32 (a halo of 2 rows: the same
-    values): the noise of few samples a node averages out where green is flat, and the
-    differences keep green's edges.
+    windows' fits are averaged: ``kornia.filters.guided_blur`` with ``reflect`` borders), in
+    bands of ``rows`` rows in float32 (a halo of 2 rows: the same values as the whole plane's):
+    the noise of few samples a node averages out where green is flat, and the differences keep
+    green's edges.
 
     Parameters
     ----------
@@ -285,6 +276,8 @@ def guided_difference(plane: Tensor, green: Tensor, strength: float, eps: float,
     """
     if strength <= 0:
         return plane
+    from kornia.filters import guided_blur
+
     height = plane.shape[0]
     above = None  # the halo above a band as it was before the band above it was written over
     for top in range(0, height, rows):
@@ -295,9 +288,7 @@ def guided_difference(plane: Tensor, green: Tensor, strength: float, eps: float,
         if above is not None:
             p[:top - lo] = above
         above = p[top - lo + n - 2:top - lo + n].clone()
-        mean_g, mean_p = _box3(g), _box3(p)
-        a = (_box3(g * p) - mean_g * mean_p) / (_box3(g * g) - mean_g * mean_g + eps)
-        q = _box3(a).mul_(g).add_(_box3(mean_p.sub_(a.mul_(mean_g))))
+        q = guided_blur(g[None, None], p[None, None], 3, eps, border_type="reflect")[0, 0]
         part = plane[top:top + n]
         part.add_(q[top - lo:top - lo + n].double().sub_(part).mul_(strength))
     return plane
