@@ -167,29 +167,13 @@ class PlanePositions:
 def blur_pair(*images: Tensor, sigma: float) -> Tensor:
     """The whole-image blur of :func:`~hbis_torch.reconstruct.classical.splat.fill_holes` of
     ``images`` (each (rows, cols); ``num`` and ``den``) in float32: (len(images), rows, cols)
-    float32. As there, shifted adds of the sampled taps up to
-    :data:`~hbis_torch.reconstruct.classical.splat.SEPARABLE_MAX_SIGMA`, else the FFT's Gaussian
-    (:func:`~hbis_torch.reconstruct.classical.splat._gaussian_blur`), all images in one batch."""
-    import math
+    float32. As there, the sampled taps' convolution up to
+    :data:`~hbis_torch.reconstruct.classical.splat.SEPARABLE_MAX_SIGMA`, else the FFT's Gaussian,
+    all images in one batch."""
+    from hbis_torch.reconstruct.classical.splat import SEPARABLE_MAX_SIGMA, _gaussian_blur, _separable_blur
 
-    from hbis_torch.reconstruct.classical.splat import SEPARABLE_MAX_SIGMA, _separable_blur
-
-    if sigma <= SEPARABLE_MAX_SIGMA:
-        return torch.stack([_separable_blur(image.to(torch.float32), sigma) for image in images])
-
-    rows, cols = images[0].shape
-    pad = min(math.ceil(4 * sigma), rows - 1, cols - 1)
     both = torch.stack(images).to(torch.float32)
-    p = torch.nn.functional.pad(both[None], (pad, pad, pad, pad), mode="reflect")[0]
-    del both
-    fy = torch.fft.fftfreq(p.shape[1], dtype=torch.float32)[:, None]
-    fx = torch.fft.rfftfreq(p.shape[2], dtype=torch.float32)[None, :]
-    g = torch.exp((fx * fx + fy * fy).mul_(-2 * math.pi ** 2 * sigma ** 2))
-    spectrum = torch.fft.rfft2(p)
-    shape = p.shape[1:]
-    del p
-    out = torch.fft.irfft2(spectrum.mul_(g), s=shape)
-    return out[:, pad:pad + rows, pad:pad + cols]
+    return (_separable_blur if sigma <= SEPARABLE_MAX_SIGMA else _gaussian_blur)(both, sigma)
 
 
 def fill_plane_holes(num: Tensor, den: Tensor, in_place: bool = False, blur=None) -> Tensor:
