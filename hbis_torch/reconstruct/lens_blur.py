@@ -330,12 +330,6 @@ def _fit_edges(samples: list, thetas: list, noise: float, aperture: float) -> li
     return out
 
 
-def _fit_edge(xy: np.ndarray, values: np.ndarray, theta0: float, noise: float, aperture: float):
-    """One edge's fit (:func:`_fit_edges`): (sigma, its standard error, c1, RMS residual in noise
-    units) or None."""
-    return _fit_edges([(xy, values)], [theta0], noise, aperture)[0]
-
-
 def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float,
                         aperture: float = 1.0) -> LensEstimate:
     """The Gaussian lens blur of a burst, from its straight edges (module docstring).
