@@ -6,8 +6,8 @@ reference's grid, are added onto the output grid by the classical method's Gauss
 (:class:`Splat`: :func:`~hbis_torch.reconstruct.classical.splat.splat`'s sums in a third of its
 time), a band of rows at a time (:func:`bands`), their positions computed where read
 (:class:`PlanePositions`); the plane is the numerator over the denominator with the holes filled
-(:func:`fill_plane_holes`: :func:`~hbis_torch.reconstruct.classical.splat.fill_holes` with its
-whole-image blurs in float32, :func:`blur_pair`), and where clipped samples carry most of a
+(:func:`~hbis_torch.reconstruct.classical.splat.fill_holes` with its whole-image blurs in
+float32, :func:`blur_pair`), and where clipped samples carry most of a
 node's weight it goes to the clip level (:func:`plane_from_sums`). Red and blue are splatted as
 differences from green, which in noisy frames go through a guided filter with green the guide
 (:func:`guided_difference`).
@@ -21,6 +21,8 @@ from torch import Tensor
 # A colour whose unclipped samples weigh less than this share near an output pixel is taken as
 # clipped there (set to the clip level).
 CLIPPED_SHARE = 0.5
+
+
 class Splat:
     """The classical method's Gaussian splat (:func:`~hbis_torch.reconstruct.classical.splat.splat`:
     each sample onto the 3 x 3 nodes around its nearest, the Gaussian's weight times its own) of
@@ -118,9 +120,9 @@ class PlanePositions:
     """The positions of the samples at some pattern positions (a colour's), each pattern
     position's a grid of half the frames' size (pitch 2 px), computed where read from the
     burst's (a :class:`~hbis_torch.reconstruct.positions.BurstPositions`): frame ``p F + k`` is
-    frame k's samples at pattern position ``where[p]``. ``half``: in the half-size grid's pixels (``(x + 0.5) / 2 - 0.5``),
-    as :func:`~hbis_torch.reconstruct.classical.raw_burst.sharp_green` hands them to the burst
-    path; else in the reference's px.
+    frame k's samples at pattern position ``where[p]``. ``half``: in the half-size grid's pixels
+    (``(x + 0.5) / 2 - 0.5``), as :func:`~hbis_torch.reconstruct.classical.raw_burst.sharp_green`
+    hands them to the burst path; else in the reference's px.
 
     Indexed as :class:`~hbis_torch.reconstruct.positions.BurstPositions`: ``[j]`` (h, w, 2),
     ``[frames, rows]`` (f, r, w, 2), float64, slices with step 1 for the frames.
@@ -176,31 +178,18 @@ def blur_pair(*images: Tensor, sigma: float) -> Tensor:
     return (_separable_blur if sigma <= SEPARABLE_MAX_SIGMA else _gaussian_blur)(both, sigma)
 
 
-def fill_plane_holes(num: Tensor, den: Tensor, in_place: bool = False, blur=None) -> Tensor:
-    """:func:`~hbis_torch.reconstruct.classical.splat.fill_holes` (``num / den``, nodes of little
-    weight from the sums blurred wider and wider) of float64 sums, with its blurs of the whole
-    image (where the holes are many: the red and blue planes at S = 2 have one sample per node)
-    in float32 and both sums in one batch (:func:`blur_pair`): two thirds of the time. The holes
-    and the typical weight are found on the float64 sums as there (their values come in few
-    distinct sums of the splat's weights, and float32's rounding would tip some across the
-    threshold), and the blurred values at the holes differ from float64's by float32's rounding.
-    (rows, cols) float64; ``in_place`` writes it over ``num``; ``blur``: (num, den, sigma) -> the
-    blurred ``num`` and ``den`` (2, rows, cols), where the caller has them or keeps them (default
-    :func:`blur_pair`)."""
-    from hbis_torch.reconstruct.classical.splat import fill_holes
-
-    if blur is None:
-        def blur(n, d, sigma):
-            return blur_pair(n, d, sigma=sigma)
-    return fill_holes(num, den, in_place=in_place, blur=blur)
-
-
 def plane_from_sums(acc: "Splat", lost_acc: "Splat | None") -> tuple[Tensor, Tensor | None]:
     """A colour's plane from its splat's sums (both released): num / den with the holes filled
-    (:func:`fill_plane_holes`, over num's memory), and where the clipped samples, splatted alone in
+    (:func:`~hbis_torch.reconstruct.classical.splat.fill_holes`, over num's memory; its blurs of
+    the whole image, where the holes are many, in float32 with both sums in one batch,
+    :func:`blur_pair`: two thirds of the time; the holes and the typical weight are still found on
+    the float64 sums, whose values come in few distinct sums of the splat's weights that float32's
+    rounding would tip across the threshold), and where the clipped samples, splatted alone in
     ``lost_acc`` (None: none clipped), carry the most of a node's weight, the mask of the nodes that
     go to the clip level (the unclipped samples' share of the weight below :data:`CLIPPED_SHARE`;
     its holes filled from around them). Returns (plane (S H, S W) float64, mask or None)."""
+    from hbis_torch.reconstruct.classical.splat import fill_holes
+
     num, den = acc.result(0, release=True), acc.result(1, release=True)
     missing = lost_acc.result(0, release=True) if lost_acc is not None else None
     den_blurs: dict = {}  # den's whole-image blurs, which the clipped share below reads again
@@ -211,7 +200,7 @@ def plane_from_sums(acc: "Splat", lost_acc: "Splat | None") -> tuple[Tensor, Ten
             den_blurs[sigma] = blurred[1].clone()
         return blurred
 
-    plane = fill_plane_holes(num, den, in_place=True, blur=plane_blur)
+    plane = fill_holes(num, den, in_place=True, blur=plane_blur)
     del num
     if missing is None:
         return plane, None
@@ -225,7 +214,7 @@ def plane_from_sums(acc: "Splat", lost_acc: "Splat | None") -> tuple[Tensor, Ten
             return blur_pair(n, d, sigma=sigma)
         return torch.stack((den_blurs[sigma], den_blurs[sigma] + missing_blurs[sigma]))
 
-    share = fill_plane_holes(den, total, in_place=True, blur=share_blur)
+    share = fill_holes(den, total, in_place=True, blur=share_blur)
     return plane, share < CLIPPED_SHARE
 
 
