@@ -180,8 +180,7 @@ def stabilise(grey: np.ndarray, noise: np.ndarray, balance) -> np.ndarray:
 def kernel_for_noise(noise: np.ndarray) -> float:
     """The splat's Gaussian (output px) for the raw noise (3, 2): narrow where the samples are
     clean, wide where they are noisy (the constants above, log-linear between)."""
-    sigma_n = float(np.sqrt(max(noise[1, 0] * 0.2 + noise[1, 1], 1e-12)))
-    t = np.clip(np.log(sigma_n / SHARP_NOISE) / np.log(SMOOTH_NOISE / SHARP_NOISE), 0, 1)
+    t = _log_share(_green_noise(noise), SHARP_NOISE, SMOOTH_NOISE)
     return float(SHARP_SIGMA + t * (SMOOTH_SIGMA - SHARP_SIGMA))
 
 
@@ -192,9 +191,19 @@ def chroma_for_noise(noise: np.ndarray, scale: int, frames: int) -> float:
     x = 0.2 over the square root of the samples of one colour an output node gets
     (``frames / (4 S^2)``: red and blue have a quarter of each frame's samples), so that more
     frames or a smaller S smooth less."""
-    sigma_n = float(np.sqrt(max(noise[1, 0] * 0.2 + noise[1, 1], 1e-12)))
-    per_node = sigma_n * np.sqrt(4 * scale * scale / max(frames, 1))
-    return float(np.clip(np.log(per_node / CHROMA_NOISE) / np.log(CHROMA_FULL / CHROMA_NOISE), 0, 1))
+    per_node = _green_noise(noise) * np.sqrt(4 * scale * scale / max(frames, 1))
+    return _log_share(per_node, CHROMA_NOISE, CHROMA_FULL)
+
+
+def _green_noise(noise: np.ndarray) -> float:
+    """A green sample's noise standard deviation at x = 0.2 of the white level, of the raw noise
+    (3, 2) (variance ``S x + O`` per colour)."""
+    return float(np.sqrt(max(noise[1, 0] * 0.2 + noise[1, 1], 1e-12)))
+
+
+def _log_share(value: float, low: float, high: float) -> float:
+    """0 at ``low`` and below, 1 at ``high`` and above, log-linear between."""
+    return float(np.clip(np.log(value / low) / np.log(high / low), 0, 1))
 
 
 def _lazy_positions(motions: np.ndarray, height: int, width: int, local: dict | None = None):
