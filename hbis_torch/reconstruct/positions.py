@@ -63,8 +63,6 @@ EXACT_SAMPLES_PER_CALL = 1 << 22
 CACHE_BYTES = 1 << 28
 
 
-
-
 class BurstPositions:
     """Where the samples of a burst lie on the reference grid, computed a band at a time.
 
