@@ -197,6 +197,20 @@ def test_the_adaptation_stops_when_its_time_is_spent():
     assert full.steps_taken == 10 and 0 < full.seconds < 60
 
 
+def test_the_adaptation_stops_once_its_checks_stop_finding_better_weights(monkeypatch):
+    stack, _ = _stack(size=24)
+    frames, positions, _, weights = burst_samples(stack, corrected_frames(stack))
+    net = adapt.load_refiner(shipped_model_path(2).with_suffix(".pt"))
+    args = (net, frames, positions, weights, 2, (0.0, 1e-4), stack.reference_index, burst_sr)
+    monkeypatch.setattr(adapt, "LEARNING_RATE", 1.0)  # steps that ruin the network: no check is better
+    patient = adapt.adapt_refiner(*args, steps=40, patience=2)
+    assert patient.step == 0 and patient.steps_taken == 2 * adapt.CHECK_EVERY
+    assert adapt.adapt_refiner(*args, steps=40, patience=None).steps_taken == 40
+    monkeypatch.setattr(adapt, "LEARNING_RATE", 1e-3)
+    usual = adapt.adapt_refiner(*args, steps=40, patience=2)
+    assert usual.steps_taken == 40 or usual.steps_taken - usual.step == 2 * adapt.CHECK_EVERY
+
+
 def test_the_learned_method_gives_the_adaptation_a_budget_from_the_classical_time(monkeypatch):
     stack, _ = _stack(size=24)
     monkeypatch.setattr(adapt, "BUDGET_MIN_S", 0.0)

@@ -1,7 +1,8 @@
 """Development bursts for the learned method's test-time adaptation: where its settings are chosen.
 
     python training/adapt_dev.py --out benchmarks/results/adapt_dev.json
-        [--generators sim cam] [--seeds 0 1 2 3] [--size 640x480] [--variants 30:1e-3 40:1e-3]
+        [--generators sim cam] [--seeds 0 1 2 3] [--size 640x480] [--frames 16] [--scale 2]
+        [--variants 30:1e-3 40:1e-3 30:1e-3:2]
 
 Never the held-out renderer (:mod:`hbis_torch.training.handheld_render`) nor its photographs:
 the scenes are the training photographs (:data:`hbis_torch.training.data.TRAIN_PHOTOS`) in a
@@ -15,16 +16,18 @@ pixel). Two cameras:
   px, each pixel the mean of a 3 x 3 quadrature of its footprint, Poisson-Gaussian noise (3000 to
   20000 e- full well, 3 e- read), 12 bits.
 
-Each burst (16 frames, S = 2) is assembled as ``hbis assemble --burst`` does; its classical image
-(:func:`~hbis_torch.reconstruct.classical.burst.burst_sr`), the shipped network's refinement of it,
-and the network adapted with each variant (``STEPS:LEARNING_RATE`` of
-:mod:`hbis_torch.reconstruct.learned.adapt`, no time budget) are scored against the truth
+Each burst (``--frames``, 16 by default; ``--scale``, 2 by default) is assembled as ``hbis assemble
+--burst`` does; its classical image (:func:`~hbis_torch.reconstruct.classical.burst.burst_sr`,
+undoing the lens blur the classical method measures), the shipped network's refinement of it,
+and the network adapted with each variant (``STEPS:LEARNING_RATE[:PATIENCE]`` of
+:func:`~hbis_torch.reconstruct.learned.adapt.adapt_refiner`, no time budget) are scored against the truth
 (PSNR without 4 LR px of border), with their seconds (torch on one thread).
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from pathlib import Path
@@ -116,39 +119,44 @@ def run_burst(generator: str, seed: int, args) -> dict:
     from hbis_torch.reconstruct.burst import burst_samples
     from hbis_torch.reconstruct.classical.burst import burst_sr
     from hbis_torch.reconstruct.learned import adapt
+    from hbis_torch.reconstruct.lens_blur import burst_lens_sigma
     from hbis_torch.reconstruct.learned.inputs import estimate_noise_params
     from hbis_torch.reconstruct.learned.runtime import shipped_model_path
 
     make = camera_burst if generator == "cam" else simulator_burst
-    frames, truth, bits = make(seed, 2, args.frames, args.width, args.height)
-    stack, _ = assemble_burst(frames, 2, bit_depth=bits)
+    scale = args.scale
+    frames, truth, bits = make(seed, scale, args.frames, args.width, args.height)
+    stack, _ = assemble_burst(frames, scale, bit_depth=bits)
     f, positions, _, weights = burst_samples(stack)
     noise = estimate_noise_params(f.numpy())
-    b = 8  # 4 LR px
+    # the lens blur the classical method measures and undoes, as the learned method's classical step
+    classical = functools.partial(burst_sr, lens_sigma=burst_lens_sigma(f, positions, weights,
+                                                                        stack.reference_index, []))
+    b = 4 * scale  # 4 LR px
 
     def score(image):
         return round(float(peak_signal_noise_ratio(truth[b:-b, b:-b], np.clip(image, 0, 1)[b:-b, b:-b],
                                                    data_range=1.0)), 3)
 
     t = time.perf_counter()
-    image = burst_sr(f, positions, 2, weights).numpy()
+    image = classical(f, positions, scale, weights).numpy()
     out = {"generator": generator, "seed": seed, "classical_db": score(image),
            "classical_s": round(time.perf_counter() - t, 3)}
-    net = adapt.load_refiner(shipped_model_path(2).with_suffix(".pt"))
+    net = adapt.load_refiner(shipped_model_path(scale).with_suffix(".pt"))
     t = time.perf_counter()
-    out["unadapted_db"] = score(adapt.refine(net, image, 2, noise))
+    out["unadapted_db"] = score(adapt.refine(net, image, scale, noise))
     out["refine_s"] = round(time.perf_counter() - t, 3)
     shipped = adapt.LEARNING_RATE
     for variant in args.variants:
-        steps, rate = variant.split(":")
+        steps, rate, *patience = variant.split(":")
         adapt.LEARNING_RATE = float(rate)
         try:
-            done = adapt.adapt_refiner(net, f, positions, weights, 2, noise, stack.reference_index, burst_sr,
-                                       steps=int(steps))
+            done = adapt.adapt_refiner(net, f, positions, weights, scale, noise, stack.reference_index, classical,
+                                       steps=int(steps), patience=int(patience[0]) if patience else None)
         finally:
             adapt.LEARNING_RATE = shipped
-        out[variant] = {"db": score(adapt.refine(done.net, image, 2, noise)), "kept_step": done.step,
-                        "seconds": round(done.seconds, 3)}
+        out[variant] = {"db": score(adapt.refine(done.net, image, scale, noise)), "kept_step": done.step,
+                        "seconds": round(done.seconds, 3), "steps_taken": done.steps_taken}
     return out
 
 
@@ -160,14 +168,17 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3])
     p.add_argument("--size", default="640x480")
     p.add_argument("--frames", type=int, default=16)
-    p.add_argument("--variants", nargs="+", default=["30:1e-3"], help="STEPS:LEARNING_RATE (default 30:1e-3)")
+    p.add_argument("--scale", type=int, default=2, choices=[2, 3, 4], help="S (default 2)")
+    p.add_argument("--variants", nargs="+", default=["30:1e-3"],
+                   help="STEPS:LEARNING_RATE[:PATIENCE] (default 30:1e-3; PATIENCE: stop after that many checks "
+                        "without better weights)")
     args = p.parse_args(argv)
     try:
         args.width, args.height = (int(v) for v in args.size.lower().split("x"))
         for v in args.variants:
-            int(v.split(":")[0]), float(v.split(":")[1])
+            int(v.split(":")[0]), float(v.split(":")[1]), [int(k) for k in v.split(":")[2:3]]
     except (ValueError, IndexError):
-        print(f"adapt_dev: --size is WxH and --variants STEPS:RATE, got {args.size!r} {args.variants}", file=sys.stderr)
+        print(f"adapt_dev: --size is WxH and --variants STEPS:RATE[:PATIENCE], got {args.size!r} {args.variants}", file=sys.stderr)
         return 2
     if not args.out.parent.is_dir():
         print(f"adapt_dev: the folder of --out {args.out} does not exist", file=sys.stderr)
@@ -189,7 +200,7 @@ def main(argv=None) -> int:
         summary[v] = {"minus_classical_mean_db": float(np.mean(gains)), "minus_classical_worst_db": float(min(gains)),
                       "seconds_over_classical_mean": float(np.mean([r[v]["seconds"] / r["classical_s"] for r in rows]))}
     write_results(args.out, {"settings": {k: getattr(args, k) for k in ("generators", "seeds", "size", "frames",
-                                                                          "variants")},
+                                                                          "scale", "variants")},
                              "rows": rows, "summary": summary}, argv=argv)
     print(summary)
     return 0

@@ -67,6 +67,7 @@ LEARNING_RATE = 1e-3
 # gains more on real and held-out bursts but loses up to 2 dB on the training's own simulator.
 ANCHOR = 1.0
 CHECK_EVERY = 5
+PATIENCE = None
 WINDOW_PX = 64
 CROP_PX = 192
 BORDER_PX = 2.0
@@ -270,7 +271,7 @@ def _window(fold: Fold, y0: int, x0: int, size: tuple[int, int], halo: int):
 def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weights: Tensor, scale: int,
                   noise_params: tuple[float, float], reference: int, classical, *, steps: int = STEPS,
                   seed: int = SEED, on_step=None, budget_s: float | None = None,
-                  crop: int = CROP_PX) -> Adaptation | None:
+                  crop: int = CROP_PX, patience: int | None = PATIENCE) -> Adaptation | None:
     """Fine-tune a copy of ``net``'s last convolution to predict the burst's left-out frames
     (the module's recipe).
 
@@ -303,6 +304,8 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
         None: all ``steps``.
     crop : int
         Side of the window the adaptation works on, LR px (:func:`crop_box`).
+    patience : int, optional
+        Stop once this many checks in a row found no better weights. None: never.
 
     Returns
     -------
@@ -370,6 +373,8 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
             best_error, best_state, best_step = _keep_better(error(tail), tail, step, best_error, best_state, best_step)
         if on_step is not None:
             on_step()
+        if patience is not None and step - best_step >= patience * CHECK_EVERY:
+            break
     if taken % CHECK_EVERY and taken != steps:  # stopped by the budget between checks
         best_error, best_state, best_step = _keep_better(error(tail), tail, taken, best_error, best_state, best_step)
     adapted = copy.deepcopy(net)
