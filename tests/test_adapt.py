@@ -191,7 +191,7 @@ def test_the_adaptation_stops_when_its_time_is_spent():
     net = adapt.load_refiner(shipped_model_path(2).with_suffix(".pt"))
     args = (net, frames, positions, weights, 2, (0.0, 1e-4), stack.reference_index, burst_sr)
     spent = adapt.adapt_refiner(*args, steps=10, budget_s=0.0)
-    assert spent.steps_taken == 0 and spent.step == 0 and spent.error_after == spent.error_before
+    assert spent.steps_taken == 0 and spent.step == 0 and spent.error_after == spent.error_before and spent.out_of_time
     assert all(torch.equal(a, b) for a, b in zip(spent.net.state_dict().values(), net.state_dict().values()))
     full = adapt.adapt_refiner(*args, steps=10, budget_s=60.0)
     assert full.steps_taken == 10 and 0 < full.seconds < 60
@@ -204,7 +204,7 @@ def test_the_adaptation_stops_once_its_checks_stop_finding_better_weights(monkey
     args = (net, frames, positions, weights, 2, (0.0, 1e-4), stack.reference_index, burst_sr)
     monkeypatch.setattr(adapt, "LEARNING_RATE", 1.0)  # steps that ruin the network: no check is better
     patient = adapt.adapt_refiner(*args, steps=40, patience=2)
-    assert patient.step == 0 and patient.steps_taken == 2 * adapt.CHECK_EVERY
+    assert patient.step == 0 and patient.steps_taken == 2 * adapt.CHECK_EVERY and not patient.out_of_time
     assert adapt.adapt_refiner(*args, steps=40, patience=None).steps_taken == 40
     monkeypatch.setattr(adapt, "LEARNING_RATE", 1e-3)
     usual = adapt.adapt_refiner(*args, steps=40, patience=2)

@@ -101,7 +101,7 @@ def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, ou
         if adaptation is None:
             notes.append("fewer than two usable frames besides the reference: the network is not adapted to the burst")
         else:
-            stopped = "" if adaptation.steps_taken == STEPS else f", its time of {budget:.1f} s spent"
+            stopped = f", its time of {budget:.1f} s spent" if adaptation.out_of_time else ""
             notes.append(f"the network was adapted to the burst's own frames ({adaptation.steps_taken} of {STEPS} "
                          f"steps in {adaptation.seconds:.1f} s{stopped}; the weights of step {adaptation.step} "
                          f"kept): mean squared error of the left-out frames' "
