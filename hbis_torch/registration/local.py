@@ -123,6 +123,7 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     """
     import kornia
 
+    from hbis_torch.registration.warp import warp_onto_reference
     from hbis_torch.sensor.noise import noise_sigma
 
     F, H, W = grey.shape
@@ -138,41 +139,54 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     ref_and_gradient = torch.cat((ref, gradient * 0.5), 1)  # central differences: (f(x+1) - f(x-1)) / 2
     # Noise of a blurred difference of two frames, for the shrinkage of poorly pinned tiles.
     noise = float(noise_sigma(grey[reference][None])[0]) * 2 ** 0.5 / (2 * np.pi ** 0.5 * BLUR_PX)
-    pool = (lambda x: torch.nn.functional.avg_pool2d(x, tile, tile, ceil_mode=True, count_include_pad=False) * tile * tile)
     pixels = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
     spread = (_spread(H, rows, tile), _spread(W, cols, tile).T.contiguous())
+    # each tile's pixel count: a partial tile's sums count as a whole tile's mean would
+    area = _tile_sums(torch.ones((1, H, W)), tile)[0]
+    # the products the tiles sum (gx gx, gx gy, gy gy, gx r, gy r), written in place each step
+    terms, r, g = torch.empty((5, H, W)), torch.empty((1, H, W)), torch.empty((2, H, W))
     for k in use:
-        g, o = gain_offset[k]
-        frame = (g * grey[k] + o)[None, None]
-        ones = torch.ones_like(frame)
-        warped = kornia.geometry.transform.warp_perspective(
-            torch.cat((blur(frame), ones), 1), torch.as_tensor(motions[k], dtype=torch.float32)[None], (H, W),
-            mode="bilinear", padding_mode="zeros", align_corners=True)
-        valid = (warped[:, 1:] > 0.999).float()
-        valid[..., :2, :], valid[..., -2:, :], valid[..., :2], valid[..., -2:] = 0, 0, 0, 0
+        gain, offset = gain_offset[k]
+        warped, inside = warp_onto_reference(blur((gain * grey[k] + offset)[None, None]), motions[k])
+        inside[:2], inside[-2:], inside[:, :2], inside[:, -2:] = False, False, False, False
+        valid = inside[None].float()
+        n = _tile_sums(valid, tile)[0]
         d = torch.zeros(1, rows, cols, 2)
-        terms = torch.empty((1, 6, H, W))  # the products the tiles sum, written in place (no concatenation)
-        terms[:, 5:] = valid
         for step in range(ITERATIONS):
             # the first step starts from no shift: the reference as it is (reading it at x + 0 would
             # only add roundings of 1e-7 px)
             at = ref_and_gradient if step == 0 else _shift(ref_and_gradient, _field(d, (H, W), tile, spread), pixels)
-            r = (warped[:, :1] - at[:, :1]) * valid
-            gx, gy = at[:, 1:2] * valid, at[:, 2:3] * valid
-            for i, (a, b) in enumerate(((gx, gx), (gx, gy), (gy, gy), (gx, r), (gy, r))):
-                torch.mul(a, b, out=terms[:, i:i + 1])
-            sums = pool(terms)[0]
-            axx, axy, ayy, bx, by, n = sums
+            torch.sub(warped[0, :1], at[0, :1], out=r)
+            torch.mul(at[0, 1:3], valid, out=g)  # the gradients masked, so every product below is
+            torch.mul(g, g[:1], out=terms[0:2])  # gx gx, gy gx
+            torch.mul(g[1:], g[1:], out=terms[2:3])
+            torch.mul(g, r, out=terms[3:5])  # gx r, gy r
+            axx, axy, ayy, bx, by = _tile_sums(terms, tile)
             # Tikhonov: a tile whose texture is at the noise's level keeps (nearly) its shift.
             lam = (noise ** 2) * n.clamp_min(1) * 4.0
             det = (axx + lam) * (ayy + lam) - axy * axy
             step_u = ((ayy + lam) * bx - axy * by) / det.clamp_min(1e-20)
             step_v = ((axx + lam) * by - axy * bx) / det.clamp_min(1e-20)
             d = d + torch.stack((step_u, step_v), -1)[None]
-        d = torch.where((n > 0.5 * tile * tile)[None, ..., None], d, torch.zeros_like(d))
+        d = torch.where((n > 0.5 * area)[None, ..., None], d, torch.zeros_like(d))
         too_far = d.norm(dim=-1, keepdim=True) > MAX_LOCAL_PX
         d = torch.where(too_far, torch.zeros_like(d), d)
         out[k] = d[0].double().numpy()
+    return out
+
+
+def _tile_sums(x: Tensor, tile: int) -> Tensor:
+    """Sums of ``x`` (C, H, W) over each tile (C, rows, cols) (the last ones partial): the full
+    tiles' as views summed, the partial row and column of tiles apart (no padded copy)."""
+    C, H, W = x.shape
+    full = W - W % tile
+    across = x[..., :full].reshape(C, H, full // tile, tile).sum(-1)
+    if full < W:
+        across = torch.cat((across, x[..., full:].sum(-1, keepdim=True)), -1)
+    full = H - H % tile
+    out = across[:, :full].reshape(C, full // tile, tile, -1).sum(-2)
+    if full < H:
+        out = torch.cat((out, across[:, full:].sum(-2, keepdim=True)), -2)
     return out
 
 
