@@ -87,15 +87,17 @@ def _field_at(offsets: Tensor, points: Tensor, tile: int) -> Tensor:
     return out[:, :, 0]
 
 
-def _shift(image: Tensor, field: Tensor, pixels: tuple[Tensor, Tensor] | None = None) -> Tensor:
-    """``image`` (F, C, H, W) read at x + field(x), ``field`` (F, H, W, 2) in px, bilinear;
-    ``pixels``: the (v, u) pixel grids (H, W) float32, where the caller keeps them."""
-    F, _, H, W = image.shape
-    v, u = pixels or torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32),
-                                    indexing="ij")
-    grid = torch.empty((F, H, W, 2), dtype=torch.float32)  # written in place: no stacking copy
-    torch.add(u, field[..., 0], out=grid[..., 0]).mul_(2 / (W - 1)).sub_(1)
-    torch.add(v, field[..., 1], out=grid[..., 1]).mul_(2 / (H - 1)).sub_(1)
+def _shift(image: Tensor, offsets: Tensor, tile: int, spread: tuple[Tensor, Tensor],
+           axes: tuple[Tensor, Tensor]) -> Tensor:
+    """``image`` (1, C, H, W) read at x + the field of ``offsets`` (1, rows, cols, 2, px) at x,
+    bilinear; ``spread``: :func:`_spread`'s two matrices, ``axes``: the rows' and the columns'
+    coordinates in grid_sample's [-1, 1], (H,) and (W,) float32, kept by the caller. The offsets
+    are scaled to those units before they are spread (two passes over the pixels, not six)."""
+    _, _, H, W = image.shape
+    field = _field(offsets * torch.tensor([2 / (W - 1), 2 / (H - 1)]), (H, W), tile, spread)  # (1, H, W, 2)
+    grid = torch.empty((1, H, W, 2), dtype=torch.float32)  # written in place: no stacking copy
+    torch.add(field[..., 0], axes[1][None, None, :], out=grid[..., 0])
+    torch.add(field[..., 1], axes[0][None, :, None], out=grid[..., 1])
     return torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
 
 
@@ -139,7 +141,7 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     ref_and_gradient = torch.cat((ref, gradient * 0.5), 1)  # central differences: (f(x+1) - f(x-1)) / 2
     # Noise of a blurred difference of two frames, for the shrinkage of poorly pinned tiles.
     noise = float(noise_sigma(grey[reference][None])[0]) * 2 ** 0.5 / (2 * np.pi ** 0.5 * BLUR_PX)
-    pixels = torch.meshgrid(torch.arange(H, dtype=torch.float32), torch.arange(W, dtype=torch.float32), indexing="ij")
+    axes = tuple((torch.arange(n, dtype=torch.float64) * (2 / (n - 1)) - 1).float() for n in (H, W))
     spread = (_spread(H, rows, tile), _spread(W, cols, tile).T.contiguous())
     # each tile's pixel count: a partial tile's sums count as a whole tile's mean would
     area = _tile_sums(torch.ones((1, H, W)), tile)[0]
@@ -155,7 +157,7 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
         for step in range(ITERATIONS):
             # the first step starts from no shift: the reference as it is (reading it at x + 0 would
             # only add roundings of 1e-7 px)
-            at = ref_and_gradient if step == 0 else _shift(ref_and_gradient, _field(d, (H, W), tile, spread), pixels)
+            at = ref_and_gradient if step == 0 else _shift(ref_and_gradient, d, tile, spread, axes)
             torch.sub(warped[0, :1], at[0, :1], out=r)
             torch.mul(at[0, 1:3], valid, out=g)  # the gradients masked, so every product below is
             torch.mul(g, g[:1], out=terms[0:2])  # gx gx, gy gx
