@@ -135,7 +135,7 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     """
     from hbis_torch.progress import progress
     from hbis_torch.registration import ALL_MODELS, register_models
-    from hbis_torch.registration.pyramid import coarse_to_fine, project
+    from hbis_torch.registration.pyramid import coarse_to_fine, levels_for, project, pyramid
 
     F = grey.shape[0]
     shape = tuple(grey.shape[1:])
@@ -150,7 +150,11 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     if not todo:
         return BurstMotion(motions, confidence, models, gain_offset, messages)
     candidates = ALL_MODELS if motion == "auto" else (motion,)
-    start = coarse_to_fine(grey, reference, candidates[-1], keep_levels=1)
+    # The pyramid's level the brightness fit reads is kept (the same halvings, made once).
+    images, gain_levels = pyramid(grey, levels_for(shape)), gain_fit_levels(shape)
+    halved = images[gain_levels] if 0 < gain_levels < len(images) else None
+    start = coarse_to_fine(grey, reference, candidates[-1], keep_levels=1, images=images)
+    del images
     if start is None:  # frames too small for a pyramid: each frame's own ladder (_register_pair)
         candidates = ()
     bar = progress(desc="registering the burst", total=len(candidates) + 1, unit="step")
@@ -196,10 +200,10 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
             if k in todo and confidence[k] > 0:
                 neighbour = motions[k]
     bar.update()
-    reduced = gain_fit_reference(ref)  # once, not once a frame
+    reduced = gain_fit_reference(ref) if halved is None else (halved[reference], gain_levels)  # once a burst
     for k in todo:
         if confidence[k] > 0:
-            gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k], reduced)
+            gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k], reduced, None if halved is None else halved[k])
     local = None
     if start is not None:  # frames large enough for a pyramid are large enough to tile
         from hbis_torch.registration.local import local_offsets
@@ -371,19 +375,25 @@ def warp_to_reference(frame: torch.Tensor, motion: np.ndarray) -> tuple[torch.Te
     return warped[0, 0], valid
 
 
+def gain_fit_levels(shape: tuple[int, int]) -> int:
+    """How many times :func:`fit_gain_offset` halves frames of ``shape`` (H, W)."""
+    levels = 0
+    while min(shape) >> levels >= 2 * GAIN_FIT_SIDE:
+        levels += 1
+    return levels
+
+
 def gain_fit_reference(reference: torch.Tensor) -> tuple[torch.Tensor, int]:
     """The reference (H, W) as :func:`fit_gain_offset` compares frames with it, halved as they
     are, and how many times."""
     from hbis_torch.registration.pyramid import pyramid
 
-    levels = 0
-    while min(reference.shape) >> levels >= 2 * GAIN_FIT_SIDE:
-        levels += 1
+    levels = gain_fit_levels(tuple(reference.shape))
     return (pyramid(reference[None], levels)[-1][0] if levels else reference), levels
 
 
 def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.ndarray,
-                    reduced: tuple | None = None) -> tuple[float, float]:
+                    reduced: tuple | None = None, halved: torch.Tensor | None = None) -> tuple[float, float]:
     """(g, o) with ``g * frame + o`` matching the reference where both see the same scene.
 
     A least-squares line through the warped frame's and the reference's pixels (both blurred a
@@ -392,7 +402,8 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     [0.5, 2]) is refused in favour of (1, 0). Frames larger than :data:`GAIN_FIT_SIDE` twice
     over are halved (a Gaussian pyramid) until they are not: two numbers need no millions of
     pixels, and the warp's cost was most of a large burst's brightness fit. ``reduced``:
-    :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a burst's frames.
+    :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a burst's frames;
+    ``halved``: the frame halved as ``reduced`` says, where the caller has it (a burst's pyramid).
     """
     import kornia
 
@@ -400,7 +411,7 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
 
     reference, levels = gain_fit_reference(reference) if reduced is None else reduced
     if levels:
-        frame = pyramid(frame[None], levels)[-1][0]
+        frame = pyramid(frame[None], levels)[-1][0] if halved is None else halved
         motion = to_level(np.asarray(motion)[None], levels)[0]
     warped, valid = warp_to_reference(frame, motion)
     # (blurred together: Kornia's faster path takes images of 128k pixels or more)
