@@ -23,7 +23,7 @@ from torch import Tensor
 EDGE_TOLERANCE_PX = 1e-3
 
 
-def sampling_grid(motion: np.ndarray, shape: tuple[int, int]) -> Tensor:
+def sampling_grid(motion: np.ndarray, shape: tuple[int, int], size: tuple[int, int] | None = None) -> Tensor:
     """Where each pixel of the reference grid lies in the frame, as ``grid_sample`` reads it.
 
     Parameters
@@ -32,20 +32,24 @@ def sampling_grid(motion: np.ndarray, shape: tuple[int, int]) -> Tensor:
         Frame px -> reference px.
     shape : (H, W)
         The frame's and the reference's size, px.
+    size : (rows, cols), optional
+        The pixels (v, u) with v < rows, u < cols of the reference grid, carried on past its
+        edge where larger than ``shape`` (default: ``shape``).
 
     Returns
     -------
-    Tensor, shape (1, H, W, 2), float32
+    Tensor, shape (1, rows, cols, 2), float32
         (x, y) in [-1, 1] across the frame's outer pixel centres (``align_corners=True``);
         non-finite where the homography sends the point to infinity.
     """
     H, W = shape
+    rows, cols = size or shape
     # reference normalised -> reference px -> frame px -> frame normalised, composed in float64
     norm = np.array([[2 / max(W - 1, 1), 0, -1], [0, 2 / max(H - 1, 1), -1], [0, 0, 1.0]])
     m = torch.from_numpy(norm @ np.linalg.inv(np.asarray(motion, dtype=np.float64)) @ np.linalg.inv(norm))
-    xs = torch.linspace(-1, 1, W, dtype=torch.float64)
-    ys = torch.linspace(-1, 1, H, dtype=torch.float64)
-    grid = torch.empty((1, H, W, 2), dtype=torch.float32)
+    xs = torch.arange(cols, dtype=torch.float64) * (2 / max(W - 1, 1)) - 1
+    ys = torch.arange(rows, dtype=torch.float64) * (2 / max(H - 1, 1)) - 1
+    grid = torch.empty((1, rows, cols, 2), dtype=torch.float32)
 
     def plane(row: int, out: Tensor | None = None) -> Tensor:  # m[row] . (x, y, 1) at every pixel
         across = (m[row, 0] * xs).float()[None, :]
@@ -65,16 +69,18 @@ def sampling_grid(motion: np.ndarray, shape: tuple[int, int]) -> Tensor:
     return grid
 
 
-def inside(grid: Tensor) -> Tensor:
-    """(H, W) bool: where a :func:`sampling_grid` (1, H, W, 2) lies on the frame, up to
+def inside(grid: Tensor, shape: tuple[int, int] | None = None) -> Tensor:
+    """(rows, cols) bool: where a :func:`sampling_grid` (1, rows, cols, 2) of a frame of
+    ``shape`` (H, W) (default: the grid's size) lies on the frame, up to
     :data:`EDGE_TOLERANCE_PX` beyond its outer pixel centres (False where non-finite)."""
-    _, H, W, _ = grid.shape
+    H, W = shape or grid.shape[1:3]
     reach = grid[0].abs()  # one pass over both coordinates (a strided one per axis took longer)
     out = reach[..., 0] <= 1 + 2 * EDGE_TOLERANCE_PX / max(W - 1, 1)
     return out.logical_and_(reach[..., 1] <= 1 + 2 * EDGE_TOLERANCE_PX / max(H - 1, 1))
 
 
-def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinear") -> tuple[Tensor, Tensor]:
+def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinear",
+                        size: tuple[int, int] | None = None) -> tuple[Tensor, Tensor]:
     """``images`` (1, C, H, W) of a frame resampled onto the reference grid (zeros outside).
 
     Parameters
@@ -84,13 +90,16 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
         Frame px -> reference px.
     mode : str
         ``grid_sample``'s interpolation.
+    size : (rows, cols), optional
+        The reference grid's pixels to resample at (:func:`sampling_grid`; default (H, W)).
 
     Returns
     -------
-    warped : Tensor, shape (1, C, H, W), float32
-    valid : Tensor, shape (H, W), bool
+    warped : Tensor, shape (1, C, rows, cols), float32
+    valid : Tensor, shape (rows, cols), bool
         Where the frame covers the reference pixel (:func:`inside`).
     """
-    grid = sampling_grid(motion, tuple(images.shape[-2:]))
+    shape = tuple(images.shape[-2:])
+    grid = sampling_grid(motion, shape, size)
     warped = torch.nn.functional.grid_sample(images, grid, mode=mode, padding_mode="zeros", align_corners=True)
-    return warped, inside(grid)
+    return warped, inside(grid, shape)
