@@ -56,6 +56,11 @@ def test_the_identity_warp_returns_the_frame():
     assert bool(valid.all()) and float((ours - image).abs().max()) < 1e-6
 
 
+def test_a_degenerate_motion_covers_nothing():
+    _, valid = warp_onto_reference(_texture(40, 50, 1)[None, None], np.zeros((3, 3)))
+    assert not bool(valid.any())
+
+
 @pytest.mark.parametrize("shape", [(64, 96), (70, 101)])
 def test_tile_sums_are_an_average_pool_times_each_tiles_pixel_count(shape):
     H, W = shape

@@ -46,7 +46,11 @@ def sampling_grid(motion: np.ndarray, shape: tuple[int, int], size: tuple[int, i
     rows, cols = size or shape
     # reference normalised -> reference px -> frame px -> frame normalised, composed in float64
     norm = np.array([[2 / max(W - 1, 1), 0, -1], [0, 2 / max(H - 1, 1), -1], [0, 0, 1.0]])
-    m = torch.from_numpy(norm @ np.linalg.inv(np.asarray(motion, dtype=np.float64)) @ np.linalg.inv(norm))
+    try:
+        inverse = np.linalg.inv(np.asarray(motion, dtype=np.float64))
+    except np.linalg.LinAlgError:  # a degenerate motion: nowhere on the frame
+        inverse = np.full((3, 3), np.nan)
+    m = torch.from_numpy(norm @ inverse @ np.linalg.inv(norm))
     xs = torch.arange(cols, dtype=torch.float64) * (2 / max(W - 1, 1)) - 1
     ys = torch.arange(rows, dtype=torch.float64) * (2 / max(H - 1, 1)) - 1
     grid = torch.empty((1, rows, cols, 2), dtype=torch.float32)
