@@ -3,13 +3,14 @@
 torch.linalg.lstsq's default CPU driver (gelsy) reads its pivot array without initialising it
 (pytorch/pytorch#71222), so a line fit's last bits followed whatever the allocator handed back:
 about one burst in 150 assembled twice in one process came out with another gain. The burst's
-line fits use a driver that does not (:data:`hbis_torch.capture.burst.LSTSQ_DRIVER`).
+gain fit uses a driver that does not (:data:`hbis_torch.capture.burst.LSTSQ_DRIVER`); the model
+evidence's line is fitted in closed form (:func:`hbis_torch.registration.evidence.trimmed_line_mse`).
 """
 
 import numpy as np
 import torch
 
-from hbis_torch.capture.burst import trimmed_line_mse
+from hbis_torch.registration.evidence import trimmed_line_mse
 
 
 def test_a_line_fit_has_the_same_bits_whatever_memory_it_is_given():

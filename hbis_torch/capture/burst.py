@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from torch import Tensor
 
 from hbis_torch.capture.frames import bit_depth_hint
 from hbis_torch.errors import HbisInputError
@@ -49,9 +48,6 @@ FULL_OVERLAP = 0.5
 MODEL_TOLERANCE_PX = 0.01
 # A richer model than translation is kept only if it predicts the frame this much better (relative).
 RICHER_GAIN = 0.01
-TRIM = 0.75
-# Pixels of a frame that score each model's motion (model_evidence): a regular grid of about this many.
-EVIDENCE_POINTS = 32768
 # The brightness fit halves frames whose shorter side is at least twice this (fit_gain_offset).
 GAIN_FIT_SIDE = 128
 # Pixels this close to the white or black level count as saturated (left out of the gain fit).
@@ -96,10 +92,13 @@ def luminance(frames: np.ndarray) -> torch.Tensor:
     top = float(np.iinfo(frames.dtype).max) if frames.dtype in (np.uint8, np.uint16) else None
     out = np.empty(frames.shape[:3], dtype=np.float32)
     for k, frame in enumerate(frames):
+        if frame.ndim == 2:  # written in place: no float copy of the frame (on a 12 MP burst
+            np.divide(frame, np.float32(top or 1.0), out=out[k], dtype=np.float32)  # 0.2 s a frame)
+            continue
         x = frame.astype(np.float32)
         if top is not None:
             x /= top
-        out[k] = x @ np.array([0.299, 0.587, 0.114], dtype=np.float32) if x.ndim == 3 else x
+        out[k] = x @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
     return torch.from_numpy(out)
 
 
@@ -136,7 +135,7 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     """
     from hbis_torch.progress import progress
     from hbis_torch.registration import ALL_MODELS, register_models
-    from hbis_torch.registration.pyramid import coarse_to_fine, project
+    from hbis_torch.registration.pyramid import coarse_to_fine, levels_for, project, pyramid
 
     F = grey.shape[0]
     shape = tuple(grey.shape[1:])
@@ -151,7 +150,11 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     if not todo:
         return BurstMotion(motions, confidence, models, gain_offset, messages)
     candidates = ALL_MODELS if motion == "auto" else (motion,)
-    start = coarse_to_fine(grey, reference, candidates[-1], keep_levels=1)
+    # The pyramid's level the brightness fit reads is kept (the same halvings, made once).
+    images, gain_levels = pyramid(grey, levels_for(shape)), gain_fit_levels(shape)
+    halved = images[gain_levels] if 0 < gain_levels < len(images) else None
+    start = coarse_to_fine(grey, reference, candidates[-1], keep_levels=1, images=images)
+    del images
     if start is None:  # frames too small for a pyramid: each frame's own ladder (_register_pair)
         candidates = ()
     bar = progress(desc="registering the burst", total=len(candidates) + 1, unit="step")
@@ -162,6 +165,8 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     # every model's fit from the same preparation of the frames (register_models)
     fits = register_models(grey, reference, predictions, lambda _: bar.update(), motion_tolerance_px=MODEL_TOLERANCE_PX)
     if fits:
+        from hbis_torch.registration.evidence import model_evidence
+
         evidence = model_evidence(grey, reference, {m: r.homographies.numpy() for m, r in fits.items()}, todo)
         for k in todo:
             chosen = min(candidates, key=lambda m: evidence[m][k])
@@ -195,10 +200,10 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
             if k in todo and confidence[k] > 0:
                 neighbour = motions[k]
     bar.update()
-    reduced = gain_fit_reference(ref)  # once, not once a frame
+    reduced = gain_fit_reference(ref) if halved is None else (halved[reference], gain_levels)  # once a burst
     for k in todo:
         if confidence[k] > 0:
-            gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k], reduced)
+            gain_offset[k] = fit_gain_offset(grey[k], ref, motions[k], reduced, None if halved is None else halved[k])
     local = None
     if start is not None:  # frames large enough for a pyramid are large enough to tile
         from hbis_torch.registration.local import local_offsets
@@ -206,66 +211,6 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
         local = local_offsets(grey, reference, motions, gain_offset, [k for k in todo if confidence[k] > 0])
     bar.close()
     return BurstMotion(motions, confidence, models, gain_offset, messages, local)
-
-
-def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: list) -> dict:
-    """BIC of each model's motion from the whole frame's prediction error, per frame.
-
-    A frame's samples at up to :data:`EVIDENCE_POINTS` pixels spread over it are compared with
-    the reference read where each motion puts them (both blurred by a Gaussian of 1 px against
-    aliasing, a gain and an offset fitted, the worst quarter left out: a moving object). With
-    ``n`` such residuals, independent over about 4 pi px^2 of a blurred frame, and ``k`` the
-    model's parameters, ``BIC = n log(mse) + k log(n)``: a richer model must explain the frame
-    better by more than its parameters could by chance, and that margin shrinks as the frame
-    grows.
-
-    Parameters
-    ----------
-    grey : Tensor, shape (F, H, W), float32
-    reference : int
-    motions : dict of str -> np.ndarray, shape (F, 3, 3)
-        Each model's motions, frame px -> reference px.
-    frames : list of int
-        The frames to score.
-
-    Returns
-    -------
-    dict of str -> dict of int -> float
-        Lower is better; inf where a motion leaves too little of the frame on the reference.
-    """
-    import kornia
-
-    from hbis_torch.registration import N_PARAMS
-
-    F, H, W = grey.shape
-
-    def blurred(k: int) -> Tensor:  # a frame at a time: no blurred copy of the burst
-        return kornia.filters.gaussian_blur2d(grey[k][None, None], (5, 5), (1.0, 1.0), border_type="replicate")[0, 0]
-
-    step = max(1, int(np.sqrt(H * W / EVIDENCE_POINTS)))
-    v, u = torch.meshgrid(torch.arange(3, H - 3, step, dtype=torch.float64),
-                          torch.arange(3, W - 3, step, dtype=torch.float64), indexing="ij")
-    points = torch.stack((u.reshape(-1), v.reshape(-1), torch.ones(u.numel(), dtype=torch.float64)))
-    ref = blurred(reference)[None, None]
-    # Residuals of the blurred frames are correlated over about 4 pi px^2.
-    independent = max(1.0, (H - 6) * (W - 6) / (4 * np.pi))
-    out = {m: {} for m in motions}
-    for k in frames:
-        values = blurred(k).reshape(-1)[(v.reshape(-1) * W + u.reshape(-1)).long()].double()
-        for model, found in motions.items():
-            q = torch.from_numpy(found[k]) @ points
-            qu, qv = q[0] / q[2], q[1] / q[2]
-            inside = (qu >= 3) & (qu <= W - 4) & (qv >= 3) & (qv <= H - 4)
-            if int(inside.sum()) < 64 or not bool(torch.isfinite(q).all()):
-                out[model][k] = float("inf")
-                continue
-            grid = torch.stack((2 * qu[inside] / (W - 1) - 1, 2 * qv[inside] / (H - 1) - 1), -1).float()
-            target = torch.nn.functional.grid_sample(ref, grid[None, None], mode="bilinear",
-                                                     align_corners=True)[0, 0, 0].double()
-            mse = trimmed_line_mse(values[inside], target) + 1e-20
-            n = min(float(len(target)), independent * float(inside.double().mean()))
-            out[model][k] = n * np.log(mse) + N_PARAMS[model] * np.log(n)
-    return out
 
 
 def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbour: np.ndarray):
@@ -322,6 +267,8 @@ def prediction_error(reference: torch.Tensor, frame: torch.Tensor, motion: np.nd
     (a moving object or an occlusion); inf where fewer than 16 remain."""
     import kornia
 
+    from hbis_torch.registration.evidence import trimmed_line_mse
+
     H, W = frame.shape
     # Both blurred first: on aliased frames the aliasing, not the motion, would dominate the error.
     reference, frame = kornia.filters.gaussian_blur2d(torch.stack((reference, frame))[:, None].float(), (5, 5),
@@ -335,16 +282,6 @@ def prediction_error(reference: torch.Tensor, frame: torch.Tensor, motion: np.nd
     if int(valid.sum()) < 16:
         return float("inf")
     return trimmed_line_mse(out[0][valid].double(), frame[valid].double()) ** 0.5
-
-
-def trimmed_line_mse(x: torch.Tensor, y: torch.Tensor) -> float:
-    """Mean squared residual of ``y`` (N,) about its least-squares line in ``x`` (N,) (a gain and
-    an offset), over the best :data:`TRIM` of the points: a moving object's are left out."""
-    A = torch.stack((x, torch.ones_like(x)), -1)
-    fit = A @ torch.linalg.lstsq(A, y[:, None], driver=LSTSQ_DRIVER).solution
-    squared = (fit[:, 0] - y).pow(2)
-    # the smallest TRIM of them, unsorted (a selection: a fifth of a sort's time, the same values)
-    return float(torch.topk(squared, int(TRIM * len(squared)), largest=False, sorted=False).values.mean())
 
 
 def overlap(motion: np.ndarray, shape) -> float:
@@ -427,18 +364,23 @@ def feature_start(reference: np.ndarray, frame: np.ndarray) -> np.ndarray | None
 
 
 def warp_to_reference(frame: torch.Tensor, motion: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """Frame (H, W) resampled onto the reference grid through its homography (Kornia, bilinear).
+    """Frame (H, W) resampled onto the reference grid through its homography (bilinear,
+    :func:`~hbis_torch.registration.warp.warp_onto_reference`).
 
     Returns the warped frame (H, W) and where it is valid (H, W) bool (inside the frame).
     """
-    import kornia
+    from hbis_torch.registration.warp import warp_onto_reference
 
-    H, W = frame.shape
-    M = torch.as_tensor(motion, dtype=torch.float32)[None]
-    image = torch.stack((frame, torch.ones_like(frame)))[None].float()
-    out = kornia.geometry.transform.warp_perspective(image, M, (H, W), mode="bilinear", padding_mode="zeros",
-                                                     align_corners=True)[0]
-    return out[0], out[1] > 0.999
+    warped, valid = warp_onto_reference(frame[None, None].float(), motion)
+    return warped[0, 0], valid
+
+
+def gain_fit_levels(shape: tuple[int, int]) -> int:
+    """How many times :func:`fit_gain_offset` halves frames of ``shape`` (H, W)."""
+    levels = 0
+    while min(shape) >> levels >= 2 * GAIN_FIT_SIDE:
+        levels += 1
+    return levels
 
 
 def gain_fit_reference(reference: torch.Tensor) -> tuple[torch.Tensor, int]:
@@ -446,14 +388,12 @@ def gain_fit_reference(reference: torch.Tensor) -> tuple[torch.Tensor, int]:
     are, and how many times."""
     from hbis_torch.registration.pyramid import pyramid
 
-    levels = 0
-    while min(reference.shape) >> levels >= 2 * GAIN_FIT_SIDE:
-        levels += 1
+    levels = gain_fit_levels(tuple(reference.shape))
     return (pyramid(reference[None], levels)[-1][0] if levels else reference), levels
 
 
 def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.ndarray,
-                    reduced: tuple | None = None) -> tuple[float, float]:
+                    reduced: tuple | None = None, halved: torch.Tensor | None = None) -> tuple[float, float]:
     """(g, o) with ``g * frame + o`` matching the reference where both see the same scene.
 
     A least-squares line through the warped frame's and the reference's pixels (both blurred a
@@ -462,7 +402,8 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     [0.5, 2]) is refused in favour of (1, 0). Frames larger than :data:`GAIN_FIT_SIDE` twice
     over are halved (a Gaussian pyramid) until they are not: two numbers need no millions of
     pixels, and the warp's cost was most of a large burst's brightness fit. ``reduced``:
-    :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a burst's frames.
+    :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a burst's frames;
+    ``halved``: the frame halved as ``reduced`` says, where the caller has it (a burst's pyramid).
     """
     import kornia
 
@@ -470,9 +411,10 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
 
     reference, levels = gain_fit_reference(reference) if reduced is None else reduced
     if levels:
-        frame = pyramid(frame[None], levels)[-1][0]
+        frame = pyramid(frame[None], levels)[-1][0] if halved is None else halved
         motion = to_level(np.asarray(motion)[None], levels)[0]
     warped, valid = warp_to_reference(frame, motion)
+    # (blurred together: Kornia's faster path takes images of 128k pixels or more)
     blur = kornia.filters.gaussian_blur2d(torch.stack((warped, reference))[:, None], (5, 5), (1.0, 1.0),
                                           border_type="replicate")[:, 0]
     x, y = blur[0][valid].double(), blur[1][valid].double()
@@ -532,13 +474,12 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
         messages.append(act(f"all {len(frames)} frames are identical to the reference: the burst holds no new "
                             "samples (its reconstruction is the single-frame estimate); capture it again, moving "
                             "the camera a little between frames"))
-    extra = {}
-    if found.local is not None:
+    meta = make_burst_meta(scale, roi, found.motions, found.confidence, found.models, found.gain_offset,
+                           reference_index=reference, bit_depth=bit_depth)
+    if found.local is not None:  # plain lists already: set here, not walked value by value by make_burst_meta
         from hbis_torch.registration.local import TILE_PX
 
-        extra["local_motion"] = {"tile_px": TILE_PX, "offsets": found.local.round(5).tolist()}
-    meta = make_burst_meta(scale, roi, found.motions, found.confidence, found.models, found.gain_offset,
-                           reference_index=reference, bit_depth=bit_depth, **extra)
+        meta["local_motion"] = {"tile_px": TILE_PX, "offsets": found.local.round(5).tolist()}
     frames = np.ascontiguousarray(frames)
     validate_stack(frames, meta, "assembled burst")
     return Stack(frames, meta), messages

@@ -28,8 +28,11 @@ The package holds one idea per module: :mod:`.homography` (homographies and the 
 parameters), :mod:`.bspline` (prefiltering and cubic B-spline resampling),
 :mod:`.phase_correlation` (the coarse start), :mod:`.lucas_kanade` (the fitter),
 :mod:`.model_choice`, :mod:`.assess` (confidence and messages) and :mod:`.stack`
-(:func:`register_stack` and its :class:`Registration`). The per-frame statistics (mean, spread,
-noise level) are :mod:`hbis_torch.sensor.noise`'s.
+(:func:`register_stack` and its :class:`Registration`); a hand-held burst's registration adds
+:mod:`.pyramid` (coarse to fine), :mod:`.evidence` (what its per-frame model choice reads),
+:mod:`.local` (tile-wise shifts on top of the global motion) and :mod:`.warp` (a frame resampled
+onto the reference grid). The per-frame statistics (mean, spread, noise level) are
+:mod:`hbis_torch.sensor.noise`'s.
 """
 
 from hbis_torch.registration.assess import (

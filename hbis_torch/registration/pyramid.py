@@ -108,7 +108,7 @@ def project(homographies: np.ndarray, model: str, shape: tuple[int, int]) -> np.
 
 
 def coarse_to_fine(frames: Tensor, reference: int, model: str = "homography", start: np.ndarray | None = None,
-                   keep_levels: int = 1) -> np.ndarray:
+                   keep_levels: int = 1, images: list[Tensor] | None = None) -> np.ndarray:
     """Every frame's motion to the reference, fitted on a pyramid from the coarsest level down.
 
     Parameters
@@ -123,6 +123,9 @@ def coarse_to_fine(frames: Tensor, reference: int, model: str = "homography", st
     keep_levels : int
         Stop above this many of the finest levels (1: the full resolution is left to the
         caller's own fit, which starts from the answer).
+    images : list of Tensor, optional
+        ``pyramid(frames, levels_for((H, W)))``, where the caller builds it (to read a level of
+        it itself); built here otherwise.
 
     Returns
     -------
@@ -137,7 +140,7 @@ def coarse_to_fine(frames: Tensor, reference: int, model: str = "homography", st
     motions = None if start is None else np.array(start, dtype=np.float64)
     if levels < keep_levels:
         return motions
-    images = pyramid(frames, levels)
+    images = pyramid(frames, levels) if images is None else images
     for level in range(levels, keep_levels - 1, -1):
         fitted = model
         if level >= SIMILARITY_LEVELS and ALL_MODELS.index(model) > ALL_MODELS.index("similarity"):
