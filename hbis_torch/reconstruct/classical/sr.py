@@ -149,7 +149,8 @@ def classical_sr(
             noise_params_out.append(lattice_noise_params(image, kernel_sigma, valid, samples_per_node))
         del valid
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
-                              cutoff, strength, overwrite=True, lens_sigma=lens_sigma)
+                              cutoff, strength, overwrite=True, lens_sigma=lens_sigma,
+                              fit_below=1.0 / h if mixed_offsets else None)
     if not _all_finite(image):  # finite samples never should give this: say so
         raise RuntimeError("the classical reconstruction produced non-finite values; please report "
                            "the stack that caused it")
