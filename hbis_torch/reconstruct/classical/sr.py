@@ -109,7 +109,8 @@ def classical_sr(
     mixed_offsets : bool
         Samples of many frames at different offsets share the lattice's nodes (a burst): the
         first-order correction of :func:`~hbis_torch.reconstruct.classical.splat.snap_to_lattice`
-        then measures the pilot's bias.
+        then measures the pilot's bias, and the Wiener prior is fitted below one cycle per LR px
+        (:func:`~hbis_torch.reconstruct.classical.wiener.fit_spectrum`'s notes).
     lens_sigma : float or None
         A Gaussian lens blur (LR px) that the deblurring undoes, beyond ``cutoff``'s diffraction
         (a burst's: measured by :func:`~hbis_torch.reconstruct.lens_blur.estimate_lens_sigma`

@@ -46,19 +46,9 @@ ALIAS_SAMPLES = 128
 
 
 def wiener_deblur(
-    image: Tensor,
-    h: int,
-    offset: tuple[float, float],
-    kernel_sigma: float,
-    noise: float,
-    aperture: float = 1.0,
-    cutoff: float | None = None,
-    strength: float = 1.0,
-    aliases: int = 1,
-    dtype=torch.float32,
-    overwrite: bool = False,
-    lens_sigma: float = 0.0,
-    fit_below: float | None = None,
+    image: Tensor, h: int, offset: tuple[float, float], kernel_sigma: float, noise: float,
+    aperture: float = 1.0, cutoff: float | None = None, strength: float = 1.0, aliases: int = 1,
+    dtype=torch.float32, overwrite: bool = False, lens_sigma: float = 0.0, fit_below: float | None = None,
 ) -> Tensor:
     """Wiener (MMSE linear) estimate of the p/h sensor's image from the interpolated one.
 
@@ -106,13 +96,11 @@ def wiener_deblur(
         fit is always float64.
     overwrite : bool
         ``image``'s memory may be reused (for the periodic part, then the result, which is then
-        ``image`` itself if it is of ``dtype``); its content is lost. Saves an image-sized array.
+        ``image`` itself if it is of ``dtype``); its content is lost.
     lens_sigma : float
         Standard deviation (LR px) of a Gaussian lens blur in the kernel (0: none).
     fit_below : float or None
-        The prior is fitted on the frequencies up to this (cycles per HR px) only
-        (:func:`fit_spectrum`'s ``highest``); None: on all. A burst's lattice passes ``1 / h``
-        (:func:`~hbis_torch.reconstruct.classical.sr.classical_sr` with ``mixed_offsets``).
+        :func:`fit_spectrum`'s ``highest`` (cycles per HR px; a burst's: ``1 / h``).
 
     Returns
     -------
