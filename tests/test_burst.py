@@ -234,8 +234,10 @@ def test_a_fine_bursts_noise_is_floored_by_its_scale_two_lattice():
     assert torch.equal(classical_sr(frames, positions, 4, weights=weights, mixed_offsets=True, noise_floor=0.0), plain)
     floored = burst_sr(frames, positions, 4, weights)
     # six frames give a node about one sample at S = 4: the lattice's own estimate understates the
-    # noise there, and the floor deblurs less, closer to the truth
-    assert psnr(floored.numpy(), burst.truth) > psnr(plain.numpy(), burst.truth) + 1.0
+    # noise there, and the floor deblurs less, closer to the truth (25.63 against 24.90 dB; 24.70
+    # against 21.67 while the prior was fitted above one cycle per LR px too, where the understated
+    # noise let noise pass for scene detail)
+    assert psnr(floored.numpy(), burst.truth) > psnr(plain.numpy(), burst.truth) + 0.5
     with pytest.raises(HbisInputError, match="noise_floor"):
         classical_sr(frames, positions, 4, weights=weights, noise_floor=float("nan"))
 

@@ -109,7 +109,8 @@ def classical_sr(
     mixed_offsets : bool
         Samples of many frames at different offsets share the lattice's nodes (a burst): the
         first-order correction of :func:`~hbis_torch.reconstruct.classical.splat.snap_to_lattice`
-        then measures the pilot's bias.
+        then measures the pilot's bias, and the Wiener prior is fitted below one cycle per LR px
+        (:func:`~hbis_torch.reconstruct.classical.wiener.fit_spectrum`'s notes).
     lens_sigma : float or None
         A Gaussian lens blur (LR px) that the deblurring undoes, beyond ``cutoff``'s diffraction
         (a burst's: measured by :func:`~hbis_torch.reconstruct.lens_blur.estimate_lens_sigma`
@@ -149,7 +150,8 @@ def classical_sr(
             noise_params_out.append(lattice_noise_params(image, kernel_sigma, valid, samples_per_node))
         del valid
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
-                              cutoff, strength, overwrite=True, lens_sigma=lens_sigma)
+                              cutoff, strength, overwrite=True, lens_sigma=lens_sigma,
+                              fit_below=1.0 / h if mixed_offsets else None)
     if not _all_finite(image):  # finite samples never should give this: say so
         raise RuntimeError("the classical reconstruction produced non-finite values; please report "
                            "the stack that caused it")
