@@ -230,8 +230,12 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
     one_pass = not mixed_offsets and shape[0] * shape[1] <= ONE_PASS_NODES
     sums = NodeSums(shape, sigma, 4 if mixed_offsets or one_pass else 2, torch.float32)
     off_node = 0.0
-    seen, kept = 0, None  # batches seen, and the first one (the second pass's, if it is the only one)
-    for batch in batches():
+    # the second pass's batches with their node indices: the first one if it is the only one, or
+    # all of them where the caller holds them in memory anyway (a list: 4-8 bytes a sample more)
+    first = batches()
+    held = isinstance(first, (list, tuple)) and not one_pass
+    seen, kept = 0, None
+    for batch in first:
         off_node = max(off_node, batch.reach)
         idx, w = sums.node_index(batch.col, batch.row, batch.weights)
         sums.add(1, idx, torch.ones(1).expand(len(idx)) if w is None else w)
@@ -240,7 +244,10 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
             sums.add(2, idx, batch.dx if w is None else w * batch.dx)
             sums.add(3, idx, batch.dy if w is None else w * batch.dy)
         seen += 1
-        kept = [(batch, idx, w)] if seen == 1 and not one_pass else None
+        if held:
+            kept = (kept or []) + [(batch, idx, w)]
+        else:
+            kept = [(batch, idx, w)] if seen == 1 and not one_pass else None
     den = sums.spread(1, release=True)
     typical = typical_weight(den)
     if one_pass and off_node >= 1e-3:
