@@ -148,9 +148,14 @@ class BurstPositions:
         picked = torch.arange(height, dtype=torch.float64)[rows]
         positions = apply_homography_to_grid(self.motions[frames], picked, torch.arange(width, dtype=torch.float64)[cols])
         if self.offsets is not None:  # the smooth field of shifts on top of each homography
-            from hbis_torch.registration.local import add_offsets
+            # registration.local.add_offsets's sums, each axis added from the field's (F, 2, N)
+            # float32 rows as they are (no interleaved copy of the field first): the same bits
+            from hbis_torch.registration.local import _field_at
 
-            add_offsets(self.offsets[frames], positions, self.tile)
+            field = _field_at(self.offsets[frames], positions, self.tile)
+            flat = positions.view(field.shape[0], -1, 2)
+            for axis in (0, 1):
+                flat[..., axis].add_(field[:, axis])
         return positions
 
     def whole(self) -> Tensor:
