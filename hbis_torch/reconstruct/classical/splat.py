@@ -13,6 +13,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.classical.second_pass import FirstPass
 
 # Rows of the grid spread at a time by :meth:`NodeSums.spread` (and :func:`_add_slope_terms`).
 SPREAD_ROWS = 64
@@ -230,12 +231,8 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
     one_pass = not mixed_offsets and shape[0] * shape[1] <= ONE_PASS_NODES
     sums = NodeSums(shape, sigma, 4 if mixed_offsets or one_pass else 2, torch.float32)
     off_node = 0.0
-    # the second pass's batches with their node indices: the first one if it is the only one, or
-    # all of them where the caller holds them in memory anyway (a list: 4-8 bytes a sample more)
-    first = batches()
-    held = isinstance(first, (list, tuple)) and not one_pass
-    seen, kept = 0, None
-    for batch in first:
+    passes = FirstPass(batches, one_pass, mixed_offsets)  # what the second pass needs, kept
+    for batch in passes:
         off_node = max(off_node, batch.reach)
         idx, w = sums.node_index(batch.col, batch.row, batch.weights)
         sums.add(1, idx, torch.ones(1).expand(len(idx)) if w is None else w)
@@ -243,11 +240,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
         if mixed_offsets or one_pass:  # the offsets' sums, for the pilot's bias or the slope terms
             sums.add(2, idx, batch.dx if w is None else w * batch.dx)
             sums.add(3, idx, batch.dy if w is None else w * batch.dy)
-        seen += 1
-        if held:
-            kept = (kept or []) + [(batch, idx, w)]
-        else:
-            kept = [(batch, idx, w)] if seen == 1 and not one_pass else None
+        passes.keep(batch, idx, w)
     den = sums.spread(1, release=True)
     typical = typical_weight(den)
     if one_pass and off_node >= 1e-3:
@@ -282,7 +275,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
             _repeat_border(gradient)
             sums.clear(0, reuse=pilot)  # the pilot's memory (it is not needed any more)
             pilot = None
-        for batch, idx, w in kept or ((b, *sums.node_index(b.col, b.row, b.weights)) for b in batches()):
+        for batch, idx, w in passes.second(sums.node_index, cols):
             if bias is None:
                 sx, sy = _gradient_at(pilot, idx)
             else:  # at the node moved by the pilot's bias less the sample's offset, framed layout
