@@ -63,7 +63,8 @@ class FirstPass:
         return iter(self.first)
 
     def keep(self, batch, idx: Tensor, w: Tensor | None) -> None:
-        """The batch just summed, with its node indices and weights (:meth:`NodeSums.node_index`)."""
+        """The batch just summed, with its node indices and weights
+        (:meth:`~hbis_torch.reconstruct.classical.splat.NodeSums.node_index`)."""
         self.seen += 1
         if self.held:
             self.kept.append((batch, idx, w))
