@@ -224,6 +224,8 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
     offsets' sums beside the values' (:func:`_add_slope_terms`): one image-sized array more at
     the peak, and a full frame at h = 4 0.05-0.1 s faster than with a second pass. A burst's
     samples read it at their own points, and larger lattices keep their memory: a second pass.
+    What the first pass keeps for the second (so that a burst's batches are not computed again):
+    :mod:`~hbis_torch.reconstruct.classical.second_pass`.
     """
     # The sums in float32 (a node gets a few samples; the image is float32 in the end). At most
     # five (rows, cols) float32 arrays live at once, seven with mixed_offsets (the offsets' means);
