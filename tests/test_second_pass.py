@@ -1,7 +1,5 @@
-"""splat_on_lattice's second pass from what its first pass kept (second_pass.py), and node_batch
-on positions given per sample: the same numbers as computing the batches again."""
-
-import importlib
+"""splat_on_lattice's second pass from the batches its caller holds (second_pass.py), and
+node_batch on positions given per sample: the same numbers as computing them again."""
 
 import torch
 
@@ -29,8 +27,7 @@ def burst_batches(count: int = 3, per_batch: int = 4000, seed: int = 0) -> list[
     return out
 
 
-def test_the_second_pass_from_kept_samples_has_the_same_bits(monkeypatch):
-    second_pass = importlib.import_module("hbis_torch.reconstruct.classical.second_pass")
+def test_the_second_pass_from_held_batches_has_the_same_bits():
     parts = burst_batches()
     calls = []
 
@@ -38,18 +35,15 @@ def test_the_second_pass_from_kept_samples_has_the_same_bits(monkeypatch):
         calls.append(1)
         return iter(parts)
 
-    kept = splat_on_lattice(batches, SHAPE, 0.45, mixed_offsets=True)  # a generator: kept compact
-    assert len(calls) == 1
-    held = splat_on_lattice(lambda: list(parts), SHAPE, 0.45, mixed_offsets=True)  # the caller's list
-    monkeypatch.setattr(second_pass, "KEEP_BYTES", 0)  # too large to keep: computed again
-    again = splat_on_lattice(batches, SHAPE, 0.45, mixed_offsets=True)
-    assert len(calls) == 3
-    for other in (held, again):
-        assert torch.equal(kept[0], other[0]) and torch.equal(kept[1], other[1]) and kept[2] == other[2]
+    again = splat_on_lattice(batches, SHAPE, 0.45, mixed_offsets=True)  # a generator: computed again
+    assert len(calls) == 2
+    held = splat_on_lattice(lambda: calls.append(1) or list(parts), SHAPE, 0.45, mixed_offsets=True)
+    assert len(calls) == 3  # the caller's list: its batches (and their node indices) kept
+    assert torch.equal(held[0], again[0]) and torch.equal(held[1], again[1]) and held[2] == again[2]
     # the second pass moved the samples (the test can fail)
     still = splat_on_lattice(lambda: [p._replace(dx=p.dx * 0, dy=p.dy * 0) for p in parts], SHAPE, 0.45,
                              mixed_offsets=True)
-    assert float((kept[0] - still[0]).abs().max()) > 1e-3
+    assert float((held[0] - still[0]).abs().max()) > 1e-3
 
 
 def test_node_batch_of_positions_is_the_plain_expression():

@@ -1,41 +1,20 @@
 """What :func:`~hbis_torch.reconstruct.classical.splat.splat_on_lattice`'s first pass over the
-samples keeps for its second one, so that the second need not compute the batches again.
+samples keeps for its second one, so that the second need not compute it again.
 
-The second pass (the samples moved to their nodes) reads each sample's value, weight, node and
-offset from it. A burst's batches come from its motions, computed where they are read
-(:class:`~hbis_torch.reconstruct.positions.BurstPositions`): computing them again (the positions,
-then the nodes) was about a seventh of a 12 MP burst's classical reconstruct. So:
+The second pass (the samples moved to their nodes) reads each batch's samples and their node
+indices and weights. Batches that the caller holds in memory anyway (a list: a burst of up to
+``KEEP_SAMPLES`` samples, :mod:`~hbis_torch.reconstruct.classical.sr`) are kept with their node
+indices and weights (4 to 8 bytes a sample more); otherwise only a single batch is kept, and the
+batches are computed again. The sums have the same bits either way.
 
-* batches the caller holds anyway (a list) are kept with their node indices and weights (8 bytes
-  a sample at most);
-* a burst's (``mixed_offsets``) batches computed on the fly are kept in a compact form, their
-  values, offsets, node indices and weights (20 bytes a sample; the node's column and row are
-  taken from the index again), up to :data:`KEEP_BYTES` in all: beyond that nothing is kept and
-  the batches are computed again;
-* otherwise (a scan on a large lattice) only a single batch is kept, as before.
-
-The second pass reads the same numbers either way: the sums have the same bits.
+Keeping a 12 MP burst's batches too (values, offsets, node index and weight: 20 bytes a sample,
+3.8 GB) was measured and dropped: its lattice image took 28.6-46.4 s CPU against 33.7-39.1 s
+computing them again (one thread, a loaded machine), the new pages costing what the positions did.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 from torch import Tensor
-
-# A burst's first-pass samples (20 bytes each) are kept for the second pass up to this size:
-# 16 frames of 12 MP take 3.8 GB.
-KEEP_BYTES = 1 << 32
-
-
-class _Compact(NamedTuple):
-    """The fields of a NodeBatch that the second pass reads (col and row from the index)."""
-
-    values: Tensor
-    col: Tensor | None
-    row: Tensor | None
-    dx: Tensor
-    dy: Tensor
 
 
 class FirstPass:
@@ -48,16 +27,13 @@ class FirstPass:
         () -> iterable of NodeBatch, as :func:`splat_on_lattice` takes it.
     one_pass : bool
         The splat needs no second pass (nothing is kept).
-    mixed_offsets : bool
-        A burst: keep its batches in compact form (module docstring).
     """
 
-    def __init__(self, batches, one_pass: bool, mixed_offsets: bool):
+    def __init__(self, batches, one_pass: bool):
         self.batches, self.first = batches, batches()
         self.held = isinstance(self.first, (list, tuple)) and not one_pass
-        self.compact = mixed_offsets and not one_pass and not self.held
         self.one_pass = one_pass
-        self.kept, self.seen, self.size = [], 0, 0
+        self.kept, self.seen = [], 0
 
     def __iter__(self):
         return iter(self.first)
@@ -68,27 +44,14 @@ class FirstPass:
         self.seen += 1
         if self.held:
             self.kept.append((batch, idx, w))
-        elif self.compact and self.kept is not None:
-            self.size += sum(t.element_size() * t.numel() for t in (batch.values, batch.dx, batch.dy, idx)
-                             if t is not None) + (0 if w is None else w.element_size() * w.numel())
-            if self.size > KEEP_BYTES:
-                self.kept = None  # too many: computed again
-            else:
-                self.kept.append((_Compact(batch.values, None, None, batch.dx, batch.dy), idx, w))
         elif not self.one_pass:
             self.kept = [(batch, idx, w)] if self.seen == 1 else []
 
-    def second(self, node_index, cols: int):
+    def second(self, node_index):
         """(batch, idx, w) of every batch for the second pass: those kept, else the batches again
-        with ``node_index`` (col, row, weights) -> (idx, w); ``cols`` is the lattice's width (a
-        compact batch's col and row are taken from its index in the framed layout)."""
+        with ``node_index`` (col, row, weights) -> (idx, w)."""
         if self.kept:
-            for batch, idx, w in self.kept:
-                if isinstance(batch, _Compact):
-                    row = idx.div(cols + 2, rounding_mode="floor")
-                    col = idx - row * (cols + 2)
-                    batch = batch._replace(col=col.sub_(1), row=row.sub_(1))
-                yield batch, idx, w
+            yield from self.kept
             return
         for b in self.batches():
             yield (b, *node_index(b.col, b.row, b.weights))

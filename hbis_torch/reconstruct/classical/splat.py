@@ -224,7 +224,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
     offsets' sums beside the values' (:func:`_add_slope_terms`): one image-sized array more at
     the peak, and a full frame at h = 4 0.05-0.1 s faster than with a second pass. A burst's
     samples read it at their own points, and larger lattices keep their memory: a second pass.
-    What the first pass keeps for the second (so that a burst's batches are not computed again):
+    What the first pass keeps for the second (so that held batches need not be indexed again):
     :mod:`~hbis_torch.reconstruct.classical.second_pass`.
     """
     # The sums in float32 (a node gets a few samples; the image is float32 in the end). At most
@@ -233,7 +233,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
     one_pass = not mixed_offsets and shape[0] * shape[1] <= ONE_PASS_NODES
     sums = NodeSums(shape, sigma, 4 if mixed_offsets or one_pass else 2, torch.float32)
     off_node = 0.0
-    passes = FirstPass(batches, one_pass, mixed_offsets)  # what the second pass needs, kept
+    passes = FirstPass(batches, one_pass)  # what the second pass needs, kept
     for batch in passes:
         off_node = max(off_node, batch.reach)
         idx, w = sums.node_index(batch.col, batch.row, batch.weights)
@@ -277,7 +277,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
             _repeat_border(gradient)
             sums.clear(0, reuse=pilot)  # the pilot's memory (it is not needed any more)
             pilot = None
-        for batch, idx, w in passes.second(sums.node_index, cols):
+        for batch, idx, w in passes.second(sums.node_index):
             if bias is None:
                 sx, sy = _gradient_at(pilot, idx)
             else:  # at the node moved by the pilot's bias less the sample's offset, framed layout
