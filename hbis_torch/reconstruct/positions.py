@@ -137,20 +137,37 @@ class BurstPositions:
             self._kept = torch.empty(self.shape, dtype=torch.float64)
         for k in range(self.shape[0])[frames]:
             if not self._done[k]:
-                self._kept[k] = self._band(slice(k, k + 1), slice(None))[0]
+                self._band(slice(k, k + 1), slice(None), out=self._kept[k:k + 1])
                 self._done[k] = True
         return self._kept[frames, rows, cols]
 
-    def _band(self, frames: slice, rows: slice, cols: slice = slice(None)) -> Tensor:
+    def _band(self, frames: slice, rows: slice, cols: slice = slice(None), out: Tensor | None = None) -> Tensor:
+        """The positions of ``frames``, ``rows`` and ``cols``, (f, r, c, 2) float64, written into
+        ``out`` if given (a kept frame's memory: no copy)."""
         from hbis_torch.registration import apply_homography_to_grid
 
         _, height, width, _ = self.shape
         picked = torch.arange(height, dtype=torch.float64)[rows]
-        positions = apply_homography_to_grid(self.motions[frames], picked, torch.arange(width, dtype=torch.float64)[cols])
+        across = torch.arange(width, dtype=torch.float64)[cols]
+        if out is None:
+            positions = apply_homography_to_grid(self.motions[frames], picked, across)
+        else:  # apply_homography_to_grid's sums (the same bits), into out
+            positions, w = out, torch.empty((len(picked), len(across)), dtype=torch.float64)
+            for k, m in enumerate(self.motions[frames]):
+                torch.add((m[2, 1] * picked + m[2, 2])[:, None], (m[2, 0] * across)[None, :], out=w)
+                for axis in (0, 1):
+                    torch.add((m[axis, 1] * picked + m[axis, 2])[:, None], (m[axis, 0] * across)[None, :],
+                              out=out[k, ..., axis])
+                    out[k, ..., axis].div_(w)
         if self.offsets is not None:  # the smooth field of shifts on top of each homography
-            from hbis_torch.registration.local import add_offsets
+            # registration.local.add_offsets's sums, each axis added from the field's (F, 2, N)
+            # float32 rows as they are (no interleaved copy of the field first): the same bits
+            from hbis_torch.registration.local import _field_at
 
-            add_offsets(self.offsets[frames], positions, self.tile)
+            field = _field_at(self.offsets[frames], positions, self.tile)
+            flat = positions.view(field.shape[0], -1, 2)
+            for axis in (0, 1):
+                flat[..., axis].add_(field[:, axis])
         return positions
 
     def whole(self) -> Tensor:

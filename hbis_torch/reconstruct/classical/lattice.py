@@ -196,10 +196,13 @@ def node_batch(frames: Tensor, positions, part: tuple[slice, slice], h: int, off
         if spline is not None:
             node, gap, far = _nearest_node(spline[axis], pixel, dim, h, offset[axis])
         else:
-            coord = ((where[..., axis] + 0.5) * h - 0.5) - offset[axis]
+            # ((u + 0.5) h - 0.5) - offset in one float64 array written in place, and the gap
+            # nearest - coord over it (the same bits as the expression's temporaries)
+            coord = torch.add(where[..., axis], 0.5).mul_(h).sub_(0.5).sub_(offset[axis])
             nearest = torch.round(coord)
-            gap = (nearest - coord).to(torch.float32)
-            far = float(gap.abs().max()) if gap.numel() else 0.0
+            gap = torch.sub(nearest, coord, out=coord).to(torch.float32)
+            low, high = torch.aminmax(gap) if gap.numel() else (torch.zeros(()), torch.zeros(()))
+            far = max(-float(low), float(high))
             # beyond the lattice by more than a node is as good as anywhere beyond it (and fits int32)
             node = nearest.clamp_(-2, 1 << 30).to(torch.int32)
         nodes.append(node.reshape(-1))

@@ -13,6 +13,7 @@ import torch
 from torch import Tensor
 
 from hbis_torch.errors import HbisInputError
+from hbis_torch.reconstruct.classical.second_pass import FirstPass
 
 # Rows of the grid spread at a time by :meth:`NodeSums.spread` (and :func:`_add_slope_terms`).
 SPREAD_ROWS = 64
@@ -223,6 +224,8 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
     offsets' sums beside the values' (:func:`_add_slope_terms`): one image-sized array more at
     the peak, and a full frame at h = 4 0.05-0.1 s faster than with a second pass. A burst's
     samples read it at their own points, and larger lattices keep their memory: a second pass.
+    What the first pass keeps for the second (so that held batches need not be indexed again):
+    :mod:`~hbis_torch.reconstruct.classical.second_pass`.
     """
     # The sums in float32 (a node gets a few samples; the image is float32 in the end). At most
     # five (rows, cols) float32 arrays live at once, seven with mixed_offsets (the offsets' means);
@@ -230,8 +233,8 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
     one_pass = not mixed_offsets and shape[0] * shape[1] <= ONE_PASS_NODES
     sums = NodeSums(shape, sigma, 4 if mixed_offsets or one_pass else 2, torch.float32)
     off_node = 0.0
-    seen, kept = 0, None  # batches seen, and the first one (the second pass's, if it is the only one)
-    for batch in batches():
+    passes = FirstPass(batches, one_pass)  # what the second pass needs, kept
+    for batch in passes:
         off_node = max(off_node, batch.reach)
         idx, w = sums.node_index(batch.col, batch.row, batch.weights)
         sums.add(1, idx, torch.ones(1).expand(len(idx)) if w is None else w)
@@ -239,8 +242,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
         if mixed_offsets or one_pass:  # the offsets' sums, for the pilot's bias or the slope terms
             sums.add(2, idx, batch.dx if w is None else w * batch.dx)
             sums.add(3, idx, batch.dy if w is None else w * batch.dy)
-        seen += 1
-        kept = [(batch, idx, w)] if seen == 1 and not one_pass else None
+        passes.keep(batch, idx, w)
     den = sums.spread(1, release=True)
     typical = typical_weight(den)
     if one_pass and off_node >= 1e-3:
@@ -275,7 +277,7 @@ def splat_on_lattice(batches, shape: tuple[int, int], sigma: float,
             _repeat_border(gradient)
             sums.clear(0, reuse=pilot)  # the pilot's memory (it is not needed any more)
             pilot = None
-        for batch, idx, w in kept or ((b, *sums.node_index(b.col, b.row, b.weights)) for b in batches()):
+        for batch, idx, w in passes.second(sums.node_index):
             if bias is None:
                 sx, sy = _gradient_at(pilot, idx)
             else:  # at the node moved by the pilot's bias less the sample's offset, framed layout
