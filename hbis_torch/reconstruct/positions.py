@@ -149,25 +149,11 @@ class BurstPositions:
         _, height, width, _ = self.shape
         picked = torch.arange(height, dtype=torch.float64)[rows]
         across = torch.arange(width, dtype=torch.float64)[cols]
-        if out is None:
-            positions = apply_homography_to_grid(self.motions[frames], picked, across)
-        else:  # apply_homography_to_grid's sums (the same bits), into out
-            positions, w = out, torch.empty((len(picked), len(across)), dtype=torch.float64)
-            for k, m in enumerate(self.motions[frames]):
-                torch.add((m[2, 1] * picked + m[2, 2])[:, None], (m[2, 0] * across)[None, :], out=w)
-                for axis in (0, 1):
-                    torch.add((m[axis, 1] * picked + m[axis, 2])[:, None], (m[axis, 0] * across)[None, :],
-                              out=out[k, ..., axis])
-                    out[k, ..., axis].div_(w)
+        positions = apply_homography_to_grid(self.motions[frames], picked, across, out=out)
         if self.offsets is not None:  # the smooth field of shifts on top of each homography
-            # registration.local.add_offsets's sums, each axis added from the field's (F, 2, N)
-            # float32 rows as they are (no interleaved copy of the field first): the same bits
-            from hbis_torch.registration.local import _field_at
+            from hbis_torch.registration.local import add_offsets
 
-            field = _field_at(self.offsets[frames], positions, self.tile)
-            flat = positions.view(field.shape[0], -1, 2)
-            for axis in (0, 1):
-                flat[..., axis].add_(field[:, axis])
+            add_offsets(self.offsets[frames], positions, self.tile)
         return positions
 
     def whole(self) -> Tensor:

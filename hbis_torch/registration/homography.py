@@ -56,7 +56,7 @@ def apply_homography(homographies: Tensor, points: Tensor) -> Tensor:
     return mapped[..., :2] / mapped[..., 2:]
 
 
-def apply_homography_to_grid(homographies: Tensor, rows: Tensor, cols: Tensor) -> Tensor:
+def apply_homography_to_grid(homographies: Tensor, rows: Tensor, cols: Tensor, out: Tensor | None = None) -> Tensor:
     """:func:`apply_homography` of every pixel (u, v) = (cols[j], rows[i]) of a grid.
 
     Each row of ``H [u, v, 1]`` is ``a u + (b v + c)``: a column term plus a row term, one add a
@@ -70,6 +70,8 @@ def apply_homography_to_grid(homographies: Tensor, rows: Tensor, cols: Tensor) -
     homographies : Tensor, shape (F, 3, 3), float64
     rows, cols : Tensor, shape (R,) and (C,)
         The grid's v and u coordinates, px.
+    out : Tensor, shape (F, R, C, 2), float64, optional
+        Written in place and returned (a caller's kept memory: no copy).
 
     Returns
     -------
@@ -78,7 +80,8 @@ def apply_homography_to_grid(homographies: Tensor, rows: Tensor, cols: Tensor) -
     """
     h = homographies.to(torch.float64)
     rows, cols = rows.to(torch.float64), cols.to(torch.float64)
-    out = torch.empty((len(h), len(rows), len(cols), 2), dtype=torch.float64)
+    if out is None:
+        out = torch.empty((len(h), len(rows), len(cols), 2), dtype=torch.float64)
     w = torch.empty((len(rows), len(cols)), dtype=torch.float64)
     for k, m in enumerate(h):
         torch.add((m[2, 1] * rows + m[2, 2])[:, None], (m[2, 0] * cols)[None, :], out=w)

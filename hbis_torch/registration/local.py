@@ -64,9 +64,12 @@ def sample_offsets(offsets: Tensor, points: Tensor, tile: int = TILE_PX) -> Tens
 
 def add_offsets(offsets: Tensor, points: Tensor, tile: int = TILE_PX) -> Tensor:
     """``points += sample_offsets(offsets, points, tile)``, in place (no copy of the points in
-    the field's float32 or back): ``points``, a contiguous (F, ..., 2) tensor."""
-    F = offsets.shape[0]
-    points.view(F, -1, 2).add_(_field_at(offsets, points, tile).permute(0, 2, 1).contiguous())
+    the field's float32 or back): ``points``, a contiguous (F, ..., 2) tensor. Each axis is added
+    from the field's (F, 2, N) rows as they are (no interleaved copy of the field first)."""
+    field = _field_at(offsets, points, tile)
+    flat = points.view(field.shape[0], -1, 2)
+    for axis in (0, 1):
+        flat[..., axis].add_(field[:, axis])
     return points
 
 
@@ -147,7 +150,8 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     # edge (a partial last row or column of tiles) are never valid, and the reference is read
     # there as at its edge (replicated, as grid_sample clamps).
     Hp, Wp = rows * tile, cols * tile
-    axes = tuple((torch.arange(size, dtype=torch.float64) * (2 / (n - 1)) - 1).float() for size, n in ((Hp, H), (Wp, W)))
+    axes = tuple((torch.arange(size, dtype=torch.float64) * (2 / (n - 1)) - 1).float()
+                 for size, n in ((Hp, H), (Wp, W)))
     spread = (_spread(Hp, rows, tile), _spread(Wp, cols, tile).T.contiguous())
     unshifted = torch.nn.functional.pad(ref_and_gradient, (0, Wp - W, 0, Hp - H), mode="replicate")
     # each tile's pixel count: a partial tile's sums count as a whole tile's mean would
