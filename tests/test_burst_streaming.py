@@ -38,6 +38,20 @@ def test_the_grid_form_of_a_homography_matches_the_point_form():
     assert float((grid - exact).abs().max()) <= 4 * np.spacing(8192.0)  # a few roundings: 7e-12 px
 
 
+def test_the_grid_written_into_a_callers_memory_and_the_local_shifts_added_in_place():
+    from hbis_torch.registration.local import add_offsets, sample_offsets
+
+    rng = np.random.default_rng(1)
+    m = torch.from_numpy(np.eye(3) + rng.normal(0, 1e-3, (2, 3, 3)) * np.array([[1, 1, 10], [1, 1, 10], [1e-3, 1e-3, 0]]))
+    rows, cols = torch.arange(40.0), torch.arange(72.0)
+    kept = torch.full((2, 40, 72, 2), np.nan, dtype=torch.float64)
+    assert apply_homography_to_grid(m, rows, cols, out=kept) is kept
+    assert torch.equal(kept, apply_homography_to_grid(m, rows, cols))
+    offsets = torch.from_numpy(rng.normal(0, 0.3, (2, 2, 3, 2)))  # 2 x 3 tiles of 32 px
+    shifted = kept + sample_offsets(offsets, kept, 32)
+    assert add_offsets(offsets, kept, 32) is kept and torch.equal(kept, shifted)
+
+
 def test_burst_positions_index_as_the_whole_array(stack):
     from hbis_torch.reconstruct.positions import burst_positions
 
