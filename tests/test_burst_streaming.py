@@ -42,7 +42,8 @@ def test_the_grid_written_into_a_callers_memory_and_the_local_shifts_added_in_pl
     from hbis_torch.registration.local import add_offsets, sample_offsets
 
     rng = np.random.default_rng(1)
-    m = torch.from_numpy(np.eye(3) + rng.normal(0, 1e-3, (2, 3, 3)) * np.array([[1, 1, 10], [1, 1, 10], [1e-3, 1e-3, 0]]))
+    scale = np.array([[1, 1, 10], [1, 1, 10], [1e-3, 1e-3, 0]])
+    m = torch.from_numpy(np.eye(3) + rng.normal(0, 1e-3, (2, 3, 3)) * scale)
     rows, cols = torch.arange(40.0), torch.arange(72.0)
     kept = torch.full((2, 40, 72, 2), np.nan, dtype=torch.float64)
     assert apply_homography_to_grid(m, rows, cols, out=kept) is kept
