@@ -137,3 +137,20 @@ def test_the_vidsr_peer_gives_an_image_on_the_truths_grid(eh):
     score = eh.psnr(image, burst.truth, 4, 2)
     assert score > eh.psnr(eh.bicubic(burst.frames[0], 2), burst.truth, 4, 2)
     assert score > eh.psnr(np.roll(image, 1, axis=1), burst.truth, 4, 2) + 1
+
+
+def test_swap_shifts_renders_a_cell_with_another_cells_motion(load_script, tmp_path, capsys):
+    swap = load_script("training/swap_shifts.py")
+    out = tmp_path / "swap.json"
+    args = ["--out", str(out), "--pairs", "moving_object:translation", "--frames", "3", "--size", "64x48"]
+    assert swap.main(args) == 0
+    pair = json.loads(out.read_text())["pairs"]["moving_object:translation"]
+    donor = render_burst("translation", 2, 3, 64, 48, seed=0)
+    assert pair["swapped"]["phases_px"] == swap.centre_phases(donor.motions, 2, 64, 48)
+    assert pair["drawn"]["phases_px"] != pair["swapped"]["phases_px"]
+    assert all(np.isfinite(pair[k]["classical_db"]) for k in ("drawn", "swapped"))
+    # the file is never overwritten, and a bad pair is refused before any work, in one line
+    before = out.read_text()
+    assert swap.main(args) == 2 and out.read_text() == before
+    assert swap.main(["--out", str(tmp_path / "new.json"), "--pairs", "spin:translation"]) == 2
+    assert "CELL:DONOR" in capsys.readouterr().err and not (tmp_path / "new.json").exists()
