@@ -64,7 +64,8 @@ def make_burst(kind: str, scale: int, frames: int, seed: int, width: int = 640, 
                              max_rotation_deg=0.5 if kind == "rot" else 0.0)
     patch, moving = None, ()
     if kind == "object":
-        patch, moving = (scale * height // 3, scale * width // 3, scale * (width // 5), scale * 25, scale * 35), range(1, frames)
+        side = scale * (width // 5)
+        patch, moving = (scale * height // 3, scale * width // 3, side, scale * 25, scale * 35), range(1, frames)
     b = simulate_burst(truth, scale, motions, noise=0.01, seed=seed, blur_px=0.3, moving_patch=patch,
                        moving_frames=moving)
     return b.truth, b.frames

@@ -107,8 +107,8 @@ def main(argv=None) -> int:
         print(f"swap_shifts: {problem}", file=sys.stderr)
         return 2
     results = {"provenance": provenance(argv, "training/swap_shifts.py"),
-               "settings": {"scale": args.scale, "frames": args.frames, "seed": args.seed, "size": [args.width, args.height],
-                            "border_px": args.border},
+               "settings": {"scale": args.scale, "frames": args.frames, "seed": args.seed,
+                            "size": [args.width, args.height], "border_px": args.border},
                "pairs": {}}
     for pair in args.pairs:
         motion, donor = pair.split(":")
