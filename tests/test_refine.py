@@ -69,3 +69,13 @@ def test_an_image_of_the_wrong_size_is_refused(burst):
     _, frames, positions, weights = burst
     with pytest.raises(ValueError, match=r"\(S H, S W\)"):
         refine_on_samples(np.zeros((H, W)), frames, positions, weights, S, 0.3)
+
+
+def test_the_development_script_refuses_a_bad_burst_before_any_work(load_script, tmp_path, capsys):
+    dev = load_script("training/dev_refine.py")
+    out = tmp_path / "dev.json"
+    assert dev.main(["--out", str(out), "--bursts", "spin:2:8"]) == 2
+    assert dev.main(["--out", str(out), "--bursts", "shift:5:8"]) == 2
+    assert "KIND:S:F" in capsys.readouterr().err and not out.exists()
+    rows = {"shift:2:8:1": {"classical_db": 30.0, "classical_unrefined_db": 29.0}}
+    assert dev.summary(rows)["S=2"]["classical_refined_minus_unrefined"]["mean_db"] == 1.0

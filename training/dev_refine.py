@@ -103,7 +103,25 @@ def main(argv=None) -> int:
             row[name + "_s"] = time.perf_counter() - t
             atomic_write_text(args.out, json.dumps(results, indent=1) + "\n")
             print(f"{key:18s} {name:20s} {row[name + '_db']:6.2f} dB", flush=True)
+    results["summary"] = summary(results["rows"])
+    atomic_write_text(args.out, json.dumps(results, indent=1) + "\n")
     return 0
+
+
+def summary(rows: dict) -> dict:
+    """Per S, over the bursts that have both: the mean and the least of each change (dB)."""
+    changes = {"classical_refined_minus_unrefined": ("classical_db", "classical_unrefined_db"),
+               "learned_refined_minus_unrefined": ("learned_db", "learned_unrefined_db"),
+               "learned_minus_classical": ("learned_db", "classical_db"),
+               "learned_minus_classical_unrefined": ("learned_unrefined_db", "classical_unrefined_db")}
+    out: dict = {}
+    for key, row in rows.items():
+        group = out.setdefault(f"S={key.split(':')[1]}", {})
+        for name, (a, b) in changes.items():
+            if a in row and b in row:
+                group.setdefault(name, []).append(row[a] - row[b])
+    return {S: {name: {"mean_db": float(np.mean(v)), "worst_db": float(np.min(v)), "bursts": len(v)}
+                for name, v in group.items()} for S, group in out.items()}
 
 
 if __name__ == "__main__":
