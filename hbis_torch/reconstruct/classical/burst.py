@@ -68,20 +68,11 @@ def burst_sr(frames: Tensor, positions: Tensor, scale: int, weights: Tensor, deb
 
 
 def classical_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
-                    deblur: bool = True, refine: bool = True, **kw) -> np.ndarray:
-    """The classical method's burst path: :func:`burst_sr` at the stack's scale, then, where it
-    deblurs, made consistent with the samples by
-    :func:`~hbis_torch.reconstruct.classical.refine.refine_on_samples` (``refine=False``: the
-    Wiener image alone).
+                    deblur: bool = True, **kw) -> np.ndarray:
+    """The classical method's burst path: :func:`burst_sr` at the stack's scale.
 
     Returns (S H, S W) float32 in [0, 1]."""
-    image = burst_sr(frames, positions, stack.h, weights, deblur, **kw)
-    if deblur and refine:
-        from hbis_torch.reconstruct.classical.refine import refine_on_samples
-
-        image = refine_on_samples(image, frames, positions, weights, stack.h, kw.get("lens_sigma") or 0.0,
-                                  kw.get("fill_factor", 1.0)).image
-    return image.numpy()
+    return burst_sr(frames, positions, stack.h, weights, deblur, **kw).numpy()
 
 
 # Takes the positions as :class:`~hbis_torch.reconstruct.positions.BurstPositions` and the weights

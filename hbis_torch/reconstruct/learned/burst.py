@@ -23,32 +23,11 @@ from hbis_torch.reconstruct.learned.runtime import (NO_MODEL_REMEDY, available_t
 _last: dict = {}
 
 
-# The refined image's start keeps more of its detail than the classical image's (whose filled
-# nodes' errors lie at one cycle per LR px and above, refine.LOW_PASS_LR_PX): the network removes
-# part of them. Chosen on the training simulator's bursts (docs/real-bursts.md).
-LOW_PASS_LR_PX = 0.25
-
-
 def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
-                  refine: bool = True, lens_sigma: float | None = None, **kw) -> np.ndarray:
-    """The learned method's burst path: :func:`network_image`, then made consistent with the
-    samples (:func:`~hbis_torch.reconstruct.classical.refine.refine_on_samples`, from the image
-    low-passed by :data:`LOW_PASS_LR_PX`), as the classical method's image is (``refine=False``:
-    the network's image alone). Returns (S H, S W) float32 in [0, 1]."""
-    image = network_image(stack, frames, positions, weights, messages=messages, lens_sigma=lens_sigma, **kw)
-    if not refine:
-        return image
-    from hbis_torch.reconstruct.classical.refine import refine_on_samples
-
-    return refine_on_samples(image, frames, positions, weights, stack.h, lens_sigma or 0.0,
-                             low_pass_lr_px=LOW_PASS_LR_PX).image.numpy()
-
-
-def network_image(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
                   model=None, threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
                   ensemble: int | None = None, precision: str | None = None, adapt: bool = True,
                   lens_sigma: float | None = None) -> np.ndarray:
-    """The classical burst image, refined by the network for the
+    """The learned method's burst path: the classical burst image, refined by the network for the
     burst's scale, told the noise measured on the frames (a burst's samples lie on no regular
     lattice, where the scans' noise is measured); where no model is shipped for it, the classical image,
     with a message (:func:`~hbis_torch.reconstruct.learned.runtime.classical_returned`).
