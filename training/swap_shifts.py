@@ -2,14 +2,15 @@
 
     python training/swap_shifts.py --out benchmarks/results/swap_shifts.json
         [--pairs moving_object:translation translation:moving_object] [--scale 2] [--frames 8] [--seed 0]
-        [--size 640x480]
+        [--size 640x480] [--vidsr]
 
 Each pair ``A:B`` renders cell A of :mod:`training/eval_handheld.py` twice with
 :func:`~hbis_torch.training.handheld_render.render_burst`: as drawn, and with the frames' global
 motion of cell B (same S, F and seed) in place of A's, everything else (scene, moving object,
 rolling shutter, gains, noise draw) kept. Both go through the classical path with its defaults
-(``assemble_burst``, then ``reconstruct(stack, "classical")``) and are scored as the evaluation
-scores them. Beside the PSNRs the file holds each frame's sub-pixel phase at the frame's centre,
+(``assemble_burst``, then ``reconstruct(stack, "classical")``), and with ``--vidsr`` through the
+peer vidsr in its best setting for fidelity (``benchmarks/peers/vidsr_peer.py``), and are scored as
+the evaluation scores them. Beside the PSNRs the file holds each frame's sub-pixel phase at the frame's centre,
 in output px (the true motion's shift times S, modulo S): a burst whose phases cluster leaves
 rows or columns of the S-times lattice without samples of their own, and the filled-in nodes
 cost what no motion estimate can win back.
@@ -26,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from eval_handheld import bicubic, psnr, provenance  # noqa: E402
+from eval_handheld import _peer, bicubic, psnr, provenance  # noqa: E402
 
 
 def parse_args(argv=None):
@@ -39,6 +40,7 @@ def parse_args(argv=None):
     p.add_argument("--frames", type=int, default=8, help="F (default 8)")
     p.add_argument("--seed", type=int, default=0, help="the evaluation's seed (default 0)")
     p.add_argument("--size", default="640x480", help="frame size WxH in LR px (default 640x480, the evaluation's)")
+    p.add_argument("--vidsr", action="store_true", help="score the peer vidsr too (installed apart)")
     p.add_argument("--border", type=int, default=4, help="LR px left out of the PSNR (default 4)")
     return p.parse_args(argv)
 
@@ -52,6 +54,8 @@ def check_args(args) -> str | None:
         names = pair.split(":")
         if len(names) != 2 or any(n not in MOTIONS for n in names):
             return f"--pairs takes CELL:DONOR with both in {', '.join(MOTIONS)}; got {pair!r}"
+    if args.vidsr and not _peer().available():
+        return "--vidsr: vidsr is not installed (pip install vidsr)"
     if args.scale < 2 or args.frames < 2:
         return "--scale and --frames must be at least 2"
     try:
@@ -115,6 +119,9 @@ def main(argv=None) -> int:
             row[name] = {"classical_db": classical(burst, args),
                          "bicubic_db": psnr(bicubic(burst.frames[0], args.scale), burst.truth, args.border, args.scale),
                          "phases_px": centre_phases(burst.motions, args.scale, args.width, args.height)}
+            if args.vidsr:
+                image = _peer().vidsr_sr(burst.frames, args.scale)
+                row[name]["vidsr_db"] = psnr(image, burst.truth, args.border, args.scale)
         row["seconds"] = time.perf_counter() - t
         results["pairs"][pair] = row
         print(f"{motion} as drawn {row['drawn']['classical_db']:.2f} dB, with {donor}'s motion "
