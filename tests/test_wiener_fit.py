@@ -71,3 +71,21 @@ def test_a_bursts_lattice_fits_its_prior_below_one_cycle_per_lr_pixel(monkeypatc
     burst_sr(frames, positions, 3, weights)
     classical_sr(frames.double(), positions, 3)  # a scan's lattice: every ring
     assert seen == [1 / 3, None]
+
+
+def test_the_development_harness_reproduces_the_committed_fit(load_script):
+    """training/dev_wiener_fit.py refits the prior on fit_spectrum's own rings (a copy of their
+    set-up): its 0.25-step least-scatter variant must give fit_spectrum's answer, with and without
+    the LR lattice's power and the cut at 1 / h, or its development matrix compares against
+    something the package does not do."""
+    dev = load_script("training/dev_wiener_fit.py")
+    h, noise2, lens = 3, 4e-5, 0.3
+    for beta, lr_power, highest in ((2.75, 20 * noise2, None), (2.75, 20 * noise2, 1 / h), (2.25, 0.0, None)):
+        power, fx, fy, kernel = _spectrum(h, beta, 1e-4, noise2, lens, lr_power=lr_power)
+        committed = fit_spectrum(power, fx, fy, kernel, SHIFTS, noise2, highest=highest)
+        harness = dev.variant_fit(dev.VARIANTS["grid25"])(power, fx, fy, kernel, SHIFTS, noise2, highest=highest)
+        assert harness[1] == committed[1] and math.isclose(harness[0], committed[0], rel_tol=1e-9)
+    # and its finer grid finds a slope between the coarse grid's steps
+    power, fx, fy, kernel = _spectrum(h, 2.6, 1e-4, noise2, lens)
+    assert fit_spectrum(power, fx, fy, kernel, SHIFTS, noise2)[1] in (2.5, 2.75)
+    assert dev.variant_fit(dev.VARIANTS["grid05"])(power, fx, fy, kernel, SHIFTS, noise2)[1] == 2.6
