@@ -419,7 +419,17 @@ def burst_lens_estimate(grey, positions, weights, reference: int) -> LensEstimat
     (:func:`hbis_torch.sensor.noise.immerkaer`) over all its pixels (edges and texture are a
     minority of pixels, so the median stays with the noise).
 
-    Parameters as :func:`burst_lens_sigma`'s; returns the whole :class:`LensEstimate`.
+    Parameters
+    ----------
+    grey : Tensor, shape (F, H, W), float32
+        The frames' luminance (``reconstruct.burst._luma``).
+    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
+    weights : Tensor, shape (F, H, W)
+    reference : int
+
+    Returns
+    -------
+    LensEstimate
     """
     from hbis_torch.sensor.noise import immerkaer
 
