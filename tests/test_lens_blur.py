@@ -177,3 +177,14 @@ def test_the_line_says_when_strays_cost_the_group_a_share():
     line = LensEstimate(0.41, 0.8 * sigma_to_undo(0.41), 25, 50, edges, 80, 0.8, 6).describe()
     assert "above 6 sharper fits" in line and "undoing a share, sigma 0.32" in line, line
     assert "sharper fits" not in LensEstimate(0.41, sigma_to_undo(0.41), 25, 50, edges, 80, 1.0, 4).describe()
+
+
+@pytest.mark.parametrize("bad", [["--scale", "1"], ["--frames", "1"], ["--blurs", "0.3", "-0.1"], ["--photos-size", "9x9"]])
+def test_eval_lens_blur_refuses_bad_settings_before_any_work(tmp_path, capsys, load_script, bad):
+    """One line and exit code 2, before a burst is rendered, and nothing written."""
+    script = load_script("training/eval_lens_blur.py")
+    out = tmp_path / "lens.json"
+    with pytest.raises(SystemExit) as stop:
+        script.main(["--out", str(out), *bad])
+    assert stop.value.code == 2 and "error:" in capsys.readouterr().err
+    assert not out.exists()

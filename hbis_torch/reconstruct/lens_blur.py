@@ -390,12 +390,8 @@ def sigma_to_undo(sharpest: float) -> float:
 
 
 def burst_lens_sigma(grey, positions, weights, reference: int, notes: list | None = None) -> float:
-    """The lens blur a burst's deblurring undoes when none is given: :func:`estimate_lens_sigma`
-    on the grey (or luminance) frames, its line added to ``notes``; 0 where it cannot say.
-
-    The samples' noise is the reference frame's, by the median of Immerkaer's operator
-    (:func:`hbis_torch.sensor.noise.immerkaer`) over all its pixels: edges and texture are a
-    minority of pixels, so the median stays with the noise.
+    """The lens blur a burst's deblurring undoes when none is given: :func:`burst_lens_estimate`'s
+    sigma, its line added to ``notes``; 0 where it cannot say.
 
     Parameters
     ----------
@@ -411,11 +407,32 @@ def burst_lens_sigma(grey, positions, weights, reference: int, notes: list | Non
     float
         Sigma, LR px.
     """
+    estimate = burst_lens_estimate(grey, positions, weights, reference)
+    if notes is not None:
+        notes.append(estimate.describe())
+    return estimate.sigma
+
+
+def burst_lens_estimate(grey, positions, weights, reference: int) -> LensEstimate:
+    """:func:`estimate_lens_sigma` on a burst's grey (or luminance) frames, with the samples' noise
+    measured on the reference frame: the median of Immerkaer's operator
+    (:func:`hbis_torch.sensor.noise.immerkaer`) over all its pixels (edges and texture are a
+    minority of pixels, so the median stays with the noise).
+
+    Parameters
+    ----------
+    grey : Tensor, shape (F, H, W), float32
+        The frames' luminance (``reconstruct.burst._luma``).
+    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
+    weights : Tensor, shape (F, H, W)
+    reference : int
+
+    Returns
+    -------
+    LensEstimate
+    """
     from hbis_torch.sensor.noise import immerkaer
 
     grey = grey.numpy()
     noise = 1.4826 * float(np.median(np.abs(immerkaer(grey[reference].astype(np.float64))))) / 6.0
-    estimate = estimate_lens_sigma(grey, positions, weights.numpy(), reference, noise)
-    if notes is not None:
-        notes.append(estimate.describe())
-    return estimate.sigma
+    return estimate_lens_sigma(grey, positions, weights.numpy(), reference, noise)
