@@ -37,6 +37,8 @@ ITERATIONS = 3
 #: Frames smaller than this many tiles across (either way) keep their global motion alone.
 MIN_TILES = 3
 BLUR_PX = 1.0
+#: Pixels of the shifted reference made at a time (:func:`_shift`).
+PIECE_SAMPLES = 1 << 16
 
 
 def tile_grid(shape: tuple[int, int], tile: int = TILE_PX) -> tuple[int, int]:
@@ -91,19 +93,29 @@ def _field_at(offsets: Tensor, points: Tensor, tile: int) -> Tensor:
 
 
 def _shift(image: Tensor, offsets: Tensor, tile: int, spread: tuple[Tensor, Tensor],
-           axes: tuple[Tensor, Tensor]) -> Tensor:
+           axes: tuple[Tensor, Tensor], out: Tensor | None = None) -> Tensor:
     """``image`` (1, C, H, W) read at x + the field of ``offsets`` (1, rows, cols, 2, px) at x,
     bilinear, for the pixels x of a grid: ``axes``, its rows' and columns' coordinates in
     grid_sample's [-1, 1] (float32, kept by the caller; they may go on past the image's edge),
     ``spread``, :func:`_spread`'s two matrices for it. The offsets are scaled to grid_sample's
-    units before they are spread (two passes over the pixels, not six). (1, C, rows, cols)."""
-    _, _, H, W = image.shape
+    units before they are spread (two passes over the pixels, not six). (1, C, rows, cols),
+    written into ``out`` if given (the caller's memory, reused frame after frame: a 12 MP
+    frame's result is 144 MB of fresh pages otherwise); the grid is made and read a piece of
+    :data:`PIECE_SAMPLES` pixels at a time (each pixel's values the same)."""
+    _, C, H, W = image.shape
     size = (len(axes[0]), len(axes[1]))
     field = _field(offsets * torch.tensor([2 / (W - 1), 2 / (H - 1)]), size, tile, spread)  # (1, rows, cols, 2)
-    grid = torch.empty((1, *size, 2), dtype=torch.float32)  # written in place: no stacking copy
-    torch.add(field[..., 0], axes[1][None, None, :], out=grid[..., 0])
-    torch.add(field[..., 1], axes[0][None, :, None], out=grid[..., 1])
-    return torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    if out is None:
+        out = torch.empty((1, C, *size), dtype=torch.float32)
+    step = max(1, PIECE_SAMPLES // max(size[1], 1))
+    for first in range(0, size[0], step):
+        piece = slice(first, min(first + step, size[0]))
+        grid = torch.empty((1, piece.stop - first, size[1], 2), dtype=torch.float32)  # no stacking copy
+        torch.add(field[:, piece, :, 0], axes[1][None, None, :], out=grid[..., 0])
+        torch.add(field[:, piece, :, 1], axes[0][piece][None, :, None], out=grid[..., 1])
+        out[:, :, piece] = torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border",
+                                                           align_corners=True)
+    return out
 
 
 def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset: np.ndarray,
@@ -162,6 +174,7 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     tiles = torch.empty((rows, cols, 3, tile, tile))
     by_pixel = tiles.permute(2, 0, 3, 1, 4)
     flat = tiles.view(rows * cols, 3, tile * tile)
+    shifted = torch.empty_like(unshifted)  # the shifted reference's memory, for every frame
 
     def as_tiles(x: Tensor) -> Tensor:  # (C, Hp, Wp) as (C, rows, tile, cols, tile)
         return x.reshape(x.shape[0], rows, tile, cols, tile)
@@ -176,7 +189,7 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
         for step in range(ITERATIONS):
             # the first step starts from no shift: the reference as it is (reading it at x + 0 would
             # only add roundings of 1e-7 px)
-            at = unshifted if step == 0 else _shift(ref_and_gradient, d, tile, spread, axes)
+            at = unshifted if step == 0 else _shift(ref_and_gradient, d, tile, spread, axes, out=shifted)
             torch.mul(as_tiles(at[0, 1:3]), as_tiles(valid), out=by_pixel[0:2])  # so every product is masked
             torch.sub(as_tiles(warped[0]), as_tiles(at[0, :1]), out=by_pixel[2:3])
             sums = (flat @ flat[:, :2].mT).view(rows, cols, 3, 2)  # [gx, gy, r] x [gx, gy] summed
