@@ -89,7 +89,8 @@ def inside(grid: Tensor, shape: tuple[int, int] | None = None) -> Tensor:
 
 
 def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinear",
-                        size: tuple[int, int] | None = None) -> tuple[Tensor, Tensor]:
+                        size: tuple[int, int] | None = None,
+                        out: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
     """``images`` (1, C, H, W) of a frame resampled onto the reference grid (zeros outside).
 
     Parameters
@@ -101,6 +102,8 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
         ``grid_sample``'s interpolation.
     size : (rows, cols), optional
         The reference grid's pixels to resample at (:func:`sampling_grid`; default (H, W)).
+    out : (Tensor, Tensor), optional
+        Memory to write ``warped`` and ``valid`` into (a caller's, kept frame after frame).
 
     Returns
     -------
@@ -111,14 +114,14 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
     shape = tuple(images.shape[-2:])
     rows, cols = size or shape
     step = max(1, PIECE_SAMPLES // max(cols, 1))
-    if rows <= step:
+    if rows <= step and out is None:
         grid = sampling_grid(motion, shape, size)
         warped = torch.nn.functional.grid_sample(images, grid, mode=mode, padding_mode="zeros", align_corners=True)
         return warped, inside(grid, shape)
     # A piece of rows at a time (each pixel's the same values): the grid's temporaries stay
     # small and in the cache, where a 12 MP frame's would be 96 MB of fresh pages.
-    warped = torch.empty(images.shape[:2] + (rows, cols), dtype=images.dtype)
-    valid = torch.empty((rows, cols), dtype=torch.bool)
+    warped, valid = out or (torch.empty(images.shape[:2] + (rows, cols), dtype=images.dtype),
+                            torch.empty((rows, cols), dtype=torch.bool))
     for first in range(0, rows, step):
         piece = slice(first, min(first + step, rows))
         grid = sampling_grid(motion, shape, (rows, cols), rows=piece)
