@@ -37,8 +37,9 @@ ITERATIONS = 3
 #: Frames smaller than this many tiles across (either way) keep their global motion alone.
 MIN_TILES = 3
 BLUR_PX = 1.0
-#: Pixels of the shifted reference made at a time (:func:`_shift`).
-PIECE_SAMPLES = 1 << 16
+#: Pixels of the shifted reference made at a time (:func:`_shift`), in grids of more pixels than
+#: PIECES_FROM (smaller ones' temporaries are reused by the allocator anyway).
+PIECE_SAMPLES, PIECES_FROM = 1 << 16, 1 << 20
 
 
 def tile_grid(shape: tuple[int, int], tile: int = TILE_PX) -> tuple[int, int]:
@@ -107,7 +108,7 @@ def _shift(image: Tensor, offsets: Tensor, tile: int, spread: tuple[Tensor, Tens
     size = (len(axes[0]), len(axes[1]))
     out, field = out or (torch.empty((1, C, *size), dtype=torch.float32), None)
     field = _field(offsets * torch.tensor([2 / (W - 1), 2 / (H - 1)]), size, tile, spread, field)  # (1, rows, cols, 2)
-    step = max(1, PIECE_SAMPLES // max(size[1], 1))
+    step = max(1, PIECE_SAMPLES // max(size[1], 1)) if size[0] * size[1] > PIECES_FROM else size[0]
     for first in range(0, size[0], step):
         piece = slice(first, min(first + step, size[0]))
         grid = torch.empty((1, piece.stop - first, size[1], 2), dtype=torch.float32)  # no stacking copy

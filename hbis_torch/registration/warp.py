@@ -21,8 +21,9 @@ from torch import Tensor
 #: A reference pixel counts as covered where it maps within this far (px) outside the frame's
 #: outer pixel centres (Kornia's ones channel sampled above 0.999 bilinearly, as the callers had it).
 EDGE_TOLERANCE_PX = 1e-3
-#: Frames are warped this many pixels at a time (:func:`warp_onto_reference`).
-PIECE_SAMPLES = 1 << 16
+#: Frames of more than PIECES_FROM pixels are warped PIECE_SAMPLES pixels at a time
+#: (:func:`warp_onto_reference`; smaller ones' temporaries are reused by the allocator anyway).
+PIECE_SAMPLES, PIECES_FROM = 1 << 16, 1 << 20
 
 
 def sampling_grid(motion: np.ndarray, shape: tuple[int, int], size: tuple[int, int] | None = None,
@@ -47,15 +48,24 @@ def sampling_grid(motion: np.ndarray, shape: tuple[int, int], size: tuple[int, i
         (x, y) in [-1, 1] across the frame's outer pixel centres (``align_corners=True``);
         non-finite where the homography sends the point to infinity.
     """
+    return _grid(_grid_matrix(motion, shape), shape, size, rows)
+
+
+def _grid_matrix(motion: np.ndarray, shape: tuple[int, int]) -> Tensor:
+    """(3, 3) float64: reference normalised -> reference px -> frame px -> frame normalised."""
     H, W = shape
-    height, cols = size or shape
-    # reference normalised -> reference px -> frame px -> frame normalised, composed in float64
     norm = np.array([[2 / max(W - 1, 1), 0, -1], [0, 2 / max(H - 1, 1), -1], [0, 0, 1.0]])
     try:
         inverse = np.linalg.inv(np.asarray(motion, dtype=np.float64))
     except np.linalg.LinAlgError:  # a degenerate motion: nowhere on the frame
         inverse = np.full((3, 3), np.nan)
-    m = torch.from_numpy(norm @ inverse @ np.linalg.inv(norm))
+    return torch.from_numpy(norm @ inverse @ np.linalg.inv(norm))
+
+
+def _grid(m: Tensor, shape: tuple[int, int], size: tuple[int, int] | None, rows: slice) -> Tensor:
+    """:func:`sampling_grid` from its :func:`_grid_matrix` ``m``."""
+    H, W = shape
+    height, cols = size or shape
     xs = torch.arange(cols, dtype=torch.float64) * (2 / max(W - 1, 1)) - 1
     ys = (torch.arange(height, dtype=torch.float64) * (2 / max(H - 1, 1)) - 1)[rows]
     grid = torch.empty((1, len(ys), cols, 2), dtype=torch.float32)
@@ -114,7 +124,7 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
     shape = tuple(images.shape[-2:])
     rows, cols = size or shape
     step = max(1, PIECE_SAMPLES // max(cols, 1))
-    if rows <= step and out is None:
+    if rows * cols <= PIECES_FROM and out is None:
         grid = sampling_grid(motion, shape, size)
         warped = torch.nn.functional.grid_sample(images, grid, mode=mode, padding_mode="zeros", align_corners=True)
         return warped, inside(grid, shape)
@@ -122,9 +132,10 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
     # small and in the cache, where a 12 MP frame's would be 96 MB of fresh pages.
     warped, valid = out or (torch.empty(images.shape[:2] + (rows, cols), dtype=images.dtype),
                             torch.empty((rows, cols), dtype=torch.bool))
+    m = _grid_matrix(motion, shape)
     for first in range(0, rows, step):
         piece = slice(first, min(first + step, rows))
-        grid = sampling_grid(motion, shape, (rows, cols), rows=piece)
+        grid = _grid(m, shape, (rows, cols), piece)
         warped[..., piece, :] = torch.nn.functional.grid_sample(images, grid, mode=mode, padding_mode="zeros",
                                                                 align_corners=True)
         valid[piece] = inside(grid, shape)
