@@ -61,6 +61,8 @@ EXACT_SAMPLES_PER_CALL = 1 << 22
 #: A burst's positions (16 bytes a sample) are kept once computed up to this size (256 MB:
 #: 16 frames of 1 MP); larger bursts compute them where read (:class:`BurstPositions`).
 CACHE_BYTES = 1 << 28
+#: Whole frames' positions are computed this many samples at a time (:meth:`BurstPositions._band`).
+PIECE_SAMPLES = 1 << 16
 
 
 class BurstPositions:
@@ -145,16 +147,30 @@ class BurstPositions:
         """The positions of ``frames``, ``rows`` and ``cols``, (f, r, c, 2) float64, written into
         ``out`` if given (a kept frame's memory: no copy)."""
         from hbis_torch.registration import apply_homography_to_grid
+        from hbis_torch.registration.local import add_offsets
 
-        _, height, width, _ = self.shape
+        count, height, width, _ = self.shape
         picked = torch.arange(height, dtype=torch.float64)[rows]
         across = torch.arange(width, dtype=torch.float64)[cols]
-        positions = apply_homography_to_grid(self.motions[frames], picked, across, out=out)
-        if self.offsets is not None:  # the smooth field of shifts on top of each homography
-            from hbis_torch.registration.local import add_offsets
-
-            add_offsets(self.offsets[frames], positions, self.tile)
-        return positions
+        chosen = range(count)[frames]
+        step = max(1, PIECE_SAMPLES // max(len(across), 1))
+        if len(picked) <= step or len(across) != width:  # a band: at once
+            positions = apply_homography_to_grid(self.motions[frames], picked, across, out=out)
+            if self.offsets is not None:  # the smooth field of shifts on top of each homography
+                add_offsets(self.offsets[frames], positions, self.tile)
+            return positions
+        # Whole frames a piece of rows at a time into the result: each pixel's sums are the
+        # same, and the pieces' temporaries stay small (no 12 MP frame's 96 MB grid and field
+        # in fresh pages) and in the cache.
+        if out is None:
+            out = torch.empty((len(chosen), len(picked), width, 2), dtype=torch.float64)
+        for i, k in enumerate(chosen):
+            for first in range(0, len(picked), step):
+                piece = out[i:i + 1, first:first + step]
+                apply_homography_to_grid(self.motions[k:k + 1], picked[first:first + step], across, out=piece)
+                if self.offsets is not None:
+                    add_offsets(self.offsets[k:k + 1], piece, self.tile)
+        return out
 
     def whole(self) -> Tensor:
         """Every sample's position, (F, H, W, 2) float64: what the object stands for (a

@@ -82,12 +82,19 @@ def apply_homography_to_grid(homographies: Tensor, rows: Tensor, cols: Tensor, o
     rows, cols = rows.to(torch.float64), cols.to(torch.float64)
     if out is None:
         out = torch.empty((len(h), len(rows), len(cols), 2), dtype=torch.float64)
-    w = torch.empty((len(rows), len(cols)), dtype=torch.float64)
+    w = None
+    # An affine motion's (translation, similarity, affine) w is 1 at every pixel, exactly
+    # (0 u + (0 v + 1)): its division, which leaves every value as it is, is skipped.
+    affine = (h[:, 2, 0] == 0) & (h[:, 2, 1] == 0) & (h[:, 2, 2] == 1)
     for k, m in enumerate(h):
-        torch.add((m[2, 1] * rows + m[2, 2])[:, None], (m[2, 0] * cols)[None, :], out=w)
+        if not bool(affine[k]) and w is None:
+            w = torch.empty((len(rows), len(cols)), dtype=torch.float64)
+        if not bool(affine[k]):
+            torch.add((m[2, 1] * rows + m[2, 2])[:, None], (m[2, 0] * cols)[None, :], out=w)
         for axis in (0, 1):
             torch.add((m[axis, 1] * rows + m[axis, 2])[:, None], (m[axis, 0] * cols)[None, :], out=out[k, ..., axis])
-            out[k, ..., axis].div_(w)
+            if not bool(affine[k]):
+                out[k, ..., axis].div_(w)
     return out
 
 

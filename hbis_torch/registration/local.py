@@ -37,6 +37,9 @@ ITERATIONS = 3
 #: Frames smaller than this many tiles across (either way) keep their global motion alone.
 MIN_TILES = 3
 BLUR_PX = 1.0
+#: Pixels of the shifted reference made at a time (:func:`_shift`), in grids of more pixels than
+#: PIECES_FROM (smaller ones' temporaries are reused by the allocator anyway).
+PIECE_SAMPLES, PIECES_FROM = 1 << 16, 1 << 20
 
 
 def tile_grid(shape: tuple[int, int], tile: int = TILE_PX) -> tuple[int, int]:
@@ -91,19 +94,29 @@ def _field_at(offsets: Tensor, points: Tensor, tile: int) -> Tensor:
 
 
 def _shift(image: Tensor, offsets: Tensor, tile: int, spread: tuple[Tensor, Tensor],
-           axes: tuple[Tensor, Tensor]) -> Tensor:
+           axes: tuple[Tensor, Tensor], out: tuple[Tensor, Tensor] | None = None) -> Tensor:
     """``image`` (1, C, H, W) read at x + the field of ``offsets`` (1, rows, cols, 2, px) at x,
     bilinear, for the pixels x of a grid: ``axes``, its rows' and columns' coordinates in
     grid_sample's [-1, 1] (float32, kept by the caller; they may go on past the image's edge),
     ``spread``, :func:`_spread`'s two matrices for it. The offsets are scaled to grid_sample's
-    units before they are spread (two passes over the pixels, not six). (1, C, rows, cols)."""
-    _, _, H, W = image.shape
+    units before they are spread (two passes over the pixels, not six). (1, C, rows, cols),
+    written into ``out[0]`` if given, the field into ``out[1]`` (1, 2, rows, cols) (the caller's
+    memory, reused frame after frame: a 12 MP frame's result and field are 240 MB of fresh pages
+    otherwise); the grid is made and read a piece of :data:`PIECE_SAMPLES` pixels at a time (each
+    pixel's values the same)."""
+    _, C, H, W = image.shape
     size = (len(axes[0]), len(axes[1]))
-    field = _field(offsets * torch.tensor([2 / (W - 1), 2 / (H - 1)]), size, tile, spread)  # (1, rows, cols, 2)
-    grid = torch.empty((1, *size, 2), dtype=torch.float32)  # written in place: no stacking copy
-    torch.add(field[..., 0], axes[1][None, None, :], out=grid[..., 0])
-    torch.add(field[..., 1], axes[0][None, :, None], out=grid[..., 1])
-    return torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    out, field = out or (torch.empty((1, C, *size), dtype=torch.float32), None)
+    field = _field(offsets * torch.tensor([2 / (W - 1), 2 / (H - 1)]), size, tile, spread, field)  # (1, rows, cols, 2)
+    step = max(1, PIECE_SAMPLES // max(size[1], 1)) if size[0] * size[1] > PIECES_FROM else size[0]
+    for first in range(0, size[0], step):
+        piece = slice(first, min(first + step, size[0]))
+        grid = torch.empty((1, piece.stop - first, size[1], 2), dtype=torch.float32)  # no stacking copy
+        torch.add(field[:, piece, :, 0], axes[1][None, None, :], out=grid[..., 0])
+        torch.add(field[:, piece, :, 1], axes[0][piece][None, :, None], out=grid[..., 1])
+        out[:, :, piece] = torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border",
+                                                           align_corners=True)
+    return out
 
 
 def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset: np.ndarray,
@@ -162,21 +175,27 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     tiles = torch.empty((rows, cols, 3, tile, tile))
     by_pixel = tiles.permute(2, 0, 3, 1, 4)
     flat = tiles.view(rows * cols, 3, tile * tile)
+    # memory kept for every frame (a 12 MP frame's arrays would be fresh pages each time): the
+    # shifted reference, its field, the frame brightness-matched, warped, and where it is valid
+    shifted, field = torch.empty_like(unshifted), torch.empty((1, 2, Hp, Wp))
+    matched, warped, valid = torch.empty((1, 1, H, W)), torch.empty((1, 1, Hp, Wp)), torch.empty((1, Hp, Wp))
+    inside = torch.empty((Hp, Wp), dtype=torch.bool)
 
     def as_tiles(x: Tensor) -> Tensor:  # (C, Hp, Wp) as (C, rows, tile, cols, tile)
         return x.reshape(x.shape[0], rows, tile, cols, tile)
 
     for k in use:
         gain, offset = gain_offset[k]
-        warped, inside = warp_onto_reference(blur((gain * grey[k] + offset)[None, None]), motions[k], size=(Hp, Wp))
+        torch.mul(grey[k], gain, out=matched[0, 0]).add_(offset)
+        warp_onto_reference(blur(matched), motions[k], size=(Hp, Wp), out=(warped, inside))
         inside[:2], inside[H - 2:], inside[:, :2], inside[:, W - 2:] = False, False, False, False
-        valid = inside[None].float()
+        valid.copy_(inside[None])
         n = _tile_sums(valid, tile)[0]
         d = torch.zeros(1, rows, cols, 2)
         for step in range(ITERATIONS):
             # the first step starts from no shift: the reference as it is (reading it at x + 0 would
             # only add roundings of 1e-7 px)
-            at = unshifted if step == 0 else _shift(ref_and_gradient, d, tile, spread, axes)
+            at = unshifted if step == 0 else _shift(ref_and_gradient, d, tile, spread, axes, out=(shifted, field))
             torch.mul(as_tiles(at[0, 1:3]), as_tiles(valid), out=by_pixel[0:2])  # so every product is masked
             torch.sub(as_tiles(warped[0]), as_tiles(at[0, :1]), out=by_pixel[2:3])
             sums = (flat @ flat[:, :2].mT).view(rows, cols, 3, 2)  # [gx, gy, r] x [gx, gy] summed
@@ -209,18 +228,20 @@ def _tile_sums(x: Tensor, tile: int) -> Tensor:
     return out
 
 
-def _field(offsets: Tensor, shape: tuple[int, int], tile: int, spread: tuple[Tensor, Tensor] | None = None) -> Tensor:
+def _field(offsets: Tensor, shape: tuple[int, int], tile: int, spread: tuple[Tensor, Tensor] | None = None,
+           out: Tensor | None = None) -> Tensor:
     """The offsets (F, rows, cols, 2) at every pixel of a (H, W) grid: (F, H, W, 2) float32.
 
     The same bilinear field as :func:`sample_offsets` (a tile's value sits at its centre and is
     held beyond the outer centres), as torch's bilinear enlargement (``align_corners=False``)
     by ``tile`` gives it, written as two matrix products, (H, rows) x (rows, cols) x (cols, W)
     (:func:`_spread`): a tenth of the enlargement's time, the same values to float32 rounding.
-    ``spread``: the two matrices (the second transposed), where the caller keeps them."""
+    ``spread``: the two matrices (the second transposed), where the caller keeps them; ``out``,
+    (F, 2, H, W) float32 memory to write into (the result is its permuted view)."""
     H, W = shape
     F, rows, cols, _ = offsets.shape
     down, across = spread or (_spread(H, rows, tile), _spread(W, cols, tile).T.contiguous())
-    out = down @ offsets.permute(0, 3, 1, 2).to(torch.float32) @ across  # (F, 2, H, W)
+    out = torch.matmul(down @ offsets.permute(0, 3, 1, 2).to(torch.float32), across, out=out)  # (F, 2, H, W)
     return out.permute(0, 2, 3, 1)
 
 

@@ -21,9 +21,13 @@ from torch import Tensor
 #: A reference pixel counts as covered where it maps within this far (px) outside the frame's
 #: outer pixel centres (Kornia's ones channel sampled above 0.999 bilinearly, as the callers had it).
 EDGE_TOLERANCE_PX = 1e-3
+#: Frames of more than PIECES_FROM pixels are warped PIECE_SAMPLES pixels at a time
+#: (:func:`warp_onto_reference`; smaller ones' temporaries are reused by the allocator anyway).
+PIECE_SAMPLES, PIECES_FROM = 1 << 16, 1 << 20
 
 
-def sampling_grid(motion: np.ndarray, shape: tuple[int, int], size: tuple[int, int] | None = None) -> Tensor:
+def sampling_grid(motion: np.ndarray, shape: tuple[int, int], size: tuple[int, int] | None = None,
+                  rows: slice = slice(None)) -> Tensor:
     """Where each pixel of the reference grid lies in the frame, as ``grid_sample`` reads it.
 
     Parameters
@@ -35,6 +39,8 @@ def sampling_grid(motion: np.ndarray, shape: tuple[int, int], size: tuple[int, i
     size : (rows, cols), optional
         The pixels (v, u) with v < rows, u < cols of the reference grid, carried on past its
         edge where larger than ``shape`` (default: ``shape``).
+    rows : slice, optional
+        Only these of its rows (the same values as the whole grid's rows).
 
     Returns
     -------
@@ -42,18 +48,27 @@ def sampling_grid(motion: np.ndarray, shape: tuple[int, int], size: tuple[int, i
         (x, y) in [-1, 1] across the frame's outer pixel centres (``align_corners=True``);
         non-finite where the homography sends the point to infinity.
     """
+    return _grid(_grid_matrix(motion, shape), shape, size, rows)
+
+
+def _grid_matrix(motion: np.ndarray, shape: tuple[int, int]) -> Tensor:
+    """(3, 3) float64: reference normalised -> reference px -> frame px -> frame normalised."""
     H, W = shape
-    rows, cols = size or shape
-    # reference normalised -> reference px -> frame px -> frame normalised, composed in float64
     norm = np.array([[2 / max(W - 1, 1), 0, -1], [0, 2 / max(H - 1, 1), -1], [0, 0, 1.0]])
     try:
         inverse = np.linalg.inv(np.asarray(motion, dtype=np.float64))
     except np.linalg.LinAlgError:  # a degenerate motion: nowhere on the frame
         inverse = np.full((3, 3), np.nan)
-    m = torch.from_numpy(norm @ inverse @ np.linalg.inv(norm))
+    return torch.from_numpy(norm @ inverse @ np.linalg.inv(norm))
+
+
+def _grid(m: Tensor, shape: tuple[int, int], size: tuple[int, int] | None, rows: slice) -> Tensor:
+    """:func:`sampling_grid` from its :func:`_grid_matrix` ``m``."""
+    H, W = shape
+    height, cols = size or shape
     xs = torch.arange(cols, dtype=torch.float64) * (2 / max(W - 1, 1)) - 1
-    ys = torch.arange(rows, dtype=torch.float64) * (2 / max(H - 1, 1)) - 1
-    grid = torch.empty((1, rows, cols, 2), dtype=torch.float32)
+    ys = (torch.arange(height, dtype=torch.float64) * (2 / max(H - 1, 1)) - 1)[rows]
+    grid = torch.empty((1, len(ys), cols, 2), dtype=torch.float32)
 
     def plane(row: int, out: Tensor | None = None) -> Tensor:  # m[row] . (x, y, 1) at every pixel
         across = (m[row, 0] * xs).float()[None, :]
@@ -84,7 +99,8 @@ def inside(grid: Tensor, shape: tuple[int, int] | None = None) -> Tensor:
 
 
 def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinear",
-                        size: tuple[int, int] | None = None) -> tuple[Tensor, Tensor]:
+                        size: tuple[int, int] | None = None,
+                        out: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
     """``images`` (1, C, H, W) of a frame resampled onto the reference grid (zeros outside).
 
     Parameters
@@ -96,6 +112,8 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
         ``grid_sample``'s interpolation.
     size : (rows, cols), optional
         The reference grid's pixels to resample at (:func:`sampling_grid`; default (H, W)).
+    out : (Tensor, Tensor), optional
+        Memory to write ``warped`` and ``valid`` into (a caller's, kept frame after frame).
 
     Returns
     -------
@@ -104,6 +122,21 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
         Where the frame covers the reference pixel (:func:`inside`).
     """
     shape = tuple(images.shape[-2:])
-    grid = sampling_grid(motion, shape, size)
-    warped = torch.nn.functional.grid_sample(images, grid, mode=mode, padding_mode="zeros", align_corners=True)
-    return warped, inside(grid, shape)
+    rows, cols = size or shape
+    step = max(1, PIECE_SAMPLES // max(cols, 1))
+    if rows * cols <= PIECES_FROM and out is None:
+        grid = sampling_grid(motion, shape, size)
+        warped = torch.nn.functional.grid_sample(images, grid, mode=mode, padding_mode="zeros", align_corners=True)
+        return warped, inside(grid, shape)
+    # A piece of rows at a time (each pixel's the same values): the grid's temporaries stay
+    # small and in the cache, where a 12 MP frame's would be 96 MB of fresh pages.
+    warped, valid = out or (torch.empty(images.shape[:2] + (rows, cols), dtype=images.dtype),
+                            torch.empty((rows, cols), dtype=torch.bool))
+    m = _grid_matrix(motion, shape)
+    for first in range(0, rows, step):
+        piece = slice(first, min(first + step, rows))
+        grid = _grid(m, shape, (rows, cols), piece)
+        warped[..., piece, :] = torch.nn.functional.grid_sample(images, grid, mode=mode, padding_mode="zeros",
+                                                                align_corners=True)
+        valid[piece] = inside(grid, shape)
+    return warped, valid
