@@ -131,3 +131,27 @@ def test_luminance_in_torch_memory_is_the_float32_division():
     got = luminance(frames)
     assert isinstance(got, torch.Tensor) and got.dtype == torch.float32
     assert np.array_equal(got.numpy(), np.divide(frames, np.float32(65535), dtype=np.float32))
+
+
+def test_the_tally_in_pieces_of_rows_has_the_sums_of_the_whole_frame(monkeypatch):
+    from hbis_torch.reconstruct import burst as B
+
+    rng = np.random.default_rng(5)
+    H, Wd = 37, 53
+    where = apply_homography_to_grid(torch.from_numpy(_motions("homography", 4, rng)),
+                                     torch.arange(H, dtype=torch.float64), torch.arange(Wd, dtype=torch.float64))
+    weights = torch.from_numpy(rng.uniform(0, 1, (4, H, Wd)))
+    weights[2, 5:9] = 0.0
+    where[3, 0, 0] = float("nan")  # a sample that lands nowhere
+
+    def tally(piece):
+        monkeypatch.setattr(B, "TALLY_PIECE_SAMPLES", piece)
+        t = B._Tally((H, Wd), 0, (3, 2))
+        for k in range(4):
+            t.add(k, where[k], weights[k])
+        return t
+
+    whole, pieces = tally(1 << 20), tally(3 * Wd + 1)  # one piece, and pieces of 3 rows
+    assert np.array_equal(whole.coverage(), pieces.coverage())
+    assert all(torch.equal(whole.hits[s], pieces.hits[s]) for s in (2, 3))
+    assert whole.coverage().sum() > 0 and bool(whole.hits[3].any())
