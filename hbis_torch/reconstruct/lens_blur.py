@@ -395,11 +395,8 @@ def burst_lens_sigma(grey, positions, weights, reference: int, notes: list | Non
 
     Parameters
     ----------
-    grey : Tensor, shape (F, H, W), float32
-        The frames' luminance (``reconstruct.burst._luma``).
-    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
-    weights : Tensor, shape (F, H, W)
-    reference : int
+    grey, positions, weights, reference
+        As :func:`burst_lens_estimate` takes them.
     notes : list, optional
 
     Returns
