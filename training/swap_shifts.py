@@ -26,8 +26,20 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from eval_handheld import _peer, bicubic, psnr, provenance  # noqa: E402
+
+def _evaluation():
+    """training/eval_handheld.py, loaded from its path: its scoring, bicubic row, peer and provenance."""
+    import importlib.util
+
+    if "eval_handheld" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("eval_handheld", Path(__file__).resolve().parent / "eval_handheld.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        sys.modules["eval_handheld"] = module
+    return sys.modules["eval_handheld"]
+
+
+_peer, bicubic, psnr, provenance = (getattr(_evaluation(), name) for name in ("_peer", "bicubic", "psnr", "provenance"))
 
 
 def parse_args(argv=None):
