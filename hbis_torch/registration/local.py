@@ -27,6 +27,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
+# The shifted reference (:func:`_shift`) is made in the warp's pieces: PIECE_SAMPLES pixels at a
+# time, in grids of more pixels than PIECES_FROM.
+from hbis_torch.registration.warp import PIECE_SAMPLES, PIECES_FROM, warp_onto_reference
+
 #: Side of a tile, LR px: small enough to follow a rolling shutter's skew down a frame, large
 #: enough that a textured tile pins its shift (a setting, not tuned).
 TILE_PX = 32
@@ -37,9 +41,6 @@ ITERATIONS = 3
 #: Frames smaller than this many tiles across (either way) keep their global motion alone.
 MIN_TILES = 3
 BLUR_PX = 1.0
-#: Pixels of the shifted reference made at a time (:func:`_shift`), in grids of more pixels than
-#: PIECES_FROM (smaller ones' temporaries are reused by the allocator anyway).
-PIECE_SAMPLES, PIECES_FROM = 1 << 16, 1 << 20
 
 
 def tile_grid(shape: tuple[int, int], tile: int = TILE_PX) -> tuple[int, int]:
@@ -143,7 +144,6 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
     """
     import kornia
 
-    from hbis_torch.registration.warp import warp_onto_reference
     from hbis_torch.sensor.noise import noise_sigma
 
     F, H, W = grey.shape
