@@ -189,8 +189,8 @@ def _minimum_3x3(image: Tensor) -> Tensor:
 
 
 # Samples :meth:`_Tally.add` takes at a time (a piece of rows): a 12 MP frame's indices in one go
-# are 96 MB of fresh pages each, and on 4 frames of 12 MP the pieces took the robustness with the
-# tally from 7.9 to 5.6 s of CPU (the same sums).
+# are 96 MB of fresh pages each, which on this project's benchmark machine cost more to fault in
+# than the sums themselves (the same sums either way).
 TALLY_PIECE_SAMPLES = 1 << 16
 
 

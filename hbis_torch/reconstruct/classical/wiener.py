@@ -531,9 +531,9 @@ def fit_spectrum(power: Tensor, fx: Tensor, fy: Tensor, kernel, shifts, noise2: 
     empty (a burst of pure shifts that cluster, a region the robustness leaves to the reference
     alone), the filled nodes' errors repeat with the LR lattice's period, at 1 / h and its
     multiples. Fitted, that power flattened the slope, and the filter then sharpened the errors
-    as scene detail over the whole image. On the training simulator's 640 x 480 bursts with a
-    moving object at S = 2 the slope rose by 0.25-0.5 and the image by +0.1 to +0.56 dB in 4 of
-    6; the 12 other bursts (shifts, turns, S = 2 to 4) fitted no ring above 1 / h and are unchanged.
+    as scene detail over the whole image. On the training simulator's 640 x 480 bursts the cut
+    raised those with a moving object at S = 2 and left those of shifts and turns (S = 2 to 4),
+    which fitted no ring above 1 / h, unchanged (docs/real-bursts.md).
 
     Returns
     -------
