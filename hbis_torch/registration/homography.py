@@ -87,13 +87,13 @@ def apply_homography_to_grid(homographies: Tensor, rows: Tensor, cols: Tensor, o
     # (0 u + (0 v + 1)): its division, which leaves every value as it is, is skipped.
     affine = (h[:, 2, 0] == 0) & (h[:, 2, 1] == 0) & (h[:, 2, 2] == 1)
     for k, m in enumerate(h):
-        if not bool(affine[k]) and w is None:
-            w = torch.empty((len(rows), len(cols)), dtype=torch.float64)
-        if not bool(affine[k]):
+        divide = not bool(affine[k])
+        if divide:
+            w = torch.empty((len(rows), len(cols)), dtype=torch.float64) if w is None else w
             torch.add((m[2, 1] * rows + m[2, 2])[:, None], (m[2, 0] * cols)[None, :], out=w)
         for axis in (0, 1):
             torch.add((m[axis, 1] * rows + m[axis, 2])[:, None], (m[axis, 0] * cols)[None, :], out=out[k, ..., axis])
-            if not bool(affine[k]):
+            if divide:
                 out[k, ..., axis].div_(w)
     return out
 
