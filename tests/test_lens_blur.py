@@ -188,3 +188,20 @@ def test_eval_lens_blur_refuses_bad_settings_before_any_work(tmp_path, capsys, l
         script.main(["--out", str(out), *bad])
     assert stop.value.code == 2 and "error:" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_structure_tensor_at_points_equals_the_whole_frames():
+    """The edge search smooths the structure tensor only around the pixels it reads: it must
+    equal the whole frame's smoothed tensor there, down to the bit, even a radius from the edge."""
+    from scipy.ndimage import gaussian_filter
+
+    from hbis_torch.reconstruct.lens_blur import _structure_at
+
+    rng = np.random.default_rng(3)
+    gy, gx = np.gradient(gaussian_filter(rng.random((40, 52)), 1.0))
+    jxx, jyy, jxy = (gaussian_filter(a, 1.5) for a in (gx * gx, gy * gy, gx * gy))
+    whole = np.sqrt((jxx - jyy) ** 2 + 4 * jxy * jxy) / (jxx + jyy)
+    ys, xs = np.array([6, 6, 20, 33, 33]), np.array([6, 45, 25, 6, 45])
+    coherence, angle = _structure_at(gx, gy, ys, xs)
+    assert np.array_equal(coherence, whole[ys, xs])
+    assert angle == [0.5 * math.atan2(2 * jxy[y, x], jxx[y, x] - jyy[y, x]) for y, x in zip(ys, xs)]
