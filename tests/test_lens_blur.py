@@ -205,3 +205,15 @@ def test_the_structure_tensor_at_points_equals_the_whole_frames():
     coherence, angle = _structure_at(gx, gy, ys, xs)
     assert np.array_equal(coherence, whole[ys, xs])
     assert angle == [0.5 * math.atan2(2 * jxy[y, x], jxx[y, x] - jyy[y, x]) for y, x in zip(ys, xs)]
+
+
+def test_the_noise_operator_in_pieces_is_the_whole_frames(monkeypatch):
+    """The lens estimate's noise reads Immerkaer's operator a few rows at a time: the same values
+    as over the whole frame, so the same median."""
+    from hbis_torch.reconstruct import lens_blur
+    from hbis_torch.sensor.noise import immerkaer
+
+    frame = np.random.default_rng(4).random((23, 17), dtype=np.float32)
+    whole = np.abs(immerkaer(frame.astype(np.float64))).reshape(-1)
+    monkeypatch.setattr(lens_blur, "NOISE_PIECE_SAMPLES", 40)  # two rows a piece
+    assert np.array_equal(lens_blur._immerkaer_magnitude(frame), whole)

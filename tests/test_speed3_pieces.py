@@ -1,8 +1,9 @@
 """Computations done a piece of rows at a time give the bits of the whole computation.
 
 The burst path computes whole frames' positions, their nearest lattice nodes, the warp onto the
-reference and the local fit's shifted reference in pieces (small temporaries that stay in the
-cache, no frame-sized fresh pages); affine motions skip the homography's division by w = 1.
+reference, the local fit's shifted reference and the output's blend in pieces (small temporaries
+that stay in the cache, no frame-sized fresh pages); affine motions skip the homography's
+division by w = 1.
 Each is checked here against the same computation at once (the piece size made larger than the
 frame), bit for bit.
 """
@@ -155,3 +156,23 @@ def test_the_tally_in_pieces_of_rows_has_the_sums_of_the_whole_frame(monkeypatch
     assert np.array_equal(whole.coverage(), pieces.coverage())
     assert all(torch.equal(whole.hits[s], pieces.hits[s]) for s in (2, 3))
     assert whole.coverage().sum() > 0 and bool(whole.hits[3].any())
+
+
+@pytest.mark.parametrize("channels", [None, 3])
+def test_the_blend_in_pieces_is_the_whole_arrays_blend(channels, monkeypatch):
+    """The output's blend of the method's image with the single frame, a few rows at a time, has
+    the bits of the whole arrays' float32 blend; a colour image takes one alpha for its three
+    channels; a non-finite value is refused, in any piece."""
+    from hbis_torch.reconstruct import burst as B
+
+    rng = np.random.default_rng(5)
+    shape = (37, 29) if channels is None else (37, 29, channels)
+    alpha = rng.uniform(-0.1, 1.1, (37, 29, 1) if channels else (37, 29)).clip(0, 1).astype(np.float32)
+    image, fallback = (rng.uniform(-0.2, 1.2, shape).astype(np.float32) for _ in range(2))
+    whole = np.clip(alpha * image + (1 - alpha) * fallback, 0, 1).astype(np.float32)
+    monkeypatch.setattr(B, "BLEND_PIECE_SAMPLES", 100)  # three rows a piece (one for colour)
+    got = B._blend(alpha, image, fallback)
+    assert got.dtype == np.float32 and np.array_equal(got, whole)
+    image[30, 3] = np.nan
+    with pytest.raises(RuntimeError, match="non-finite"):
+        B._blend(alpha, image, fallback)

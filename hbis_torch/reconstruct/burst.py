@@ -410,10 +410,28 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
         image, alpha = enlarge(image, size), enlarge(alpha, size)
     if alpha.ndim < np.ndim(image):
         alpha = alpha[..., None]
-    out = alpha * np.asarray(image, dtype=np.float32) + (1 - alpha) * fallback
-    if not np.isfinite(out).all():
-        raise RuntimeError("the burst reconstruction produced non-finite values; please report the stack")
-    return np.clip(out, 0, 1).astype(np.float32)
+    return _blend(alpha, np.asarray(image, dtype=np.float32), fallback)
+
+
+# Output rows :func:`_blend` takes at a time: a 48 MP output's whole-image temporaries are 192 MB
+# each of fresh pages, which cost more to fault in than the arithmetic.
+BLEND_PIECE_SAMPLES = 1 << 18
+
+
+def _blend(alpha: np.ndarray, image: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """``alpha * image + (1 - alpha) * fallback`` clipped to [0, 1], float32 (S H, S W[, C]), a
+    piece of :data:`BLEND_PIECE_SAMPLES` samples' rows at a time: the same float32 operations, in
+    the same order, as on the whole arrays. Raises where a value is not finite."""
+    out = np.empty(np.broadcast_shapes(alpha.shape, image.shape, fallback.shape), dtype=np.float32)
+    rows = max(1, BLEND_PIECE_SAMPLES // max(out[0].size, 1))
+    for r in range(0, len(out), rows):
+        a, piece = alpha[r:r + rows], out[r:r + rows]
+        np.multiply(a, image[r:r + rows], out=piece)
+        piece += (1 - a) * fallback[r:r + rows]
+        if not np.isfinite(piece).all():
+            raise RuntimeError("the burst reconstruction produced non-finite values; please report the stack")
+        np.clip(piece, 0, 1, out=piece)
+    return out
 
 
 def _luma_and_chroma(run, stack, frames, positions, weights, messages, kw) -> np.ndarray:
