@@ -404,7 +404,7 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     notes.extend(dict.fromkeys(said))
     alpha = _blend_weight(cover, run_scale)
     if scale <= getattr(run, "fill_blend_to", scale) or float(fill.mean()) < RUN_FILL:  # (RUN_FILL's notes)
-        alpha = np.minimum(alpha, fill)
+        alpha = np.minimum(alpha, fill, out=alpha)  # _blend_weight's own array
     if run_scale != scale:
         size = fallback.shape[:2]
         image, alpha = enlarge(image, size), enlarge(alpha, size)
@@ -422,7 +422,8 @@ def _blend(alpha: np.ndarray, image: np.ndarray, fallback: np.ndarray) -> np.nda
     """``alpha * image + (1 - alpha) * fallback`` clipped to [0, 1], float32 (S H, S W[, C]), a
     piece of :data:`BLEND_PIECE_SAMPLES` samples' rows at a time: the same float32 operations, in
     the same order, as on the whole arrays. Raises where a value is not finite."""
-    out = np.empty(np.broadcast_shapes(alpha.shape, image.shape, fallback.shape), dtype=np.float32)
+    # in torch's memory (as capture.burst.luminance's: NumPy's huge pages fault in slower)
+    out = torch.empty(np.broadcast_shapes(alpha.shape, image.shape, fallback.shape), dtype=torch.float32).numpy()
     rows = max(1, BLEND_PIECE_SAMPLES // max(out[0].size, 1))
     for r in range(0, len(out), rows):
         a, piece = alpha[r:r + rows], out[r:r + rows]

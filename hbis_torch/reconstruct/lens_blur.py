@@ -218,8 +218,12 @@ def _edge_points(reference: np.ndarray, noise: float) -> list[tuple[float, float
     import torch
     from scipy.ndimage import gaussian_filter
 
-    gy, gx = (g.numpy() for g in torch.gradient(torch.from_numpy(gaussian_filter(reference, 0.7))))
-    magnitude = np.hypot(gx, gy)
+    # frame-sized arrays in torch's memory (as capture.burst.luminance's: NumPy's huge pages
+    # fault in slower than the arithmetic on them takes)
+    smooth = gaussian_filter(reference, 0.7, output=torch.empty(reference.shape, dtype=torch.float64).numpy())
+    gy, gx = (g.numpy() for g in torch.gradient(torch.from_numpy(smooth)))
+    del smooth
+    magnitude = np.hypot(gx, gy, out=torch.empty(reference.shape, dtype=torch.float64).numpy())
     T, m = TILE_PX, TILE_PX  # a margin of a tile: room for the motions and the window
     H, W = reference.shape
     rows, cols = (H - 2 * m) // T, (W - 2 * m) // T
@@ -377,11 +381,17 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     -------
     LensEstimate
     """
+    import torch
+
     frames, weights = np.asarray(frames), np.asarray(weights)
     if not getattr(positions, "computed_where_read", False):  # a BurstPositions is read a window at a time
         positions = np.asarray(positions)
     noise = max(float(noise), 1e-4)
-    points = _edge_points(frames[reference].astype(np.float64), noise)
+
+    reference_frame = torch.empty(frames.shape[1:3], dtype=torch.float64).numpy()  # (as _edge_points')
+    reference_frame[...] = frames[reference]
+    points = _edge_points(reference_frame, noise)
+    del reference_frame
     samples = []
     for x, y, theta in points:
         xy, values = _samples(frames, positions, weights, x, y, theta)
@@ -465,10 +475,12 @@ def _immerkaer_magnitude(frame: np.ndarray) -> np.ndarray:
     """``abs(immerkaer(frame))`` in float64, flattened ((H - 2) (W - 2),): computed a piece of
     :data:`NOISE_PIECE_SAMPLES` samples' rows at a time, each piece with its two neighbouring
     rows (the operator's reach), so the same values as on the whole frame."""
+    import torch
+
     from hbis_torch.sensor.noise import immerkaer
 
     H, W = frame.shape
-    out = np.empty((max(H - 2, 0), max(W - 2, 0)))
+    out = torch.empty((max(H - 2, 0), max(W - 2, 0)), dtype=torch.float64).numpy()  # (as _edge_points')
     rows = max(1, NOISE_PIECE_SAMPLES // max(W, 1))
     for r in range(0, H - 2, rows):
         np.abs(immerkaer(frame[r:r + rows + 2].astype(np.float64)), out=out[r:r + rows])
