@@ -5,11 +5,20 @@ has no licence) is read from ``../shared/data/real-bursts`` beside the checkout.
 sequence and scale: ``hbis assemble --burst`` (frames, motion models picked, frames trusted, CPU
 seconds), then observation-space cross-validation (:func:`hbis_torch.validate.cross_validate`,
 three frames held out one at a time) of the single-frame estimate, the classical and the learned
-method (PSNR of the held-out frames' predictions, dB, and seconds per reconstruction), and the
-reconstructions from every frame: the reference enlarged beside classical and learned, with a
-crop, as pictures. Writes the JSON results, docs/real-bursts.md's tables and the pictures.
+method and the peer vidsr (PSNR of the held-out frames' predictions, dB, and seconds per
+reconstruction), and the reconstructions from every frame: the reference enlarged beside
+classical and learned, with a crop, as pictures. Writes the JSON results, docs/real-bursts.md's
+tables and the pictures.
 
-    python3 benchmarks/bench_real_bursts.py [--scales 2 3 4] [--holdout 3]
+The peer **vidsr** (benchmarks/peers/vidsr_peer.py: its best setting for fidelity) is scored by
+the same folds as the project's methods: ``cross_validate``'s ``extra_methods`` hands it each
+fold's stack (every frame but the held-out one, the reference's index re-indexed in it) and
+its image, on the reference frame's grid, is predicted through the same forward model. It is
+given the frames as the methods see them, in [0, 1]; an RGB sequence's frames as their luma
+(BT.601; what the score compares). Included where vidsr is installed (a line on stderr where it
+is not); ``--no-vidsr`` leaves it out, ``--vidsr`` insists on it.
+
+    python3 benchmarks/bench_real_bursts.py [--scales 2 3 4] [--holdout 3] [--vidsr | --no-vidsr]
         [--json benchmarks/results/bench_real_bursts.json] [--doc docs/real-bursts.md]
     python3 benchmarks/bench_real_bursts.py --scales 2 4 --extrapolate --no-doc --no-figures \
         --json benchmarks/results/bench_real_bursts_extrapolate.json
@@ -18,6 +27,8 @@ crop, as pictures. Writes the JSON results, docs/real-bursts.md's tables and the
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import sys
 import time
 from pathlib import Path
 
@@ -35,17 +46,48 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "real-bursts"
 SEQUENCES = ("text.tif", "disk.tif", "Emily_small.tif", "Book_case1_small.tif")
 METHODS = ("single-frame", "classical", "learned")
+PEER = "vidsr"
 
 
-def run_sequence(path: Path, scale: int, holdout: int, figures: Path | None, extrapolate: bool = False) -> dict:
-    """Assemble, cross-validate and picture one sequence at one scale: one result row."""
+def load_peer():
+    """benchmarks/peers/vidsr_peer.py, loaded from its path (a benchmark's module, not the package's)."""
+    if "vidsr_peer" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("vidsr_peer", ROOT / "benchmarks" / "peers" / "vidsr_peer.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        sys.modules["vidsr_peer"] = module
+    return sys.modules["vidsr_peer"]
+
+
+def peer_of(stack) -> np.ndarray:
+    """vidsr's image of one fold's stack (:func:`hbis_torch.validate.select_frames` of the frames
+    kept): the stack's frames in [0, 1] (an RGB stack's as BT.601 luma), its reference frame
+    (``stack.reference_index``, re-indexed in the fold) the one whose grid the output refines.
+
+    Returns
+    -------
+    np.ndarray, shape (h H, h W), float32
+    """
+    from hbis_torch.reconstruct.colour import LUMA
+
+    frames = stack.to_float().numpy()
+    if frames.ndim == 4:
+        frames = frames @ LUMA.astype(np.float32)
+    return load_peer().vidsr_sr(frames, stack.h, reference=stack.reference_index)
+
+
+def run_sequence(path: Path, scale: int, holdout: int, figures: Path | None, extrapolate: bool = False,
+                 peer: bool = False) -> dict:
+    """Assemble, cross-validate and picture one sequence at one scale: one result row (``peer``:
+    with vidsr scored by the same folds)."""
     frames, names = read_frames([path])
     start = time.process_time()
     stack, messages = assemble_burst(frames, scale, names=names)
     assemble_s = time.process_time() - start
     models = stack.meta["motion_models"]
     validation = cross_validate(stack, METHODS, holdout=holdout,
-                                method_options={"learned": {"extrapolate": True}} if extrapolate else None)
+                                method_options={"learned": {"extrapolate": True}} if extrapolate else None,
+                                extra_methods={PEER: peer_of} if peer else None)
     row = {"sequence": path.name, "scale": scale, "frames": len(frames), "size": list(frames.shape[1:]),
            "trusted": int((stack.confidence >= 0.5).sum()),
            "models": {m: models.count(m) for m in dict.fromkeys(models)}, "assemble_cpu_s": assemble_s,
@@ -55,6 +97,9 @@ def run_sequence(path: Path, scale: int, holdout: int, figures: Path | None, ext
                      "messages": scores.messages}
     row["classical_gain_db"] = validation.gain("classical")
     row["learned_minus_classical_db"] = validation.gain("learned", "classical")
+    if peer:
+        row["classical_minus_vidsr_db"] = validation.gain("classical", PEER)
+        row["learned_minus_vidsr_db"] = validation.gain("learned", PEER)
     row["learned_ran"] = learned_ran(validation.methods["learned"].messages)
     if figures is not None:
         row["figure"] = picture(stack, path.stem, scale, figures)
@@ -100,17 +145,24 @@ def picture(stack, name: str, scale: int, figures: Path) -> str:
 
 
 def table(rows: list) -> str:
-    """docs/real-bursts.md's results, as Markdown."""
-    lines = ["| sequence | S | frames (trusted) | motion models | single frame | classical | learned | "
-             "classical - single | learned - classical | learned gave | assemble CPU s | s per reconstruction (cl. / le.) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    """docs/real-bursts.md's results, as Markdown (vidsr's columns where the rows have them)."""
+    peer = all(PEER in r for r in rows)
+    head = ["sequence", "S", "frames (trusted)", "motion models", "single frame", "classical", "learned"]
+    head += [PEER] if peer else []
+    head += ["classical - single", "learned - classical"]
+    head += ["classical - vidsr", "learned - vidsr"] if peer else []
+    head += ["learned gave", "assemble CPU s", "s per reconstruction (cl. / le." + (" / vidsr)" if peer else ")")]
+    lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for r in rows:
         models = ", ".join(f"{n} {m}" for m, n in r["models"].items())
-        lines.append(f"| {r['sequence']} | {r['scale']} | {r['frames']} ({r['trusted']}) | {models} | "
-                     f"{r['single-frame']['psnr_db']:.2f} | {r['classical']['psnr_db']:.2f} | "
-                     f"{r['learned']['psnr_db']:.2f} | {r['classical_gain_db']:+.2f} | "
-                     f"{r['learned_minus_classical_db']:+.2f} | {r['learned_ran']} | {r['assemble_cpu_s']:.1f} | "
-                     f"{r['classical']['seconds']:.2f} / {r['learned']['seconds']:.2f} |")
+        cells = [r["sequence"], r["scale"], f"{r['frames']} ({r['trusted']})", models,
+                 f"{r['single-frame']['psnr_db']:.2f}", f"{r['classical']['psnr_db']:.2f}", f"{r['learned']['psnr_db']:.2f}"]
+        cells += [f"{r[PEER]['psnr_db']:.2f}"] if peer else []
+        cells += [f"{r['classical_gain_db']:+.2f}", f"{r['learned_minus_classical_db']:+.2f}"]
+        cells += [f"{r['classical_minus_vidsr_db']:+.2f}", f"{r['learned_minus_vidsr_db']:+.2f}"] if peer else []
+        seconds = [r[m]["seconds"] for m in ("classical", "learned", *([PEER] if peer else []))]
+        cells += [r["learned_ran"], f"{r['assemble_cpu_s']:.1f}", " / ".join(f"{t:.2f}" for t in seconds)]
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(lines)
 
 
@@ -124,6 +176,11 @@ def summary(rows: list) -> dict:
         out[str(scale)] = {"classical_gain_mean_db": float(np.mean(gain)), "classical_gain_worst_db": float(min(gain)),
                            "learned_minus_classical_mean_db": float(np.mean(learned)),
                            "learned_minus_classical_worst_db": float(min(learned))}
+        if all(PEER in r for r in part):
+            for method in ("classical", "learned"):
+                lead = [r[f"{method}_minus_vidsr_db"] for r in part]
+                out[str(scale)].update({f"{method}_minus_vidsr_mean_db": float(np.mean(lead)),
+                                        f"{method}_minus_vidsr_worst_db": float(min(lead))})
     return out
 
 
@@ -135,15 +192,25 @@ def write_doc(doc: Path, rows: list, result: dict, command: str) -> None:
     """Replace the generated part of ``doc`` (between the two markers) with the tables."""
     begin, end = "<!-- bench_real_bursts: begin -->", "<!-- bench_real_bursts: end -->"
     lines = [begin, "", f"Generated by `{command}` (PSNR in dB of the held-out frames' predictions, "
-             f"{result['settings']['holdout']} frames held out one at a time; CPU seconds on one thread).", "",
+             f"{result['settings']['holdout']} frames held out one at a time; CPU seconds on one thread"
+             + (f"; vidsr {result['settings']['vidsr_version']}, scored by the same folds, where it is installed"
+                if result["settings"].get("vidsr") else "") + ").", "",
              f"<!-- src-table: {RESULTS} -->", table(rows), ""]
     for scale, s in result["summary"].items():
-        keys = [f"summary.{scale}.{k}" for k in ("classical_gain_mean_db", "classical_gain_worst_db",
-                                                 "learned_minus_classical_mean_db", "learned_minus_classical_worst_db")]
-        lines.append(f"* S = {scale}: classical - single frame {s['classical_gain_mean_db']:+.2f} dB on average, "
-                     f"{s['classical_gain_worst_db']:+.2f} dB at worst; learned - classical "
-                     f"{s['learned_minus_classical_mean_db']:+.2f} dB on average, "
-                     f"{s['learned_minus_classical_worst_db']:+.2f} dB at worst<!-- src: {RESULTS}: {', '.join(keys)} -->.")
+        names = ["classical_gain_mean_db", "classical_gain_worst_db", "learned_minus_classical_mean_db",
+                 "learned_minus_classical_worst_db"]
+        text = (f"* S = {scale}: classical - single frame {s['classical_gain_mean_db']:+.2f} dB on average, "
+                f"{s['classical_gain_worst_db']:+.2f} dB at worst; learned - classical "
+                f"{s['learned_minus_classical_mean_db']:+.2f} dB on average, "
+                f"{s['learned_minus_classical_worst_db']:+.2f} dB at worst")
+        if "classical_minus_vidsr_mean_db" in s:
+            names += [f"{m}_minus_vidsr_{k}_db" for m in ("classical", "learned") for k in ("mean", "worst")]
+            text += (f"; classical - vidsr {s['classical_minus_vidsr_mean_db']:+.2f} dB on average, "
+                     f"{s['classical_minus_vidsr_worst_db']:+.2f} dB at worst; learned - vidsr "
+                     f"{s['learned_minus_vidsr_mean_db']:+.2f} dB on average, "
+                     f"{s['learned_minus_vidsr_worst_db']:+.2f} dB at worst")
+        keys = [f"summary.{scale}.{k}" for k in names]
+        lines.append(f"{text}<!-- src: {RESULTS}: {', '.join(keys)} -->.")
     lines += ["", "Pictures (the reference enlarged, classical, learned; a crop of each below). The benchmark draws them where it "
               "runs; they are not shipped, since the sequences carry no licence (the links work after a run):", ""]
     lines += [f"![{r['sequence']} at S = {r['scale']}](figures/{r['figure']})" for r in rows if "figure" in r]
@@ -154,8 +221,41 @@ def write_doc(doc: Path, rows: list, result: dict, command: str) -> None:
     doc.write_text(head + "\n".join(lines) + tail)
 
 
+class _Parser(argparse.ArgumentParser):
+    """Bad flags in one line on stderr, exit status 2."""
+
+    def error(self, message):
+        refuse(message)
+
+
+def refuse(message: str):
+    """One line on stderr and exit status 2 (before any work)."""
+    print(f"bench_real_bursts: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def check_args(args) -> str | None:
+    """One line saying what is wrong with the arguments, or None."""
+    if not args.data.is_dir():
+        return f"the shared real-bursts set is not at {args.data} (it is not shipped)"
+    missing = [n for n in args.sequences if not (args.data / n).is_file()]
+    if missing:
+        return f"no sequence {', '.join(missing)} in {args.data}"
+    if any(not 1 <= s <= 8 for s in args.scales):
+        return f"--scales must lie in 1..8, got {args.scales}"
+    if args.holdout < 1:
+        return f"--holdout must be 1 or more, got {args.holdout}"
+    if args.json and not Path(args.json).resolve().parent.is_dir():
+        return f"--json {args.json}: the folder does not exist"
+    counts = {n: len(read_frames([args.data / n])[0]) for n in args.sequences}
+    short = [f"{n} ({c} frames)" for n, c in counts.items() if args.holdout > c - 1]
+    if short:
+        return f"--holdout {args.holdout}: more than the frames besides the reference of {', '.join(short)}"
+    return None
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = _Parser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--scales", type=int, nargs="+", default=[2])
     parser.add_argument("--holdout", type=int, default=3)
@@ -166,18 +266,29 @@ def main() -> None:
     parser.add_argument("--extrapolate", action="store_true",
                         help="run the learned network even outside its training domain (with --no-doc)")
     parser.add_argument("--no-doc", action="store_true", help="leave docs/real-bursts.md as it is")
+    parser.add_argument("--vidsr", action=argparse.BooleanOptionalAction, default=None,
+                        help="score the peer vidsr by the same folds (default: where it is installed)")
     args = parser.parse_args()
-    if not args.data.is_dir():
-        raise SystemExit(f"the shared real-bursts set is not at {args.data} (it is not shipped)")
+    problem = check_args(args)
+    if problem:
+        refuse(problem)
+    installed = args.vidsr is not False and load_peer().available()
+    if args.vidsr and not installed:
+        refuse("--vidsr: vidsr is not installed (pip install vidsr)")
+    if args.vidsr is None and not installed:
+        print("bench_real_bursts: vidsr is not installed: its row is skipped", file=sys.stderr)
+    args.vidsr = installed
+    args.vidsr_version = load_peer().version() if installed else None
     torch.set_num_threads(1)
     figures = None if args.no_figures else args.doc.parent / "figures"
     rows = []
     for scale in args.scales:
         for name in args.sequences:
-            rows.append(run_sequence(args.data / name, scale, args.holdout, figures, args.extrapolate))
+            rows.append(run_sequence(args.data / name, scale, args.holdout, figures, args.extrapolate, args.vidsr))
             r = rows[-1]
+            peer = f", vidsr {r[PEER]['psnr_db']:.2f}" if args.vidsr else ""
             print(f"{name} S={scale}: single {r['single-frame']['psnr_db']:.2f}, classical "
-                  f"{r['classical']['psnr_db']:.2f}, learned {r['learned']['psnr_db']:.2f} dB; models {r['models']}",
+                  f"{r['classical']['psnr_db']:.2f}, learned {r['learned']['psnr_db']:.2f}{peer} dB; models {r['models']}",
                   flush=True)
     shown = argparse.Namespace(**{**vars(args), "doc": str(args.doc.resolve().relative_to(ROOT)) if
                                   args.doc.resolve().is_relative_to(ROOT) else str(args.doc),

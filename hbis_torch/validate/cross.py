@@ -120,6 +120,12 @@ def resolve_methods(methods) -> list[str]:
     return out
 
 
+def _registered() -> tuple:
+    from hbis_torch.reconstruct.registry import METHODS
+
+    return tuple(METHODS)
+
+
 def _scoring_kind(stack) -> str:
     if stack.meta.get("cfa") is not None:
         return "mosaic"
@@ -193,7 +199,7 @@ class _Scorer:
 def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *, registration: str = "auto",
                    border_px: float = DEFAULT_BORDER_PX, blur_px: float = DEFAULT_BLUR_PX,
                    method_options: dict | None = None, messages: list | None = None,
-                   on_step=None) -> Validation:
+                   on_step=None, extra_methods: dict | None = None) -> Validation:
     """Score methods on a stack without ground truth: leave frames out one at a time, super-resolve
     the rest, predict the held-out frame and measure the PSNR of the prediction.
 
@@ -222,6 +228,17 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
         :attr:`MethodScores.messages`).
     on_step : callable, optional
         Called with no argument after each reconstruction (a progress bar's ``update``).
+    extra_methods : dict of str to callable, optional
+        Methods from outside the registry (a peer package, a variant under study), by name, scored
+        after ``methods`` on the same held-out frames, forward model and samples. Each is called
+        once per held-out frame with that fold's stack: :func:`select_frames` of every frame but the
+        held-out one, exactly what the registered methods are given (the reference kept, its
+        ``reference_index`` re-indexed in the reduced set). It returns the super-resolved image on
+        the output grid of the reference frame refined ``stack.h`` times (docs/design.md section
+        1: HR pixel (U, V) centred at LR ((U + 0.5) / h - 0.5, (V + 0.5) / h - 0.5)), shape
+        (h H, h W), or (h H, h W, 3) for an RGB stack (a 2-D image of an RGB stack is taken as its
+        luma). Messages are not collected from them. A name that is a registered method or the
+        baseline is refused.
 
     Returns
     -------
@@ -234,6 +251,13 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
         raise HbisInputError("hbis validate does not score raw bursts (hbis assemble --burst of raw files) yet: "
                              "their samples are a mosaic with levels of their own")
     names = resolve_methods(methods)
+    extra = dict(extra_methods or {})
+    for name, method in extra.items():
+        if not isinstance(name, str) or not name or name in ALIASES or name in _registered():
+            raise HbisInputError(f"extra method {name!r}: needs a name of its own (not a registered method or "
+                                 f"{SINGLE_FRAME})")
+        if not callable(method):
+            raise HbisInputError(f"extra method {name!r} is not callable")
     check_registration(registration)
     count = len(stack.frames)
     holdout = min(DEFAULT_HOLDOUT, count - 1) if holdout is None else int(holdout)
@@ -249,7 +273,7 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
                             "read the scores with care or validate a burst with more trusted frames"))
     score = _Scorer(stack, observed, positions, border_px, blur_px)
     results = {}
-    for name in names:
+    for name in [*names, *extra]:
         scores, seconds, said = [], [], []
         for k in held:
             start = time.perf_counter()
@@ -257,8 +281,11 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
                 estimate = single_frame(reference, stack.h)
             else:
                 subset = select_frames(stack, [i for i in range(count) if i != k])
-                estimate = reconstruct(subset, method=name, registration=registration, messages=said,
-                                       **options.get(name, {}))
+                estimate = extra[name](subset) if name in extra else reconstruct(
+                    subset, method=name, registration=registration, messages=said, **options.get(name, {}))
+                if name in extra and np.shape(estimate)[:2] != (stack.h * score.rows, stack.h * score.cols):
+                    raise HbisInputError(f"extra method {name!r} returned an image of shape {np.shape(estimate)}, "
+                                         f"not the output grid's ({stack.h * score.rows}, {stack.h * score.cols})")
             seconds.append(time.perf_counter() - start)
             scores.append(score(estimate, k))
             if on_step is not None:
