@@ -27,7 +27,6 @@ is not); ``--no-vidsr`` leaves it out, ``--vidsr`` insists on it.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 import time
 from pathlib import Path
@@ -41,6 +40,7 @@ from hbis_torch.capture.frames import read_frames
 from hbis_torch.reconstruct.burst import single_frame
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.validate import cross_validate
+from peers import vidsr_peer  # benchmarks/ is the script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "real-bursts"
@@ -50,13 +50,9 @@ PEER = "vidsr"
 
 
 def load_peer():
-    """benchmarks/peers/vidsr_peer.py, loaded from its path (a benchmark's module, not the package's)."""
-    if "vidsr_peer" not in sys.modules:
-        spec = importlib.util.spec_from_file_location("vidsr_peer", ROOT / "benchmarks" / "peers" / "vidsr_peer.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        sys.modules["vidsr_peer"] = module
-    return sys.modules["vidsr_peer"]
+    """benchmarks/peers/vidsr_peer.py (a benchmark's module, not the package's; it imports vidsr
+    only when asked)."""
+    return vidsr_peer
 
 
 def peer_of(stack) -> np.ndarray:

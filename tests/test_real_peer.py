@@ -8,13 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.ndimage import gaussian_filter
 from scipy.ndimage import shift as subpixel_shift
 
 from hbis_torch.errors import HbisInputError
 from hbis_torch.reconstruct import reconstruct
-from hbis_torch.stack_io import Stack, make_burst_meta
 from hbis_torch.validate import cross_validate, select_frames
+from tests.test_validate import translation_burst
 
 REPO = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -26,28 +25,8 @@ REFERENCE = 2  # not frame 0, so that a fold's reference index moves when an ear
 
 def _burst(scale=2, size=32, factor=8, seed=0):
     """A burst of a smooth random scene with the reference at :data:`REFERENCE`: (stack, truth on
-    the reference's grid refined ``scale`` times, HR pixel (U, V) centred at LR ((U + 0.5) / S - 0.5, ...))."""
-    rng = np.random.default_rng(seed)
-    pad = 2
-    side = (size + 2 * pad) * factor
-    scene = gaussian_filter(rng.random((side, side)), 0.4 * factor)
-    scene = (scene - scene.min()) / (scene.max() - scene.min())
-    frames = []
-    for dx, dy in SHIFTS:
-        ox, oy = int(round((pad + dx) * factor)), int(round((pad + dy) * factor))
-        crop = scene[oy:oy + size * factor, ox:ox + size * factor]
-        frames.append(crop.reshape(size, factor, size, factor).mean(axis=(1, 3)))
-    crop = scene[pad * factor:(pad + size) * factor, pad * factor:(pad + size) * factor]
-    b = factor // scale
-    truth = crop.reshape(size * scale, b, size * scale, b).mean(axis=(1, 3))
-    noisy = np.clip(np.asarray(frames) + rng.normal(0, 0.003, (len(frames), size, size)), 0, 1)
-    motions = np.repeat(np.eye(3)[None], len(SHIFTS), 0)
-    motions[:, :2, 2] = np.asarray(SHIFTS) - SHIFTS[REFERENCE]
-    models = ["translation"] * len(SHIFTS)
-    models[REFERENCE] = "identity"
-    meta = make_burst_meta(scale, (0, 0, size, size), motions, [1.0] * len(SHIFTS), models,
-                           [[1.0, 0.0]] * len(SHIFTS), reference_index=REFERENCE)
-    return Stack(noisy.astype(np.float32), meta).validate(), truth.astype(np.float32)
+    the reference's grid refined ``scale`` times)."""
+    return translation_burst(SHIFTS, scale, size, seed, factor, reference=REFERENCE)
 
 
 @pytest.fixture(scope="module")

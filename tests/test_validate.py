@@ -53,9 +53,10 @@ def test_select_frames_cuts_every_per_frame_field_of_a_scan_and_keeps_the_refere
         select_frames(stack, [4])
 
 
-def _translation_burst(shifts, scale=2, size=40, seed=0, factor=8):
+def translation_burst(shifts, scale=2, size=40, seed=0, factor=8, reference=0):
     """A burst of a random smooth scene, frame k shifted by ``shifts[k]`` LR pixels (multiples of
-    1 / factor): (stack, truth on the reference grid refined ``scale`` times)."""
+    1 / factor), frame ``reference`` the reference (its shift (0, 0)): (stack, truth on the
+    reference grid refined ``scale`` times, HR pixel (U, V) centred at LR ((U + 0.5) / S - 0.5, ...))."""
     from scipy.ndimage import gaussian_filter
 
     rng = np.random.default_rng(seed)
@@ -73,14 +74,16 @@ def _translation_burst(shifts, scale=2, size=40, seed=0, factor=8):
     truth = crop.reshape(size * scale, b, size * scale, b).mean(axis=(1, 3))
     noisy = np.clip(np.asarray(frames) + rng.normal(0, 0.004, (len(frames), size, size)), 0, 1)
     motions = np.repeat(np.eye(3)[None], len(shifts), 0)
-    motions[:, :2, 2] = shifts
-    meta = make_burst_meta(scale, (0, 0, size, size), motions, [1.0] * len(shifts),
-                           ["identity"] + ["translation"] * (len(shifts) - 1), [[1.0, 0.0]] * len(shifts))
+    motions[:, :2, 2] = np.asarray(shifts) - np.asarray(shifts[reference])
+    models = ["translation"] * len(shifts)
+    models[reference] = "identity"
+    meta = make_burst_meta(scale, (0, 0, size, size), motions, [1.0] * len(shifts), models,
+                           [[1.0, 0.0]] * len(shifts), reference_index=reference)
     return Stack(noisy.astype(np.float32), meta).validate(), truth.astype(np.float32)
 
 
 def test_select_frames_cuts_a_bursts_motions_and_the_rest():
-    stack, _ = _translation_burst([(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5)])
+    stack, _ = translation_burst([(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5)])
     stack.meta["reference_index"] = 2
     part = select_frames(stack, [0, 3])
     assert part.kind == "burst" and part.reference_index == 1 and len(part.frames) == 3
@@ -209,7 +212,7 @@ def shift_and_add(monkeypatch):
 
 def test_a_registered_method_is_validated_on_a_burst_and_beats_the_single_frame(shift_and_add):
     shifts = [(0, 0), (0.5, 0), (0, 0.5), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25), (1.125, -0.5), (-0.375, 0.625)]
-    stack, truth = _translation_burst(shifts)
+    stack, truth = translation_burst(shifts)
     result = cross_validate(stack, ("bicubic", shift_and_add), holdout=3)
     assert result.held_out == [2, 4, 6] and result.scored_on == "grey"
     assert result.gain(shift_and_add) > 1.0
@@ -222,7 +225,7 @@ def test_a_registered_method_is_validated_on_a_burst_and_beats_the_single_frame(
 
 
 def test_colour_stacks_are_scored_on_luma(shift_and_add):
-    stack, _ = _translation_burst([(0, 0), (0.5, 0.25), (0.25, 0.5)], size=24)
+    stack, _ = translation_burst([(0, 0), (0.5, 0.25), (0.25, 0.5)], size=24)
     rgb = np.stack((stack.frames, 0.8 * stack.frames, 0.5 * stack.frames), axis=-1).astype(np.float32)
     result = cross_validate(Stack(rgb, stack.meta), ("single-frame",), holdout=2)
     grey = cross_validate(stack, ("single-frame",), holdout=2)
@@ -317,7 +320,7 @@ def test_raw_bayer_stacks_are_scored_on_the_mosaic_and_untrusted_frames_are_not_
     pytest.importorskip("cv2")  # demosaicking, for the registration's grey frames and the baseline
     from hbis_torch.sensor.cfa import mosaic
 
-    stack, _ = _translation_burst([(0, 0), (0.5, 0.25), (0.25, 0.5), (0.75, 0.75), (0.5, 0.5)], size=24)
+    stack, _ = translation_burst([(0, 0), (0.5, 0.25), (0.25, 0.5), (0.75, 0.75), (0.5, 0.5)], size=24)
     rgb = np.stack((stack.frames, 0.9 * stack.frames, 0.6 * stack.frames), axis=-1)
     meta = {**stack.meta, "cfa": "RGGB", "confidence": [1.0, 1.0, 0.0, 1.0, 1.0]}
     raw = Stack(mosaic(rgb, "RGGB").astype(np.float32), meta).validate()
@@ -327,7 +330,7 @@ def test_raw_bayer_stacks_are_scored_on_the_mosaic_and_untrusted_frames_are_not_
 
 
 def test_a_held_out_frame_whose_motion_is_not_trusted_is_said_so():
-    stack, _ = _translation_burst([(0, 0), (0.5, 0.25), (0.25, 0.5)], size=24)
+    stack, _ = translation_burst([(0, 0), (0.5, 0.25), (0.25, 0.5)], size=24)
     stack.meta["confidence"] = [1.0, 0.0, 1.0]
     messages = []
     result = cross_validate(stack, ("single-frame",), holdout=2, messages=messages)
