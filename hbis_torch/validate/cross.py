@@ -120,12 +120,6 @@ def resolve_methods(methods) -> list[str]:
     return out
 
 
-def _registered() -> tuple:
-    from hbis_torch.reconstruct.registry import METHODS
-
-    return tuple(METHODS)
-
-
 def _scoring_kind(stack) -> str:
     if stack.meta.get("cfa") is not None:
         return "mosaic"
@@ -245,7 +239,7 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     Validation
     """
     from hbis_torch.reconstruct.positions import check_registration
-    from hbis_torch.reconstruct.registry import reconstruct
+    from hbis_torch.reconstruct.registry import METHODS, reconstruct
 
     if isinstance(stack.meta.get("raw"), dict):  # a raw burst (docs/raw-bursts.md): its own levels per frame
         raise HbisInputError("hbis validate does not score raw bursts (hbis assemble --burst of raw files) yet: "
@@ -253,7 +247,7 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     names = resolve_methods(methods)
     extra = dict(extra_methods or {})
     for name, method in extra.items():
-        if not isinstance(name, str) or not name or name in ALIASES or name in _registered():
+        if not isinstance(name, str) or not name or name in ALIASES or name in METHODS:
             raise HbisInputError(f"extra method {name!r}: needs a name of its own (not a registered method or "
                                  f"{SINGLE_FRAME})")
         if not callable(method):
@@ -281,11 +275,15 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
                 estimate = single_frame(reference, stack.h)
             else:
                 subset = select_frames(stack, [i for i in range(count) if i != k])
-                estimate = extra[name](subset) if name in extra else reconstruct(
-                    subset, method=name, registration=registration, messages=said, **options.get(name, {}))
-                if name in extra and np.shape(estimate)[:2] != (stack.h * score.rows, stack.h * score.cols):
-                    raise HbisInputError(f"extra method {name!r} returned an image of shape {np.shape(estimate)}, "
-                                         f"not the output grid's ({stack.h * score.rows}, {stack.h * score.cols})")
+                if name in extra:
+                    estimate = extra[name](subset)
+                    grid = (stack.h * score.rows, stack.h * score.cols)
+                    if np.shape(estimate)[:2] != grid:
+                        raise HbisInputError(f"extra method {name!r} returned an image of shape "
+                                             f"{np.shape(estimate)}, not the output grid's {grid}")
+                else:
+                    estimate = reconstruct(subset, method=name, registration=registration, messages=said,
+                                           **options.get(name, {}))
             seconds.append(time.perf_counter() - start)
             scores.append(score(estimate, k))
             if on_step is not None:
