@@ -40,19 +40,13 @@ from hbis_torch.capture.frames import read_frames
 from hbis_torch.reconstruct.burst import single_frame
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.validate import cross_validate
-from peers import vidsr_peer  # benchmarks/ is the script's folder
+from peers import vidsr_peer  # benchmarks/ is the script's folder; it imports vidsr only when asked
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "real-bursts"
 SEQUENCES = ("text.tif", "disk.tif", "Emily_small.tif", "Book_case1_small.tif")
 METHODS = ("single-frame", "classical", "learned")
 PEER = "vidsr"
-
-
-def load_peer():
-    """benchmarks/peers/vidsr_peer.py (a benchmark's module, not the package's; it imports vidsr
-    only when asked)."""
-    return vidsr_peer
 
 
 def peer_of(stack) -> np.ndarray:
@@ -69,7 +63,7 @@ def peer_of(stack) -> np.ndarray:
     frames = stack.to_float().numpy()
     if frames.ndim == 4:
         frames = frames @ LUMA.astype(np.float32)
-    return load_peer().vidsr_sr(frames, stack.h, reference=stack.reference_index)
+    return vidsr_peer.vidsr_sr(frames, stack.h, reference=stack.reference_index)
 
 
 def run_sequence(path: Path, scale: int, holdout: int, figures: Path | None, extrapolate: bool = False,
@@ -268,13 +262,13 @@ def main() -> None:
     problem = check_args(args)
     if problem:
         refuse(problem)
-    installed = args.vidsr is not False and load_peer().available()
+    installed = args.vidsr is not False and vidsr_peer.available()
     if args.vidsr and not installed:
         refuse("--vidsr: vidsr is not installed (pip install vidsr)")
     if args.vidsr is None and not installed:
         print("bench_real_bursts: vidsr is not installed: its row is skipped", file=sys.stderr)
     args.vidsr = installed
-    args.vidsr_version = load_peer().version() if installed else None
+    args.vidsr_version = vidsr_peer.version() if installed else None
     torch.set_num_threads(1)
     figures = None if args.no_figures else args.doc.parent / "figures"
     rows = []

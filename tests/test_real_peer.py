@@ -131,7 +131,7 @@ def test_the_benchmark_hands_vidsr_the_folds_frames_and_reference(bench, burst, 
             calls.append((frames, scale, reference))
             return np.zeros((scale * frames.shape[1], scale * frames.shape[2]), np.float32)
 
-    monkeypatch.setattr(bench, "load_peer", lambda: FakePeer)
+    monkeypatch.setattr(bench, "vidsr_peer", FakePeer)
     fold = select_frames(stack, [0, 3, 4, 5])  # frame 1 held out: the reference moves to index 1
     image = bench.peer_of(fold)
     frames, scale, reference = calls[0]
