@@ -24,6 +24,18 @@ def phase_correlation_shifts(frames: Tensor, reference: Tensor) -> Tensor:
     .. [1] C. D. Kuglin and D. C. Hines, "The phase correlation image alignment method",
        Proc. IEEE International Conference on Cybernetics and Society, 1975, pp. 163-165.
     """
+    return phase_correlation_peaks(frames, reference, 1)[:, 0]
+
+
+def phase_correlation_peaks(frames: Tensor, reference: Tensor, count: int, separation: int = 2) -> Tensor:
+    """The ``count`` strongest peaks of each frame's phase correlation, strongest first,
+    (F, count, 2) px as (du, dv) (the sign of :func:`phase_correlation_shifts`).
+
+    Each peak is the surface's largest value more than ``separation`` px (in u or v) from every
+    stronger one, refined by a parabola. A burst with a moving object has two peaks: the object,
+    which only translates, can give the sharper one while the turned background's is smeared, so
+    the caller fits from each and keeps the motion that explains most of the frame.
+    """
     F, H, W = frames.shape
     win = torch.outer(torch.hann_window(H, periodic=False, dtype=frames.dtype),
                       torch.hann_window(W, periodic=False, dtype=frames.dtype))
@@ -31,9 +43,23 @@ def phase_correlation_shifts(frames: Tensor, reference: Tensor) -> Tensor:
     b = torch.fft.rfft2((frames - frames.mean((-2, -1), keepdim=True)) * win)
     cross = a * b.conj()
     corr = torch.fft.irfft2(cross / cross.abs().clamp_min(1e-12), s=(H, W))
-    idx = corr.reshape(F, -1).argmax(-1)
-    iv, iu = idx // W, idx % W
+    searched = corr.clone()
     f = torch.arange(F)
+    near = torch.arange(-separation, separation + 1)
+    peaks = []
+    for _ in range(count):
+        idx = searched.reshape(F, -1).argmax(-1)
+        iv, iu = idx // W, idx % W
+        peaks.append(_refined(corr, f, iv, iu))
+        rows, cols = (iv[:, None] + near) % H, (iu[:, None] + near) % W  # (F, 2 s + 1) each
+        searched[f[:, None, None], rows[:, :, None], cols[:, None, :]] = -torch.inf
+    return torch.stack(peaks, 1)
+
+
+def _refined(corr: Tensor, f: Tensor, iv: Tensor, iu: Tensor) -> Tensor:
+    """(F, 2) (du, dv): the integer peaks (iv, iu) of ``corr`` (F, H, W), refined by a parabola
+    through their neighbours and wrapped to signed shifts."""
+    H, W = corr.shape[-2:]
 
     def parabola(minus, centre, plus):
         den = minus - 2 * centre + plus

@@ -31,6 +31,13 @@ COARSEST_SIDE = 64
 #: Levels this many halvings or more below the finest are fitted as similarities at most: a few
 #: thousand pixels do not pin down a perspective, while rotation and zoom they do.
 SIMILARITY_LEVELS = 2
+#: The coarsest level's fit starts from this many phase-correlation peaks, and keeps per frame the
+#: one that explains most of the frame (:func:`dominant_motion`).
+START_PEAKS = 3
+#: Another peak's fit replaces the strongest peak's only where its robust residual is below this
+#: share of the strongest's: fits from two peaks in the same basin differ by rounding, a fit
+#: locked onto a moving object leaves a residual many times the background's.
+DOMINANCE = 0.8
 
 
 def levels_for(shape: tuple[int, int]) -> int:
@@ -145,11 +152,82 @@ def coarse_to_fine(frames: Tensor, reference: int, model: str = "homography", st
         fitted = model
         if level >= SIMILARITY_LEVELS and ALL_MODELS.index(model) > ALL_MODELS.index("similarity"):
             fitted = "similarity"
-        prediction = None if motions is None else project(to_level(motions, level), fitted, images[level].shape[1:])
-        if prediction is not None:
+        if motions is None:
+            found = dominant_motion(images[level], reference, fitted)
+        else:
+            prediction = project(to_level(motions, level), fitted, images[level].shape[1:])
             prediction[reference] = np.eye(3)
-        reg = register_stack(images[level], reference, prediction=prediction, model=fitted)
-        found = reg.homographies.numpy()
+            found = register_stack(images[level], reference, prediction=prediction, model=fitted).homographies.numpy()
         motions = from_level(found, level)
     motions[reference] = np.eye(3)
     return motions
+
+
+def dominant_motion(frames: Tensor, reference: int, model: str, peaks: int = START_PEAKS) -> np.ndarray:
+    """Every frame's motion (F, 3, 3) float64 to the reference, fitted from each of the ``peaks``
+    strongest phase-correlation peaks; per frame, the trusted fit with the smallest robust
+    residual.
+
+    The whole frame's motion is the one most of the frame follows. A moving object that only
+    translates can give phase correlation a sharper peak than a background that also turns (the
+    turn smears the background's peak), and a fit started there locks onto the object; the
+    background's fit leaves a smaller robust residual scale, since most pixels agree with it
+    (smaller by :data:`DOMINANCE` at least, else the strongest peak's fit is kept). A frame that no
+    peak brings within the model's reach is fitted again as a translation first, then as the
+    model, from each peak, from no motion and from the nearest trusted frame's motion (a hand
+    moves a burst's frames by a few pixels, the background's peak can be too smeared to rank).
+    """
+    from hbis_torch.registration.phase_correlation import _translation, phase_correlation_peaks
+
+    shifts = phase_correlation_peaks(frames, frames[reference], peaks).double()  # (F, peaks, 2)
+    starts = torch.stack([_translation(shifts[:, j]) for j in range(peaks)], 1)  # (F, peaks, 3, 3)
+    found, score = _fits_from(frames, reference, starts, (model,))
+    trusted = np.isfinite(score).any(0)
+    trusted[reference] = True
+    first = found[0].copy()  # where nothing is trusted, the strongest peak's fit, as a single start gave
+    if not trusted.all():
+        stuck = np.flatnonzero(~trusted)
+        index = np.concatenate(([reference], stuck))
+        known = np.flatnonzero(trusted)
+        nearest = known[np.abs(stuck[:, None] - known[None]).argmin(1)]
+        chosen = _choose(found, score)
+        more = torch.stack((torch.eye(3, dtype=torch.float64).expand(len(index), 3, 3),
+                            torch.as_tensor(chosen[np.concatenate(([reference], nearest))])), 1)
+        again, again_score = _fits_from(frames[index], 0, torch.cat((starts[index], more), 1), ("translation", model))
+        found = np.concatenate((found, np.repeat(found[:1], 2, 0)))
+        score = np.concatenate((score, np.full((2, score.shape[1]), np.inf)))
+        found[:, stuck], score[:, stuck] = again[:, 1:], again_score[:, 1:]
+    out = _choose(found, score)
+    untrusted = np.isinf(score).all(0)
+    out[untrusted] = first[untrusted]
+    out[reference] = np.eye(3)
+    return out
+
+
+def _choose(found: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """Per frame, the fit (of ``found`` (P, F, 3, 3)) whose score (P, F) is smallest, unless the
+    first's is within :data:`DOMINANCE` of it; (F, 3, 3)."""
+    best = np.argmin(score, 0)
+    frame = np.arange(len(best))
+    best[~(score[best, frame] < DOMINANCE * score[0])] = 0
+    return found[best, frame]
+
+
+def _fits_from(frames: Tensor, reference: int, starts: Tensor, models: tuple[str, ...]):
+    """From each start (F, P, 3, 3), the fit of ``models`` one after another, each from the last.
+
+    Returns the homographies (P, F, 3, 3) and each fit's robust residual, infinite where the
+    fit is not trusted (P, F).
+    """
+    from hbis_torch.registration.stack import register_stack
+
+    found, score = [], []
+    for j in range(starts.shape[1]):
+        motion = starts[:, j].clone()
+        for model in models:
+            motion[reference] = torch.eye(3, dtype=torch.float64)
+            reg = register_stack(frames, reference, prediction=motion, model=model)
+            motion = reg.homographies
+        found.append(motion.numpy())
+        score.append(torch.where(reg.ok, torch.nan_to_num(reg.residual, nan=torch.inf), torch.inf).numpy())
+    return np.stack(found), np.stack(score)
