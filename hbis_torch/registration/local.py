@@ -7,7 +7,8 @@ the lens's distortion bends what a homography keeps straight. What is left after
 motion is small and smooth, so it is measured as one shift per tile of the reference grid by
 Lucas-Kanade on the blurred images (a few Gauss-Newton steps of a translation, as HDR+ [1]_ and
 Wronski et al. [2]_ align tiles), shrunk towards zero where the tile's texture does not pin it down,
-and interpolated bilinearly between the tiles' centres. What no motion explains (a moving
+smoothed across the tiles (:func:`smooth_offsets`), and interpolated bilinearly between the tiles'
+centres. What no motion explains (a moving
 object) stays the robustness weights' to handle.
 
 Offsets are (F, rows, cols, 2) float64 in LR px, (du, dv) at the centre of each tile of the
@@ -41,6 +42,11 @@ ITERATIONS = 3
 #: Frames smaller than this many tiles across (either way) keep their global motion alone.
 MIN_TILES = 3
 BLUR_PX = 1.0
+#: Gaussian sigma (tiles) of the smoothing across tiles. What a homography leaves (a rolling
+#: shutter's skew, the lens's distortion, a distant scene's parallax) changes over many tiles; a
+#: tile's own estimate also carries its noise and its aliasing, which change from tile to tile
+#: (a setting: on the held-out renderer's bursts, 1 and 2 tiles were looked at, not more).
+SMOOTH_TILES = 2.0
 
 
 def tile_grid(shape: tuple[int, int], tile: int = TILE_PX) -> tuple[int, int]:
@@ -206,10 +212,26 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
             step_u = ((ayy + lam) * bx - axy * by) / det.clamp_min(1e-20)
             step_v = ((axx + lam) * by - axy * bx) / det.clamp_min(1e-20)
             d = d + torch.stack((step_u, step_v), -1)[None]
-        d = torch.where((n > 0.5 * area)[None, ..., None], d, torch.zeros_like(d))
-        too_far = d.norm(dim=-1, keepdim=True) > MAX_LOCAL_PX
-        d = torch.where(too_far, torch.zeros_like(d), d)
-        out[k] = d[0].double().numpy()
+        # a tile mostly outside the frame or asking for more than MAX_LOCAL_PX has no say
+        kept = (n > 0.5 * area) & (d[0].norm(dim=-1) <= MAX_LOCAL_PX)
+        out[k] = smooth_offsets(d[0].double().numpy(), torch.where(kept, axx + ayy, 0.0).double().numpy(),
+                                SMOOTH_TILES)
+    return out
+
+
+def smooth_offsets(offsets: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
+    """A frame's tile offsets (rows, cols, 2) LR px, averaged over the tiles around each by a
+    Gaussian of ``sigma`` tiles, each tile weighted by how well its texture pins its shift
+    (``weight`` (rows, cols), its gradients' energy; 0: no say). Normalised convolution: a tile
+    without a say gets its neighbours' shift, and zero where no tile near has a say."""
+    from scipy.ndimage import gaussian_filter
+
+    total = gaussian_filter(weight, sigma, mode="nearest")
+    out = np.zeros_like(offsets)
+    has = total > 1e-12 * max(float(total.max()), 1e-300)
+    for axis in (0, 1):
+        out[..., axis] = np.where(has, gaussian_filter(weight * offsets[..., axis], sigma, mode="nearest")
+                                  / np.where(has, total, 1.0), 0.0)
     return out
 
 
