@@ -6,7 +6,9 @@ pixels while its centre barely moves, so no translation start (phase correlation
 reach. Halving the frames until they are small brings every motion within reach at the coarsest
 level; each finer level then starts from the coarser one's answer, where it is off by about a
 pixel of that level (Bouguet's pyramidal Lucas-Kanade [1]_; Baker and Matthews' fitter at each
-level, :func:`~hbis_torch.registration.register_stack`).
+level, :func:`~hbis_torch.registration.register_stack`). The coarsest level starts from several
+phase-correlation peaks and keeps the motion most of the frame follows (:func:`dominant_motion`),
+so a moving object's sharper peak does not take the burst with it.
 
 Frames are (F, H, W) float32; homographies (F, 3, 3) float64 map frame px -> reference px, pixel
 centres at integers (:mod:`.homography`).
