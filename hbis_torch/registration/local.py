@@ -8,8 +8,7 @@ motion is small and smooth, so it is measured as one shift per tile of the refer
 Lucas-Kanade on the blurred images (a few Gauss-Newton steps of a translation, as HDR+ [1]_ and
 Wronski et al. [2]_ align tiles), shrunk towards zero where the tile's texture does not pin it down,
 smoothed across the tiles (:func:`smooth_offsets`), and interpolated bilinearly between the tiles'
-centres. What no motion explains (a moving
-object) stays the robustness weights' to handle.
+centres. What no motion explains (a moving object) stays the robustness weights' to handle.
 
 Offsets are (F, rows, cols, 2) float64 in LR px, (du, dv) at the centre of each tile of the
 reference grid: a sample that the frame's homography puts at x lands at x + offset(x).
