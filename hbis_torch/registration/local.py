@@ -221,16 +221,31 @@ def local_offsets(grey: Tensor, reference: int, motions: np.ndarray, gain_offset
 def smooth_offsets(offsets: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
     """A frame's tile offsets (rows, cols, 2) LR px, averaged over the tiles around each by a
     Gaussian of ``sigma`` tiles, each tile weighted by how well its texture pins its shift
-    (``weight`` (rows, cols), its gradients' energy; 0: no say). Normalised convolution: a tile
-    without a say gets its neighbours' shift, and zero where no tile near has a say."""
+    (``weight`` (rows, cols), its gradients' energy; 0: no say).
+
+    The field's plane (a shift plus a gradient across the frame: what a turn or a zoom that the
+    frame's model left out gives) is fitted by weighted least squares and kept as it is; only
+    what departs from it is averaged, by normalised convolution, so the average neither flattens
+    a turn at the frame's edges nor lets a tile without a say pull its neighbours to zero (it gets
+    theirs). Zero where no tile has a say.
+    """
     from scipy.ndimage import gaussian_filter
 
+    if not (weight > 0).any():
+        return np.zeros_like(offsets)
+    rows, cols = weight.shape
+    v, u = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    basis = np.stack((np.ones_like(u), u, v), -1).reshape(-1, 3)  # (tiles, 3)
+    root = np.sqrt(weight).reshape(-1, 1)
+    coefficients = np.linalg.lstsq(basis * root, offsets.reshape(-1, 2) * root, rcond=None)[0]  # (3, 2)
+    plane = (basis @ coefficients).reshape(offsets.shape)
+    rest = offsets - plane
     total = gaussian_filter(weight, sigma, mode="nearest")
-    out = np.zeros_like(offsets)
-    has = total > 1e-12 * max(float(total.max()), 1e-300)
+    has = total > 1e-12 * float(total.max())
+    out = plane.copy()
     for axis in (0, 1):
-        out[..., axis] = np.where(has, gaussian_filter(weight * offsets[..., axis], sigma, mode="nearest")
-                                  / np.where(has, total, 1.0), 0.0)
+        out[..., axis] += np.where(has, gaussian_filter(weight * rest[..., axis], sigma, mode="nearest")
+                                   / np.where(has, total, 1.0), 0.0)
     return out
 
 
