@@ -34,8 +34,8 @@ from hbis_torch.registration.warp import PIECE_SAMPLES, PIECES_FROM, warp_onto_r
 #: Side of a tile, LR px: small enough to follow a rolling shutter's skew down a frame, large
 #: enough that a textured tile pins its shift (a setting, not tuned).
 TILE_PX = 32
-#: Largest local shift (LR px) on top of the global motion; a tile that asks for more is left at
-#: the global motion (its own content moved: the robustness weights' case).
+#: Largest local shift (LR px) on top of the global motion; a tile that asks for more has no say
+#: in the field and takes its neighbours' shift (its own content moved: the robustness weights' case).
 MAX_LOCAL_PX = 1.5
 ITERATIONS = 3
 #: Frames smaller than this many tiles across (either way) keep their global motion alone.

@@ -191,11 +191,11 @@ def dominant_motion(frames: Tensor, reference: int, model: str, peaks: int = STA
         stuck = np.flatnonzero(~trusted)
         index = np.concatenate(([reference], stuck))
         known = np.flatnonzero(trusted)
-        nearest = known[np.abs(stuck[:, None] - known[None]).argmin(1)]
-        chosen = _choose(found, score)
-        more = torch.stack((torch.eye(3, dtype=torch.float64).expand(len(index), 3, 3),
-                            torch.as_tensor(chosen[np.concatenate(([reference], nearest))])), 1)
-        again, again_score = _fits_from(frames[index], 0, torch.cat((starts[index], more), 1), ("translation", model))
+        nearest = known[np.abs(stuck[:, None] - known[None]).argmin(1)]  # each stuck frame's nearest trusted one
+        neighbour = torch.as_tensor(_choose(found, score)[np.concatenate(([reference], nearest))])
+        still = torch.eye(3, dtype=torch.float64).expand(len(index), 3, 3)
+        more = torch.cat((starts[index], torch.stack((still, neighbour), 1)), 1)  # (1 + stuck, peaks + 2, 3, 3)
+        again, again_score = _fits_from(frames[index], 0, more, ("translation", model))
         found = np.concatenate((found, np.repeat(found[:1], 2, 0)))
         score = np.concatenate((score, np.full((2, score.shape[1]), np.inf)))
         found[:, stuck], score[:, stuck] = again[:, 1:], again_score[:, 1:]
