@@ -56,7 +56,8 @@ def burst_sr(frames: Tensor, positions: Tensor, scale: int, weights: Tensor, deb
     weights : Tensor, shape (F, H, W), float64
     deblur : bool
     **kw
-        :func:`~hbis_torch.reconstruct.classical.classical_sr`'s other options.
+        :func:`~hbis_torch.reconstruct.classical.classical_sr`'s other options (``fit_holes``
+        on by default: a burst's random shifts leave holes that the samples around them fill).
 
     Returns
     -------
@@ -64,6 +65,7 @@ def burst_sr(frames: Tensor, positions: Tensor, scale: int, weights: Tensor, deb
     """
     if deblur and scale > NOISE_SCALE and kw.get("noise") is None and "noise_floor" not in kw:
         kw["noise_floor"] = burst_sample_noise(frames, positions, weights, kw.get("kernel_sigma", 0.45))
+    kw.setdefault("fit_holes", True)
     return classical_sr(frames, positions, scale, deblur, weights=weights, cutoff=None, mixed_offsets=True, **kw)
 
 

@@ -15,6 +15,7 @@ from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import NodePositions, interpolate_positions
 from hbis_torch.reconstruct.classical.lattice import batch_slices, common_offset_of, node_batch
+from hbis_torch.reconstruct.classical.lattice_fit import fill_holes_from_samples
 from hbis_torch.reconstruct.classical.splat import (
     every_other,
     fill_holes,
@@ -61,6 +62,7 @@ def classical_sr(
     noise_floor: float | None = None,
     mixed_offsets: bool = False,
     lens_sigma: float | None = 0.0,
+    fit_holes: bool = False,
 ) -> Tensor:
     """Super-resolve frames whose samples' positions are known.
 
@@ -115,6 +117,10 @@ def classical_sr(
         A Gaussian lens blur (LR px) that the deblurring undoes, beyond ``cutoff``'s diffraction
         (a burst's: measured by :func:`~hbis_torch.reconstruct.lens_blur.estimate_lens_sigma`
         in :func:`~hbis_torch.reconstruct.burst.reconstruct_burst`, or given); 0 or None: none.
+    fit_holes : bool
+        Nodes the splat leaves (almost) without a sample of their own are fitted to the samples
+        around them (:func:`~hbis_torch.reconstruct.classical.lattice_fit.fill_holes_from_samples`;
+        a burst's, with ``mixed_offsets``).
 
     Returns
     -------
@@ -132,7 +138,7 @@ def classical_sr(
         raise HbisInputError(f"the lens blur (--psf-sigma) must be a number in [0, {MAX_LENS_SIGMA}] LR px, "
                              f"got {lens_sigma!r}")
     image, den, offset, typical = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur,
-                                                mixed_offsets=mixed_offsets)
+                                                mixed_offsets=mixed_offsets, fit_holes=fit_holes)
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
         samples_per_node = typical / max(_peak_weight(kernel_sigma), 1e-12)
@@ -220,7 +226,8 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
 
 
 def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float,
-                  weights: Tensor | None = None, on_lattice: bool = True, mixed_offsets: bool = False):
+                  weights: Tensor | None = None, on_lattice: bool = True, mixed_offsets: bool = False,
+                  fit_holes: bool = False):
     """Interpolate scattered samples onto an h-times grid (normalized convolution).
 
     Parameters
@@ -239,6 +246,10 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         grid itself.
     mixed_offsets : bool
         Samples at different offsets share the nodes (a burst; :func:`snap_to_lattice`).
+    fit_holes : bool
+        With ``on_lattice``: the nodes the splat leaves (almost) without a sample of their own
+        fitted to the samples around them
+        (:func:`~hbis_torch.reconstruct.classical.lattice_fit.fill_holes_from_samples`).
 
     Returns
     -------
@@ -269,7 +280,10 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
 
         # snap_to_lattice, then splat: the same sums, in batches of frames (or of rows)
         num, den, typical = splat_on_lattice(batches, shape, kernel_sigma, mixed_offsets)
-        return fill_holes(num, den, typical, in_place=True), den, offset, typical
+        image = fill_holes(num, den, typical, in_place=True)
+        if fit_holes:
+            image = fill_holes_from_samples(image, den, typical, batches, kernel_sigma)
+        return image, den, offset, typical
     num = den = 0
     for part in slices:
         if isinstance(positions, NodePositions):
