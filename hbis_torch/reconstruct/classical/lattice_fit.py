@@ -74,8 +74,10 @@ def fill_holes_from_samples(image: Tensor, den: Tensor, typical: float, batches,
     Tensor, shape (rows, cols): ``image`` itself, unchanged where no node is a hole
     (:data:`HOLE_SHARE`) or the lattice is larger than :data:`MAX_FIT_NODES`.
     """
+    if image.numel() > MAX_FIT_NODES:
+        return image
     share = den.to(image.dtype).div(HOLE_SHARE * typical).neg_().add_(1).clamp_(0, 1)
-    if image.numel() > MAX_FIT_NODES or not bool((share > 0).any()):
+    if not bool((share > 0).any()):
         return image
     fitted = fit_lattice(image, batches, kernel_sigma)
     return image.addcmul_(share, fitted.sub_(image))
