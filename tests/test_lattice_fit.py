@@ -104,3 +104,12 @@ def test_normal_equations_match_the_bilinear_matrix():
         other = node + oy * (cols + 2) + ox
         ok = (other >= 0) & (other < n)
         assert torch.allclose(stencil[k].reshape(-1)[ok], ata[node[ok], other[ok]], atol=1e-12)
+
+
+def test_samples_of_no_weight_change_nothing():
+    batch = clustered_batch()
+    image, den, typical = splat_image(batch)
+    weightless = batch._replace(weights=torch.zeros_like(batch.values))
+    before = image.clone()
+    out = lattice_fit.fill_holes_from_samples(image, den, typical, lambda: [weightless], SIGMA)
+    assert torch.equal(out, before)
