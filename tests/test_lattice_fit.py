@@ -69,11 +69,15 @@ def test_nodes_with_samples_keep_their_bits():
     assert torch.equal(filled[kept], image[kept])
 
 
-def test_a_lattice_without_holes_is_returned_as_it_is():
+def test_a_lattice_without_holes_is_not_fitted(monkeypatch):
+    def no_fit(*args, **kwargs):
+        raise AssertionError("a lattice without holes was fitted")
+
+    monkeypatch.setattr(lattice_fit, "fit_lattice", no_fit)
     image = torch.rand(ROWS, COLS)
-    den = torch.ones(ROWS, COLS)
-    out = lattice_fit.fill_holes_from_samples(image, den, 1.0, lambda: [clustered_batch()], SIGMA)
-    assert out is image
+    before = image.clone()
+    out = lattice_fit.fill_holes_from_samples(image, torch.ones(ROWS, COLS), 1.0, lambda: [clustered_batch()], SIGMA)
+    assert out is image and torch.equal(out, before)
 
 
 def test_float32_fit_agrees_with_float64():
@@ -92,11 +96,11 @@ def test_normal_equations_match_the_bilinear_matrix():
     small = NodeBatch(*(t[:40] if isinstance(t, torch.Tensor) else t for t in batch))
     rows, cols = ROWS, COLS
     rhs, stencil = lattice_fit.normal_equations(lambda: [small], (rows, cols), torch.float64)
-    index, beta, weight = lattice_fit._corners(small, rows, cols, torch.float64)
+    base, beta, weight = lattice_fit._corners(small, rows, cols, torch.float64)
     n = (rows + 2) * (cols + 2)
     a = torch.zeros(len(weight), n, dtype=torch.float64)
-    for i, b in zip(index, beta):
-        a[torch.arange(len(weight)), i] += b
+    for (cx, cy), b in zip(lattice_fit._CORNERS, beta):
+        a[torch.arange(len(weight)), base + cx + cy * (cols + 2)] += b
     ata = a.T @ (weight[:, None] * a)
     assert torch.allclose(rhs.reshape(-1), a.T @ (weight * small.values), atol=1e-12)
     for k, (ox, oy) in enumerate(lattice_fit.HALF_STENCIL):

@@ -15,7 +15,7 @@ spread with the splat's 3-tap kernel, so the Wiener filter's model of the lattic
 Only the holes take the fit (:func:`fill_holes_from_samples`): on development bursts (training
 simulator, S = 2) fitting every node gained up to 2.4 dB with the true lens given (it lost up to
 0.4 dB on two of 17 bursts), but lost up to 1.3 dB where the lens was over-estimated by 40 %
-(three of four bursts): a fitted lattice is sharper than the
+(five of six bursts; the sixth, whose splat image had failed, gained): a fitted lattice is sharper than the
 splat's, and deblurring too much lens then over-sharpens it. Where the splat had samples, its
 image is kept to the bit.
 
@@ -39,7 +39,8 @@ from torch import Tensor
 
 # A node is a hole, and takes the fit, in proportion as its splat weight falls below this share of
 # the typical node's (fully at 0). Chosen on development bursts (training simulator): at 1.0 the
-# fit gained more with the true lens and lost up to 0.26 dB with a lens over-estimated by 40 %.
+# fit gained more with the true lens on most of them, and lost up to 0.26 dB with a lens
+# over-estimated by 40 %.
 HOLE_SHARE = 0.5
 # Lattices of more nodes than this (a 2048 x 2048 frame at S = 2) are not fitted: the normal
 # equations and the solve hold a dozen lattice-sized float32 arrays.
@@ -151,41 +152,40 @@ def normal_equations(batches, shape: tuple[int, int], dtype=torch.float32) -> tu
 
 
 def _pairs():
-    """(stencil row, corner a, corner c) for every pair whose offset c - a is in :data:`HALF_STENCIL`."""
+    """(stencil row, corner a, corner c), corners as indices into :data:`_CORNERS`, for every
+    pair whose offset c - a is in :data:`HALF_STENCIL`."""
     out = []
-    for a in _CORNERS:
+    for a, (ax, ay) in enumerate(_CORNERS):
         for k, (ox, oy) in enumerate(HALF_STENCIL):
-            c = (a[0] + ox, a[1] + oy)
-            if c in _CORNERS:
-                out.append((k, a, c))
+            if (ax + ox, ay + oy) in _CORNERS:
+                out.append((k, a, _CORNERS.index((ax + ox, ay + oy))))
     return out
 
 
 _PAIRS = _pairs()
 # The columns a sample adds to its cell: (stencil row or None for the right-hand side, the corner
 # whose node the term belongs to).
-_TERMS = [(None, a) for a in _CORNERS] + [(k, a) for k, a, _ in _PAIRS]
+_TERMS = [(None, a) for a in _CORNERS] + [(k, _CORNERS[a]) for k, a, _ in _PAIRS]
 
 
 def _cell_terms(batch, rows: int, cols: int, dtype) -> tuple[Tensor, Tensor]:
     """Each sample's cell (flat framed index of its corner (0, 0), (N,) int64) and its
     :data:`_TERMS` (14, N): w v beta_a for the four corners, w beta_a beta_c for the pairs."""
-    index, beta, weight = _corners(batch, rows, cols, dtype)
+    base, beta, weight = _corners(batch, rows, cols, dtype)
     values = batch.values.to(dtype)
     terms = torch.empty(len(_TERMS), len(weight), dtype=dtype)
-    at = {a: i for i, a in enumerate(_CORNERS)}
     for column in range(len(_CORNERS)):
         torch.mul(beta[column], values, out=terms[column])
     for column, (_, a, c) in enumerate(_PAIRS, start=len(_CORNERS)):
-        torch.mul(beta[at[a]], beta[at[c]], out=terms[column])
+        torch.mul(beta[a], beta[c], out=terms[column])
     terms.mul_(weight)
-    return index[0], terms
+    return base, terms
 
 
-def _corners(batch, rows: int, cols: int, dtype) -> tuple[list, list, Tensor]:
-    """Each sample's four nodes (flat framed indices, (N,) int64 each, in :data:`_CORNERS`'
-    order), their bilinear weights ((N,) each) and the sample's weight (0 where a corner lies
-    beyond the framed lattice)."""
+def _corners(batch, rows: int, cols: int, dtype) -> tuple[Tensor, list, Tensor]:
+    """Each sample's cell (the flat framed index of its corner (0, 0), (N,) int64; corner (ax, ay)
+    is ``ax + ay (cols + 2)`` beyond it), its four corners' bilinear weights (in :data:`_CORNERS`'
+    order, (N,) each) and the sample's weight (0 where a corner lies beyond the framed lattice)."""
     # sample = node - d with d in [-1/2, 1/2]: its corner (0, 0) is the node, or the one before
     # where d > 0; the fraction exact in float32 (no large coordinate is formed)
     dx, dy = batch.dx.to(dtype), batch.dy.to(dtype)
@@ -196,15 +196,15 @@ def _corners(batch, rows: int, cols: int, dtype) -> tuple[list, list, Tensor]:
     inside = (x0 >= -1) & (x0 < cols) & (y0 >= -1) & (y0 < rows)
     weight = inside.to(dtype) if batch.weights is None else batch.weights.to(dtype) * inside
     base = (y0.clamp_(-1, rows - 1) + 1) * (cols + 2) + x0.clamp_(-1, cols - 1) + 1
-    index = [base, base + 1, base + (cols + 2), base + (cols + 3)]
     gx, gy = 1 - fx, 1 - fy
     beta = [gx * gy, fx * gy, gx * fy, fx * fy]
-    return index, beta, weight
+    return base, beta, weight
 
 
-def _apply(stencil: Tensor, lam: float, g: Tensor) -> Tensor:
-    """(A^T W A + lam I) g on the framed lattice (rows + 2, cols + 2)."""
-    out = torch.mul(g, stencil[0] + lam)
+def _apply(stencil: Tensor, diagonal: Tensor, g: Tensor) -> Tensor:
+    """(A^T W A + lam I) g on the framed lattice (rows + 2, cols + 2); ``diagonal`` is
+    ``stencil[0] + lam``."""
+    out = torch.mul(g, diagonal)
     padded = torch.nn.functional.pad(g[None, None], (1, 1, 1, 1))[0, 0]
     rows, cols = g.shape
     for k, (ox, oy) in enumerate(HALF_STENCIL[1:], start=1):
@@ -219,8 +219,9 @@ def _conjugate_gradients(stencil: Tensor, lam: float, rhs: Tensor, start: Tensor
     """Solve (A^T W A + lam I) g = rhs from ``start`` by Jacobi-preconditioned conjugate
     gradients, stopping at :data:`TOLERANCE` of the first residual."""
     g = start.clone()
-    residual = rhs - _apply(stencil, lam, g)
-    inverse = 1.0 / (stencil[0] + lam)
+    diagonal = stencil[0] + lam
+    residual = rhs - _apply(stencil, diagonal, g)
+    inverse = 1.0 / diagonal
     z = residual * inverse
     direction = z.clone()
     rz = float((residual * z).sum(dtype=torch.float64))
@@ -228,7 +229,7 @@ def _conjugate_gradients(stencil: Tensor, lam: float, rhs: Tensor, start: Tensor
     for _ in range(iterations):
         if rz <= (TOLERANCE * first) ** 2:
             break
-        step = _apply(stencil, lam, direction)
+        step = _apply(stencil, diagonal, direction)
         alpha = rz / float((direction * step).sum(dtype=torch.float64))
         g.add_(direction, alpha=alpha)
         residual.sub_(step, alpha=alpha)
