@@ -117,3 +117,66 @@ def test_samples_of_no_weight_change_nothing():
     before = image.clone()
     out = lattice_fit.fill_holes_from_samples(image, den, typical, lambda: [weightless], SIGMA)
     assert torch.equal(out, before)
+
+
+def dense_batch_with_a_gap() -> NodeBatch:
+    """Sixteen frames whose shifts put about four samples at every node, but none of weight in a
+    square of 12 x 12 nodes (as where a moving object was rejected): holes in one place only."""
+    generator = torch.Generator().manual_seed(3)
+    xs, ys = [], []
+    for _ in range(16):
+        fx, fy = (torch.rand(2, generator=generator, dtype=torch.float64) * 2).tolist()
+        y, x = torch.meshgrid(torch.arange(-2, ROWS, 2, dtype=torch.float64) + fy,
+                              torch.arange(-2, COLS, 2, dtype=torch.float64) + fx, indexing="ij")
+        xs.append(x.reshape(-1))
+        ys.append(y.reshape(-1))
+    x, y = torch.cat(xs), torch.cat(ys)
+    col, row = torch.round(x), torch.round(y)
+    weights = 1.0 - (((x - 30).abs() < 6) & ((y - 24).abs() < 6)).to(torch.float32)
+    return NodeBatch(scene(x, y).to(torch.float32), col.to(torch.int32), row.to(torch.int32),
+                     (col - x).to(torch.float32), (row - y).to(torch.float32), weights, 0.5)
+
+
+def test_solving_near_the_holes_matches_the_whole_lattice(monkeypatch):
+    batch = dense_batch_with_a_gap()
+    image, den, typical = splat_image(batch)
+    share = (1 - den / (lattice_fit.HOLE_SHARE * typical)).clamp(0, 1)
+    assert 0.02 < float((share > 0).float().mean()) < 0.2
+    whole = lattice_fit.fit_lattice(image, lambda: [batch], SIGMA)
+    expected = image + share * (whole - image)
+    read = []
+    cell_terms = lattice_fit._cell_terms
+
+    def counted(part, *args):
+        read.append(len(part.values))
+        return cell_terms(part, *args)
+
+    monkeypatch.setattr(lattice_fit, "_cell_terms", counted)
+    near = lattice_fit.fill_holes_from_samples(image.clone(), den, typical, lambda: [batch], SIGMA)
+    assert sum(read) < 0.8 * len(batch.values)  # the samples far from the gap were not read
+    assert float((near - expected).abs().max()) < 1e-3
+    assert not torch.equal(near, image)
+
+
+def test_dilate_matches_a_max_pool():
+    nodes = torch.rand(37, 53, generator=torch.Generator().manual_seed(0)) > 0.97
+    for radius in (1, 3):
+        pooled = torch.nn.functional.max_pool2d(nodes.float()[None, None], 2 * radius + 1, 1, radius)[0, 0] > 0
+        assert torch.equal(lattice_fit._dilate(nodes, radius), pooled)
+
+
+def test_the_stencil_applies_as_the_matrix():
+    batch = clustered_batch(torch.float64)
+    rhs, stencil = lattice_fit.normal_equations(lambda: [batch], (ROWS, COLS), torch.float64)
+    n = (ROWS + 2) * (COLS + 2)
+    matrix = torch.zeros(n, n, dtype=torch.float64)
+    node = torch.arange(n)
+    for k, (ox, oy) in enumerate(lattice_fit.HALF_STENCIL):
+        other = node + oy * (COLS + 2) + ox
+        ok = (other >= 0) & (other < n)
+        matrix[node[ok], other[ok]] = stencil[k].reshape(-1)[ok]
+        matrix[other[ok], node[ok]] = stencil[k].reshape(-1)[ok]
+    g = torch.rand(ROWS + 2, COLS + 2, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    lam = 0.7
+    applied = lattice_fit._apply(stencil, stencil[0] + lam, g)
+    assert torch.allclose(applied.reshape(-1), matrix @ g.reshape(-1) + lam * g.reshape(-1), atol=1e-12)
