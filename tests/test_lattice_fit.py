@@ -147,9 +147,10 @@ def test_solving_near_the_holes_matches_the_whole_lattice(monkeypatch):
     read = []
     cell_terms = lattice_fit._cell_terms
 
-    def counted(part, *args):
-        read.append(len(part.values))
-        return cell_terms(part, *args)
+    def counted(part, rows, cols, dtype, columns):
+        if len(columns) == len(lattice_fit._TERMS):  # (the ridge's scale reads every sample's diagonal)
+            read.append(len(part.values))
+        return cell_terms(part, rows, cols, dtype, columns)
 
     monkeypatch.setattr(lattice_fit, "_cell_terms", counted)
     near = lattice_fit.fill_holes_from_samples(image.clone(), den, typical, lambda: [batch], SIGMA)
@@ -163,6 +164,12 @@ def test_dilate_matches_a_max_pool():
     for radius in (1, 3):
         pooled = torch.nn.functional.max_pool2d(nodes.float()[None, None], 2 * radius + 1, 1, radius)[0, 0] > 0
         assert torch.equal(lattice_fit._dilate(nodes, radius), pooled)
+
+
+def test_data_weights_are_the_stencils_diagonal():
+    batch = dense_batch_with_a_gap()
+    _, stencil = lattice_fit.normal_equations(lambda: [batch], (ROWS, COLS))
+    assert torch.equal(lattice_fit.data_weights(lambda: [batch], (ROWS, COLS)), stencil[0])
 
 
 def test_the_stencil_applies_as_the_matrix():
