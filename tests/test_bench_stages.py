@@ -30,15 +30,14 @@ def test_bad_input_is_refused_before_any_work(bench, argv, tmp_path, capsys):
 
 def test_the_stages_add_up_to_each_step(bench, tmp_path, capsys):
     out = tmp_path / "stages.json"
-    assert bench.main(["--size", "96x72", "--frames", "4", "--repeats", "1", "--cache", str(tmp_path),
+    assert bench.main(["--size", "160x128", "--frames", "4", "--repeats", "1", "--cache", str(tmp_path),
                        "--json", str(out)]) == 0
     result = json.loads(out.read_text())
-    assert "--size 96x72" in result["provenance"]["command"] and result["provenance"]["commit"]
+    assert "--size 160x128" in result["provenance"]["command"] and result["provenance"]["commit"]
     for step in ("assemble", "classical"):
         rows = [r for r in result["stages"] if r["step"] == step]
-        assert {r["stage"] for r in rows} >= {"rest"}
         named = [r["seconds"] for r in rows if r["stage"] != "rest"]
-        assert all(t >= 0 for t in named) and sum(named) > 0
+        assert all(t > 0 for t in named)  # every stage's function was found in the profile
         # the stages do not overlap: together they are no more than the step's own time
         assert sum(named) <= result["profiled_s"][step] + 1e-6
-    assert (tmp_path / "handheld_all_96x72_S2_F4_seed0.npy").exists()  # the burst kept for the next run
+    assert (tmp_path / "handheld_all_160x128_S2_F4_seed0.npy").exists()  # the burst kept for the next run
