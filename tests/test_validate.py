@@ -16,6 +16,7 @@ from hbis_torch.simulate.cases import make_stack, roi_for
 from hbis_torch.stack_io import Stack, make_burst_meta, write_stack
 from hbis_torch.training.heldout import score as true_psnr
 from hbis_torch.validate import (
+    centre_offset,
     cross_validate,
     fit_and_score,
     holdout_frames,
@@ -107,20 +108,37 @@ def test_holdout_frames_are_spread_and_never_the_reference():
 # --- the forward model ----------------------------------------------------------------------
 
 @pytest.mark.parametrize("h, fill, weights", [
-    (2, 1.0, [0.25, 0.5, 0.25]),  # an even box ends half-way through an HR pixel
+    (2, 1.0, [0.5, 0.5]),  # an even h's LR pixel centre lies between two HR pixels: it covers both
     (3, 1.0, [1 / 3, 1 / 3, 1 / 3]),
-    (4, 0.25, [0.25, 0.5, 0.25]),  # a quarter of the area: half the side
+    (4, 1.0, [0.25, 0.25, 0.25, 0.25]),
+    (4, 0.25, [0.5, 0.5]),  # a quarter of the area: half the side
+    (3, 0.25, [1 / 6, 2 / 3, 1 / 6]),  # 1.5 HR px centred on one: a quarter of each neighbour
 ])
 def test_pixel_kernel_is_the_pixels_box_integrated_over_hr_pixels(h, fill, weights):
     k = pixel_kernel(h, fill, 0.0)
     np.testing.assert_allclose(k[k > 0], weights, atol=1e-12)
-    blurred = pixel_kernel(h, fill, 0.3)
-    assert blurred.sum() == pytest.approx(1.0) and np.allclose(blurred, blurred[::-1])
-    n = np.arange(len(blurred)) - len(blurred) // 2
+    centre = centre_offset(h)
     m = np.arange(len(k)) - len(k) // 2
+    assert (k * m).sum() == pytest.approx(centre, abs=1e-12)  # centred on the LR pixel's centre
+    blurred = pixel_kernel(h, fill, 0.3)
+    n = np.arange(len(blurred)) - len(blurred) // 2
+    assert blurred.sum() == pytest.approx(1.0) and (blurred * n).sum() == pytest.approx(centre, abs=1e-9)
     # a Gaussian of 0.3 LR pixels adds its variance (0.3 h)^2 HR pixels^2 to the box's, and its
     # integration over HR pixels 1/12
-    assert (blurred * n**2).sum() == pytest.approx((k * m**2).sum() + (0.3 * h) ** 2 + 1 / 12, rel=0.01)
+    assert (blurred * (n - centre) ** 2).sum() == pytest.approx(
+        (k * (m - centre) ** 2).sum() + (0.3 * h) ** 2 + 1 / 12, rel=0.01)
+
+
+@pytest.mark.parametrize("h", [2, 3, 4])
+def test_a_frame_of_the_hr_pixels_own_means_is_predicted_exactly(h):
+    # each LR pixel records the mean of the h x h HR pixels it covers: at the reference's own
+    # positions the prediction (no blur) must be that mean, for even h too (a box centred on an
+    # HR pixel and read half a pixel on by the interpolation missed it by up to 0.14 at h = 2)
+    estimate = np.random.default_rng(h).random((12 * h, 10 * h))
+    frame = estimate.reshape(12, h, 10, h).mean(axis=(1, 3))
+    v, u = np.mgrid[0:12, 0:10].astype(np.float64)
+    predicted = predict_frame(estimate, np.stack((u, v), -1), h, blur_px=0.0)
+    np.testing.assert_allclose(predicted[1:-1, 1:-1], frame[1:-1, 1:-1], atol=1e-6)
 
 
 def test_the_truth_predicts_every_frame_and_a_wrong_motion_does_not():

@@ -9,7 +9,9 @@ It sits below both of its users, so that neither imports the other for it:
 
 :mod:`hbis_torch.observation.forward`
     :func:`~hbis_torch.observation.forward.predict_frame`,
-    :func:`~hbis_torch.observation.forward.pixel_kernel` and
+    :func:`~hbis_torch.observation.forward.pixel_kernel` (centred by
+    :func:`~hbis_torch.observation.forward.centre_offset`, read by
+    :func:`~hbis_torch.observation.forward.sample_grid`) and
     :data:`~hbis_torch.observation.forward.DEFAULT_BLUR_PX`.
 
 Nothing is imported here, so that importing the package costs nothing (torch comes with

@@ -8,6 +8,15 @@ section 1: HR pixel (U, V) centred at LR ((U + 0.5) / h - 0.5, (V + 0.5) / h - 0
 prediction is the estimate filtered by the pixel's box (side sqrt(fill factor) LR pixels)
 and a Gaussian of ``blur_px`` LR pixels, both integrated over the HR pixels, then read at q
 with bicubic interpolation.
+
+The box is centred where an LR pixel's centre falls on the HR grid: on an HR pixel's centre
+for odd h, half-way between two for even h (:func:`centre_offset`). A box centred on an HR pixel
+and then read half a pixel on by the interpolation (as this model did until 2026-12-05) blurs
+the prediction by about an HR pixel's width more: it rewarded estimates sharper than the scene
+at h = 2 and 4 (tests/test_validate.py checks that a frame of the HR pixels' own means is
+predicted exactly). The bicubic read still softens the frames that moved a fraction of an HR
+pixel a little, at every h: a cubic B-spline would not, but has no differentiable read in
+torch for the adaptation, which must predict as validation does.
 """
 
 from __future__ import annotations
@@ -26,8 +35,15 @@ from hbis_torch.errors import HbisInputError
 DEFAULT_BLUR_PX = 0.2
 
 
+def centre_offset(h: int) -> float:
+    """Where an LR pixel's centre lies beyond the centre of the HR pixel before it, HR px: 0 for
+    odd h, 1/2 for even h (LR position u is HR position h (u + 1/2) - 1/2)."""
+    return ((h - 1) / 2) % 1.0
+
+
 def pixel_kernel(h: int, fill_factor: float = 1.0, blur_px: float = DEFAULT_BLUR_PX) -> np.ndarray:
-    """The 1-D kernel (on the HR grid) of one LR pixel's box and the Gaussian blur, separable.
+    """The 1-D kernel (on the HR grid) of one LR pixel's box and the Gaussian blur, separable,
+    centred on the LR pixel's centre: :func:`centre_offset` beyond the middle tap.
 
     Parameters
     ----------
@@ -41,15 +57,19 @@ def pixel_kernel(h: int, fill_factor: float = 1.0, blur_px: float = DEFAULT_BLUR
     Returns
     -------
     np.ndarray, shape (2 R + 1,), float64
-        Weights summing to 1, centred: each weight is the exact integral of the box (and of the
-        Gaussian, convolved on the HR grid) over one HR pixel.
+        Weights summing to 1: weight R + n is the exact integral over HR pixel n (from n - 1/2 to
+        n + 1/2) of the box centred at :func:`centre_offset` (and of the Gaussian, convolved on
+        the HR grid). Convolved with an image, it gives at HR pixel i what an LR pixel centred
+        at HR position i + centre_offset(h) records: symmetric for odd h; at h = 2 without blur
+        (1/2, 1/2) on pixels 0 and 1, not the box centred on an HR pixel, (1/4, 1/2, 1/4).
     """
     if not (0 < fill_factor <= 1) or not (math.isfinite(blur_px) and blur_px >= 0):
         raise HbisInputError(f"fill factor must lie in (0, 1] and blur >= 0, got {fill_factor}, {blur_px}")
     half = 0.5 * math.sqrt(fill_factor) * h
-    reach = int(math.ceil(half + 0.5))
+    centre = centre_offset(h)
+    reach = int(math.ceil(half + centre + 0.5))
     n = np.arange(-reach, reach + 1, dtype=np.float64)
-    box = np.clip(np.minimum(n + 0.5, half) - np.maximum(n - 0.5, -half), 0.0, None)
+    box = np.clip(np.minimum(n + 0.5, centre + half) - np.maximum(n - 0.5, centre - half), 0.0, None)
     sigma = blur_px * h
     if sigma > 0:
         g_reach = int(math.ceil(4 * sigma + 0.5))
@@ -112,10 +132,18 @@ def predict_frame(estimate, positions, h: int, fill_factor: float = 1.0,
     if q.ndim != 3 or q.shape[-1] != 2:
         raise HbisInputError(f"positions must have shape (H, W, 2), got {tuple(q.shape)}")
     blurred = blur_estimate(estimate, h, fill_factor, blur_px)
-    # grid_sample's coordinates with align_corners=False: HR pixel U at (2 U + 1) / (h W) - 1,
-    # which is (2 u + 1) / W - 1 for U = h (u + 0.5) - 0.5
-    grid = torch.stack(((2 * q[..., 0] + 1) / cols - 1, (2 * q[..., 1] + 1) / rows - 1), dim=-1)
+    grid = sample_grid(q, h, rows, cols)
     out = F.grid_sample(blurred[None], grid[None].float(), mode="bicubic", padding_mode="border",
                         align_corners=False)[0]
     out = out.double().numpy()
     return out[0] if estimate.ndim == 2 else np.moveaxis(out, 0, -1)
+
+
+def sample_grid(q: torch.Tensor, h: int, rows: int, cols: int) -> torch.Tensor:
+    """grid_sample's coordinates (align_corners=False; (..., 2), q's dtype) of LR positions ``q``
+    (..., 2) (u, v) in an image of a ``rows`` x ``cols`` LR frame's h-times grid blurred by
+    :func:`pixel_kernel`, whose HR pixel i holds the LR pixel centred at HR position
+    i + :func:`centre_offset`: LR u is HR h (u + 1/2) - 1/2, the pixel index that less the
+    offset, at (2 index + 1) / (h cols) - 1."""
+    shift = 2 * centre_offset(h) / h
+    return torch.stack(((2 * q[..., 0] + 1 - shift) / cols - 1, (2 * q[..., 1] + 1 - shift) / rows - 1), dim=-1)

@@ -25,6 +25,7 @@ _HOMES = {
     "PER_FRAME_KEYS": "frames",
     "predict_frame": "forward",
     "pixel_kernel": "forward",
+    "centre_offset": "forward",
     "DEFAULT_BLUR_PX": "forward",
     "fit_and_score": "score",
     "FrameScore": "score",

@@ -54,7 +54,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from hbis_torch.reconstruct.learned.inputs import TILE_HALO, network_inputs, run_tiled
-from hbis_torch.observation.forward import DEFAULT_BLUR_PX, pixel_kernel
+from hbis_torch.observation.forward import DEFAULT_BLUR_PX, pixel_kernel, sample_grid
 
 FOLDS = 4
 # The tail alone, on a window of CROP_PX chosen by texture, with WINDOW_PX steps: on eight
@@ -254,7 +254,7 @@ class _Predictor:
         x = F.conv2d(F.pad(output, (r, r, 0, 0), mode="replicate"), kernel.view(1, 1, 1, -1))
         x = F.conv2d(F.pad(x, (0, 0, r, r), mode="replicate"), kernel.view(1, 1, -1, 1))
         rows, cols = output.shape[-2] // self.scale, output.shape[-1] // self.scale
-        grid = torch.stack(((2 * points[:, 0] + 1) / cols - 1, (2 * points[:, 1] + 1) / rows - 1), -1)
+        grid = sample_grid(points, self.scale, rows, cols)
         return F.grid_sample(x, grid.view(1, 1, -1, 2), mode="bicubic", padding_mode="border",
                              align_corners=False).view(-1)
 
