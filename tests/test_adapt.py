@@ -168,6 +168,20 @@ def test_the_forward_model_in_float32_agrees_with_float64():
     assert float((wide - narrow.double()).abs().max()) < 1e-6
 
 
+@pytest.mark.parametrize("scale", [2, 3, 4])
+def test_the_adaptation_predicts_as_validation_does(scale):
+    # the adaptation fits the network to what hbis validate scores: one forward model for both
+    # (at even S both once read the pixel's box half an HR pixel off its centre)
+    from hbis_torch.observation.forward import predict_frame
+
+    rng = np.random.default_rng(scale)
+    output = torch.from_numpy(rng.random((1, 1, 20 * scale, 24 * scale)).astype(np.float32))
+    points = torch.from_numpy(rng.uniform(2, 17, (300, 2)).astype(np.float32))
+    ours = adapt._Predictor(scale)(output, points).double().numpy()
+    theirs = predict_frame(output[0, 0].numpy(), points.double().numpy().reshape(-1, 1, 2), scale)[:, 0]
+    np.testing.assert_allclose(ours, theirs, atol=1e-5)
+
+
 def test_the_written_out_adam_takes_torchs_steps():
     torch.manual_seed(0)
     layers = [torch.nn.Conv2d(4, 3, 3) for _ in range(2)]
