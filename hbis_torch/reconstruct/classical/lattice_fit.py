@@ -43,6 +43,8 @@ import math
 import torch
 from torch import Tensor
 
+from hbis_torch.reconstruct.classical.lattice import PIECE_SAMPLES
+
 # A node is a hole, and takes the fit, in proportion as its splat weight falls below this share of
 # the typical node's (fully at 0). Chosen on development bursts (training simulator): at 1.0 the
 # fit gained more with the true lens on most of them, and lost up to 0.26 dB with a lens
@@ -64,10 +66,6 @@ SOLVE_RADIUS = 3
 # Conjugate-gradient steps at most, and the relative residual they stop at.
 ITERATIONS = 30
 TOLERANCE = 1e-3
-# Samples whose terms are computed at a time (:func:`_cell_sums`): at 640 x 480 with 16 frames the
-# sums took 0.58 of the time of whole batches of a million samples (a piece's float32 temporaries,
-# 256 kB each, stay in the cache; at a quarter of this size the calls' own cost shows).
-PIECE_SAMPLES = 1 << 16
 # The stencil's offsets (dx, dy) kept: the other four are their mirror images (the matrix is
 # symmetric: node a's weight on node a + o is node a + o's on node a).
 HALF_STENCIL = ((0, 0), (1, 0), (0, 1), (1, 1), (-1, 1))
@@ -228,16 +226,18 @@ def _cell_sums(batches, shape: tuple[int, int], dtype, columns, read: Tensor | N
 
 
 def _pieces(batch):
-    """``batch`` in pieces of :data:`PIECE_SAMPLES` samples, in order: the same sums in the same
-    order, with temporaries that stay in the cache through the twenty or so passes over them."""
+    """``batch`` in pieces of :data:`~hbis_torch.reconstruct.classical.lattice.PIECE_SAMPLES`
+    samples, in order: the same sums in the same order, with float32 temporaries (256 kB each)
+    that stay in the cache through the twenty or so passes over them (at 640 x 480 with 16
+    frames the terms took 0.58 of the time of whole batches of a million samples; in pieces a
+    quarter as large the calls' own cost shows)."""
     size = len(batch.values)
     if size <= PIECE_SAMPLES:
         yield batch
         return
     for start in range(0, size, PIECE_SAMPLES):
         part = slice(start, start + PIECE_SAMPLES)
-        yield batch._replace(**{name: getattr(batch, name)[part] for name in ("values", "col", "row", "dx", "dy")},
-                             weights=None if batch.weights is None else batch.weights[part])
+        yield _take(batch, lambda field: field[part])
 
 
 def _samples_at(batch, nodes: Tensor):
@@ -249,9 +249,14 @@ def _samples_at(batch, nodes: Tensor):
     kept = nodes.view(-1).index_select(0, index).nonzero().squeeze(1)
     if len(kept) == len(index):
         return batch
-    weights = None if batch.weights is None else batch.weights.index_select(0, kept)
-    return batch._replace(**{name: getattr(batch, name).index_select(0, kept)
-                             for name in ("values", "col", "row", "dx", "dy")}, weights=weights)
+    return _take(batch, lambda field: field.index_select(0, kept))
+
+
+def _take(batch, pick):
+    """``batch`` with ``pick`` (Tensor -> Tensor) applied to each of its samples' fields."""
+    weights = None if batch.weights is None else pick(batch.weights)
+    return batch._replace(**{name: pick(getattr(batch, name)) for name in ("values", "col", "row", "dx", "dy")},
+                          weights=weights)
 
 
 def _pairs():
