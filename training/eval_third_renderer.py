@@ -1,0 +1,240 @@
+"""Hand-held bursts from a third renderer, written apart from the project's two, against the truth.
+
+    python training/eval_third_renderer.py --out benchmarks/results/eval_third_renderer.json
+        [--cells similarity:2:16 homography:4:16 ...] [--photos held-out|training] [--seed 0]
+        [--size 640x480] [--blur 0.3] [--no-learned] [--no-vidsr]
+
+The held-out matrix (training/eval_handheld.py) renders with the project's own second renderer
+(:mod:`hbis_torch.training.handheld_render`). A result that holds only on one renderer may hold
+on its conventions; this script renders bursts as an outside user's script would, sharing
+nothing with the package but the photographs:
+
+* **the scene** (:func:`scene`): photographs of scikit-image, each a tile of :data:`TILE_PX`
+  output pixels *at their own scale* (one photograph pixel, one output pixel: the handheld
+  renderer enlarges them 1.25 times), so the truth keeps each photograph's own softness and
+  sharpening; the held-out photographs (``--photos held-out``, the default) or the training ones
+  (``--photos training``: development data);
+* **the optics**: the scene enlarged :data:`FINE` times by OpenCV's bicubic ``resize`` (so its
+  pixels are a quarter of an LR pixel at S = 2), blurred by a Gaussian lens of ``--blur`` LR px
+  (``cv2.GaussianBlur``);
+* **the pixel**: each frame pixel the mean of an n x n grid of points over its square (n = S x
+  :data:`FINE`: the enlarged scene's pixel centres, for a frame that does not move), each point
+  moved by the frame's homography and read from the enlarged scene by ``cv2.remap`` (bicubic);
+* **the motion** (:func:`homographies`): turns about the frame's centre (``similarity`` and
+  ``homography``: up to :data:`MAX_TURN_DEG`), a perspective moving a corner up to
+  :data:`MAX_PERSPECTIVE_PX` (``homography``), shifts up to :data:`MAX_SHIFT_PX`; frame 0 the
+  reference;
+* **the noise**: Poisson of a full well of :data:`FULL_WELL_E` electrons (1.4 % at mid grey) and
+  Gaussian read noise of :data:`READ_E`, 16 bits.
+
+The truth is the scene itself on the output grid (no lens: the lens is what the methods should
+undo; the photographs' own softness is part of the scene). Rows: bicubic, classical (the
+defaults: ``hbis assemble --burst`` then ``hbis reconstruct --method classical``), classical_lens
+(the render's lens given, as ``--psf-sigma`` would), learned, and the peer vidsr in its fidelity
+setting (benchmarks/peers/vidsr_peer.py), scored by PSNR without 4 LR px of border. Each cell is
+written to ``--out`` when done; a run that stops resumes at the next cell. The table goes beside
+it as ``.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from eval_handheld import _peer, bicubic, psnr
+
+MOTIONS = ("translation", "similarity", "homography")
+ROWS = ("bicubic", "classical", "classical_lens", "learned", "vidsr")
+DEFAULT_CELLS = ("translation:2:16", "similarity:2:16", "homography:2:16", "similarity:2:8",
+                 "homography:2:8", "similarity:3:16", "homography:3:8", "homography:4:16")
+TILE_PX = 280  # fits the smallest photograph (chelsea, 300 x 451)
+FINE = 2  # enlarged scene's pixels per output pixel
+MAX_SHIFT_PX, MAX_TURN_DEG, MAX_PERSPECTIVE_PX = 2.5, 0.7, 1.5
+FULL_WELL_E, READ_E = 10_000.0, 3.0
+BORDER_LR = 4
+
+
+def scene(height: int, width: int, photos, rng: np.random.Generator) -> np.ndarray:
+    """Photographs (names of :mod:`skimage.data`; those smaller than a tile left out) in tiles of
+    :data:`TILE_PX` px at their own scale, each a random crop of a random photograph: (height,
+    width) float32 in [0, 1]."""
+    from skimage import color, data
+
+    greys = {}
+    for name in photos:
+        image = getattr(data, name)()
+        grey = color.rgb2gray(image[..., :3]) if image.ndim == 3 else image / 255.0
+        if min(grey.shape) >= TILE_PX:  # (the training set's page and text are smaller)
+            greys[name] = grey
+    out = np.zeros((height, width), np.float32)
+    for y in range(0, height, TILE_PX):
+        for x in range(0, width, TILE_PX):
+            grey = greys[str(rng.choice(sorted(greys)))]
+            th, tw = min(TILE_PX, height - y), min(TILE_PX, width - x)
+            y0, x0 = rng.integers(0, grey.shape[0] - th + 1), rng.integers(0, grey.shape[1] - tw + 1)
+            out[y:y + th, x:x + tw] = grey[y0:y0 + th, x0:x0 + tw]
+    return out
+
+
+def homographies(motion: str, count: int, width: int, height: int, rng: np.random.Generator) -> np.ndarray:
+    """(count, 3, 3) frame px -> reference px, pixel centres at integers; frame 0 the identity."""
+    cx, cy = (width - 1) / 2, (height - 1) / 2
+    centre = np.array([[1, 0, cx], [0, 1, cy], [0, 0, 1.0]])
+    out = [np.eye(3)]
+    for _ in range(count - 1):
+        angle = np.deg2rad(rng.uniform(-MAX_TURN_DEG, MAX_TURN_DEG)) if motion != "translation" else 0.0
+        turn = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+        tilt = np.eye(3)
+        if motion == "homography":  # a corner (about cx, cy from the centre) moves about MAX_PERSPECTIVE_PX
+            tilt[2, :2] = rng.uniform(-1, 1, 2) * MAX_PERSPECTIVE_PX / (cx * cx + cy * cy)
+        shift = np.eye(3)
+        shift[:2, 2] = rng.uniform(-MAX_SHIFT_PX, MAX_SHIFT_PX, 2)
+        out.append(shift @ centre @ tilt @ turn @ np.linalg.inv(centre))
+    return np.stack(out)
+
+
+def render(motion: str, scale: int, count: int, width: int, height: int, seed: int, photos,
+           blur: float = 0.3, noise: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A burst: (frames (F, H, W) uint16 (float64 in [0, 1] without ``noise``), truth (S H, S W)
+    float32, homographies (F, 3, 3))."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    truth = scene(scale * height, scale * width, photos, rng)
+    n = scale * FINE  # enlarged-scene px per LR px
+    fine = cv2.resize(truth, (n * width, n * height), interpolation=cv2.INTER_CUBIC)
+    if blur > 0:
+        fine = cv2.GaussianBlur(fine, (0, 0), blur * n)
+    motions = homographies(motion, count, width, height, rng)
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    frames = []
+    for m in motions:
+        total = np.zeros((height, width))
+        for a in range(n):
+            for b in range(n):
+                u, v = xs + (b + 0.5) / n - 0.5, ys + (a + 0.5) / n - 0.5
+                w = m[2, 0] * u + m[2, 1] * v + m[2, 2]
+                x, y = (m[0, 0] * u + m[0, 1] * v + m[0, 2]) / w, (m[1, 0] * u + m[1, 1] * v + m[1, 2]) / w
+                # LR px -> the enlarged scene's px (centres at (i + 1/2) / n - 1/2 LR px)
+                total += cv2.remap(fine, (n * (x + 0.5) - 0.5).astype(np.float32), (n * (y + 0.5) - 0.5).astype(np.float32),
+                                   cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+        frame = np.clip(total / (n * n), 0, 1)
+        if noise:
+            electrons = rng.poisson(frame * FULL_WELL_E) + rng.normal(0, READ_E, frame.shape)
+            frame = np.clip(np.round(electrons / FULL_WELL_E * 65535), 0, 65535).astype(np.uint16)
+        frames.append(frame)
+    return np.stack(frames), truth, motions
+
+
+def run_cell(motion: str, scale: int, count: int, args) -> dict:
+    """One cell's rows: PSNR, seconds, and the classical method's notes."""
+    from hbis_torch.capture.burst import assemble_burst
+    from hbis_torch.reconstruct import reconstruct
+
+    frames, truth, _ = render(motion, scale, count, args.width, args.height, args.seed, args.photo_names, args.blur)
+    stack, assemble_messages = assemble_burst(frames, scale)
+    out = {"models": list(stack.meta["motion_models"]), "assemble_messages": assemble_messages}
+    for row in args.rows:
+        started, notes = time.perf_counter(), []
+        if row == "bicubic":
+            image = bicubic(frames[0], scale)
+        elif row == "vidsr":
+            image = _peer().vidsr_sr(frames, scale)
+        elif row == "classical_lens":
+            image = reconstruct(stack, "classical", messages=notes, lens_sigma=args.blur)
+        else:
+            image = reconstruct(stack, row, messages=notes)
+        out[row] = {"psnr_db": psnr(image, truth, BORDER_LR, scale), "seconds": time.perf_counter() - started,
+                    "messages": notes}
+    return out
+
+
+def table(cells: dict, rows) -> str:
+    """The Markdown table of the cells, with the differences the issue's goals name."""
+    head = ["motion", "S", "F", *rows]
+    pairs = [(a, b) for a, b in (("classical", "vidsr"), ("classical", "bicubic"), ("classical_lens", "classical"),
+                                 ("learned", "classical")) if a in rows and b in rows]
+    head += [f"{a} - {b}" for a, b in pairs]
+    lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+    for key, cell in cells.items():
+        motion, scale, count = key.split(":")
+        values = [f"{cell[r]['psnr_db']:.2f}" for r in rows]
+        values += [f"{cell[a]['psnr_db'] - cell[b]['psnr_db']:+.2f}" for a, b in pairs]
+        lines.append("| " + " | ".join([motion, scale, count, *values]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def parse_args(argv):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, required=True, help="results JSON (resumed if it exists); a .md beside it")
+    p.add_argument("--cells", nargs="+", default=list(DEFAULT_CELLS), metavar="MOTION:S:F",
+                   help=f"cells, each MOTION:S:F, MOTION one of {', '.join(MOTIONS)} (default: {' '.join(DEFAULT_CELLS)})")
+    p.add_argument("--photos", choices=("held-out", "training"), default="held-out",
+                   help="the held-out photographs (default) or the training ones (development data)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--size", default="640x480", help="frames' WxH (default 640x480)")
+    p.add_argument("--blur", type=float, default=0.3, help="the lens's Gaussian sigma, LR px (default 0.3)")
+    p.add_argument("--no-learned", action="store_true")
+    p.add_argument("--no-vidsr", action="store_true")
+    args = p.parse_args(argv)
+    problem = None
+    try:
+        args.width, args.height = (int(v) for v in args.size.lower().split("x"))
+        parsed = [(m, int(s), int(f)) for m, s, f in (c.split(":") for c in args.cells)]
+    except ValueError:
+        problem, parsed = f"--size takes WxH and --cells MOTION:S:F, got {args.size!r} and {args.cells}", []
+    if problem is None and min(args.width, args.height) < 64:
+        problem = "--size: 64 px or more each way"
+    bad = [c for c, (m, s, f) in zip(args.cells, parsed) if m not in MOTIONS or not 2 <= s <= 4 or f < 2]
+    if problem is None and bad:
+        problem = f"--cells {' '.join(bad)}: MOTION one of {', '.join(MOTIONS)}, S 2 to 4, F 2 or more"
+    if problem is None and not args.out.parent.is_dir():
+        problem = f"--out {args.out}: the folder does not exist"
+    if problem is None and not 0 <= args.blur <= 2:
+        problem = f"--blur {args.blur}: 0 to 2 LR px"
+    if problem is None and not args.no_vidsr and not _peer().available():
+        problem = "vidsr is not installed (pip install vidsr), or pass --no-vidsr"
+    if problem:
+        print(f"eval_third_renderer: {problem}", file=sys.stderr)
+        raise SystemExit(2)
+    args.parsed = parsed
+    args.rows = [r for r in ROWS if not (r == "learned" and args.no_learned) and not (r == "vidsr" and args.no_vidsr)]
+    from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS
+    from hbis_torch.training.data import TRAIN_PHOTOS
+
+    args.photo_names = HELD_OUT_PHOTOS if args.photos == "held-out" else TRAIN_PHOTOS
+    return args
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = parse_args(argv)
+    from hbis_torch.provenance import write_results
+
+    settings = {"photos": args.photos, "seed": args.seed, "size": [args.width, args.height], "blur": args.blur,
+                "rows": args.rows}
+    done = {}
+    if args.out.exists():
+        previous = json.loads(args.out.read_text())
+        if previous.get("settings") == settings:
+            done = previous["cells"]
+    for (motion, scale, count), key in zip(args.parsed, args.cells):
+        if key in done:
+            continue
+        done[key] = run_cell(motion, scale, count, args)
+        print(key, {r: round(done[key][r]["psnr_db"], 2) for r in args.rows}, flush=True)
+        write_results(args.out, {"settings": settings, "cells": done}, argv=argv)
+    text = table(done, args.rows)
+    write_results(args.out.with_suffix(".md"), text, argv=argv)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
