@@ -217,3 +217,24 @@ def test_the_noise_operator_in_pieces_is_the_whole_frames(monkeypatch):
     whole = np.abs(immerkaer(frame.astype(np.float64))).reshape(-1)
     monkeypatch.setattr(lens_blur, "NOISE_PIECE_SAMPLES", 40)  # two rows a piece
     assert np.array_equal(lens_blur._immerkaer_magnitude(frame), whole)
+
+
+def test_a_group_s_lost_weight_goes_to_the_sharper_fits_below_it():
+    """Fits below a discounted group pull the sigma undone towards theirs, not towards nothing:
+    never above the group's own, and nothing where no fit lies below."""
+    from hbis_torch.reconstruct.lens_blur import sharpest_group, undone
+
+    rng = np.random.default_rng(4)
+    # photographs at their own scale: six edges near the lens (0.3), a pile-up softened by the scene
+    sigmas = np.sort(np.concatenate([0.26 + rng.normal(0, 0.01, 6), 0.45 + rng.normal(0, 0.01, 12),
+                                     rng.uniform(0.5, 0.8, 20)]))
+    sharpest, _, agreement, below = sharpest_group(sigmas)
+    assert agreement < 1 and below == 6
+    sigma = undone(sigmas, sharpest, agreement, below)
+    assert agreement * sigma_to_undo(sharpest) + 0.1 < sigma < sigma_to_undo(sharpest)
+    assert sigma == pytest.approx(agreement * sigma_to_undo(sharpest)
+                                  + (1 - agreement) * sigma_to_undo(float(np.median(sigmas[:6]))))
+    assert undone(sigmas, sharpest, agreement, 0) == pytest.approx(agreement * sigma_to_undo(sharpest))
+    assert undone(sigmas, sharpest, 1.0, below) == pytest.approx(sigma_to_undo(sharpest))
+    # a soft group's trust ramp caps what the fits below it may add
+    assert undone(sigmas, 0.75, 0.5, below) == pytest.approx(sigma_to_undo(0.75))

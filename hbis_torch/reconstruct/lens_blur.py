@@ -136,7 +136,9 @@ class LensEstimate(NamedTuple):
                     "edges, or a lens out of focus); set one with --psf-sigma")
         if self.sharpest > FULL_TRUST or self.agreement < 1:
             soft = ", so soft that it may be the scene's own" if self.sharpest > FULL_TRUST else ""
-            return f"lens blur: {found}{soft}; undoing a share, sigma {self.sigma:.2f} LR px (--psf-sigma sets it)"
+            rest = f", the rest on the {self.below} sharper fits'" if self.agreement < 1 and self.below else ""
+            return (f"lens blur: {found}{soft}; undoing a share, sigma {self.sigma:.2f} LR px{rest} "
+                    "(--psf-sigma sets it)")
         return f"lens blur: {found}; undoing sigma {self.sigma:.2f} LR px (--psf-sigma overrides)"
 
 
@@ -410,8 +412,25 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
     if found is None:
         return LensEstimate(None, 0.0, 0, len(sigmas), sigmas, len(points), 0.0)
     sharpest, group, agreement, below = found
-    return LensEstimate(sharpest, agreement * sigma_to_undo(sharpest), group, len(sigmas), sigmas, len(points),
-                        agreement, below)
+    return LensEstimate(sharpest, undone(sigmas, sharpest, agreement, below), group, len(sigmas), sigmas,
+                        len(points), agreement, below)
+
+
+def undone(sigmas: np.ndarray, sharpest: float, agreement: float, below: int) -> float:
+    """The lens blur undone (LR px) for a group of :func:`sharpest_group`: its
+    :func:`sigma_to_undo` with the group's weight ``agreement``, and the rest of the weight on the
+    ``below`` accepted fits sharper than the group (the median of their sigmas, through
+    :func:`sigma_to_undo`, at most the group's); on no blur where there are none.
+
+    A group loses weight because its edges spread or because sharper fits lie below it. Those
+    fits are noise, edges the scene's own processing sharpened, or edges at the lens itself
+    while the group's carry the scene's own softness as well (photographs rendered at their own
+    scale at S = 2): either way the lens is at most about theirs, and undoing that much rather
+    than nothing keeps what a sharper lens would gain. It never undoes more than the group alone
+    would."""
+    group = sigma_to_undo(sharpest)
+    fallback = min(sigma_to_undo(float(np.median(sigmas[:below]))), group) if below else 0.0
+    return agreement * group + (1 - agreement) * fallback
 
 
 def sigma_to_undo(sharpest: float) -> float:
