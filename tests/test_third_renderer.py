@@ -69,3 +69,13 @@ def test_bad_cells_are_refused_before_any_work(third, tmp_path, capsys):
     assert stop.value.code == 2
     assert "--cells spin:2:8" in capsys.readouterr().err
     assert not (tmp_path / "r.json").exists()
+
+
+def test_the_summary_names_the_cells_where_classical_trails_the_peer(third):
+    cells = {"similarity:2:8": {r: {"psnr_db": v} for r, v in (("classical", 30.0), ("vidsr", 30.4), ("bicubic", 28.0))},
+             "homography:3:16": {r: {"psnr_db": v} for r, v in (("classical", 29.0), ("vidsr", 28.0), ("bicubic", 27.5))}}
+    out = third.summary(cells, ("bicubic", "classical", "vidsr"))
+    assert out["classical_minus_vidsr"] == pytest.approx({"mean_db": 0.3, "worst_db": -0.4})
+    assert out["classical_minus_bicubic"]["worst_db"] == pytest.approx(1.5)
+    assert out["classical_behind_vidsr_by_more_than_gap"] == ["similarity:2:8"]
+    assert "learned_minus_classical" not in out
