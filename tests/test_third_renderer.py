@@ -9,12 +9,16 @@ import numpy as np
 import pytest
 
 pytest.importorskip("cv2")
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "training"))
+TRAINING = str(Path(__file__).resolve().parents[1] / "training")
 
 
 @pytest.fixture(scope="module")
 def third(load_script):
-    return load_script("training/eval_third_renderer.py")
+    sys.path.insert(0, TRAINING)  # the script imports its sibling eval_handheld.py
+    try:
+        return load_script("training/eval_third_renderer.py")
+    finally:
+        sys.path.remove(TRAINING)
 
 
 def _box_mean(truth: np.ndarray, scale: int) -> np.ndarray:

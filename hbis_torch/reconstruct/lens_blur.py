@@ -17,7 +17,8 @@ the sharpest edges at one sigma**: the estimate is the median of the lowest tigh
 :func:`sharpest_group` (at least :data:`MIN_EDGES` edges, and a tenth of the accepted ones,
 within :data:`GROUP_WIDTH`, starting among the lowest tenth: stray fits lie below, of noise or of
 edges sharpened by the scene's own processing, as a camera's; a group above more strays keeps a
-falling share of its weight, :func:`stray_share`); where the sharpest edges spread
+falling share of its weight, :func:`stray_share`, the rest going to the strays' own sigma,
+:func:`undone`); where the sharpest edges spread
 instead (a soft scene: a raster enlarged, a photograph's own blur), nothing is undone, since the
 burst cannot tell its lens from its scene there, and undoing blur that is not the lens costs
 several dB. For the same reason a group softer than :data:`FULL_TRUST` has only a share of its
