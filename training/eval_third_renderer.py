@@ -28,7 +28,11 @@ nothing with the package but the photographs:
   Gaussian read noise of :data:`READ_E`, 16 bits.
 
 The truth is the scene itself on the output grid (no lens: the lens is what the methods should
-undo; the photographs' own softness is part of the scene). Rows: bicubic, classical (the
+undo; the photographs' own softness is part of the scene). The scene ends at the reference
+frame's edge: a frame that turns reads its mirror image (``BORDER_REFLECT``) within a few pixels
+of its corners, which every method but bicubic sees; scored without 12 or 24 LR px of border
+instead of 4, two cells checked (the misses of docs/real-bursts.md) kept every difference between
+rows to a hundredth of a dB. Rows: bicubic, classical (the
 defaults: ``hbis assemble --burst`` then ``hbis reconstruct --method classical``), classical_lens
 (the render's lens given, as ``--psf-sigma`` would), learned, and the peer vidsr in its fidelity
 setting (benchmarks/peers/vidsr_peer.py), scored by PSNR without 4 LR px of border. Each cell is
