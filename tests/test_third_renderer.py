@@ -83,3 +83,12 @@ def test_the_summary_names_the_cells_where_classical_trails_the_peer(third):
     assert out["classical_minus_bicubic"]["worst_db"] == pytest.approx(1.5)
     assert out["classical_behind_vidsr_by_more_than_gap"] == ["similarity:2:8"]
     assert "learned_minus_classical" not in out
+
+
+def test_a_file_of_other_settings_is_refused_not_overwritten(third, tmp_path, capsys):
+    out = tmp_path / "r.json"
+    out.write_text('{"settings": {"seed": 7}, "cells": {}}')
+    with pytest.raises(SystemExit) as stop:
+        third.main(["--out", str(out), "--cells", "similarity:2:4", "--no-vidsr"])
+    assert stop.value.code == 2 and "other settings" in capsys.readouterr().err
+    assert out.read_text() == '{"settings": {"seed": 7}, "cells": {}}'

@@ -64,6 +64,9 @@ MAX_SHIFT_PX, MAX_TURN_DEG, MAX_PERSPECTIVE_PX = 2.5, 0.7, 1.5
 FULL_WELL_E, READ_E = 10_000.0, 3.0
 BORDER_LR = 4
 PEER_GAP = 0.3  # the issue's goal: classical never more than this behind vidsr in a cell
+# The differences (a - b) the table shows and the summary takes the mean and worst of (with
+# learned - vidsr too), where both rows were run.
+DIFFERENCES = (("classical", "vidsr"), ("classical", "bicubic"), ("classical_lens", "classical"), ("learned", "classical"))
 
 
 def scene(height: int, width: int, photos, rng: np.random.Generator) -> np.ndarray:
@@ -164,8 +167,7 @@ def run_cell(motion: str, scale: int, count: int, args) -> dict:
 def table(cells: dict, rows) -> str:
     """The Markdown table of the cells, with the differences the issue's goals name."""
     head = ["motion", "S", "F", *rows]
-    pairs = [(a, b) for a, b in (("classical", "vidsr"), ("classical", "bicubic"), ("classical_lens", "classical"),
-                                 ("learned", "classical")) if a in rows and b in rows]
+    pairs = [(a, b) for a, b in DIFFERENCES if a in rows and b in rows]
     head += [f"{a} - {b}" for a, b in pairs]
     lines = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for key, cell in cells.items():
@@ -180,8 +182,7 @@ def summary(cells: dict, rows) -> dict:
     """Over the cells: each difference of :func:`table`'s mean and worst (dB), and the cells where
     classical trails vidsr by more than :data:`PEER_GAP` (the issue's goal)."""
     out = {}
-    for a, b in (("classical", "vidsr"), ("classical", "bicubic"), ("classical_lens", "classical"),
-                 ("learned", "classical"), ("learned", "vidsr")):
+    for a, b in (*DIFFERENCES, ("learned", "vidsr")):
         if a in rows and b in rows:
             gaps = [cell[a]["psnr_db"] - cell[b]["psnr_db"] for cell in cells.values()]
             out[f"{a}_minus_{b}"] = {"mean_db": float(np.mean(gaps)), "worst_db": float(np.min(gaps))}
@@ -223,13 +224,16 @@ def parse_args(argv):
         problem = f"--blur {args.blur}: 0 to 2 LR px"
     if problem is None and args.table_only and not args.out.is_file():
         problem = f"--table-only: {args.out} does not exist"
+    if problem is None and not args.table_only and args.out.is_file() and _settings(args) != \
+            json.loads(args.out.read_text()).get("settings"):
+        problem = f"--out {args.out} holds a run of other settings: name another file (it is not overwritten)"
     if problem is None and not args.no_vidsr and not args.table_only and not _peer().available():
         problem = "vidsr is not installed (pip install vidsr), or pass --no-vidsr"
     if problem:
         print(f"eval_third_renderer: {problem}", file=sys.stderr)
         raise SystemExit(2)
     args.parsed = parsed
-    args.rows = [r for r in ROWS if not (r == "learned" and args.no_learned) and not (r == "vidsr" and args.no_vidsr)]
+    args.rows = _rows(args)
     from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS
     from hbis_torch.training.data import TRAIN_PHOTOS
 
@@ -237,24 +241,29 @@ def parse_args(argv):
     return args
 
 
+def _settings(args) -> dict:
+    """What a results file's cells depend on besides the cell: a run resumes only a file of the same."""
+    return {"photos": args.photos, "seed": args.seed, "size": [args.width, args.height], "blur": args.blur,
+            "rows": _rows(args)}
+
+
+def _rows(args) -> list:
+    return [r for r in ROWS if not (r == "learned" and args.no_learned) and not (r == "vidsr" and args.no_vidsr)]
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parse_args(argv)
     from hbis_torch.provenance import write_results
 
-    settings = {"photos": args.photos, "seed": args.seed, "size": [args.width, args.height], "blur": args.blur,
-                "rows": args.rows}
-    done, prov = {}, None
-    if args.out.exists():
+    settings, done, prov = _settings(args), {}, None
+    if args.out.exists():  # (parse_args refused a file of other settings)
         previous = json.loads(args.out.read_text())
-        if args.table_only:
-            settings, done, prov = previous["settings"], previous["cells"], previous["provenance"]
-            args.rows = settings["rows"]
-        elif previous.get("settings") == settings:
-            done = previous["cells"]
-    for (motion, scale, count), key in zip(args.parsed, args.cells):
-        if key in done or args.table_only:
-            continue
+        settings, done = previous["settings"], previous["cells"]
+        prov = previous["provenance"] if args.table_only else None
+        args.rows = settings["rows"]
+    todo = [] if args.table_only else [(cell, key) for cell, key in zip(args.parsed, args.cells) if key not in done]
+    for (motion, scale, count), key in todo:
         done[key] = run_cell(motion, scale, count, args)
         print(key, {r: round(done[key][r]["psnr_db"], 2) for r in args.rows}, flush=True)
         write_results(args.out, {"settings": settings, "cells": done}, argv=argv)
