@@ -92,3 +92,56 @@ def test_a_file_of_other_settings_is_refused_not_overwritten(third, tmp_path, ca
         third.main(["--out", str(out), "--cells", "similarity:2:4", "--no-vidsr"])
     assert stop.value.code == 2 and "other settings" in capsys.readouterr().err
     assert out.read_text() == '{"settings": {"seed": 7}, "cells": {}}'
+
+
+def test_a_rolling_shutter_moves_each_row_by_its_read_out_time(third, monkeypatch):
+    """Frame 1 without a homography and a roll of (4, 0) LR px over the frame's height: its first
+    row sees the reference 2 px to the left, its middle row the reference itself, its last row
+    2 px to the right."""
+    monkeypatch.setattr(third, "homographies", lambda motion, count, width, height, rng: np.stack([np.eye(3)] * count))
+    real_effects = third.effects
+
+    def fixed_roll(*args):
+        out = real_effects(*args)
+        out["roll"][1] = (4.0, 0.0)
+        return out
+
+    monkeypatch.setattr(third, "effects", fixed_roll)
+    frames, _, _ = third.render("rolling", 2, 2, 48, 41, seed=2, photos=("camera",), blur=0.3, noise=False)
+    inner = slice(6, -6)
+    for row, shift in ((0, -2), (20, 0), (40, 2)):
+        assert np.allclose(frames[1][row, inner], np.roll(frames[0][row], -shift)[inner], atol=1e-6)
+    assert not np.allclose(frames[1][0, inner], frames[0][0, inner], atol=1e-3)
+
+
+def test_brightness_scales_each_frame_and_keeps_the_reference(third):
+    """The ``brightness`` burst is the ``similarity`` burst of the same seed (the same scene and
+    homographies), each frame times its gain (within MAX_GAIN_CHANGE, frame 0 untouched)."""
+    plain, truth, _ = third.render("similarity", 2, 4, 64, 48, seed=4, photos=("camera",), noise=False)
+    lit, lit_truth, _ = third.render("brightness", 2, 4, 64, 48, seed=4, photos=("camera",), noise=False)
+    assert np.array_equal(truth, lit_truth) and np.array_equal(plain[0], lit[0])
+    unclipped = plain < 0.9
+    gains = [np.median(lit[k][unclipped[k]] / plain[k][unclipped[k]]) for k in range(1, 4)]
+    assert all(abs(g - 1) <= third.MAX_GAIN_CHANGE for g in gains)
+    assert all(np.allclose(lit[k][unclipped[k]], gains[k - 1] * plain[k][unclipped[k]], rtol=1e-9) for k in range(1, 4))
+    assert max(abs(g - 1) for g in gains) > 0.005
+
+
+def test_the_moving_object_is_a_disc_that_the_truth_holds_where_the_reference_saw_it(third):
+    """The ``object`` truth is the ``similarity`` scene but for a disc of OBJECT_RADIUS_LR LR px;
+    frame 0 sees the disc there, and the last frame sees it moved (elsewhere it sees the scene)."""
+    radius = third.OBJECT_RADIUS_LR
+    size = (4 * radius, 3 * radius)  # LR px
+    plain, truth, _ = third.render("similarity", 2, 6, *size, seed=6, photos=("camera", "astronaut"), noise=False)
+    moving, object_truth, _ = third.render("object", 2, 6, *size, seed=6, photos=("camera", "astronaut"), noise=False)
+    changed = np.abs(object_truth - truth) > 1e-6
+    assert 0.9 * np.pi * (2 * radius) ** 2 < changed.sum() < 1.05 * np.pi * (2 * radius) ** 2
+    lr_changed = changed.reshape(size[1], 2, size[0], 2).any(axis=(1, 3))
+    near = np.zeros_like(lr_changed)
+    ys, xs = np.nonzero(lr_changed)
+    near[max(ys.min() - 3, 0):ys.max() + 4, max(xs.min() - 3, 0):xs.max() + 4] = True
+    assert np.allclose(moving[0][~near], plain[0][~near], atol=1e-6)
+    assert not np.allclose(moving[0][lr_changed], plain[0][lr_changed], atol=1e-2)
+    # where the last frame sees the disc: about its travel (at least 1 LR px a frame) from frame 0's
+    centroids = [np.argwhere(np.abs(moving[k] - plain[k]) > 1e-3).mean(axis=0) for k in (0, -1)]
+    assert np.hypot(*(centroids[1] - centroids[0])) > 3

@@ -23,7 +23,13 @@ nothing with the package but the photographs:
 * **the motion** (:func:`homographies`): turns about the frame's centre (``similarity`` and
   ``homography``: up to :data:`MAX_TURN_DEG`), a perspective moving a corner up to
   :data:`MAX_PERSPECTIVE_PX` (``homography``), shifts up to :data:`MAX_SHIFT_PX`; frame 0 the
-  reference;
+  reference; and what no homography holds (:func:`effects`), each on a base motion
+  (:data:`BASE`): ``rolling``, a rolling shutter (shifts, and each row moved further by the
+  camera's speed times the row's read-out time, up to :data:`MAX_ROLL_PX` over the frame's
+  height); ``object``, a disc of another photograph (:data:`OBJECT_RADIUS_LR` LR px) that moves
+  steadily across the frames (:data:`OBJECT_SPEED_LR` LR px a frame), the truth holding it where
+  the reference frame saw it; ``brightness``, each frame's exposure scaled by up to
+  :data:`MAX_GAIN_CHANGE` (before the noise);
 * **the noise**: Poisson of a full well of :data:`FULL_WELL_E` electrons (at mid grey 0.7 % of white) and
   Gaussian read noise of :data:`READ_E`, 16 bits.
 
@@ -54,13 +60,18 @@ import numpy as np
 
 from eval_handheld import _peer, bicubic, psnr
 
-MOTIONS = ("translation", "similarity", "homography")
+MOTIONS = ("translation", "similarity", "homography", "rolling", "object", "brightness")
+# the homographies under each motion that adds what no homography holds (:func:`effects`)
+BASE = {"rolling": "translation", "object": "similarity", "brightness": "similarity"}
 ROWS = ("bicubic", "classical", "classical_lens", "learned", "vidsr")
 DEFAULT_CELLS = ("translation:2:16", "similarity:2:16", "homography:2:16", "similarity:2:8",
                  "homography:2:8", "similarity:3:16", "homography:3:8", "homography:4:16")
 TILE_PX = 280  # fits the smallest photograph (chelsea, 300 x 451)
 FINE = 2  # enlarged scene's pixels per output pixel
 MAX_SHIFT_PX, MAX_TURN_DEG, MAX_PERSPECTIVE_PX = 2.5, 0.7, 1.5
+MAX_ROLL_PX = 1.5  # the rolling shutter's shift between the first row and the last, each axis
+OBJECT_RADIUS_LR, OBJECT_SPEED_LR = 40, (1.0, 2.5)  # LR px; LR px a frame, drawn between
+MAX_GAIN_CHANGE = 0.07
 FULL_WELL_E, READ_E = 10_000.0, 3.0
 BORDER_LR = 4
 PEER_GAP = 0.3  # the issue's goal: classical never more than this behind vidsr in a cell
@@ -108,37 +119,106 @@ def homographies(motion: str, count: int, width: int, height: int, rng: np.rando
     return np.stack(out)
 
 
+def effects(motion: str, count: int, width: int, height: int, scale: int, photos,
+            rng: np.random.Generator) -> dict:
+    """What ``motion`` adds beyond its frames' homographies, per frame (frame 0 has none): ``roll``
+    (count, 2), the rolling shutter's shift from the first row to the last (LR px); ``gain``
+    (count,); ``object``, the disc's texture (its own photograph, (2 R S, 2 R S) output px), its
+    centre in the reference frame (output px) and its move in each frame (count, 2) output px.
+    Empty for the motions :func:`homographies` holds."""
+    out = {}
+    if motion == "rolling":
+        out["roll"] = rng.uniform(-MAX_ROLL_PX, MAX_ROLL_PX, (count, 2))
+        out["roll"][0] = 0
+    elif motion == "brightness":
+        out["gain"] = 1 + rng.uniform(-MAX_GAIN_CHANGE, MAX_GAIN_CHANGE, count)
+        out["gain"][0] = 1
+    elif motion == "object":
+        radius = OBJECT_RADIUS_LR * scale
+        speed = rng.uniform(*OBJECT_SPEED_LR) * scale
+        angle = rng.uniform(0, 2 * np.pi)
+        # a whole output px, so that the truth's disc is drawn on the grid as the frames' is
+        centre = np.array([rng.integers(radius + 8 * scale, scale * width - radius - 8 * scale),
+                           rng.integers(radius + 8 * scale, scale * height - radius - 8 * scale)], float)
+        out["object"] = (scene(2 * radius, 2 * radius, photos, rng), centre,
+                         np.arange(count)[:, None] * speed * np.array([np.cos(angle), np.sin(angle)]))
+    return out
+
+
+def _with_object(background: np.ndarray, texture: np.ndarray, centre: np.ndarray, move: np.ndarray) -> np.ndarray:
+    """``background`` (output px) with the disc of ``texture`` centred at ``centre + move``
+    (output px), its edge anti-aliased over one output px."""
+    import cv2
+
+    radius = texture.shape[0] / 2
+    x0, y0 = centre + move - radius  # the texture's corner on the background
+    placed = cv2.warpAffine(texture, np.float32([[1, 0, x0], [0, 1, y0]]), background.shape[::-1],
+                            flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    ys, xs = np.mgrid[0:background.shape[0], 0:background.shape[1]]
+    # (texture px centres at integers: its centre is at radius - 1/2)
+    distance = np.hypot(xs - (centre[0] + move[0] - 0.5), ys - (centre[1] + move[1] - 0.5))
+    inside = np.clip(radius - distance + 0.5, 0, 1).astype(np.float32)
+    return background * (1 - inside) + placed * inside
+
+
 def render(motion: str, scale: int, count: int, width: int, height: int, seed: int, photos,
            blur: float = 0.3, noise: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A burst: (frames (F, H, W) uint16 (float64 in [0, 1] without ``noise``), truth (S H, S W)
     float32, homographies (F, 3, 3))."""
-    import cv2
-
     rng = np.random.default_rng(seed)
     truth = scene(scale * height, scale * width, photos, rng)
-    n = scale * FINE  # enlarged-scene px per LR px
-    fine = cv2.resize(truth, (n * width, n * height), interpolation=cv2.INTER_CUBIC)
-    if blur > 0:
-        fine = cv2.GaussianBlur(fine, (0, 0), blur * n)
-    motions = homographies(motion, count, width, height, rng)
-    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    motions = homographies(BASE.get(motion, motion), count, width, height, rng)
+    extra = effects(motion, count, width, height, scale, photos, rng)
+    background = truth
+    if "object" in extra:
+        texture, centre, moves = extra["object"]
+        truth = _with_object(background, texture, centre, moves[0])
+    fine = _enlarged(truth, scale, blur)
     frames = []
-    for m in motions:
-        total = np.zeros((height, width))
-        for a in range(n):
-            for b in range(n):
-                u, v = xs + (b + 0.5) / n - 0.5, ys + (a + 0.5) / n - 0.5
-                w = m[2, 0] * u + m[2, 1] * v + m[2, 2]
-                x, y = (m[0, 0] * u + m[0, 1] * v + m[0, 2]) / w, (m[1, 0] * u + m[1, 1] * v + m[1, 2]) / w
-                # LR px -> the enlarged scene's px (centres at (i + 1/2) / n - 1/2 LR px)
-                total += cv2.remap(fine, (n * (x + 0.5) - 0.5).astype(np.float32), (n * (y + 0.5) - 0.5).astype(np.float32),
-                                   cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
-        frame = np.clip(total / (n * n), 0, 1)
+    for k, m in enumerate(motions):
+        if "object" in extra and k > 0:
+            fine = _enlarged(_with_object(background, texture, centre, moves[k]), scale, blur)
+        roll = extra["roll"][k] if "roll" in extra else None
+        frame = _integrated(fine, m, roll, scale, width, height) * (extra["gain"][k] if "gain" in extra else 1)
+        frame = np.clip(frame, 0, 1)
         if noise:
             electrons = rng.poisson(frame * FULL_WELL_E) + rng.normal(0, READ_E, frame.shape)
             frame = np.clip(np.round(electrons / FULL_WELL_E * 65535), 0, 65535).astype(np.uint16)
         frames.append(frame)
     return np.stack(frames), truth, motions
+
+
+def _enlarged(scene_px: np.ndarray, scale: int, blur: float) -> np.ndarray:
+    """The scene (output px) enlarged :data:`FINE` times (bicubic) and blurred by the lens
+    (``blur`` LR px)."""
+    import cv2
+
+    n = scale * FINE  # enlarged-scene px per LR px
+    height, width = scene_px.shape[0] // scale, scene_px.shape[1] // scale
+    fine = cv2.resize(scene_px, (n * width, n * height), interpolation=cv2.INTER_CUBIC)
+    return cv2.GaussianBlur(fine, (0, 0), blur * n) if blur > 0 else fine
+
+
+def _integrated(fine: np.ndarray, m: np.ndarray, roll, scale: int, width: int, height: int) -> np.ndarray:
+    """A frame (height, width) float64: each pixel the mean of an n x n grid of points over its
+    square, each moved by the homography ``m`` (and by ``roll`` (2,) LR px times its pixel row's
+    place between the first row and the last: a row is read at once) and read from the enlarged scene ``fine`` (bicubic)."""
+    import cv2
+
+    n = scale * FINE
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    total = np.zeros((height, width))
+    for a in range(n):
+        for b in range(n):
+            u, v = xs + (b + 0.5) / n - 0.5, ys + (a + 0.5) / n - 0.5
+            w = m[2, 0] * u + m[2, 1] * v + m[2, 2]
+            x, y = (m[0, 0] * u + m[0, 1] * v + m[0, 2]) / w, (m[1, 0] * u + m[1, 1] * v + m[1, 2]) / w
+            if roll is not None:  # the pixel row's read-out time (one per row), centred on the middle row
+                x, y = x + roll[0] * (ys / (height - 1) - 0.5), y + roll[1] * (ys / (height - 1) - 0.5)
+            # LR px -> the enlarged scene's px (centres at (i + 1/2) / n - 1/2 LR px)
+            total += cv2.remap(fine, (n * (x + 0.5) - 0.5).astype(np.float32), (n * (y + 0.5) - 0.5).astype(np.float32),
+                               cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    return total / (n * n)
 
 
 def run_cell(motion: str, scale: int, count: int, args) -> dict:
