@@ -238,3 +238,32 @@ def test_a_group_s_lost_weight_goes_to_the_sharper_fits_below_it():
     assert undone(sigmas, sharpest, 1.0, below) == pytest.approx(sigma_to_undo(sharpest))
     # a soft group's trust ramp caps what the fits below it may add
     assert undone(sigmas, 0.75, 0.5, below) == pytest.approx(sigma_to_undo(0.75))
+
+
+@pytest.mark.parametrize("cluttered, expected", [(8, True), (3, False)])
+def test_too_few_clean_edges_take_the_fits_beside_other_texture(monkeypatch, cluttered, expected):
+    """Four edges pass the residual test and ``cluttered`` more only its looser bound (texture
+    beside the edge): with 8 of those the lens is measured on all of them and the line says so;
+    with 3 (7 in all) it is not measured."""
+    import hbis_torch.reconstruct.lens_blur as lens_blur
+
+    noise, contrast = 0.01, 40.0
+    strict = lens_blur.MAX_RESIDUAL_NOISE + lens_blur.MAX_RESIDUAL_STEP * contrast
+    loose = lens_blur.MAX_RESIDUAL_NOISE + lens_blur.CLUTTERED_RESIDUAL_STEP * contrast
+    rng = np.random.default_rng(0)
+    fits = [(0.3 + 0.005 * rng.standard_normal(), 0.01, contrast * noise, 0.5 * strict) for _ in range(4)]
+    fits += [(0.3 + 0.005 * rng.standard_normal(), 0.01, contrast * noise, (strict + loose) / 2) for _ in range(cluttered)]
+    fits += [(0.1, 0.01, contrast * noise, 1.1 * loose)] * 5  # beyond even the loose bound
+    monkeypatch.setattr(lens_blur, "_edge_points", lambda reference, noise: [(20.0, 20.0, 0.0)] * len(fits))
+    monkeypatch.setattr(lens_blur, "_samples", lambda *args: (np.zeros((1, 2)), np.zeros(1)))
+    monkeypatch.setattr(lens_blur, "_fit_edges", lambda samples, thetas, noise, aperture: fits)
+    frames = np.zeros((2, 48, 48), np.float32)
+    positions = np.zeros((2, 48, 48, 2))
+    estimate = estimate_lens_sigma(frames, positions, np.ones((2, 48, 48)), 0, noise)
+    assert estimate.cluttered is expected
+    if expected:
+        assert estimate.edges == 12 and estimate.sharpest == pytest.approx(0.3, abs=0.01)
+        assert estimate.sigma == pytest.approx(sigma_to_undo(estimate.sharpest), rel=1e-6)
+        assert "beside other texture" in estimate.describe()
+    else:
+        assert estimate.sharpest is None and estimate.sigma == 0 and estimate.edges == 4
