@@ -234,7 +234,11 @@ def test_a_group_s_lost_weight_goes_to_the_sharper_fits_below_it():
     assert agreement * sigma_to_undo(sharpest) + 0.1 < sigma < sigma_to_undo(sharpest)
     assert sigma == pytest.approx(agreement * sigma_to_undo(sharpest)
                                   + (1 - agreement) * sigma_to_undo(float(np.median(sigmas[:6]))))
-    assert undone(sigmas, sharpest, agreement, 0) == pytest.approx(agreement * sigma_to_undo(sharpest))
+    # with no fit below, the rest goes to the sharpest edges' bound (never above the group's own)
+    from hbis_torch.reconstruct.lens_blur import bound_to_undo
+
+    assert undone(sigmas, sharpest, agreement, 0) == pytest.approx(
+        agreement * sigma_to_undo(sharpest) + (1 - agreement) * min(bound_to_undo(sigmas), sigma_to_undo(sharpest)))
     assert undone(sigmas, sharpest, 1.0, below) == pytest.approx(sigma_to_undo(sharpest))
     # a soft group's trust ramp caps what the fits below it may add
     assert undone(sigmas, 0.75, 0.5, below) == pytest.approx(sigma_to_undo(0.75))
@@ -267,3 +271,25 @@ def test_too_few_clean_edges_take_the_fits_beside_other_texture(monkeypatch, clu
         assert "beside other texture" in estimate.describe()
     else:
         assert estimate.sharpest is None and estimate.sigma == 0 and estimate.edges == 4
+
+
+def test_edges_that_do_not_agree_have_the_lens_bound_they_give_undone(monkeypatch):
+    """Sharp edges spread with no group (a scene's own sharpening spreads them): the lens is at most
+    the sharpest three's median, which is undone less the scene's margin; a soft scene's spread
+    edges (from MAX_TRUSTED on) have nothing undone, and the line says which."""
+    import hbis_torch.reconstruct.lens_blur as lens_blur
+
+    noise, contrast = 0.01, 40.0
+    for spread, expected in ((np.linspace(0.2, 0.7, 30), sigma_to_undo(0.2 + 0.5 / 29)),
+                             (np.linspace(0.85, 1.6, 30), 0.0)):
+        assert sharpest_group(spread) is None
+        fits = [(float(s), 0.01, contrast * noise, 1.0) for s in spread]
+        monkeypatch.setattr(lens_blur, "_edge_points", lambda reference, noise: [(20.0, 20.0, 0.0)] * len(fits))
+        monkeypatch.setattr(lens_blur, "_samples", lambda *args: (np.zeros((1, 2)), np.zeros(1)))
+        monkeypatch.setattr(lens_blur, "_fit_edges", lambda samples, thetas, noise, aperture: fits)
+        estimate = estimate_lens_sigma(np.zeros((2, 48, 48), np.float32), np.zeros((2, 48, 48, 2)),
+                                       np.ones((2, 48, 48)), 0, noise)
+        assert estimate.sharpest is None and estimate.sigma == pytest.approx(expected)
+        line = estimate.describe()
+        assert "do not agree" in line and f"at most {np.median(spread[:3]):.2f} LR px" in line
+        assert ("none undone" in line) == (expected == 0)
