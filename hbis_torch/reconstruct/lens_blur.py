@@ -484,8 +484,7 @@ def bound_to_undo(sigmas: np.ndarray) -> float:
     written apart from the project, 16 bursts at S = 2 and 3 with a lens of 0.3 LR px and the same
     16 without one), whose own sharpening spreads their sharpest edges below and around the lens,
     it changed two with the lens, where undoing nothing left +1.14 / +1.56 dB to the true lens:
-    +0.32 / +0.49 dB; and one without, +0.03 dB (the others' sharpest edges lie within the scene's
-    margin there)."""
+    +0.32 / +0.49 dB; and one without, +0.03 dB."""
     return sigma_to_undo(float(np.median(sigmas[:BOUND_EDGES]))) if len(sigmas) else 0.0
 
 
