@@ -256,7 +256,8 @@ def test_too_few_clean_edges_take_the_fits_beside_other_texture(monkeypatch, clu
     loose = lens_blur.MAX_RESIDUAL_NOISE + lens_blur.CLUTTERED_RESIDUAL_STEP * contrast
     rng = np.random.default_rng(0)
     fits = [(0.3 + 0.005 * rng.standard_normal(), 0.01, contrast * noise, 0.5 * strict) for _ in range(4)]
-    fits += [(0.3 + 0.005 * rng.standard_normal(), 0.01, contrast * noise, (strict + loose) / 2) for _ in range(cluttered)]
+    fits += [(0.3 + 0.005 * rng.standard_normal(), 0.01, contrast * noise, (strict + loose) / 2)
+             for _ in range(cluttered)]
     fits += [(0.1, 0.01, contrast * noise, 1.1 * loose)] * 5  # beyond even the loose bound
     monkeypatch.setattr(lens_blur, "_edge_points", lambda reference, noise: [(20.0, 20.0, 0.0)] * len(fits))
     monkeypatch.setattr(lens_blur, "_samples", lambda *args: (np.zeros((1, 2)), np.zeros(1)))

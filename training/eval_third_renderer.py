@@ -202,7 +202,8 @@ def _enlarged(scene_px: np.ndarray, scale: int, blur: float) -> np.ndarray:
 def _integrated(fine: np.ndarray, m: np.ndarray, roll, scale: int, width: int, height: int) -> np.ndarray:
     """A frame (height, width) float64: each pixel the mean of an n x n grid of points over its
     square, each moved by the homography ``m`` (and by ``roll`` (2,) LR px times its pixel row's
-    place between the first row and the last: a row is read at once) and read from the enlarged scene ``fine`` (bicubic)."""
+    place between the first row and the last: a row is read at once) and read from the enlarged
+    scene ``fine`` (bicubic)."""
     import cv2
 
     n = scale * FINE
