@@ -259,12 +259,7 @@ def test_too_few_clean_edges_take_the_fits_beside_other_texture(monkeypatch, clu
     fits += [(0.3 + 0.005 * rng.standard_normal(), 0.01, contrast * noise, (strict + loose) / 2)
              for _ in range(cluttered)]
     fits += [(0.1, 0.01, contrast * noise, 1.1 * loose)] * 5  # beyond even the loose bound
-    monkeypatch.setattr(lens_blur, "_edge_points", lambda reference, noise: [(20.0, 20.0, 0.0)] * len(fits))
-    monkeypatch.setattr(lens_blur, "_samples", lambda *args: (np.zeros((1, 2)), np.zeros(1)))
-    monkeypatch.setattr(lens_blur, "_fit_edges", lambda samples, thetas, noise, aperture: fits)
-    frames = np.zeros((2, 48, 48), np.float32)
-    positions = np.zeros((2, 48, 48, 2))
-    estimate = estimate_lens_sigma(frames, positions, np.ones((2, 48, 48)), 0, noise)
+    estimate = _estimate_from_fits(monkeypatch, fits, noise)
     assert estimate.cluttered is expected
     if expected:
         assert estimate.edges == 12 and estimate.sharpest == pytest.approx(0.3, abs=0.01)
@@ -278,19 +273,24 @@ def test_edges_that_do_not_agree_have_the_lens_bound_they_give_undone(monkeypatc
     """Sharp edges spread with no group (a scene's own sharpening spreads them): the lens is at most
     the sharpest three's median, which is undone less the scene's margin; a soft scene's spread
     edges (from MAX_TRUSTED on) have nothing undone, and the line says which."""
-    import hbis_torch.reconstruct.lens_blur as lens_blur
-
     noise, contrast = 0.01, 40.0
     for spread, expected in ((np.linspace(0.2, 0.7, 30), sigma_to_undo(0.2 + 0.5 / 29)),
                              (np.linspace(0.85, 1.6, 30), 0.0)):
         assert sharpest_group(spread) is None
-        fits = [(float(s), 0.01, contrast * noise, 1.0) for s in spread]
-        monkeypatch.setattr(lens_blur, "_edge_points", lambda reference, noise: [(20.0, 20.0, 0.0)] * len(fits))
-        monkeypatch.setattr(lens_blur, "_samples", lambda *args: (np.zeros((1, 2)), np.zeros(1)))
-        monkeypatch.setattr(lens_blur, "_fit_edges", lambda samples, thetas, noise, aperture: fits)
-        estimate = estimate_lens_sigma(np.zeros((2, 48, 48), np.float32), np.zeros((2, 48, 48, 2)),
-                                       np.ones((2, 48, 48)), 0, noise)
+        estimate = _estimate_from_fits(monkeypatch, [(float(s), 0.01, contrast * noise, 1.0) for s in spread], noise)
         assert estimate.sharpest is None and estimate.sigma == pytest.approx(expected)
         line = estimate.describe()
         assert "do not agree" in line and f"at most {np.median(spread[:3]):.2f} LR px" in line
         assert ("none undone" in line) == (expected == 0)
+
+
+def _estimate_from_fits(monkeypatch, fits: list, noise: float):
+    """:func:`estimate_lens_sigma` of a burst whose edges' fits are ``fits`` (sigma, its error,
+    c1, RMS residual in noise units), one edge point each."""
+    import hbis_torch.reconstruct.lens_blur as lens_blur
+
+    monkeypatch.setattr(lens_blur, "_edge_points", lambda reference, noise: [(20.0, 20.0, 0.0)] * len(fits))
+    monkeypatch.setattr(lens_blur, "_samples", lambda *args: (np.zeros((1, 2)), np.zeros(1)))
+    monkeypatch.setattr(lens_blur, "_fit_edges", lambda samples, thetas, noise, aperture: fits)
+    return estimate_lens_sigma(np.zeros((2, 48, 48), np.float32), np.zeros((2, 48, 48, 2)),
+                               np.ones((2, 48, 48)), 0, noise)
