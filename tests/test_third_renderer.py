@@ -75,6 +75,13 @@ def test_bad_cells_are_refused_before_any_work(third, tmp_path, capsys):
     assert not (tmp_path / "r.json").exists()
 
 
+def test_frames_too_small_for_the_moving_object_are_refused_before_any_work(third, tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        third.main(["--out", str(tmp_path / "r.json"), "--cells", "object:2:8", "--size", "160x80", "--no-vidsr"])
+    assert stop.value.code == 2 and "object cells need" in capsys.readouterr().err
+    assert not (tmp_path / "r.json").exists()
+
+
 def test_the_summary_names_the_cells_where_classical_trails_the_peer(third):
     cells = {"similarity:2:8": {r: {"psnr_db": v} for r, v in (("classical", 30.0), ("vidsr", 30.4), ("bicubic", 28.0))},
              "homography:3:16": {r: {"psnr_db": v} for r, v in (("classical", 29.0), ("vidsr", 28.0), ("bicubic", 27.5))}}

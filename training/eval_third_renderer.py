@@ -71,6 +71,7 @@ FINE = 2  # enlarged scene's pixels per output pixel
 MAX_SHIFT_PX, MAX_TURN_DEG, MAX_PERSPECTIVE_PX = 2.5, 0.7, 1.5
 MAX_ROLL_PX = 1.5  # the rolling shutter's shift between the first row and the last, each axis
 OBJECT_RADIUS_LR, OBJECT_SPEED_LR = 40, (1.0, 2.5)  # LR px; LR px a frame, drawn between
+OBJECT_MARGIN_LR = 8  # the disc's edge at least this far inside the reference frame
 MAX_GAIN_CHANGE = 0.07
 FULL_WELL_E, READ_E = 10_000.0, 3.0
 BORDER_LR = 4
@@ -138,8 +139,9 @@ def effects(motion: str, count: int, width: int, height: int, scale: int, photos
         speed = rng.uniform(*OBJECT_SPEED_LR) * scale
         angle = rng.uniform(0, 2 * np.pi)
         # a whole output px, so that the truth's disc is drawn on the grid as the frames' is
-        centre = np.array([rng.integers(radius + 8 * scale, scale * width - radius - 8 * scale),
-                           rng.integers(radius + 8 * scale, scale * height - radius - 8 * scale)], float)
+        inset = radius + OBJECT_MARGIN_LR * scale
+        centre = np.array([rng.integers(inset, scale * width - inset),
+                           rng.integers(inset, scale * height - inset)], float)
         out["object"] = (scene(2 * radius, 2 * radius, photos, rng), centre,
                          np.arange(count)[:, None] * speed * np.array([np.cos(angle), np.sin(angle)]))
     return out
@@ -299,6 +301,9 @@ def parse_args(argv):
     bad = [c for c, (m, s, f) in zip(args.cells, parsed) if m not in MOTIONS or not 2 <= s <= 4 or f < 2]
     if problem is None and bad:
         problem = f"--cells {' '.join(bad)}: MOTION one of {', '.join(MOTIONS)}, S 2 to 4, F 2 or more"
+    object_side = 2 * (OBJECT_RADIUS_LR + OBJECT_MARGIN_LR) + 1
+    if problem is None and any(m == "object" for m, _, _ in parsed) and min(args.width, args.height) < object_side:
+        problem = f"--size {args.size}: object cells need {object_side} px or more each way (the disc and its margin)"
     if problem is None and not args.out.parent.is_dir():
         problem = f"--out {args.out}: the folder does not exist"
     if problem is None and not 0 <= args.blur <= 2:
