@@ -124,11 +124,14 @@ def psnr(image, truth, border_lr: int, scale: int) -> float:
 
 
 def bicubic(frame: np.ndarray, scale: int) -> np.ndarray:
-    """The frame (H, W) uint16 enlarged S times, bicubic (torch; pixel centres kept), float32."""
+    """The frame (H, W) or (H, W, C) uint16 enlarged S times, bicubic (torch; pixel centres
+    kept), float32 (S H, S W[, C])."""
     import torch
 
-    x = torch.from_numpy(frame.astype(np.float32) / 65535.0)[None, None]
-    return torch.nn.functional.interpolate(x, scale_factor=scale, mode="bicubic", align_corners=False)[0, 0].numpy()
+    x = torch.from_numpy(frame.astype(np.float32) / 65535.0)
+    x = x[None, None] if x.ndim == 2 else x.permute(2, 0, 1)[None]
+    big = torch.nn.functional.interpolate(x, scale_factor=scale, mode="bicubic", align_corners=False)[0]
+    return big[0].numpy() if frame.ndim == 2 else big.permute(1, 2, 0).numpy()
 
 
 def oracle_stack(burst):

@@ -2,7 +2,7 @@
 
     python training/eval_third_renderer.py --out benchmarks/results/eval_third_renderer.json
         [--cells similarity:2:16 homography:4:16 ...] [--photos held-out|training] [--seed 0]
-        [--size 640x480] [--blur 0.3] [--no-learned] [--no-vidsr] [--table-only]
+        [--size 640x480] [--blur 0.3] [--colour] [--no-learned] [--no-vidsr] [--table-only]
 
 The held-out matrix (training/eval_handheld.py) renders with the project's own second renderer
 (:mod:`hbis_torch.training.handheld_render`). A result that holds only on one renderer may hold
@@ -13,7 +13,9 @@ nothing with the package but the photographs:
   output pixels *at their own scale* (one photograph pixel, one output pixel: the handheld
   renderer enlarges them 1.25 times), so the truth keeps each photograph's own softness and
   sharpening; the held-out photographs (``--photos held-out``, the default) or the training ones
-  (``--photos training``: development data);
+  (``--photos training``: development data); grey, or in colour with ``--colour`` (the same
+  crops, RGB; a grey photograph's three channels equal), each channel through the same optics
+  and motion and its own noise;
 * **the optics**: the scene enlarged :data:`FINE` times by OpenCV's bicubic ``resize`` (so its
   pixels are a quarter of an LR pixel at S = 2), blurred by a Gaussian lens of ``--blur`` LR px
   (``cv2.GaussianBlur``);
@@ -41,7 +43,7 @@ instead of 4, two cells checked (the misses of docs/real-bursts.md) kept every d
 rows to a hundredth of a dB. Rows: bicubic, classical (the
 defaults: ``hbis assemble --burst`` then ``hbis reconstruct --method classical``), classical_lens
 (the render's lens given, as ``--psf-sigma`` would), learned, and the peer vidsr in its fidelity
-setting (benchmarks/peers/vidsr_peer.py), scored by PSNR without 4 LR px of border. Each cell is
+setting (benchmarks/peers/vidsr_peer.py), scored by PSNR (over the three channels with ``--colour``) without 4 LR px of border. Each cell is
 written to ``--out`` when done; a run that stops resumes at the next cell. At the end a summary
 (each difference's mean and worst, and the cells where classical trails vidsr by more than the
 issue's 0.3 dB) goes into the JSON and, with the table, beside it as ``.md`` (``--table-only``
@@ -81,19 +83,22 @@ PEER_GAP = 0.3  # the issue's goal: classical never more than this behind vidsr 
 DIFFERENCES = (("classical", "vidsr"), ("classical", "bicubic"), ("classical_lens", "classical"), ("learned", "classical"))
 
 
-def scene(height: int, width: int, photos, rng: np.random.Generator) -> np.ndarray:
+def scene(height: int, width: int, photos, rng: np.random.Generator, colour: bool = False) -> np.ndarray:
     """Photographs (names of :mod:`skimage.data`; those smaller than a tile left out) in tiles of
     :data:`TILE_PX` px at their own scale, each a random crop of a random photograph: (height,
-    width) float32 in [0, 1]."""
+    width) float32 in [0, 1], or (height, width, 3) RGB with ``colour`` (the same crops)."""
     from skimage import color, data
 
     greys = {}
     for name in photos:
         image = getattr(data, name)()
-        grey = color.rgb2gray(image[..., :3]) if image.ndim == 3 else image / 255.0
-        if min(grey.shape) >= TILE_PX:  # (the training set's page and text are smaller)
+        if colour:
+            grey = image[..., :3] / 255.0 if image.ndim == 3 else np.repeat(image[..., None] / 255.0, 3, -1)
+        else:
+            grey = color.rgb2gray(image[..., :3]) if image.ndim == 3 else image / 255.0
+        if min(grey.shape[:2]) >= TILE_PX:  # (the training set's page and text are smaller)
             greys[name] = grey
-    out = np.zeros((height, width), np.float32)
+    out = np.zeros((height, width, 3) if colour else (height, width), np.float32)
     for y in range(0, height, TILE_PX):
         for x in range(0, width, TILE_PX):
             grey = greys[str(rng.choice(sorted(greys)))]
@@ -121,7 +126,7 @@ def homographies(motion: str, count: int, width: int, height: int, rng: np.rando
 
 
 def effects(motion: str, count: int, width: int, height: int, scale: int, photos,
-            rng: np.random.Generator) -> dict:
+            rng: np.random.Generator, colour: bool = False) -> dict:
     """What ``motion`` adds beyond its frames' homographies, per frame (frame 0 has none): ``roll``
     (count, 2), the rolling shutter's shift from the first row to the last (LR px); ``gain``
     (count,); ``object``, the disc's texture (its own photograph, (2 R S, 2 R S) output px), its
@@ -142,7 +147,7 @@ def effects(motion: str, count: int, width: int, height: int, scale: int, photos
         inset = radius + OBJECT_MARGIN_LR * scale
         centre = np.array([rng.integers(inset, scale * width - inset),
                            rng.integers(inset, scale * height - inset)], float)
-        out["object"] = (scene(2 * radius, 2 * radius, photos, rng), centre,
+        out["object"] = (scene(2 * radius, 2 * radius, photos, rng, colour), centre,
                          np.arange(count)[:, None] * speed * np.array([np.cos(angle), np.sin(angle)]))
     return out
 
@@ -154,23 +159,26 @@ def _with_object(background: np.ndarray, texture: np.ndarray, centre: np.ndarray
 
     radius = texture.shape[0] / 2
     x0, y0 = centre + move - radius  # the texture's corner on the background
-    placed = cv2.warpAffine(texture, np.float32([[1, 0, x0], [0, 1, y0]]), background.shape[::-1],
+    placed = cv2.warpAffine(texture, np.float32([[1, 0, x0], [0, 1, y0]]), background.shape[1::-1],
                             flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
     ys, xs = np.mgrid[0:background.shape[0], 0:background.shape[1]]
     # (texture px centres at integers: its centre is at radius - 1/2)
     distance = np.hypot(xs - (centre[0] + move[0] - 0.5), ys - (centre[1] + move[1] - 0.5))
     inside = np.clip(radius - distance + 0.5, 0, 1).astype(np.float32)
+    if background.ndim == 3:
+        inside = inside[..., None]
     return background * (1 - inside) + placed * inside
 
 
 def render(motion: str, scale: int, count: int, width: int, height: int, seed: int, photos,
-           blur: float = 0.3, noise: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           blur: float = 0.3, noise: bool = True, colour: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A burst: (frames (F, H, W) uint16 (float64 in [0, 1] without ``noise``), truth (S H, S W)
-    float32, homographies (F, 3, 3))."""
+    float32, homographies (F, 3, 3)); with ``colour`` the frames (F, H, W, 3) and the truth
+    (S H, S W, 3), RGB."""
     rng = np.random.default_rng(seed)
-    truth = scene(scale * height, scale * width, photos, rng)
+    truth = scene(scale * height, scale * width, photos, rng, colour)
     motions = homographies(BASE.get(motion, motion), count, width, height, rng)
-    extra = effects(motion, count, width, height, scale, photos, rng)
+    extra = effects(motion, count, width, height, scale, photos, rng, colour)
     background = truth
     if "object" in extra:
         texture, centre, moves = extra["object"]
@@ -210,7 +218,7 @@ def _integrated(fine: np.ndarray, m: np.ndarray, roll, scale: int, width: int, h
 
     n = scale * FINE
     ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
-    total = np.zeros((height, width))
+    total = np.zeros((height, width, *fine.shape[2:]))
     for a in range(n):
         for b in range(n):
             u, v = xs + (b + 0.5) / n - 0.5, ys + (a + 0.5) / n - 0.5
@@ -229,7 +237,8 @@ def run_cell(motion: str, scale: int, count: int, args) -> dict:
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.reconstruct import reconstruct
 
-    frames, truth, _ = render(motion, scale, count, args.width, args.height, args.seed, args.photo_names, args.blur)
+    frames, truth, _ = render(motion, scale, count, args.width, args.height, args.seed, args.photo_names, args.blur,
+                              colour=args.colour)
     stack, assemble_messages = assemble_burst(frames, scale)
     out = {"models": list(stack.meta["motion_models"]), "assemble_messages": assemble_messages}
     for row in args.rows:
@@ -286,6 +295,8 @@ def parse_args(argv):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--size", default="640x480", help="frames' WxH (default 640x480)")
     p.add_argument("--blur", type=float, default=0.3, help="the lens's Gaussian sigma, LR px (default 0.3)")
+    p.add_argument("--colour", action="store_true", help="RGB bursts (the same photographs' crops in colour), "
+                   "reconstructed with the methods' colour defaults and scored over the three channels")
     p.add_argument("--no-learned", action="store_true")
     p.add_argument("--no-vidsr", action="store_true")
     p.add_argument("--table-only", action="store_true", help="write the summary and the .md from --out alone")
@@ -329,8 +340,9 @@ def parse_args(argv):
 
 def _settings(args) -> dict:
     """What a results file's cells depend on besides the cell: a run resumes only a file of the same."""
-    return {"photos": args.photos, "seed": args.seed, "size": [args.width, args.height], "blur": args.blur,
-            "rows": _rows(args)}
+    out = {"photos": args.photos, "seed": args.seed, "size": [args.width, args.height], "blur": args.blur,
+           "rows": _rows(args)}
+    return {**out, "colour": True} if args.colour else out  # (grey runs' files name no colour)
 
 
 def _rows(args) -> list:

@@ -19,8 +19,11 @@ mask and contrast steps are for viewing and cost PSNR):
 * no Richardson-Lucy (``--rl 0``), no unsharp mask (``--unsharp 0``), no CLAHE (``--clahe 0``).
 
 The reference is frame 0 (``--ref 0``; vidsr would otherwise pick the sharpest), so that the
-output lies on the same grid as the truth. vidsr processes three colour channels; grey frames are
-handed to it as three equal channels (what it does with a grey video) and channel 0 comes back.
+output lies on the same grid as the truth. vidsr processes three colour channels: colour frames
+(F, H, W, 3) are registered on their grey (OpenCV's BT.601 conversion, as vidsr's own
+``to_gray32``) and fused and back-projected channel by channel, and the three come back; grey
+frames are handed to it as three equal channels (what it does with a grey video) and channel 0
+comes back.
 Frames go in as float32 in [0, 1] rather than through an 8-bit video, so vidsr sees the same
 16-bit data as the project.
 """
@@ -55,11 +58,11 @@ def version() -> str | None:
 
 
 def vidsr_sr(frames: np.ndarray, scale: int, reference: int = 0, ibp: int = IBP, verbose: bool = False) -> np.ndarray:
-    """vidsr's super-resolved image of a grey burst, in its fidelity setting (module docstring).
+    """vidsr's super-resolved image of a burst, in its fidelity setting (module docstring).
 
     Parameters
     ----------
-    frames : np.ndarray, shape (F, H, W)
+    frames : np.ndarray, shape (F, H, W) or (F, H, W, 3) (RGB)
         uint8, uint16 (all 16 bits) or float in [0, 1].
     scale : int
         S.
@@ -72,16 +75,18 @@ def vidsr_sr(frames: np.ndarray, scale: int, reference: int = 0, ibp: int = IBP,
 
     Returns
     -------
-    np.ndarray, shape (S H, S W), float32 in [0, 1]
+    np.ndarray, shape (S H, S W) (or (S H, S W, 3) for colour frames), float32 in [0, 1]
     """
     import cv2
     import vidsr as v
 
     frames = np.asarray(frames)
     if frames.dtype == np.uint8 or frames.dtype == np.uint16:
-        grays = [f.astype(np.float32) / float(np.iinfo(frames.dtype).max) for f in frames]
+        images = [f.astype(np.float32) / float(np.iinfo(frames.dtype).max) for f in frames]
     else:
-        grays = [np.asarray(f, dtype=np.float32) for f in frames]
+        images = [np.asarray(f, dtype=np.float32) for f in frames]
+    colour = frames.ndim == 4
+    grays = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in images] if colour else images
     n, (h, w) = len(grays), grays[0].shape
     roi = (0, 0, w, h)
     sharps = [v.sharpness(g) for g in grays]
@@ -121,7 +126,7 @@ def vidsr_sr(frames: np.ndarray, scale: int, reference: int = 0, ibp: int = IBP,
     obs, wlist, weights = [], [], np.ones(len(used), np.float32)
     smed = float(np.median([sharps[i] for i in used])) or 1.0
     for k, i in enumerate(used):
-        f3 = np.repeat(grays[i][..., None], 3, -1)
+        f3 = images[i] if colour else np.repeat(grays[i][..., None], 3, -1)
         hr = v.warp_lr_to_hr(f3, warps[i], T, hr_size, cv2.INTER_CUBIC)
         cov = v.warp_lr_to_hr(np.ones((h, w), np.float32), warps[i], T, hr_size, cv2.INTER_NEAREST)
         hr[cov < 0.99] = np.nan
@@ -134,4 +139,4 @@ def vidsr_sr(frames: np.ndarray, scale: int, reference: int = 0, ibp: int = IBP,
     del stack
     psf = 0.35 * scale
     out = v.back_project(fused, obs, wlist, T, weights, ibp, psf, LAM, verbose=verbose) if ibp > 0 else fused
-    return np.ascontiguousarray(out[..., 0], dtype=np.float32)
+    return np.ascontiguousarray(out if colour else out[..., 0], dtype=np.float32)
