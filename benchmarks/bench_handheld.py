@@ -1,11 +1,13 @@
 """Time and memory of a hand-held burst's assemble + classical, against an FFT floor and the peer.
 
     python benchmarks/bench_handheld.py [--sizes 640x480 4000x3000] [--frames 16] [--scale 2]
-        [--threads N] [--no-vidsr] [--no-learned] [--json benchmarks/results/bench_handheld.json]
+        [--threads N] [--colour] [--no-vidsr] [--no-learned] [--json benchmarks/results/bench_handheld.json]
 
 For each size, a burst of :func:`hbis_torch.training.handheld_render.render_burst` (``--motion``,
 by default ``all``: turn, perspective, rolling shutter, a moving object, brightness; 16-bit) is rendered
-here and saved (``--cache DIR`` keeps it for the next run); then fresh processes (so that imports and first calls count as a user's
+here and saved (``--cache DIR`` keeps it for the next run; ``--colour`` saves it as RGB frames, the
+channels the grey frames times :data:`COLOUR_GAINS`: the timing and memory of a colour burst,
+whose three channels the classical method reconstructs one by one); then fresh processes (so that imports and first calls count as a user's
 ``hbis assemble`` + ``hbis reconstruct`` would) run, each timed from its own start:
 
 * a 32 x 32 burst of the same frames' corner: assemble + classical (the *start-up*: imports, first
@@ -19,7 +21,8 @@ here and saved (``--cache DIR`` keeps it for the next run); then fresh processes
   fidelity setting; ``--no-vidsr`` skips it).
 
 *Own time* = the full burst's time to the end of classical minus the 32 x 32 burst's; the goal of
-issue 49 is own time <= 20 x floor. Peak memory: each full-burst process reports its own peak
+issue 49 is own time <= 20 x floor. A colour burst's floor is its channels': three times the FFT
+pairs. Peak memory: each full-burst process reports its own peak
 resident set (``getrusage(RUSAGE_SELF).ru_maxrss``, read after classical, before learned and
 vidsr run), and this process reads ``getrusage(RUSAGE_CHILDREN).ru_maxrss`` after it exits (the
 largest child so far, the renders included). Linux starts a child's peak from its parent's
@@ -45,6 +48,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 START = 32  # side of the start-up burst
+COLOUR_GAINS = (1.0, 0.9, 0.75)  # --colour: each channel the grey frame times its gain
 
 
 def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: float) -> None:
@@ -76,14 +80,16 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: 
     if mode == "full":
         import scipy.fft
 
-        F, H, W = frames.shape
+        F, H, W = frames.shape[:3]
+        channels = frames.shape[3] if frames.ndim == 4 else 1
         one = np.random.default_rng(0).random((H, W), dtype=np.float32)
         big = np.random.default_rng(1).random((scale * H, scale * W), dtype=np.float32)
 
         def floor():
-            for _ in range(F):
-                scipy.fft.irfft2(scipy.fft.rfft2(one, workers=1), s=one.shape, workers=1)
-            scipy.fft.irfft2(scipy.fft.rfft2(big, workers=1), s=big.shape, workers=1)
+            for _ in range(channels):
+                for _ in range(F):
+                    scipy.fft.irfft2(scipy.fft.rfft2(one, workers=1), s=one.shape, workers=1)
+                scipy.fft.irfft2(scipy.fft.rfft2(big, workers=1), s=big.shape, workers=1)
 
         times = []
         for _ in range(5):
@@ -151,6 +157,8 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=0, help="threads of each burst's process (OMP_NUM_THREADS; "
                    "default 0: torch's own choice, one a core). On a machine shared with other jobs one thread "
                    "keeps the time beside the floor's (one FFT worker) from the cost of contended threads")
+    p.add_argument("--colour", action="store_true", help="RGB frames (the grey burst's channels times "
+                   f"{COLOUR_GAINS}): a colour burst's time and memory")
     p.add_argument("--no-learned", action="store_true")
     p.add_argument("--no-vidsr", action="store_true")
     p.add_argument("--json", type=Path, help="write the results here (atomically)")
@@ -189,17 +197,19 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for w, h in sizes:
             t = time.perf_counter()
-            name = f"handheld_{args.motion}_{w}x{h}_S{args.scale}_F{args.frames}_seed0.npy"
+            name = f"handheld_{args.motion}_{w}x{h}_S{args.scale}_F{args.frames}_seed0{'_rgb' * args.colour}.npy"
             path = (args.cache or Path(tmp)) / name
             if not path.exists():  # in a process of its own: this one stays small, and a child's peak
                 # memory (which Linux starts from its parent's at the fork) is its own
                 code = ("import sys, numpy as np; from hbis_torch.training.handheld_render import render_burst; "
-                        f"np.save(sys.argv[1], render_burst({args.motion!r}, {args.scale}, {args.frames}, {w}, {h}, "
-                        "seed=0).frames)")
+                        f"f = render_burst({args.motion!r}, {args.scale}, {args.frames}, {w}, {h}, seed=0).frames; ")
+                code += (f"rgb = np.empty(f.shape + (3,), f.dtype)\nfor k in range(len(f)): rgb[k] = np.round("
+                         f"f[k][..., None] * np.array({COLOUR_GAINS}))\nf = rgb\n") if args.colour else ""
+                code += "np.save(sys.argv[1], f)"
                 env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
                 subprocess.run([sys.executable, "-c", code, str(path)], check=True, env=env)
             row = {"size": f"{w}x{h}", "megapixels": w * h / 1e6, "frames": args.frames, "scale": args.scale,
-                   "motion": args.motion,
+                   "motion": args.motion, "colour": args.colour,
                    "render_s": time.perf_counter() - t}
             small = w * h <= 1_000_000
             repeats = args.repeats if small else 1
@@ -241,7 +251,7 @@ def summary(r: dict) -> str:
     f = r["full"]
     if "failed" in f:
         return f"{r['size']}: failed ({f['failed']})"
-    text = (f"{r['size']} x {r['frames']}, S = {r['scale']}: assemble {f['assemble_s']:.2f} s + classical "
+    text = (f"{r['size']} x {r['frames']}{' RGB' * bool(r.get('colour'))}, S = {r['scale']}: assemble {f['assemble_s']:.2f} s + classical "
             f"{f['classical_s']:.2f} s; own time {r['own_s']:.2f} s = {r['own_over_floor']:.0f} x the FFT floor "
             f"({f['floor_s']:.3f} s); peak RSS {f['peak_rss_mb']:.0f} MB")
     if "learned_over_classical" in r:
