@@ -178,19 +178,22 @@ class Stack:
         """True for RGB frames (F, H, W, 3) and for raw Bayer frames (a ``cfa`` key)."""
         return self.frames.ndim == 4 or self.meta.get("cfa") is not None
 
-    def to_float(self) -> torch.Tensor:
+    def to_float(self, index=None) -> torch.Tensor:
         """Frames as a (F, H, W) (or (F, H, W, 3)) float32 tensor in [0, 1].
 
         Integer frames map black_level to 0 and 2**bit_depth - 1 to 1 (values below black clip
-        to 0); float32 frames are returned as stored.
+        to 0); float32 frames are returned as stored. ``index`` (a NumPy index into the frames:
+        ``k`` one frame, ``(..., c)`` one colour channel) converts only those, with the same
+        values as ``to_float()[index]``.
         """
+        frames = self.frames if index is None else self.frames[index]
         if self.frames.dtype == np.float32:
-            return torch.from_numpy(np.array(self.frames, dtype=np.float32))
+            return torch.from_numpy(np.array(frames, dtype=np.float32))
         white = 2 ** self.bit_depth - 1
         black = self.black_level
         # Converted by torch, on its threads: numpy's float32 division of a full frame's stack
         # (80 MB of fresh memory) took 0.23-0.27 s, torch's 0.04 s, with the same bits.
-        x = torch.from_numpy(np.require(self.frames, requirements=("C", "W"))).to(torch.float32)
+        x = torch.from_numpy(np.require(frames, requirements=("C", "W"))).to(torch.float32)
         if black == 0:
             # only values above white (none in a valid file) need clipping
             x.div_(white)

@@ -99,6 +99,29 @@ def test_the_burst_path_never_holds_every_samples_position(stack, monkeypatch):
     assert np.array_equal(reconstruct(stack, "classical"), streamed)
 
 
+def test_a_colour_burst_never_holds_its_float_rgb_frames(stack, monkeypatch):
+    """An RGB burst reconstructed channel by channel converts its luma a frame at a time and
+    one channel at a time, never the float RGB frames whole (a 12 MP burst's: 2.3 GB); the image
+    is the one the whole float frames give, bit for bit."""
+    import hbis_torch.reconstruct.burst as burst
+
+    gains = np.array([1.0, 0.8, 0.6])
+    rgb = type(stack)(np.round(stack.frames[..., None] * gains).astype(stack.frames.dtype), dict(stack.meta))
+    whole = burst.corrected_frames
+
+    def one_channel_at_most(stack, channel=None):
+        assert channel is not None, "the whole float RGB frames were made"
+        return whole(stack, channel)
+
+    monkeypatch.setattr(burst, "corrected_frames", one_channel_at_most)
+    by_channel = reconstruct(rgb, "classical")
+    assert by_channel.shape == (2 * stack.frames.shape[1], 2 * stack.frames.shape[2], 3)
+    monkeypatch.setattr(burst, "corrected_frames", lambda stack, channel=None: whole(stack)[..., channel].contiguous())
+    monkeypatch.setattr(burst, "corrected_frame", lambda stack, k: whole(stack)[k])
+    monkeypatch.setattr(burst, "corrected_luma", lambda stack: burst._luma(whole(stack)))
+    assert np.array_equal(reconstruct(rgb, "classical"), by_channel)
+
+
 def test_a_small_bursts_positions_are_computed_once_with_the_same_bits(stack, monkeypatch):
     import hbis_torch.reconstruct.positions as positions
     from hbis_torch.reconstruct.positions import BurstPositions, burst_positions

@@ -77,18 +77,43 @@ NO_FILL, FULL_FILL = 0.4, 0.8
 RUN_FILL = 0.5
 
 
-def corrected_frames(stack) -> Tensor:
-    """The stack's frames with each frame's gain and offset applied, float32 in [0, 1]."""
-    frames = stack.to_float()  # a fresh tensor: corrected in place (a 12 MP burst's is 768 MB)
+def corrected_frames(stack, channel: int | None = None) -> Tensor:
+    """The stack's frames with each frame's gain and offset applied, float32 in [0, 1]:
+    (F, H, W) or (F, H, W, 3); ``channel`` c of an RGB stack: that channel alone (F, H, W), the
+    same values as ``corrected_frames(stack)[..., c]``."""
+    # a fresh tensor: corrected in place (a 12 MP burst's is 768 MB)
+    frames = stack.to_float() if channel is None else stack.to_float((..., channel))
     go = torch.from_numpy(stack.gain_offset.astype(np.float32))
     shape = (-1,) + (1,) * (frames.ndim - 1)
     return frames.mul_(go[:, 0].reshape(shape)).add_(go[:, 1].reshape(shape)).clamp_(0, 1)
 
 
+def corrected_frame(stack, k: int) -> Tensor:
+    """Frame ``k`` of :func:`corrected_frames`, (H, W) or (H, W, 3), converted alone."""
+    go = stack.gain_offset[k].astype(np.float32)
+    return stack.to_float(k).mul_(float(go[0])).add_(float(go[1])).clamp_(0, 1)
+
+
+def corrected_luma(stack) -> Tensor:
+    """The luma of :func:`corrected_frames` (F, H, W) float32 (the frames themselves for a grey
+    stack), an RGB stack's made a frame at a time: its float RGB frames (12 bytes a pixel) are
+    never held whole."""
+    if stack.frames.ndim != 4:
+        return corrected_frames(stack)
+    out = torch.empty(stack.frames.shape[:3], dtype=torch.float32)
+    for k in range(len(out)):
+        out[k] = _rgb_luma(corrected_frame(stack, k))
+    return out
+
+
 def _luma(frames: Tensor) -> Tensor:
-    if frames.ndim == 4:
-        return frames @ torch.tensor([0.299, 0.587, 0.114], dtype=frames.dtype)
-    return frames
+    """The luma (F, H, W) of RGB frames (F, H, W, 3); grey frames (F, H, W) as they are."""
+    return _rgb_luma(frames) if frames.ndim == 4 else frames
+
+
+def _rgb_luma(rgb: Tensor) -> Tensor:
+    """BT.601 luma of RGB values (..., 3): (...)."""
+    return rgb @ torch.tensor([0.299, 0.587, 0.114], dtype=rgb.dtype)
 
 
 def _blur(images: Tensor) -> Tensor:
@@ -359,11 +384,15 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     run = method.burst_function()
     if run is None:
         raise HbisInputError(f"the {method.name} method does not take burst stacks")
-    frames = corrected_frames(stack)
     ref, scale = stack.reference_index, stack.h
-    fallback = single_frame(frames[ref].numpy(), scale)
+    # an RGB burst reconstructed channel by channel holds its luma and one channel's float frames
+    # at a time, not its float RGB frames (a 12 MP burst of 16: 2.3 GB)
+    by_channel = rgb and (colour or DEFAULT_MODE) == "channels"
+    frames = corrected_luma(stack) if by_channel else corrected_frames(stack)
+    reference = corrected_frame(stack, ref) if by_channel else frames[ref]
+    fallback = single_frame(reference.numpy(), scale)
     notes = messages if messages is not None else []
-    if all(torch.equal(frames[k], frames[ref]) for k in range(len(frames))):
+    if all(torch.equal(corrected_frame(stack, k) if by_channel else frames[k], reference) for k in range(len(frames))):
         notes.append(act(f"all {len(frames)} frames are identical: no new samples, so the output is the "
                          "single-frame estimate (the reference frame enlarged, bicubic); capture the burst "
                          "again, moving the camera a little between frames"))
@@ -396,8 +425,9 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     said: list[str] = []  # the method's lines, once each (a colour burst runs it per channel)
     if not rgb:
         image = run(target, frames, positions, weights, messages=said, **kw)
-    elif (colour or DEFAULT_MODE) == "channels":
-        image = np.stack([run(target, frames[..., c], positions, weights, messages=said, **kw) for c in range(3)],
+    elif by_channel:
+        image = np.stack([run(target, corrected_frames(stack, c), positions, weights, messages=said, **kw)
+                          for c in range(3)],
                          axis=-1)
     else:
         image = _luma_and_chroma(run, target, frames, positions, weights, said, kw)
