@@ -122,6 +122,31 @@ def test_a_colour_burst_never_holds_its_float_rgb_frames(stack, monkeypatch):
     assert np.array_equal(reconstruct(rgb, "classical"), by_channel)
 
 
+def test_a_colour_bursts_channels_share_what_depends_on_their_samples_places(stack, monkeypatch):
+    """The three channels of an RGB burst are the same samples with other values: the lattice's
+    offset, the samples' nodes and the hole fit's matrix are computed for the first channel
+    alone, and the image is the one three independent channels give, bit for bit."""
+    import hbis_torch.reconstruct.classical.burst as classical_burst
+    import hbis_torch.reconstruct.classical.lattice_fit as lattice_fit
+    import hbis_torch.reconstruct.classical.sr as sr
+
+    rgb = type(stack)(np.round(stack.frames[..., None] * np.array([1.0, 0.8, 0.6])).astype(stack.frames.dtype),
+                      dict(stack.meta))
+    calls = {"common_offset_of": 0, "normal_equations": 0, "node_batch": 0}
+    for module, name in ((sr, "common_offset_of"), (lattice_fit, "normal_equations"), (sr, "node_batch")):
+        def counted(*args, _name=name, _real=getattr(module, name), **kw):
+            calls[_name] += 1
+            return _real(*args, **kw)
+
+        monkeypatch.setattr(module, name, counted)
+    shared = reconstruct(rgb, "classical")
+    batches = len(sr.batch_slices(*stack.frames.shape, sr.BATCH_SAMPLES))
+    assert calls == {"common_offset_of": 1, "normal_equations": 1, "node_batch": batches}
+    monkeypatch.setattr(classical_burst.classical_burst, "shares_samples", False)
+    assert np.array_equal(reconstruct(rgb, "classical"), shared)
+    assert calls["normal_equations"] == 4  # (the check: three more without sharing)
+
+
 def test_a_small_bursts_positions_are_computed_once_with_the_same_bits(stack, monkeypatch):
     import hbis_torch.reconstruct.positions as positions
     from hbis_torch.reconstruct.positions import BurstPositions, burst_positions

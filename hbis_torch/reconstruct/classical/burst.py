@@ -81,6 +81,9 @@ def classical_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *
 # in float32 (:func:`~hbis_torch.reconstruct.burst.reconstruct_burst` reads this): the lattice
 # reads both a band at a time.
 classical_burst.streams = True
+# Takes ``shared`` (classical_sr's): a colour burst's channels, the same samples, share what
+# depends on their places and weights alone.
+classical_burst.shares_samples = True
 # The lattice fill's blend with the single frame only for bursts asked at S = 2 (or filling no
 # scale's lattice): above it, a scale the samples fill on average deblurs better than the blend
 # (hbis_torch.reconstruct.burst.RUN_FILL's notes).

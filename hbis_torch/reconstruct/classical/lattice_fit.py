@@ -72,7 +72,8 @@ HALF_STENCIL = ((0, 0), (1, 0), (0, 1), (1, 1), (-1, 1))
 _CORNERS = ((0, 0), (1, 0), (0, 1), (1, 1))
 
 
-def fill_holes_from_samples(image: Tensor, den: Tensor, typical: float, batches, kernel_sigma: float) -> Tensor:
+def fill_holes_from_samples(image: Tensor, den: Tensor, typical: float, batches, kernel_sigma: float,
+                            shared: dict | None = None) -> Tensor:
     """The splat's image with its holes taken from :func:`fit_lattice`.
 
     Parameters
@@ -83,7 +84,7 @@ def fill_holes_from_samples(image: Tensor, den: Tensor, typical: float, batches,
         The splat's weight at each node.
     typical : float
         The typical node's weight (:func:`~hbis_torch.reconstruct.classical.splat.typical_weight`).
-    batches, kernel_sigma
+    batches, kernel_sigma, shared
         As :func:`fit_lattice`'s.
 
     Returns
@@ -96,7 +97,7 @@ def fill_holes_from_samples(image: Tensor, den: Tensor, typical: float, batches,
     share = den.to(image.dtype).div(HOLE_SHARE * typical).neg_().add_(1).clamp_(0, 1)
     if not bool((share > 0).any()):
         return image
-    fitted = fit_lattice(image, batches, kernel_sigma, solve=_near(share > 0, SOLVE_RADIUS))
+    fitted = fit_lattice(image, batches, kernel_sigma, solve=_near(share > 0, SOLVE_RADIUS), shared=shared)
     return image.addcmul_(share, fitted.sub_(image))
 
 
@@ -107,7 +108,8 @@ def _near(nodes: Tensor, radius: int) -> Tensor:
 
 
 def fit_lattice(image: Tensor, batches, kernel_sigma: float, ridge: float = RIDGE,
-                iterations: int = ITERATIONS, dtype=torch.float32, solve: Tensor | None = None) -> Tensor:
+                iterations: int = ITERATIONS, dtype=torch.float32, solve: Tensor | None = None,
+                shared: dict | None = None) -> Tensor:
     """The lattice whose bilinear interpolation fits the samples, spread like the splat's image.
 
     Parameters
@@ -130,6 +132,11 @@ def fit_lattice(image: Tensor, batches, kernel_sigma: float, ridge: float = RIDG
         and only the samples near the solved nodes are read in full (every sample gives the
         ridge's scale, :func:`data_weights`). Where the spread solution is used, its nodes'
         neighbours must be solved too.
+    shared : dict, optional
+        What depends on the samples' places and weights alone (the matrix A^T W A, the ridge's
+        weight), kept here by the first call and read by the next ones, whose samples lie where
+        the first's do with other values (a colour burst's channels): they sum only A^T W v.
+        The same bits as without it.
 
     Returns
     -------
@@ -138,15 +145,20 @@ def fit_lattice(image: Tensor, batches, kernel_sigma: float, ridge: float = RIDG
     rows, cols = image.shape
     # a sample's bilinear corners are its nearest node's neighbours
     read = None if solve is None else _dilate(solve, 1)
-    rhs, stencil = normal_equations(batches, (rows, cols), dtype, read)
     prior = torch.nn.functional.pad(image.to(dtype)[None, None], (1, 1, 1, 1), mode="replicate")[0, 0]
-    diagonal = stencil[0] if read is None else data_weights(batches, (rows, cols), dtype)
-    data = diagonal[diagonal > 0]
-    if data.numel() == 0:  # no sample of any weight: nothing to fit (a copy: callers may write to it)
-        return image.clone()
-    # (a flat stride through the framed lattice: with an even width, only its even columns)
-    lam = ridge * float(data[:: max(1, data.numel() // 100_000)].median())
-    solve = torch.ones(diagonal.shape, dtype=torch.bool) if solve is None else solve
+    if shared and "stencil" in shared:  # another channel of the same samples
+        rhs, stencil, lam = _right_hand_side(batches, (rows, cols), dtype, read), shared["stencil"], shared["lam"]
+    else:
+        rhs, stencil = normal_equations(batches, (rows, cols), dtype, read)
+        diagonal = stencil[0] if read is None else data_weights(batches, (rows, cols), dtype)
+        data = diagonal[diagonal > 0]
+        if data.numel() == 0:  # no sample of any weight: nothing to fit (a copy: callers may write to it)
+            return image.clone()
+        # (a flat stride through the framed lattice: with an even width, only its even columns)
+        lam = ridge * float(data[:: max(1, data.numel() // 100_000)].median())
+        if shared is not None:
+            shared.update(stencil=stencil, lam=lam)
+    solve = torch.ones(prior.shape, dtype=torch.bool) if solve is None else solve
     rhs.add_(prior, alpha=lam)
     fitted = _conjugate_gradients(stencil, lam, rhs, prior, iterations, solve.to(dtype))
     return _spread(fitted, kernel_sigma).to(image.dtype)
@@ -188,6 +200,14 @@ def normal_equations(batches, shape: tuple[int, int], dtype=torch.float32,
     _add_at_corners(_cell_sums(batches, shape, dtype, columns, read), columns,
                     lambda target: rhs if target is None else stencil[target])
     return rhs, stencil
+
+
+def _right_hand_side(batches, shape: tuple[int, int], dtype, read: Tensor | None) -> Tensor:
+    """:func:`normal_equations`' ``rhs`` alone (the same sums, in the same order)."""
+    rhs = torch.zeros((shape[0] + 2, shape[1] + 2), dtype=dtype)
+    columns = range(len(_CORNERS))  # (the right-hand side's terms come first in _TERMS)
+    _add_at_corners(_cell_sums(batches, shape, dtype, columns, read), columns, lambda target: rhs)
+    return rhs
 
 
 def data_weights(batches, shape: tuple[int, int], dtype=torch.float32) -> Tensor:

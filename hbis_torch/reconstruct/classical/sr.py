@@ -63,6 +63,7 @@ def classical_sr(
     mixed_offsets: bool = False,
     lens_sigma: float | None = 0.0,
     fit_holes: bool = False,
+    shared: dict | None = None,
 ) -> Tensor:
     """Super-resolve frames whose samples' positions are known.
 
@@ -121,6 +122,9 @@ def classical_sr(
         Nodes the splat leaves (almost) without a sample of their own are fitted to the samples
         around them (:func:`~hbis_torch.reconstruct.classical.lattice_fit.fill_holes_from_samples`;
         a burst's, with ``mixed_offsets``).
+    shared : dict, optional
+        :func:`lattice_image`'s: for calls on other values of the same samples (a colour
+        burst's channels, one call each, the same dict).
 
     Returns
     -------
@@ -138,7 +142,7 @@ def classical_sr(
         raise HbisInputError(f"the lens blur (--psf-sigma) must be a number in [0, {MAX_LENS_SIGMA}] LR px, "
                              f"got {lens_sigma!r}")
     image, den, offset, typical = lattice_image(frames, positions, h, kernel_sigma, weights, on_lattice=deblur,
-                                                mixed_offsets=mixed_offsets, fit_holes=fit_holes)
+                                                mixed_offsets=mixed_offsets, fit_holes=fit_holes, shared=shared)
     if deblur:
         # Samples that meet at a node (1 for an h x h scan): their noise averages down.
         samples_per_node = typical / max(_peak_weight(kernel_sigma), 1e-12)
@@ -227,7 +231,7 @@ def _check_inputs(frames, positions, weights, fill_factor: float, kernel_sigma: 
 
 def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float,
                   weights: Tensor | None = None, on_lattice: bool = True, mixed_offsets: bool = False,
-                  fit_holes: bool = False):
+                  fit_holes: bool = False, shared: dict | None = None):
     """Interpolate scattered samples onto an h-times grid (normalized convolution).
 
     Parameters
@@ -250,6 +254,12 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         With ``on_lattice``: the nodes the splat leaves (almost) without a sample of their own
         fitted to the samples around them
         (:func:`~hbis_torch.reconstruct.classical.lattice_fit.fill_holes_from_samples`).
+    shared : dict, optional
+        With ``on_lattice``: what depends on the samples' places and weights alone (the
+        lattice's offset, the samples' nodes where the batches are kept, the fit's matrix), kept
+        by the first call and read by the next, whose ``frames`` are other values of the same
+        samples (a colour burst's channels: the same ``positions`` and ``weights``). The same
+        bits as without it.
 
     Returns
     -------
@@ -269,11 +279,19 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         # The samples' common offset from a subset of the rows (OFFSET_ROW_STRIDE): fewer cosines
         # to take, and where there are several batches fewer positions to interpolate.
         row_step = OFFSET_ROW_STRIDE if H <= 512 else min(16, H // 64)
-        offset = common_offset_of(positions, slices, h, weights, row_step)
+        shared = {} if shared is None else shared
+        if "offset" not in shared:
+            shared["offset"] = common_offset_of(positions, slices, h, weights, row_step)
+        offset = shared["offset"]
         # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2), or a burst
         # (two passes) of up to KEEP_SAMPLES, the batches are computed once for both passes.
         keep = len(slices) == 1 or (mixed_offsets and F * H * W <= KEEP_SAMPLES)
-        kept = [node_batch(frames, positions, part, h, offset, weights) for part in slices] if keep else None
+        kept = None
+        if keep and "kept" in shared:  # the same samples' nodes, these values (as node_batch takes them)
+            kept = [b._replace(values=frames[part].reshape(-1).to(torch.float32))
+                    for b, part in zip(shared["kept"], slices)]
+        elif keep:
+            kept = shared["kept"] = [node_batch(frames, positions, part, h, offset, weights) for part in slices]
 
         def batches():
             return kept or (node_batch(frames, positions, part, h, offset, weights) for part in slices)
@@ -282,7 +300,7 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         num, den, typical = splat_on_lattice(batches, shape, kernel_sigma, mixed_offsets)
         image = fill_holes(num, den, typical, in_place=True)
         if fit_holes:
-            image = fill_holes_from_samples(image, den, typical, batches, kernel_sigma)
+            image = fill_holes_from_samples(image, den, typical, batches, kernel_sigma, shared)
         return image, den, offset, typical
     num = den = 0
     for part in slices:
