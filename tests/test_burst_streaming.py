@@ -147,6 +147,18 @@ def test_a_colour_bursts_channels_share_what_depends_on_their_samples_places(sta
     assert calls["normal_equations"] == 4  # (the check: three more without sharing)
 
 
+def test_the_learned_methods_classical_image_shares_the_channels_samples_too(stack, monkeypatch):
+    """The learned method refines each channel's classical image, made as the classical method's
+    (its channels sharing their samples' places): the same image as without sharing."""
+    import hbis_torch.reconstruct.learned.burst as learned_burst
+
+    rgb = type(stack)(np.round(stack.frames[..., None] * np.array([1.0, 0.8, 0.6])).astype(stack.frames.dtype),
+                      dict(stack.meta))
+    shared = reconstruct(rgb, "learned", adapt=False)
+    monkeypatch.setattr(learned_burst.learned_burst, "shares_samples", False)
+    assert np.array_equal(reconstruct(rgb, "learned", adapt=False), shared)
+
+
 def test_a_small_bursts_positions_are_computed_once_with_the_same_bits(stack, monkeypatch):
     import hbis_torch.reconstruct.positions as positions
     from hbis_torch.reconstruct.positions import BurstPositions, burst_positions

@@ -26,7 +26,7 @@ _last: dict = {}
 def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
                   model=None, threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
                   ensemble: int | None = None, precision: str | None = None, adapt: bool = True,
-                  lens_sigma: float | None = None) -> np.ndarray:
+                  lens_sigma: float | None = None, shared: dict | None = None) -> np.ndarray:
     """The learned method's burst path: the classical burst image, refined by the network for the
     burst's scale, told the noise measured on the frames (a burst's samples lie on no regular
     lattice, where the scans' noise is measured); where no model is shipped for it, the classical image,
@@ -44,7 +44,8 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
 
     ``lens_sigma`` (LR px) is the lens blur the classical image undoes, as the classical method's
     (:func:`~hbis_torch.reconstruct.burst.reconstruct_burst` measures it where none is given); the
-    adaptation's folds undo the same.
+    adaptation's folds undo the same. ``shared`` is the classical image's
+    (:func:`~hbis_torch.reconstruct.classical.sr.classical_sr`'s: a colour burst's channels).
 
     Returns (S H, S W) float32 in [0, 1]."""
     model = available_tier(model, stack.h, messages)
@@ -52,7 +53,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     ensemble = check_ensemble(ensemble, stack.h, tier_of(model))
     started = time.perf_counter()
     classical = functools.partial(burst_sr, lens_sigma=lens_sigma or 0.0)
-    image = classical(frames, positions, stack.h, weights).numpy()
+    image = classical(frames, positions, stack.h, weights, shared=shared).numpy()  # (not the folds': other samples)
     classical_s = time.perf_counter() - started
     if missing is not None:
         return classical_returned(image, missing, messages, remedy=NO_MODEL_REMEDY)
@@ -120,3 +121,5 @@ def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, ou
 # training simulator (photographs at 640 x 480, S = 3 with 8 frames and S = 4 with 16, two seeds)
 # the blend above S = 2 left the refined image behind the unblended classical one.
 learned_burst.fill_blend_to = 2
+# Takes ``shared`` for its classical image (a colour burst's channels: classical_burst's notes).
+learned_burst.shares_samples = True
