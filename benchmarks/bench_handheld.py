@@ -7,8 +7,9 @@ For each size, a burst of :func:`hbis_torch.training.handheld_render.render_burs
 by default ``all``: turn, perspective, rolling shutter, a moving object, brightness; 16-bit) is rendered
 here and saved (``--cache DIR`` keeps it for the next run; ``--colour`` saves it as RGB frames, the
 channels the grey frames times :data:`COLOUR_GAINS`: the timing and memory of a colour burst,
-whose three channels the classical method reconstructs one by one); then fresh processes (so that imports and first calls count as a user's
-``hbis assemble`` + ``hbis reconstruct`` would) run, each timed from its own start:
+whose three channels the classical method reconstructs one by one); then fresh processes (so
+that imports and first calls count as a user's ``hbis assemble`` + ``hbis reconstruct`` would)
+run, each timed from its own start:
 
 * a 32 x 32 burst of the same frames' corner: assemble + classical (the *start-up*: imports, first
   calls), ``--repeats`` times, the fastest;
@@ -251,7 +252,8 @@ def summary(r: dict) -> str:
     f = r["full"]
     if "failed" in f:
         return f"{r['size']}: failed ({f['failed']})"
-    text = (f"{r['size']} x {r['frames']}{' RGB' * bool(r.get('colour'))}, S = {r['scale']}: assemble {f['assemble_s']:.2f} s + classical "
+    colour = " RGB" if r.get("colour") else ""
+    text = (f"{r['size']} x {r['frames']}{colour}, S = {r['scale']}: assemble {f['assemble_s']:.2f} s + classical "
             f"{f['classical_s']:.2f} s; own time {r['own_s']:.2f} s = {r['own_over_floor']:.0f} x the FFT floor "
             f"({f['floor_s']:.3f} s); peak RSS {f['peak_rss_mb']:.0f} MB")
     if "learned_over_classical" in r:

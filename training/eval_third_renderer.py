@@ -43,8 +43,8 @@ instead of 4, two cells checked (the misses of docs/real-bursts.md) kept every d
 rows to a hundredth of a dB. Rows: bicubic, classical (the
 defaults: ``hbis assemble --burst`` then ``hbis reconstruct --method classical``), classical_lens
 (the render's lens given, as ``--psf-sigma`` would), learned, and the peer vidsr in its fidelity
-setting (benchmarks/peers/vidsr_peer.py), scored by PSNR (over the three channels with ``--colour``) without 4 LR px of border. Each cell is
-written to ``--out`` when done; a run that stops resumes at the next cell. At the end a summary
+setting (benchmarks/peers/vidsr_peer.py), scored by PSNR (over the three channels with
+``--colour``) without 4 LR px of border. Each cell is written to ``--out`` when done; a run that stops resumes at the next cell. At the end a summary
 (each difference's mean and worst, and the cells where classical trails vidsr by more than the
 issue's 0.3 dB) goes into the JSON and, with the table, beside it as ``.md`` (``--table-only``
 writes both again from a finished ``--out``).
