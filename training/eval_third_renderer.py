@@ -44,8 +44,8 @@ rows to a hundredth of a dB. Rows: bicubic, classical (the
 defaults: ``hbis assemble --burst`` then ``hbis reconstruct --method classical``), classical_lens
 (the render's lens given, as ``--psf-sigma`` would), learned, and the peer vidsr in its fidelity
 setting (benchmarks/peers/vidsr_peer.py), scored by PSNR (over the three channels with
-``--colour``) without 4 LR px of border. Each cell is written to ``--out`` when done; a run that stops resumes at the next cell. At the end a summary
-(each difference's mean and worst, and the cells where classical trails vidsr by more than the
+``--colour``) without 4 LR px of border. Each cell is written to ``--out`` when done; a run that
+stops resumes at the next cell. At the end a summary (each difference's mean and worst, and the cells where classical trails vidsr by more than the
 issue's 0.3 dB) goes into the JSON and, with the table, beside it as ``.md`` (``--table-only``
 writes both again from a finished ``--out``).
 """
@@ -89,22 +89,22 @@ def scene(height: int, width: int, photos, rng: np.random.Generator, colour: boo
     width) float32 in [0, 1], or (height, width, 3) RGB with ``colour`` (the same crops)."""
     from skimage import color, data
 
-    greys = {}
+    pictures = {}
     for name in photos:
         image = getattr(data, name)()
         if colour:
-            grey = image[..., :3] / 255.0 if image.ndim == 3 else np.repeat(image[..., None] / 255.0, 3, -1)
+            picture = image[..., :3] / 255.0 if image.ndim == 3 else np.repeat(image[..., None] / 255.0, 3, -1)
         else:
-            grey = color.rgb2gray(image[..., :3]) if image.ndim == 3 else image / 255.0
-        if min(grey.shape[:2]) >= TILE_PX:  # (the training set's page and text are smaller)
-            greys[name] = grey
+            picture = color.rgb2gray(image[..., :3]) if image.ndim == 3 else image / 255.0
+        if min(picture.shape[:2]) >= TILE_PX:  # (the training set's page and text are smaller)
+            pictures[name] = picture
     out = np.zeros((height, width, 3) if colour else (height, width), np.float32)
     for y in range(0, height, TILE_PX):
         for x in range(0, width, TILE_PX):
-            grey = greys[str(rng.choice(sorted(greys)))]
+            picture = pictures[str(rng.choice(sorted(pictures)))]
             th, tw = min(TILE_PX, height - y), min(TILE_PX, width - x)
-            y0, x0 = rng.integers(0, grey.shape[0] - th + 1), rng.integers(0, grey.shape[1] - tw + 1)
-            out[y:y + th, x:x + tw] = grey[y0:y0 + th, x0:x0 + tw]
+            y0, x0 = rng.integers(0, picture.shape[0] - th + 1), rng.integers(0, picture.shape[1] - tw + 1)
+            out[y:y + th, x:x + tw] = picture[y0:y0 + th, x0:x0 + tw]
     return out
 
 
