@@ -11,8 +11,8 @@ from hbis_torch.cli import main
 from hbis_torch.reconstruct.burst import burst_samples
 from hbis_torch.reconstruct.classical.burst import burst_sample_noise
 from hbis_torch.reconstruct.lens_blur import (FULL_TRUST, GROUP_WIDTH, LOOSE_WIDTH, MAX_TRUSTED, SCENE_MARGIN,
-                                              edge_profile, estimate_lens_sigma, sharpest_group, sigma_to_undo,
-                                              stray_share)
+                                              bound_to_undo, edge_profile, estimate_lens_sigma, sharpest_group,
+                                              sigma_to_undo, stray_share)
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.simulate.burst import random_motions, simulate_burst
 from hbis_torch.training.burst_data import truth_raster
@@ -235,8 +235,6 @@ def test_a_group_s_lost_weight_goes_to_the_sharper_fits_below_it():
     assert sigma == pytest.approx(agreement * sigma_to_undo(sharpest)
                                   + (1 - agreement) * sigma_to_undo(float(np.median(sigmas[:6]))))
     # with no fit below, the rest goes to the sharpest edges' bound (never above the group's own)
-    from hbis_torch.reconstruct.lens_blur import bound_to_undo
-
     assert undone(sigmas, sharpest, agreement, 0) == pytest.approx(
         agreement * sigma_to_undo(sharpest) + (1 - agreement) * min(bound_to_undo(sigmas), sigma_to_undo(sharpest)))
     assert undone(sigmas, sharpest, 1.0, below) == pytest.approx(sigma_to_undo(sharpest))

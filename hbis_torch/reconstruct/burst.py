@@ -429,9 +429,9 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
         del frames  # the luma (a 12 MP burst of 16: 768 MB): each channel's frames take its place
         image = None
         # what depends on the samples' places and weights alone, computed for the first channel
-        shared = {"shared": {}} if getattr(run, "shares_samples", False) else {}
+        sharing = {"shared": {}} if getattr(run, "shares_samples", False) else {}
         for c in range(3):
-            channel = run(target, corrected_frames(stack, c), positions, weights, messages=said, **kw, **shared)
+            channel = run(target, corrected_frames(stack, c), positions, weights, messages=said, **kw, **sharing)
             if image is None:
                 image = np.empty((*channel.shape, 3), dtype=channel.dtype)
             image[..., c] = channel

@@ -279,19 +279,19 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         # The samples' common offset from a subset of the rows (OFFSET_ROW_STRIDE): fewer cosines
         # to take, and where there are several batches fewer positions to interpolate.
         row_step = OFFSET_ROW_STRIDE if H <= 512 else min(16, H // 64)
-        shared = {} if shared is None else shared
-        if "offset" not in shared:
-            shared["offset"] = common_offset_of(positions, slices, h, weights, row_step)
-        offset = shared["offset"]
+        cache = {} if shared is None else shared  # (a call alone keeps what it computes for itself)
+        if "offset" not in cache:
+            cache["offset"] = common_offset_of(positions, slices, h, weights, row_step)
+        offset = cache["offset"]
         # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2), or a burst
         # (two passes) of up to KEEP_SAMPLES, the batches are computed once for both passes.
         keep = len(slices) == 1 or (mixed_offsets and F * H * W <= KEEP_SAMPLES)
         kept = None
-        if keep and "kept" in shared:  # the same samples' nodes, these values (as node_batch takes them)
+        if keep and "kept" in cache:  # the same samples' nodes, these values (as node_batch takes them)
             kept = [b._replace(values=frames[part].reshape(-1).to(torch.float32))
-                    for b, part in zip(shared["kept"], slices)]
+                    for b, part in zip(cache["kept"], slices)]
         elif keep:
-            kept = shared["kept"] = [node_batch(frames, positions, part, h, offset, weights) for part in slices]
+            kept = cache["kept"] = [node_batch(frames, positions, part, h, offset, weights) for part in slices]
 
         def batches():
             return kept or (node_batch(frames, positions, part, h, offset, weights) for part in slices)
