@@ -64,6 +64,7 @@ def classical_sr(
     lens_sigma: float | None = 0.0,
     fit_holes: bool = False,
     shared: dict | None = None,
+    target_aperture: float | None = None,
 ) -> Tensor:
     """Super-resolve frames whose samples' positions are known.
 
@@ -120,11 +121,11 @@ def classical_sr(
         in :func:`~hbis_torch.reconstruct.burst.reconstruct_burst`, or given); 0 or None: none.
     fit_holes : bool
         Nodes the splat leaves (almost) without a sample of their own are fitted to the samples
-        around them (:func:`~hbis_torch.reconstruct.classical.lattice_fit.fill_holes_from_samples`;
-        a burst's, with ``mixed_offsets``).
+        around them (:func:`~hbis_torch.reconstruct.classical.lattice_fit.fill_holes_from_samples`).
     shared : dict, optional
-        :func:`lattice_image`'s: for calls on other values of the same samples (a colour
-        burst's channels, one call each, the same dict).
+        :func:`lattice_image`'s (a colour burst's channels: one call each, the same dict).
+    target_aperture : float, optional
+        :func:`~hbis_torch.reconstruct.classical.wiener.wiener_deblur`'s (None: ``sqrt(fill_factor)``).
 
     Returns
     -------
@@ -136,8 +137,7 @@ def classical_sr(
     h = check_h(h)
     frames, positions, weights = _check_inputs(frames, positions, weights, fill_factor, kernel_sigma,
                                                cutoff, strength, noise, noise_floor)
-    if lens_sigma is None:  # "auto": a burst's is measured before it gets here (reconstruct_burst); a scan's is 0
-        lens_sigma = 0.0
+    lens_sigma = 0.0 if lens_sigma is None else lens_sigma  # "auto": a burst's is measured before (reconstruct_burst)
     if not (isinstance(lens_sigma, (int, float)) and math.isfinite(lens_sigma) and 0 <= lens_sigma <= MAX_LENS_SIGMA):
         raise HbisInputError(f"the lens blur (--psf-sigma) must be a number in [0, {MAX_LENS_SIGMA}] LR px, "
                              f"got {lens_sigma!r}")
@@ -161,7 +161,7 @@ def classical_sr(
         del valid
         image = wiener_deblur(image, h, offset, kernel_sigma, node_noise, math.sqrt(fill_factor),
                               cutoff, strength, overwrite=True, lens_sigma=lens_sigma,
-                              fit_below=1.0 / h if mixed_offsets else None)
+                              fit_below=1.0 / h if mixed_offsets else None, target_aperture=target_aperture)
     if not _all_finite(image):  # finite samples never should give this: say so
         raise RuntimeError("the classical reconstruction produced non-finite values; please report "
                            "the stack that caused it")

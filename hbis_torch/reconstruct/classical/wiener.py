@@ -49,6 +49,7 @@ def wiener_deblur(
     image: Tensor, h: int, offset: tuple[float, float], kernel_sigma: float, noise: float,
     aperture: float = 1.0, cutoff: float | None = None, strength: float = 1.0, aliases: int = 1,
     dtype=torch.float32, overwrite: bool = False, lens_sigma: float = 0.0, fit_below: float | None = None,
+    target_aperture: float | None = None,
 ) -> Tensor:
     """Wiener (MMSE linear) estimate of the p/h sensor's image from the interpolated one.
 
@@ -56,10 +57,10 @@ def wiener_deblur(
     the image is the scene S seen through the kernel K and sampled on the HR lattice shifted
     by ``offset``; the wanted image is S seen through W and sampled on the output lattice::
 
-        K(f) = optics(f) lens(f) box(h a, f) exp(2 pi i f . offset),   W(f) = optics(f) box(a, f)
+        K(f) = optics(f) lens(f) box(h a, f) exp(2 pi i f . offset),   W(f) = optics(f) box(t, f)
         image(f) = sum_k S(f + k) K(f + k) + N(f),                  N white, std ``noise``
 
-    (a = ``aperture``), where k runs over the integer aliases (abs(k) <= ``aliases`` per axis).
+    (a = ``aperture``, t = ``target_aperture``), where k runs over the integer aliases (abs(k) <= ``aliases`` per axis).
     ``lens`` is a Gaussian blur beyond the diffraction of ``optics`` (a burst's lens, measured
     or given: ``lens_sigma``); it is in the kernel only, so the estimate undoes it.
     **Prior:** the scene's power spectrum is s^2 / abs(f)^2 (independent Gaussian gradients, the
@@ -91,9 +92,8 @@ def wiener_deblur(
     aliases : int
         Aliases summed per axis on each side.
     dtype : torch.dtype
-        Precision of the FFTs and the filter (float32: the output differs from float64's by
-        about 1e-6, far below the noise floor; tests/test_fullframe.py checks it). The prior's
-        fit is always float64.
+        Of the FFTs and the filter (float32: within about 1e-6 of float64's, far below the noise
+        floor; tests/test_fullframe.py checks it). The prior's fit is always float64.
     overwrite : bool
         ``image``'s memory may be reused (for the periodic part, then the result, which is then
         ``image`` itself if it is of ``dtype``); its content is lost.
@@ -101,6 +101,9 @@ def wiener_deblur(
         Standard deviation (LR px) of a Gaussian lens blur in the kernel (0: none).
     fit_below : float or None
         :func:`fit_spectrum`'s ``highest`` (cycles per HR px; a burst's: ``1 / h``).
+    target_aperture : float or None
+        The side of the output pixel that the wanted image averages the scene over, over its
+        pitch (None: ``aperture``, a sensor h times finer; 0: the scene at the pixels' centres).
 
     Returns
     -------
@@ -149,9 +152,11 @@ def wiener_deblur(
     shifts = [(kx, ky) for ky in range(-aliases, aliases + 1) for kx in range(-aliases, aliases + 1)]
     noise2 = max(noise, NOISE_FLOOR * level) ** 2
     # the prior's fit evaluates the model on a subsample, in float64
-    kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2, lens_sigma=lens_sigma)
+    kernel = partial(_alias_kernel, fx, fy, h, aperture, cutoff, offset, eps2, lens_sigma=lens_sigma,
+                     target=target_aperture)
     s2, beta = fit_spectrum(measured, fx, fy, kernel, shifts, noise2, highest=fit_below)
-    model = _Model(fx[0].to(dtype), fy[:, 0].to(dtype), h, aperture, cutoff, offset, eps2, lens_sigma)
+    model = _Model(fx[0].to(dtype), fy[:, 0].to(dtype), h, aperture, cutoff, offset, eps2, lens_sigma,
+                   target_aperture)
     # the power averaged over 3 x 3 frequencies for the filter's prior (which needs each block's
     # neighbours as they were before filtering)
     _apply_filter(spectrum, _mean_3x3(measured), model, (shifts, s2, beta, noise2, strength))
@@ -325,7 +330,7 @@ def _irfft2_in_place(spectrum: Tensor, shape: tuple[int, int], out: Tensor | Non
 
 def _alias_kernel(fx: Tensor, fy: Tensor, h: int, aperture: float, cutoff: float | None,
                   offset: tuple[float, float], eps2: float, kx: int, ky: int,
-                  pick: tuple[Tensor, Tensor] | None = None, lens_sigma: float = 0.0):
+                  pick: tuple[Tensor, Tensor] | None = None, lens_sigma: float = 0.0, target: float | None = None):
     """abs(K), W, the lattice phase and abs(f + k)^2 of alias (kx, ky): on the whole spectrum's
     grid, or at the (row, column) pairs ``pick`` (then without the phase). The separable
     factors are computed along each axis once.
@@ -337,7 +342,8 @@ def _alias_kernel(fx: Tensor, fy: Tensor, h: int, aperture: float, cutoff: float
     """
     gx, gy = fx + kx, fy + ky  # (1, cols), (rows, 1)
     box_x, box_y = box(gx, h * aperture), box(gy, h * aperture)
-    pix_x, pix_y = box(gx, aperture), box(gy, aperture)
+    target = aperture if target is None else target
+    pix_x, pix_y = box(gx, target), box(gy, target)
     if pick is not None:
         rows, cols = pick
         gx, box_x, pix_x = (t[0].index_select(0, cols) for t in (gx, box_x, pix_x))
@@ -367,6 +373,7 @@ class _Model(NamedTuple):
     offset: tuple[float, float]
     eps2: float
     lens_sigma: float = 0.0
+    target: float | None = None  # wiener_deblur's target_aperture (None: aperture)
 
     def band(self, k: int, f: Tensor) -> Tensor:
         """Indices along one axis where alias k can pass the optics (abs(f + k) below the cutoff,
@@ -386,7 +393,8 @@ class _Model(NamedTuple):
         k_mag = optics * (box(gx, self.h * self.aperture) * box(gy, self.h * self.aperture))
         if lens is not None:
             k_mag *= lens
-        optics *= box(gx, self.aperture) * box(gy, self.aperture)
+        target = self.aperture if self.target is None else self.target
+        optics *= box(gx, target) * box(gy, target)
         return prior, k_mag, optics
 
     def phase(self) -> tuple[Tensor, Tensor]:
