@@ -10,7 +10,7 @@ from hbis_torch.capture.burst import assemble_burst
 from hbis_torch.cli import main
 from hbis_torch.reconstruct.burst import burst_samples
 from hbis_torch.reconstruct.classical.burst import burst_sample_noise
-from hbis_torch.reconstruct.lens_blur import (FULL_TRUST, GROUP_WIDTH, LOOSE_WIDTH, MAX_TRUSTED,
+from hbis_torch.reconstruct.lens_blur import (FULL_TRUST, GROUP_WIDTH, LOOSE_WIDTH, MAX_TRUSTED, SCENE_MARGIN,
                                               bound_to_undo, edge_profile, estimate_lens_sigma, sharpest_group,
                                               sigma_to_undo, stray_share)
 from hbis_torch.reconstruct.registry import reconstruct
@@ -118,10 +118,10 @@ def test_the_strays_share_falls_with_their_count_without_a_cliff():
 
 
 def test_soft_edges_have_a_share_of_their_blur_undone_falling_to_none():
-    """Full below FULL_TRUST, nothing from MAX_TRUSTED on, continuous and never rising between: no
-    two nearly equal bursts get answers a lens apart."""
-    assert sigma_to_undo(0.05) == pytest.approx(0.05) and sigma_to_undo(0.3) == pytest.approx(0.3)
-    assert sigma_to_undo(FULL_TRUST) == pytest.approx(FULL_TRUST)
+    """Full below FULL_TRUST (less the scene's margin), nothing from MAX_TRUSTED on, continuous and
+    never rising between: no two nearly equal bursts get answers a lens apart."""
+    assert sigma_to_undo(0.3) == pytest.approx(math.sqrt(0.3**2 - SCENE_MARGIN**2))
+    assert sigma_to_undo(FULL_TRUST) == pytest.approx(math.sqrt(FULL_TRUST**2 - SCENE_MARGIN**2))
     assert sigma_to_undo(MAX_TRUSTED) == 0 and sigma_to_undo(1.5) == 0
     grid = np.linspace(FULL_TRUST, MAX_TRUSTED, 301)
     undone = np.array([sigma_to_undo(float(s)) for s in grid])
@@ -160,6 +160,7 @@ def test_psf_sigma_takes_auto_or_a_number(tmp_path, capsys, value, accepted):
     (0.3, 0.28, 1.0, "undoing sigma 0.28"),
     (0.3, 0.2, 0.7, "agree only loosely"),
     (0.6, 0.3, 1.0, "so soft that it may be the scene's own; undoing a share, sigma 0.30"),
+    (0.05, 0.0, 1.0, "within the scene's own margin"),
     (0.85, 0.0, 1.0, "softer than any focused lens"),
 ])
 def test_the_line_says_how_much_of_the_lens_is_undone_and_why(sharpest, sigma, agreement, said):
@@ -174,7 +175,7 @@ def test_the_line_says_when_strays_cost_the_group_a_share():
 
     edges = np.linspace(0.1, 1, 50)
     line = LensEstimate(0.41, 0.8 * sigma_to_undo(0.41), 25, 50, edges, 80, 0.8, 6).describe()
-    assert "above 6 sharper fits" in line and "undoing a share, sigma 0.33" in line, line
+    assert "above 6 sharper fits" in line and "undoing a share, sigma 0.32" in line, line
     assert "sharper fits" not in LensEstimate(0.41, sigma_to_undo(0.41), 25, 50, edges, 80, 1.0, 4).describe()
 
 

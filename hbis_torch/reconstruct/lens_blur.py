@@ -91,6 +91,10 @@ strays than that keeps a share of its weight, falling linearly to none at 2a str
 burst, so an all-or-nothing limit gives two nearly equal bursts answers a whole lens apart."""
 MAX_SIGMA = 3.0
 """The largest sigma (LR px) a fit may reach."""
+SCENE_MARGIN = 0.1
+"""Sigma (LR px) taken off the sharpest group's in quadrature before it is undone: even a scene's
+sharpest edges are a little soft, and undoing too much blur (ringing) costs far more than too
+little (some blur left)."""
 FULL_TRUST, MAX_TRUSTED = 0.5, 0.8
 """Sharpest edges that agree on a sigma up to FULL_TRUST (LR px) are taken for the lens; above
 it, they may as well be a scene drawn uniformly soft (an enlarged raster, a print) as a lens out
@@ -144,6 +148,8 @@ class LensEstimate(NamedTuple):
                      f"{self.sharpest:.2f} LR px")
         if strays:
             found += f", above {self.below} sharper fits (a burst's stray fits are about a tenth of its edges)"
+        if self.sigma == 0 and self.sharpest < MAX_TRUSTED:
+            return f"lens blur: {found}, within the scene's own margin ({SCENE_MARGIN} LR px); none undone"
         if self.sharpest >= MAX_TRUSTED:
             return (f"lens blur: not undone: {found}, softer than any focused lens (a scene without sharp "
                     "edges, or a lens out of focus); set one with --psf-sigma")
@@ -471,7 +477,8 @@ BOUND_EDGES = 3
 def bound_to_undo(sigmas: np.ndarray) -> float:
     """The lens blur undone (LR px) where the sharpest edges do not agree on one: the median of the
     :data:`BOUND_EDGES` sharpest accepted fits (``sigmas``, sorted) bounds the lens from above,
-    through :func:`sigma_to_undo` (its trust ramp: a soft scene's edges have nothing undone).
+    through :func:`sigma_to_undo` (less the scene's margin, and the trust ramp, so a soft scene's
+    edges have nothing undone).
 
     On development bursts (the training photographs at their own scale, through a renderer
     written apart from the project, 16 bursts at S = 2 and 3 with a lens of 0.3 LR px and the same
@@ -482,17 +489,11 @@ def bound_to_undo(sigmas: np.ndarray) -> float:
 
 
 def sigma_to_undo(sharpest: float) -> float:
-    """The lens blur (LR px) undone for sharpest edges that agree on ``sharpest`` (LR px): all of
-    it up to :data:`FULL_TRUST`, a share falling to none at :data:`MAX_TRUSTED`.
-
-    Nothing is taken off for the scene's own softness. 0.1 LR px was once taken off in
-    quadrature (a guess: a scene's sharpest edges are a little soft); on development bursts
-    it undid too little where the edges read sharp: without it, the training photographs
-    through the third renderer (seeds 12 to 15, S = 2 to 4) gained +0.11 and +0.14 dB on the
-    mean, every cell of seeds 14 and 15; the training simulator's bursts (seed 31) moved by
-    -0.04 to +0.26 dB."""
+    """The lens blur (LR px) undone for sharpest edges that agree on ``sharpest`` (LR px): less
+    :data:`SCENE_MARGIN` in quadrature, and a share of it falling from 1 at :data:`FULL_TRUST` to
+    0 at :data:`MAX_TRUSTED`."""
     share = min(max((MAX_TRUSTED - sharpest) / (MAX_TRUSTED - FULL_TRUST), 0.0), 1.0)
-    return share * sharpest
+    return share * math.sqrt(max(sharpest**2 - SCENE_MARGIN**2, 0.0))
 
 
 def burst_lens_sigma(grey, positions, weights, reference: int, notes: list | None = None) -> float:
