@@ -82,8 +82,8 @@ BORDER_LR = 4
 PEER_GAP = 0.3  # the goal: classical never more than this behind vidsr in a cell
 # The differences (a - b) the table shows and the summary takes the mean and worst of (with
 # learned - vidsr too), where both rows were run.
-DIFFERENCES = (("classical", "vidsr"), ("classical", "bicubic"), ("classical_lens", "classical"), ("learned", "classical"),
-               ("classical_point", "classical"))
+DIFFERENCES = (("classical", "vidsr"), ("classical", "bicubic"), ("classical_lens", "classical"),
+               ("learned", "classical"), ("classical_point", "classical"))
 
 
 def scene(height: int, width: int, photos, rng: np.random.Generator, colour: bool = False) -> np.ndarray:
