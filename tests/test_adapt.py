@@ -204,11 +204,22 @@ def test_the_adaptation_stops_when_its_time_is_spent():
     frames, positions, _, weights = burst_samples(stack, corrected_frames(stack))
     net = adapt.load_refiner(shipped_model_path(2).with_suffix(".pt"))
     args = (net, frames, positions, weights, 2, (0.0, 1e-4), stack.reference_index, burst_sr)
-    spent = adapt.adapt_refiner(*args, steps=10, budget_s=0.0)
+    spent = adapt.adapt_refiner(*args, steps=10, budget_s=0.0, min_steps=0)
     assert spent.steps_taken == 0 and spent.step == 0 and spent.error_after == spent.error_before and spent.out_of_time
     assert all(torch.equal(a, b) for a, b in zip(spent.net.state_dict().values(), net.state_dict().values()))
     full = adapt.adapt_refiner(*args, steps=10, budget_s=60.0)
     assert full.steps_taken == 10 and 0 < full.seconds < 60
+
+
+def test_the_first_steps_are_made_whatever_the_clock_says():
+    # a machine busy with other work can spend the budget before the first step: the first
+    # MIN_STEPS are made all the same, then the spent budget stops the rest
+    stack, _ = _stack(size=24)
+    frames, positions, _, weights = burst_samples(stack, corrected_frames(stack))
+    net = adapt.load_refiner(shipped_model_path(2).with_suffix(".pt"))
+    args = (net, frames, positions, weights, 2, (0.0, 1e-4), stack.reference_index, burst_sr)
+    late = adapt.adapt_refiner(*args, steps=3 * adapt.MIN_STEPS, budget_s=0.0, patience=None)
+    assert late.steps_taken == adapt.MIN_STEPS and late.out_of_time
 
 
 def test_the_adaptation_stops_once_its_checks_stop_finding_better_weights(monkeypatch):
@@ -229,6 +240,7 @@ def test_the_learned_method_gives_the_adaptation_a_budget_from_the_classical_tim
     stack, _ = _stack(size=24)
     monkeypatch.setattr(adapt, "BUDGET_MIN_S", 0.0)
     monkeypatch.setattr(adapt, "BUDGET_X_CLASSICAL", 0.0)
+    monkeypatch.setattr(adapt, "MIN_STEPS", 0)  # (the steps no budget stops: the test above)
     notes: list = []
     image = reconstruct(stack, "learned", messages=notes)
     assert any(f"(0 of {adapt.STEPS} steps" in n and "spent" in n for n in notes), notes

@@ -30,7 +30,8 @@ prediction better:
    :data:`PATIENCE` checks in a row found none better;
 5. the whole adaptation is bounded in time: ``budget_s`` seconds (the learned method gives it
    :data:`BUDGET_X_CLASSICAL` times what its classical step took, at least
-   :data:`BUDGET_MIN_S`); the steps stop when it is spent (at least one check is made).
+   :data:`BUDGET_MIN_S`); the steps stop when it is spent, but not before :data:`MIN_STEPS`
+   (at least one check is made).
 
 Everything here is float32: the loss compares intensities in [0, 1] with errors of 1e-4 and
 more, far above float32's rounding (the prediction agrees with float64's to 1e-6: tested).
@@ -87,6 +88,13 @@ BORDER_PX = 2.0
 # times the classical reconstruction at 640 x 480 (the issue's bound: 3).
 BUDGET_X_CLASSICAL = 1.5
 BUDGET_MIN_S = 5.0
+# Steps the time budget cannot stop: two checks' worth. A step works on a window of WINDOW_PX
+# whatever the burst's size (tens of ms), so a number of them bounds the work as the budget bounds
+# the time. On a machine busy with other work the folds' classical images alone could spend the
+# budget, and the burst got the unadapted network (a 640 x 480 burst run beside another job: "0 of
+# 30 steps in 25.8 s, its time of 14.3 s spent", benchmarks/results/eval_third_renderer_no_margin.json;
+# on the idle machine the same code makes its steps in about a second).
+MIN_STEPS = 2 * CHECK_EVERY
 # Validate's lens blur (LR px): real cameras blur beyond the pixel's box; a camera that does not
 # (the project's own simulator) gets sharpened past the scene (docs/real-bursts.md, "Where it loses").
 BLUR_PX = DEFAULT_BLUR_PX
@@ -281,7 +289,8 @@ def _window(fold: Fold, y0: int, x0: int, size: tuple[int, int], halo: int):
 def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weights: Tensor, scale: int,
                   noise_params: tuple[float, float], reference: int, classical, *, steps: int = STEPS,
                   seed: int = SEED, on_step=None, budget_s: float | None = None,
-                  crop: int = CROP_PX, patience: int | None = PATIENCE) -> Adaptation | None:
+                  crop: int = CROP_PX, patience: int | None = PATIENCE,
+                  min_steps: int | None = None) -> Adaptation | None:
     """Fine-tune a copy of ``net``'s last convolution to predict the burst's left-out frames
     (the module's recipe).
 
@@ -310,13 +319,15 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
     on_step : callable, optional
         Called after each step (a progress bar's ``update``).
     budget_s : float, optional
-        Seconds the whole adaptation may take (folds included): no step starts after them.
-        None: all ``steps``.
+        Seconds the whole adaptation may take (folds included): no step after the first
+        ``min_steps`` starts after them. None: all ``steps``.
     crop : int
         Side of the window the adaptation works on, LR px (:func:`crop_box`).
     patience : int, optional
         Stop once this many checks in a row found no better weights (:data:`PATIENCE`). None:
         make all ``steps`` (unless the budget stops them).
+    min_steps : int, optional
+        Steps made whatever the clock says (default :data:`MIN_STEPS`).
 
     Returns
     -------
@@ -324,6 +335,7 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
         None where fewer than two frames besides the reference carry weight in the window.
     """
     started = time.perf_counter()
+    min_steps = MIN_STEPS if min_steps is None else min_steps
     frames, positions, weights = crop_samples(frames, positions, weights, crop_box(frames[reference], crop))
     usable = [bool(weights[k].sum() > 0) for k in range(len(frames))]
     groups = folds_of(len(frames), reference, usable)
@@ -361,7 +373,7 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
     best_state, best_step, taken, out_of_time = None, 0, 0, False
     optimiser = Adam(tail.parameters(), lr=LEARNING_RATE)
     for step in range(1, steps + 1):
-        if budget_s is not None and time.perf_counter() - started > budget_s:
+        if budget_s is not None and step > min_steps and time.perf_counter() - started > budget_s:
             out_of_time = True
             break
         y0 = int(torch.randint(0, rows - size[0] + 1, (1,), generator=generator))
