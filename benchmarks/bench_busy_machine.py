@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # (as when run as a script: benchmarks/ first)
-from bench_handheld import ROOT, run_child  # noqa: E402
+from bench_handheld import ROOT, parse_size, run_child  # noqa: E402
 
 OTHER_JOB = ("import time, torch\na = torch.rand(1500, 1500)\nt = time.time()\n"
              "while time.time() - t < 3600:\n    a @ a\n")
@@ -52,29 +52,34 @@ def timed_runs(path: Path, threads: int | None, repeats: int) -> list[float]:
     return out
 
 
+def problem_with(args) -> str | None:
+    """The line that refuses ``args`` (None: they are good), before any work."""
+    try:
+        args.width, args.height = parse_size(args.size)
+    except ValueError:
+        return f"--size takes WxH of 64 px or more each way, got {args.size!r}"
+    if min(args.width, args.height) < 64:
+        return f"--size takes WxH of 64 px or more each way, got {args.size!r}"
+    if args.repeats < 1:
+        return "--repeats must be 1 or more"
+    for flag, folder in (("--cache", args.cache), ("--json", args.json and args.json.parent)):
+        if folder is not None and not folder.is_dir():
+            return f"{flag} {folder}: the folder does not exist"
+    return None
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--size", default="640x480", help="frames' WxH (default 640x480)")
     p.add_argument("--repeats", type=int, default=3, help="fresh processes per setting, the median kept (default 3)")
-    p.add_argument("--cache", type=Path, help="folder of rendered bursts (bench_handheld.py's names), reused")
+    p.add_argument("--size", default="640x480", help="frames' WxH (default 640x480)")
     p.add_argument("--json", type=Path, help="write the results here (atomically)")
+    p.add_argument("--cache", type=Path, help="folder of rendered bursts (bench_handheld.py's names), reused")
     args = p.parse_args(argv)
-    try:
-        w, h = (int(v) for v in args.size.lower().split("x"))
-    except ValueError:
-        w = h = 0
-    problem = None
-    if min(w, h) < 64:
-        problem = f"--size takes WxH of 64 px or more each way, got {args.size!r}"
-    elif args.repeats < 1:
-        problem = "--repeats must be 1 or more"
-    elif args.cache is not None and not args.cache.is_dir():
-        problem = f"--cache {args.cache}: the folder does not exist"
-    elif args.json is not None and not args.json.parent.is_dir():
-        problem = f"--json {args.json}: the folder does not exist"
+    problem = problem_with(args)
     if problem:
         print(f"bench_busy_machine: {problem}", file=sys.stderr)
         return 2
+    w, h = args.width, args.height
     folder = args.cache or Path(os.environ.get("TMPDIR", "/tmp"))
     path = folder / f"handheld_all_{w}x{h}_S2_F16_seed0.npy"
     if not path.exists():
