@@ -30,15 +30,13 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # (as when run as a script: benchmarks/ first)
-from bench_handheld import ROOT, parse_size, run_child  # noqa: E402
-
 OTHER_JOB = ("import time, torch\na = torch.rand(1500, 1500)\nt = time.time()\n"
              "while time.time() - t < 3600:\n    a @ a\n")
 
 
 def timed_runs(path: Path, threads: int | None, repeats: int) -> list[float]:
     """Seconds to the end of classical of ``repeats`` fresh processes (``threads``: OMP_NUM_THREADS)."""
+    from bench_handheld import run_child  # benchmarks/ is the script's folder
     if threads is None:
         os.environ.pop("OMP_NUM_THREADS", None)
     else:
@@ -54,12 +52,10 @@ def timed_runs(path: Path, threads: int | None, repeats: int) -> list[float]:
 
 def problem_with(args) -> str | None:
     """The line that refuses ``args`` (None: they are good), before any work."""
-    try:
-        args.width, args.height = parse_size(args.size)
-    except ValueError:
+    size = args.size.lower().split("x")
+    if len(size) != 2 or not all(v.isdigit() for v in size) or min(int(v) for v in size) < 64:
         return f"--size takes WxH of 64 px or more each way, got {args.size!r}"
-    if min(args.width, args.height) < 64:
-        return f"--size takes WxH of 64 px or more each way, got {args.size!r}"
+    args.width, args.height = (int(v) for v in size)
     if args.repeats < 1:
         return "--repeats must be 1 or more"
     for flag, folder in (("--cache", args.cache), ("--json", args.json and args.json.parent)):
@@ -80,6 +76,7 @@ def main(argv=None) -> int:
         print(f"bench_busy_machine: {problem}", file=sys.stderr)
         return 2
     w, h = args.width, args.height
+    from bench_handheld import ROOT  # benchmarks/ is the script's folder
     folder = args.cache or Path(os.environ.get("TMPDIR", "/tmp"))
     path = folder / f"handheld_all_{w}x{h}_S2_F16_seed0.npy"
     if not path.exists():

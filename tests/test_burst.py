@@ -337,3 +337,23 @@ def test_the_learned_method_is_blended_as_the_classical_one():
     from hbis_torch.reconstruct.learned.burst import learned_burst
 
     assert learned_burst.fill_blend_to == classical_burst.fill_blend_to == 2
+
+
+def test_assemble_runs_on_the_threads_asked_and_gives_them_back(tmp_path, monkeypatch, capsys):
+    import torch
+
+    import hbis_torch.capture.burst as capture_burst
+
+    tifffile.imwrite(tmp_path / "frames.tif", _burst(count=4).frames, photometric="minisblack")
+    seen, plain = [], capture_burst.assemble_burst
+    monkeypatch.setattr(capture_burst, "assemble_burst",
+                        lambda *a, **k: seen.append(torch.get_num_threads()) or plain(*a, **k))
+    before = torch.get_num_threads()
+    args = ["-q", "assemble", "--burst", "--scale", "2", "--out", str(tmp_path / "b.tif"), str(tmp_path / "frames.tif")]
+    assert main(args + ["--threads", "1"]) == 0
+    assert seen == [1] and torch.get_num_threads() == before
+    many = ["assemble", "--burst", "--scale", "2", "--out-dir", str(tmp_path / "many"), "--threads", "1",
+            str(tmp_path / "frames.tif")]
+    capsys.readouterr()
+    assert main(many) == 2 and "--threads is for one input" in capsys.readouterr().err
+    assert not (tmp_path / "many").exists()

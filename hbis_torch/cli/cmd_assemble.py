@@ -68,6 +68,9 @@ def register(sub) -> None:
     p.add_argument("--black-level", type=bounded_float(0.0, 65535.0), help="digital number of black (default 0)")
     p.add_argument("--cfa", type=str.upper, choices=CFA_PATTERNS,
                    help="raw Bayer frames: the colour filter pattern of the top-left 2 x 2 pixels")
+    p.add_argument("--threads", type=bounded_int(1, 1024), default=None,
+                   help="threads for torch (default: every CPU this process may use); where other jobs hold "
+                   "the cores, one runs faster, as idle threads no longer wait on busy ones (docs/real-bursts.md)")
     add_calibration_args(p)
     add_system_args(p)
     add_system_file_args(p)
@@ -82,8 +85,23 @@ def register(sub) -> None:
 def run(args) -> int:
     from hbis_torch.cli.many import run_many
 
+    if args.threads is not None and args.out_dir is not None:
+        raise HbisInputError("--threads is for one input: with --out-dir each burst runs on one thread")
     if (code := run_many(args, "assemble")) is not None:  # many bursts, --out-dir (hbis_torch.cluster)
         return code
+    import torch
+
+    before = torch.get_num_threads()
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    try:
+        return run_burst(args) if args.burst else run_scan(args)
+    finally:
+        torch.set_num_threads(before)
+
+
+def run_scan(args) -> int:
+    """``hbis assemble --phases``: a Risley scan's frames -> a scan stack."""
     from hbis_torch.capture import (
         assemble_stack,
         frames_roi,
@@ -96,8 +114,6 @@ def run(args) -> int:
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import write_stack
 
-    if args.burst:
-        return run_burst(args)
     if args.phases is None:
         raise HbisInputError("--phases is required (the phases file of 'hbis motors scan --out'), "
                          "unless the frames are a burst (--burst --scale S)")
