@@ -11,8 +11,8 @@ The burst is bench_handheld.py's (:func:`hbis_torch.training.handheld_render.ren
 run: the machine idle or beside the *other job* (a process multiplying 1500 x 1500 float32
 matrices with torch's default threads, as another reconstruction or a training would keep the
 cores busy, started before those runs and stopped after them), each with torch's default threads
-(one a core) and with one (``OMP_NUM_THREADS=1``, what ``hbis reconstruct --threads 1`` sets for
-the reconstruction). The median of ``--repeats`` runs of each; the ratios to the idle machine's
+(one a core) and with one (``OMP_NUM_THREADS=1``, as ``--threads 1`` of ``hbis assemble`` and of
+``hbis reconstruct`` runs them). The median of ``--repeats`` runs of each; the ratios to the idle machine's
 default are printed.
 
 torch's CPU kernels run in OpenMP threads that spin while they wait for each other; beside

@@ -16,8 +16,8 @@ def bench():
     return module
 
 
-@pytest.mark.parametrize("argv", [["--size", "640"], ["--size", "32x32"], ["--repeats", "0"],
-                                  ["--cache", "/nonexistent/folder"], ["--json", "/nonexistent/folder/busy.json"], ["--size", "axb"]])
+@pytest.mark.parametrize("argv", [["--size", "640"], ["--size", "32x32"], ["--size", "axb"], ["--repeats", "0"],
+                                  ["--cache", "/nonexistent/folder"], ["--json", "/nonexistent/folder/busy.json"]])
 def test_bad_input_is_refused_before_any_work(bench, argv, capsys):
     assert bench.main(argv) == 2  # (before bench_handheld, which runs the bursts, is imported)
     err = capsys.readouterr().err.strip().splitlines()

@@ -349,9 +349,14 @@ def test_assemble_runs_on_the_threads_asked_and_gives_them_back(tmp_path, monkey
     monkeypatch.setattr(capture_burst, "assemble_burst",
                         lambda *a, **k: seen.append(torch.get_num_threads()) or plain(*a, **k))
     before = torch.get_num_threads()
-    args = ["-q", "assemble", "--burst", "--scale", "2", "--out", str(tmp_path / "b.tif"), str(tmp_path / "frames.tif")]
-    assert main(args + ["--threads", "1"]) == 0
-    assert seen == [1] and torch.get_num_threads() == before
+    torch.set_num_threads(2)  # (so that one thread, and giving two back, are each a change the test sees)
+    try:
+        args = ["-q", "assemble", "--burst", "--scale", "2", "--out", str(tmp_path / "b.tif"),
+                str(tmp_path / "frames.tif")]
+        assert main(args + ["--threads", "1"]) == 0
+        assert seen == [1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
     many = ["assemble", "--burst", "--scale", "2", "--out-dir", str(tmp_path / "many"), "--threads", "1",
             str(tmp_path / "frames.tif")]
     capsys.readouterr()
