@@ -10,6 +10,15 @@ development machine, under load (so the times are on the slow side):
 - ``hbis reconstruct`` (classical and learned) of the h = 4, 256 x 256 stack: about 250 bytes and
   3e-5 s per frame pixel, plus about 300 MiB.
 
+A burst stack (``hbis assemble --burst``) goes through a path of its own, which streams its frames
+and, at large sizes, never holds every sample's position: its estimates
+(:func:`estimate_assemble_burst`, :func:`estimate_reconstruct_burst`) have terms of their own,
+measured with ``benchmarks/bench_burst_budget.py`` (the hbis program on 16-frame bursts of
+640 x 480 and 4000 x 3000 px, grey and RGB, at S = 2 and 4), which prints each estimate beside
+the peak and the seconds it measured. (The scan stack's 250 bytes per frame pixel had put a 16-frame
+12 MP burst at 45 GiB, 134 GiB in colour, where it peaks at about 5 and 7: refused on a machine
+of 24 GB.)
+
 They are meant to tell 1 GB from 40 GB before starting, not to the nearest 10 %.
 """
 
@@ -65,6 +74,60 @@ def estimate_reconstruct(frames: int, width: int, height: int, channels: int = 1
     """``hbis reconstruct`` of a stack of ``frames`` frames of ``width`` x ``height`` (x channels)."""
     return _linear(f"reconstructing {frames} frames of {width} x {height} px", _RECONSTRUCT,
                    frames * width * height * channels)
+
+
+# A burst's reconstruct (bytes, seconds; F x H x W frame pixels, S^2 x H x W output pixels per channel):
+# the libraries; per frame pixel (the frames and their weights in float32, a piece of positions at
+# a time); per frame pixel where the lattice's batches are kept for the splat's second pass (bursts
+# of up to hbis_torch.reconstruct.classical.sr.KEEP_SAMPLES samples); per frame pixel of each
+# channel beyond the first; per output pixel where the lattice's holes are fitted (up to
+# hbis_torch.reconstruct.classical.lattice_fit.MAX_FIT_NODES nodes: its normal equations); the
+# learned method's own (the adaptation's window and the network's tiles, and its output).
+_BURST_BASE = (300 * MiB, 2.0)
+_BURST_PER_FRAME_PIXEL = (20, 1.3e-7)
+_BURST_KEPT_PER_FRAME_PIXEL = 24
+_BURST_PER_EXTRA_CHANNEL_PIXEL = (6, 0.65e-7)
+_BURST_FITTED_PER_OUTPUT_PIXEL = (145, 3e-7)
+_BURST_LEARNED = (100 * MiB, 8)  # bytes, and bytes per output pixel and channel; its time: 1.5 x + 2 s
+# A burst's assemble: the libraries; per frame pixel its float32 frames, their luminance and the
+# registration's pyramids; per byte of the frames as decoded (bytes, seconds: decoding them).
+_ASSEMBLE_BURST = (300 * MiB, 2.0)
+_ASSEMBLE_BURST_PER_FRAME_PIXEL = (12.5, 6e-8)
+_ASSEMBLE_BURST_PER_DECODED_BYTE = (1, 1e-8)
+
+
+def estimate_reconstruct_burst(frames: int, width: int, height: int, channels: int = 1, scale: int = 2,
+                               method: str = "classical") -> Estimate:
+    """``hbis reconstruct`` of a burst stack of ``frames`` frames of ``width`` x ``height`` px
+    (x ``channels``) at scale ``scale``, by ``method`` (the learned method adds its network's
+    share; any other method is estimated as the classical one)."""
+    from hbis_torch.reconstruct.classical.lattice_fit import MAX_FIT_NODES
+    from hbis_torch.reconstruct.classical.sr import KEEP_SAMPLES
+
+    samples, nodes = frames * width * height, scale * scale * width * height
+    memory, seconds = _BURST_BASE
+    memory += samples * (_BURST_PER_FRAME_PIXEL[0] + (_BURST_KEPT_PER_FRAME_PIXEL if samples <= KEEP_SAMPLES else 0)
+                         + (channels - 1) * _BURST_PER_EXTRA_CHANNEL_PIXEL[0])
+    seconds += samples * (_BURST_PER_FRAME_PIXEL[1] + (channels - 1) * _BURST_PER_EXTRA_CHANNEL_PIXEL[1])
+    if nodes <= MAX_FIT_NODES:
+        memory += nodes * _BURST_FITTED_PER_OUTPUT_PIXEL[0]
+        seconds += nodes * channels * _BURST_FITTED_PER_OUTPUT_PIXEL[1]
+    if method == "learned":
+        memory += _BURST_LEARNED[0] + _BURST_LEARNED[1] * nodes * channels
+        seconds = 1.5 * seconds + 2.0
+    colour = " (RGB)" if channels == 3 else ""
+    return Estimate(f"reconstructing a burst of {frames} frames of {width} x {height} px{colour} at S = {scale}",
+                    int(memory), seconds)
+
+
+def estimate_assemble_burst(decoded_bytes: int, frame_pixels: int) -> Estimate:
+    """``hbis assemble --burst``: the frames as decoded (``decoded_bytes``), and per frame pixel
+    (``frame_pixels``, all frames') what the registration holds."""
+    (memory, seconds), per_pixel, per_byte = (_ASSEMBLE_BURST, _ASSEMBLE_BURST_PER_FRAME_PIXEL,
+                                              _ASSEMBLE_BURST_PER_DECODED_BYTE)
+    return Estimate(f"assembling a burst of {decoded_bytes / MiB:.0f} MiB of frames",
+                    int(memory + per_pixel[0] * frame_pixels + per_byte[0] * decoded_bytes),
+                    seconds + per_pixel[1] * frame_pixels + per_byte[1] * decoded_bytes)
 
 
 def estimate_assemble(decoded_bytes: int, frame_pixels: int, calibrated: bool) -> Estimate:

@@ -61,3 +61,42 @@ def test_assemble_is_estimated_from_the_frame_headers(tmp_path, capsys, monkeypa
     assert "assembling 0 MiB of frames would need about" in capsys.readouterr().err
     assert not (tmp_path / "s.tif").exists()
     assert main([*argv, "--force"]) == 0 and (tmp_path / "s.tif").exists()
+
+
+def test_a_burst_is_estimated_by_its_own_path():
+    """A 16-frame 12 MP burst peaks at about 5 GB through the hbis program (7 in colour:
+    benchmarks/results/bench_burst_budget.json); the scan stack's terms put it at 45 GiB, past a
+    24 GB machine. The burst's estimate stays within a few GiB of that and grows with what grows
+    the work."""
+    GiB = 2**30
+    grey = budget.estimate_reconstruct_burst(16, 4000, 3000, 1, 2)
+    rgb = budget.estimate_reconstruct_burst(16, 4000, 3000, 3, 2)
+    assert 3 * GiB < grey.memory_bytes < 6 * GiB < rgb.memory_bytes < 9 * GiB
+    assert budget.estimate_reconstruct(16, 4000, 3000).memory_bytes > 40 * GiB  # what it was estimated by
+    vga = budget.estimate_reconstruct_burst(16, 640, 480)
+    assert 0.5 * GiB < vga.memory_bytes < budget.estimate_reconstruct_burst(16, 640, 480, scale=4).memory_bytes
+    learned = budget.estimate_reconstruct_burst(16, 640, 480, method="learned")
+    assert learned.memory_bytes > vga.memory_bytes and learned.seconds > vga.seconds
+    assemble = budget.estimate_assemble_burst(16 * 4000 * 3000 * 2, 16 * 4000 * 3000)
+    assert 2 * GiB < assemble.memory_bytes < 4 * GiB
+
+
+def test_burst_commands_are_refused_before_any_work_and_run_with_force(tmp_path, capsys, monkeypatch, caplog):
+    import logging
+
+    import tifffile
+    from test_burst import _burst
+
+    tifffile.imwrite(tmp_path / "frames.tif", _burst(count=4).frames, photometric="minisblack")
+    stack, out = tmp_path / "burst.tif", tmp_path / "sr.tif"
+    assemble = ["assemble", "--burst", "--scale", "2", "--out", str(stack), str(tmp_path / "frames.tif")]
+    reconstruct = ["reconstruct", str(stack), "--method", "classical", "--out", str(out)]
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 2**20)
+    assert main(["-q", *assemble]) == 2 and not stack.exists()
+    assert "assembling a burst of 0 MiB of frames would need about" in capsys.readouterr().err
+    assert main(["-q", *assemble, "--force"]) == 0 and stack.exists()
+    assert main(["-q", *reconstruct]) == 2 and not out.exists()
+    assert "reconstructing a burst of 4 frames of 40 x 40 px at S = 2 would need" in capsys.readouterr().err
+    with caplog.at_level(logging.INFO, logger="hbis_torch"):
+        assert main([*reconstruct, "--force", "-v"]) == 0 and out.exists()
+    assert "running anyway (--force)" in caplog.text

@@ -174,6 +174,13 @@ def run_burst(args) -> int:
         stack, messages = assemble_raw_burst(args.frames, args.scale, args.reference, args.motion, roi=args.roi,
                                              bit_depth=args.bit_depth)
     else:
+        from hbis_torch.budget import check_budget, estimate_assemble_burst
+        from hbis_torch.capture.frames import probe_frames
+
+        declared, _, _ = probe_frames(args.frames)  # headers only: too large is refused before decoding
+        count = declared.count or 1  # (a video that does not say how many: its first frame's worth at least)
+        check_budget(estimate_assemble_burst(count * declared.frame_bytes, count * math.prod(declared.shape[:2])),
+                     args.force)
         frames, names = read_frames(args.frames)
         stack, messages = assemble_burst(frames, args.scale, args.reference, args.motion, roi=args.roi,
                                          bit_depth=args.bit_depth, names=names)

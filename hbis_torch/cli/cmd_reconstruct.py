@@ -131,10 +131,18 @@ def reconstruct_one(args, path: Path, prepared: tuple, threads: int | None = Non
 
     kw, calibration = prepared
     stack = read_stack(path)
-    from hbis_torch.budget import check_budget, estimate_reconstruct
+    from hbis_torch.budget import check_budget, estimate_reconstruct, estimate_reconstruct_burst
 
     f = stack.frames
-    check_budget(estimate_reconstruct(f.shape[0], f.shape[2], f.shape[1], f.shape[3] if f.ndim == 4 else 1), args.force)
+    channels = f.shape[3] if f.ndim == 4 else 1
+    if stack.kind == "burst":
+        estimate = estimate_reconstruct_burst(f.shape[0], f.shape[2], f.shape[1], channels, stack.h, args.method)
+    else:
+        estimate = estimate_reconstruct(f.shape[0], f.shape[2], f.shape[1], channels)
+    check_budget(estimate, args.force)
+    from hbis_torch.cli import map_large_arrays
+
+    map_large_arrays(f.size)
     if calibration:
         from hbis_torch.capture.calibration import calibrate_stack
 
