@@ -104,6 +104,28 @@ def test_the_program_keeps_freed_memory_for_the_next_array():
     assert float(grown["keep"]) > 120 and float(grown["default"]) < 20
 
 
+MAPS = """
+import sys, numpy as np
+from hbis_torch.cli import LARGE_JOB_SAMPLES, keep_freed_memory, map_large_arrays
+keep_freed_memory()
+small, large = map_large_arrays(LARGE_JOB_SAMPLES), map_large_arrays(LARGE_JOB_SAMPLES + 1)
+def rss(): return int(open("/proc/self/statm").read().split()[1]) * 4096 / 2**20
+before = rss()
+block = np.ones(2**25, np.float32)  # 128 MB
+del block
+print(small, large, map_large_arrays(LARGE_JOB_SAMPLES + 1), rss() - before)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc", reason="glibc only")
+def test_a_large_job_maps_its_large_arrays_again():
+    """A job past LARGE_JOB_SAMPLES gives its large blocks back when freed (map_large_arrays),
+    once; a smaller one leaves the program's kept memory as it is."""
+    run = subprocess.run([sys.executable, "-c", MAPS], capture_output=True, text=True, check=True)
+    small, large, again, grown = run.stdout.split()
+    assert (small, large, again) == ("False", "True", "False") and float(grown) < 20, run.stdout
+
+
 def test_a_closed_pipe_ends_quietly():
     read, write = os.pipe()
     os.close(read)  # the reader is gone before the first byte

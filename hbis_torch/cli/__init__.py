@@ -237,7 +237,25 @@ def main(argv: list[str] | None = None) -> int:
 
 
 # glibc's mallopt parameters (<malloc.h>)
-_M_TRIM_THRESHOLD, _M_MMAP_MAX = -1, -4
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD, _M_MMAP_MAX = -1, -3, -4
+# Jobs of more samples than this (frames x pixels x channels) map their large blocks fresh again
+# (:func:`map_large_arrays`): 16 frames of 12 MP are 192M, of 640 x 480 5M, a full h = 7 scan 60M.
+LARGE_JOB_SAMPLES = 1 << 27
+# The block size from which :func:`map_large_arrays` maps blocks: glibc's own largest threshold.
+LARGE_BLOCK_BYTES = 32 * 2**20
+_kept = {"freed": False}
+
+
+def _mallopt():
+    """glibc's ``mallopt`` through ctypes, or None (macOS, Windows, musl)."""
+    try:
+        import ctypes
+
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError, TypeError):
+        return None
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    return mallopt
 
 
 def keep_freed_memory() -> bool:
@@ -249,21 +267,46 @@ def keep_freed_memory() -> bool:
     memory of one step serves the next: a full-frame learned reconstruct at h = 7 spent 0.85-0.96 s
     of system time against 2.13-2.16 s, and took 9.16-9.28 s against 10.05-10.32 s (2 cores, a
     VM); its peak RSS stayed under 2 GB. The process keeps its peak until it exits, which is why only
-    the ``hbis`` program asks for this (:func:`entry_point`), not :func:`main` or the library.
+    the ``hbis`` program asks for this (:func:`entry_point`), not :func:`main` or the library; a
+    job too large to gain from it maps its large blocks again (:func:`map_large_arrays`).
 
     Returns
     -------
     bool
         Whether it applied: False without glibc's ``mallopt`` (macOS, Windows, musl).
     """
-    try:
-        import ctypes
-
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError, TypeError):
+    mallopt = _mallopt()
+    if mallopt is None:
         return False
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    return bool(mallopt(_M_MMAP_MAX, 0)) and bool(mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
+    _kept["freed"] = bool(mallopt(_M_MMAP_MAX, 0)) and bool(mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
+    return _kept["freed"]
+
+
+def map_large_arrays(samples: int) -> bool:
+    """Where the program keeps freed memory (:func:`keep_freed_memory`) and a job holds more than
+    :data:`LARGE_JOB_SAMPLES` samples, serve blocks of :data:`LARGE_BLOCK_BYTES` or more as fresh
+    mappings again, returned to the system when freed. Kept in the heap, the arrays of a 16-frame
+    12 MP burst's classical reconstruct (hundreds of MB each) raised its peak by about a GB for a
+    sixth less time: 5.1 against 4.0 GiB (29.5 against 34.9 s), in RGB 6.5 against 5.5 GiB, past
+    the 6 GB such a burst should fit in (``/usr/bin/time hbis reconstruct``, one thread, the burst
+    of benchmarks/bench_burst_budget.py); their page faults are a small share of their work.
+
+    Parameters
+    ----------
+    samples : int
+        The job's frames x pixels x channels.
+
+    Returns
+    -------
+    bool
+        Whether it changed anything.
+    """
+    if not _kept["freed"] or samples <= LARGE_JOB_SAMPLES:
+        return False
+    mallopt = _mallopt()
+    applied = bool(mallopt(_M_MMAP_THRESHOLD, LARGE_BLOCK_BYTES)) and bool(mallopt(_M_MMAP_MAX, 65536))
+    _kept["freed"] = not applied
+    return applied
 
 
 def entry_point():
