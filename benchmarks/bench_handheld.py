@@ -9,7 +9,7 @@ here and saved (``--cache DIR`` keeps it for the next run; ``--colour`` saves it
 channels the grey frames times :data:`COLOUR_GAINS`: the timing and memory of a colour burst,
 whose three channels the classical method reconstructs one by one); then fresh processes (so
 that imports and first calls count as a user's ``hbis assemble`` + ``hbis reconstruct`` would)
-run, each timed from its own start:
+run, each timed from its own start, glibc's malloc set as the hbis program sets it (``--allocator``):
 
 * a 32 x 32 burst of the same frames' corner: assemble + classical (the *start-up*: imports, first
   calls), ``--repeats`` times, the fastest;
@@ -52,9 +52,13 @@ START = 32  # side of the start-up burst
 COLOUR_GAINS = (1.0, 0.9, 0.75)  # --colour: each channel the grey frame times its gain
 
 
-def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: float) -> None:
+def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: float, allocator: str) -> None:
     """Run in a fresh process: time what the module docstring says; print one JSON line."""
     t0 = time.perf_counter()
+    if allocator == "hbis":  # first, as the hbis program does
+        from hbis_torch.cli import keep_freed_memory
+
+        keep_freed_memory()
     if max_gb > 0:  # on a shared machine a run that would take all memory fails alone (MemoryError)
         limit = int(max_gb * 2**30)
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
@@ -70,6 +74,10 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: 
     t = time.perf_counter()
     stack, messages = assemble_burst(frames, scale)
     out["assemble_s"] = time.perf_counter() - t
+    if allocator == "hbis":  # as hbis reconstruct does once it has read the stack
+        from hbis_torch.cli import map_large_arrays
+
+        map_large_arrays(stack.frames.size)
     t = time.perf_counter()
     reconstruct(stack, "classical")
     out["classical_s"] = time.perf_counter() - t
@@ -112,9 +120,10 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: 
     print("RESULT " + json.dumps(out), flush=True)
 
 
-def run_child(path: Path, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: float = 0) -> dict:
+def run_child(path: Path, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: float = 0,
+              allocator: str = "hbis") -> dict:
     cmd = [sys.executable, __file__, "--child", str(path), "--scale", str(scale), "--mode", mode,
-           "--max-gb", str(max_gb)]
+           "--max-gb", str(max_gb), "--allocator", allocator]
     cmd += ["--no-learned"] * (not learned) + ["--no-vidsr"] * (not vidsr)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     done = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -160,6 +169,10 @@ def main(argv=None) -> int:
                    "keeps the time beside the floor's (one FFT worker) from the cost of contended threads")
     p.add_argument("--colour", action="store_true", help="RGB frames (the grey burst's channels times "
                    f"{COLOUR_GAINS}): a colour burst's time and memory")
+    p.add_argument("--allocator", choices=("hbis", "default"), default="hbis", help="glibc malloc's settings in "
+                   "each burst's process: hbis (the default) as the hbis program sets them (freed memory kept in the "
+                   "heap, hbis_torch.cli.keep_freed_memory; a large burst's large arrays mapped, map_large_arrays); "
+                   "default leaves glibc's own (the library called from another program)")
     p.add_argument("--no-learned", action="store_true")
     p.add_argument("--no-vidsr", action="store_true")
     p.add_argument("--json", type=Path, help="write the results here (atomically)")
@@ -169,7 +182,7 @@ def main(argv=None) -> int:
     p.add_argument("--mode", default="full", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.child:
-        child(args.child, args.scale, args.mode, not args.no_learned, not args.no_vidsr, args.max_gb)
+        child(args.child, args.scale, args.mode, not args.no_learned, not args.no_vidsr, args.max_gb, args.allocator)
         return 0
     try:
         sizes = sorted((parse_size(s) for s in args.sizes), key=lambda wh: wh[0] * wh[1])
@@ -215,9 +228,11 @@ def main(argv=None) -> int:
             small = w * h <= 1_000_000
             repeats = args.repeats if small else 1
             row["parent_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-            row["start_runs"] = [run_child(path, args.scale, "start", False, False) for _ in range(args.repeats)]
+            row["start_runs"] = [run_child(path, args.scale, "start", False, False, allocator=args.allocator)
+                                 for _ in range(args.repeats)]
             row["full_runs"] = [run_child(path, args.scale, "full", small and not args.no_learned and i == 0,
-                                          small and not args.no_vidsr and i == 0, args.max_gb) for i in range(repeats)]
+                                          small and not args.no_vidsr and i == 0, args.max_gb, args.allocator)
+                                for i in range(repeats)]
             row["start"], row["full"] = (fastest(row["start_runs"]), fastest(row["full_runs"]))
             full, start = row["full"], row["start"]
             if "failed" not in full and "failed" not in start:
@@ -239,7 +254,7 @@ def main(argv=None) -> int:
     if args.json is not None:
         from hbis_torch.provenance import write_results
 
-        write_results(args.json, {"rows": rows, "threads": args.threads or "default",
+        write_results(args.json, {"rows": rows, "threads": args.threads or "default", "allocator": args.allocator,
                                   "load_average_1_5_15_min": {"before": load_before, "after": os.getloadavg()}},
                       argv=sys.argv[1:] if argv is None else argv)
     for r in rows:
