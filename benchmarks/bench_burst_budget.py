@@ -14,7 +14,8 @@ process at its end) and wall seconds are printed beside :mod:`hbis_torch.budget`
 the same job (:func:`~hbis_torch.budget.estimate_assemble_burst`,
 :func:`~hbis_torch.budget.estimate_reconstruct_burst`) and the ratio estimated / measured, which
 the estimates are meant to keep between about 0.7 and 2 (they tell 1 GB from 40 GB before any
-work, not the nearest 10 %). ``--threads`` sets OMP_NUM_THREADS (default 1: the memory does not
+work, not the nearest 10 %), and what the scan stack's terms, which bursts were estimated by
+before they had their own, said of the reconstruct. ``--threads`` sets OMP_NUM_THREADS (default 1: the memory does not
 depend on it, and one thread keeps the seconds from a busy machine's contention).
 
 ``--cache DIR`` keeps the rendered bursts (a 12 MP one takes a minute or two to render).
@@ -101,7 +102,7 @@ def run_hbis(argv: list[str], threads: int) -> dict:
 
 def run_case(case: str, folder: Path, work: Path, threads: int) -> dict:
     """Assemble and reconstruct one case's burst; measured and estimated, side by side."""
-    from hbis_torch.budget import estimate_assemble_burst, estimate_reconstruct_burst
+    from hbis_torch.budget import estimate_assemble_burst, estimate_reconstruct, estimate_reconstruct_burst
 
     width, height, colour, scale, method = parse_case(case)
     frames = burst_file(folder, width, height, colour)
@@ -116,6 +117,8 @@ def run_case(case: str, folder: Path, work: Path, threads: int) -> dict:
     pixels = FRAMES * width * height
     estimates = {"assemble": estimate_assemble_burst(pixels * channels * 2, pixels),
                  "reconstruct": estimate_reconstruct_burst(FRAMES, width, height, channels, scale, method)}
+    # what the scan stack's terms, which every stack was estimated by before bursts had their own, said
+    row["reconstruct"]["as_scan_estimated_mib"] = estimate_reconstruct(FRAMES, width, height, channels).memory_bytes / 2**20
     for step, estimate in estimates.items():
         measured = row[step]
         measured["estimated_mib"] = estimate.memory_bytes / 2**20
