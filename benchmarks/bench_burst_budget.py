@@ -118,7 +118,8 @@ def run_case(case: str, folder: Path, work: Path, threads: int) -> dict:
     estimates = {"assemble": estimate_assemble_burst(pixels * channels * 2, pixels),
                  "reconstruct": estimate_reconstruct_burst(FRAMES, width, height, channels, scale, method)}
     # what the scan stack's terms, which every stack was estimated by before bursts had their own, said
-    row["reconstruct"]["as_scan_estimated_mib"] = estimate_reconstruct(FRAMES, width, height, channels).memory_bytes / 2**20
+    as_scan = estimate_reconstruct(FRAMES, width, height, channels)
+    row["reconstruct"]["as_scan_estimated_mib"] = as_scan.memory_bytes / 2**20
     for step, estimate in estimates.items():
         measured = row[step]
         measured["estimated_mib"] = estimate.memory_bytes / 2**20
