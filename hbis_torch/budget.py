@@ -16,8 +16,8 @@ and, at large sizes, never holds every sample's position: its estimates
 measured with ``benchmarks/bench_burst_budget.py`` (the hbis program on 16-frame bursts of
 640 x 480 and 4000 x 3000 px, grey and RGB, at S = 2 and 4), which prints each estimate beside
 the peak and the seconds it measured. (The scan stack's 250 bytes per frame pixel had put a 16-frame
-12 MP burst at 45 GiB, 134 GiB in colour, where it peaks at about 5 and 7: refused on a machine
-of 24 GB.)
+12 MP burst at 45 GiB, 134 GiB in colour, where the program peaks at about 4 and 5.5 GiB: refused
+on a machine of 24 GB.)
 
 They are meant to tell 1 GB from 40 GB before starting, not to the nearest 10 %.
 """

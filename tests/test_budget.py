@@ -64,10 +64,10 @@ def test_assemble_is_estimated_from_the_frame_headers(tmp_path, capsys, monkeypa
 
 
 def test_a_burst_is_estimated_by_its_own_path():
-    """A 16-frame 12 MP burst peaks at about 5 GB through the hbis program (7 in colour:
+    """A 16-frame 12 MP burst peaks at about 4 GiB through the hbis program (5.5 in colour:
     benchmarks/results/bench_burst_budget.json); the scan stack's terms put it at 45 GiB, past a
-    24 GB machine. The burst's estimate stays within a few GiB of that and grows with what grows
-    the work."""
+    24 GB machine. The burst's estimate stays near what was measured and grows with what grows the
+    work."""
     GiB = 2**30
     grey = budget.estimate_reconstruct_burst(16, 4000, 3000, 1, 2)
     rgb = budget.estimate_reconstruct_burst(16, 4000, 3000, 3, 2)

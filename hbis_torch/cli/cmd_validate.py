@@ -83,6 +83,9 @@ def run(args) -> int:
     from hbis_torch.validate.score import DEFAULT_BORDER_PX
 
     stack = read_stack(args.stack)
+    from hbis_torch.cli import map_large_arrays
+
+    map_large_arrays(stack.frames.size)  # as hbis reconstruct: a large stack's arrays go back when freed
     count = len(stack.frames)
     holdout = min(DEFAULT_HOLDOUT, max(1, count - 1)) if args.holdout is None else args.holdout
     holdout_frames(count, stack.reference_index, holdout)  # a bad count is refused before any work
