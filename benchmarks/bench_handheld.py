@@ -70,14 +70,14 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: 
     frames = np.load(path, mmap_mode="r" if mode == "start" else None)
     if mode == "start":  # only the corner is read
         frames = np.ascontiguousarray(frames[:, :START, :START])
+    if allocator == "hbis":  # as hbis assemble and hbis reconstruct do (a large burst's large arrays mapped)
+        from hbis_torch.cli import map_large_arrays
+
+        map_large_arrays(frames.size)
     out: dict = {"import_load_s": time.perf_counter() - t0}
     t = time.perf_counter()
     stack, messages = assemble_burst(frames, scale)
     out["assemble_s"] = time.perf_counter() - t
-    if allocator == "hbis":  # as hbis reconstruct does once it has read the stack
-        from hbis_torch.cli import map_large_arrays
-
-        map_large_arrays(stack.frames.size)
     t = time.perf_counter()
     reconstruct(stack, "classical")
     out["classical_s"] = time.perf_counter() - t

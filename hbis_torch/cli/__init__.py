@@ -289,7 +289,8 @@ def map_large_arrays(samples: int) -> bool:
     12 MP burst's classical reconstruct (hundreds of MB each) raised its peak by about a GB for a
     sixth less time: 5.1 against 4.0 GiB (29.5 against 34.9 s), in RGB 6.5 against 5.5 GiB, past
     the 6 GB such a burst should fit in (``/usr/bin/time hbis reconstruct``, one thread, the burst
-    of benchmarks/bench_burst_budget.py); their page faults are a small share of their work.
+    of benchmarks/bench_burst_budget.py); their page faults are a small share of their work. ``hbis
+    assemble --burst``, ``hbis reconstruct`` and ``hbis validate`` call it once they know the job's size.
 
     Parameters
     ----------

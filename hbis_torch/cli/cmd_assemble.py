@@ -181,6 +181,9 @@ def run_burst(args) -> int:
         count = declared.count or 1  # (a video that does not say how many: its first frame's worth at least)
         check_budget(estimate_assemble_burst(count * declared.frame_bytes, count * math.prod(declared.shape[:2])),
                      args.force)
+        from hbis_torch.cli import map_large_arrays
+
+        map_large_arrays(count * math.prod(declared.shape))  # as hbis reconstruct does
         frames, names = read_frames(args.frames)
         stack, messages = assemble_burst(frames, args.scale, args.reference, args.motion, roi=args.roi,
                                          bit_depth=args.bit_depth, names=names)
