@@ -339,6 +339,36 @@ def test_the_learned_method_is_blended_as_the_classical_one():
     assert learned_burst.fill_blend_to == classical_burst.fill_blend_to == 2
 
 
+@pytest.mark.parametrize("scale, colour", [(2, False), (3, False), (2, True)])
+def test_the_learned_method_streams_the_samples_with_the_same_bits(monkeypatch, scale, colour):
+    # it takes the positions a band at a time and the weights in float32, as the classical method
+    # does (a 12 MP burst's whole positions and float64 weights are 4.5 GB): the same image, adapted
+    # to the burst or not, as from the whole arrays
+    import torch
+
+    from hbis_torch.reconstruct.learned import adapt, burst as learned
+
+    given, adapt_refiner = [], adapt.adapt_refiner
+
+    def recorded(net, frames, positions, weights, *args, **kw):  # what the adaptation is handed
+        given.append((type(positions).__name__, weights.dtype))
+        return adapt_refiner(net, frames, positions, weights, *args, **kw)
+
+    monkeypatch.setattr(adapt, "adapt_refiner", recorded)
+    frames = _burst(count=8, scale=scale, seed=3).frames
+    if colour:
+        frames = np.round(frames[..., None] * np.array([1.0, 0.8, 0.6])).astype(frames.dtype)
+    stack, _ = assemble_burst(frames, scale)
+    images = {}
+    for streams in (True, False):
+        monkeypatch.setattr(learned.learned_burst, "streams", streams)
+        learned._last.clear()  # (the adaptation is kept for the next call on the same positions)
+        images[streams] = [reconstruct(stack, "learned", adapt=adapt) for adapt in (True, False)]
+    learned._last.clear()
+    assert given == [("BurstPositions", torch.float32), ("Tensor", torch.float64)], given
+    assert all(np.array_equal(a, b) for a, b in zip(images[True], images[False]))
+
+
 def test_assemble_runs_on_the_threads_asked_and_gives_them_back(tmp_path, monkeypatch, capsys):
     import torch
 

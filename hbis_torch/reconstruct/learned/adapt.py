@@ -300,9 +300,9 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
         The refiner for ``scale`` (not changed).
     frames : Tensor, shape (F, H, W), float32 in [0, 1]
         The brightness-corrected frames.
-    positions : Tensor, shape (F, H, W, 2), float64
-        Each sample's (u, v) on the reference frame, LR px.
-    weights : Tensor, shape (F, H, W), float64 in [0, 1]
+    positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
+        Each sample's (u, v) on the reference frame, LR px (only the window's are read).
+    weights : Tensor, shape (F, H, W), float32 or float64 in [0, 1]
         The robustness weights (0: a frame left out).
     scale : int
         S.

@@ -123,3 +123,9 @@ def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, ou
 learned_burst.fill_blend_to = 2
 # Takes ``shared`` for its classical image (a colour burst's channels: classical_burst's notes).
 learned_burst.shares_samples = True
+# Takes the positions as a BurstPositions and the weights in float32, as classical_burst does: its
+# classical image reads them a band at a time and the adaptation reads its window's alone. Given
+# whole, a 16-frame 12 MP burst's positions and float64 weights were 4.5 GB, and the learned method
+# peaked at 10 GB where the classical one peaks at 4 (benchmarks/results/bench_burst_budget_*.json).
+# The same bits either way (tests/test_burst.py).
+learned_burst.streams = True
