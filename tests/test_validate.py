@@ -93,6 +93,30 @@ def test_select_frames_cuts_a_bursts_motions_and_the_rest():
     assert len(part.confidence) == len(part.gain_offset) == 3
 
 
+@pytest.mark.parametrize("cache_bytes", [None, 0])
+def test_a_folds_samples_lie_where_the_whole_bursts_do(monkeypatch, cache_bytes):
+    # a hand-held burst's local shifts are per frame too: a fold of frames 0, 2 and 3 reads frame
+    # 2's shifts for its second frame (they had stayed the whole burst's, frame 1's read there, and
+    # a burst too large to keep its positions failed on them)
+    from hbis_torch.capture.burst import assemble_burst
+    from hbis_torch.reconstruct import positions as burst_positions_module
+    from hbis_torch.simulate.burst import random_motions, simulate_burst
+
+    if cache_bytes is not None:  # each band computed when read, as for a 12 MP burst
+        monkeypatch.setattr(burst_positions_module, "CACHE_BYTES", cache_bytes)
+    rng = np.random.default_rng(4)
+    truth = rng.random((256, 256))
+    burst = simulate_burst(truth, 2, random_motions(4, (128, 128), rng, 1.5, 1.0), noise=0.005, seed=4)
+    stack, _ = assemble_burst(burst.frames, 2, motion="homography")
+    assert stack.meta.get("local_motion") is not None
+    part = select_frames(stack, [0, 2, 3])
+    assert len(part.meta["local_motion"]["offsets"]) == 3
+    whole, _ = burst_positions_module.burst_positions(stack, lazy=True)
+    fold, _ = burst_positions_module.burst_positions(part, lazy=True)
+    for k, original in enumerate((0, 2, 3)):
+        np.testing.assert_array_equal(fold[k, 10:20].numpy(), whole[original, 10:20].numpy())
+
+
 def test_holdout_frames_are_spread_and_never_the_reference():
     assert holdout_frames(16, 10, 3) == [2, 7, 13]
     assert holdout_frames(30, 0, 3) == [5, 15, 25]

@@ -28,8 +28,9 @@ def select_frames(stack, keep):
     """The stack of frames ``keep`` only, the reference frame always among them.
 
     Every per-frame entry of the JSON (:data:`PER_FRAME_KEYS` that the stack has: ``phases_deg``
-    of a scan stack; ``motions``, ``confidence``, ``motion_models``, ``gain_offset`` of a burst;
-    the simulator's ``simulation.true_phases_deg``) is cut to the same frames, and
+    of a scan stack; ``motions``, ``confidence``, ``motion_models``, ``gain_offset`` of a burst,
+    and its ``local_motion.offsets``; the simulator's ``simulation.true_phases_deg``) is cut to
+    the same frames, and
     ``reference_index`` points at the reference frame in the new order. The frames stay in the
     stack's order and keep the reference frame's grid, so a reconstruction of the subset lies on
     the same output grid as one of the whole stack.
@@ -75,6 +76,9 @@ def select_frames(stack, keep):
     simulation = meta.get("simulation")
     if isinstance(simulation, dict) and "true_phases_deg" in simulation:
         _cut(simulation, "true_phases_deg", kept, count)
+    local = meta.get("local_motion")  # a burst's local shifts, each frame's grid of tiles
+    if isinstance(local, dict) and "offsets" in local:
+        _cut(local, "offsets", kept, count)
     meta["reference_index"] = kept.index(reference)
     return type(stack)(np.ascontiguousarray(stack.frames[kept]), meta).validate("selected frames")
 
