@@ -117,6 +117,24 @@ def test_a_folds_samples_lie_where_the_whole_bursts_do(monkeypatch, cache_bytes)
         np.testing.assert_array_equal(fold[k, 10:20].numpy(), whole[original, 10:20].numpy())
 
 
+def test_a_burst_is_validated_without_every_samples_position(monkeypatch):
+    # only the held-out frames' positions are read (a 16-frame 12 MP burst's whole are 3 GB)
+    from hbis_torch.capture.burst import assemble_burst
+    from hbis_torch.reconstruct.positions import BurstPositions
+    from hbis_torch.simulate.burst import random_motions, simulate_burst
+
+    rng = np.random.default_rng(5)
+    burst = simulate_burst(rng.random((96, 96)), 2, random_motions(5, (48, 48), rng, 1.5, 1.0), noise=0.005, seed=5)
+    stack, _ = assemble_burst(burst.frames, 2)
+
+    def whole(self):
+        raise AssertionError("every sample's position was asked for")
+
+    monkeypatch.setattr(BurstPositions, "whole", whole)
+    result = cross_validate(stack, ("single-frame", "classical"), 2)
+    assert all(np.isfinite(s.psnr).all() for s in result.methods.values())
+
+
 def test_holdout_frames_are_spread_and_never_the_reference():
     assert holdout_frames(16, 10, 3) == [2, 7, 13]
     assert holdout_frames(30, 0, 3) == [5, 15, 25]
