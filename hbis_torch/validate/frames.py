@@ -30,10 +30,9 @@ def select_frames(stack, keep):
     Every per-frame entry of the JSON (:data:`PER_FRAME_KEYS` that the stack has: ``phases_deg``
     of a scan stack; ``motions``, ``confidence``, ``motion_models``, ``gain_offset`` of a burst,
     and its ``local_motion.offsets``; the simulator's ``simulation.true_phases_deg``) is cut to
-    the same frames, and
-    ``reference_index`` points at the reference frame in the new order. The frames stay in the
-    stack's order and keep the reference frame's grid, so a reconstruction of the subset lies on
-    the same output grid as one of the whole stack.
+    the same frames, and ``reference_index`` points at the reference frame in the new order. The
+    frames stay in the stack's order and keep the reference frame's grid, so a reconstruction of
+    the subset lies on the same output grid as one of the whole stack.
 
     Parameters
     ----------
