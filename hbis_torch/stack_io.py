@@ -24,7 +24,7 @@ one-line message starts with the file name and says what was wrong. Writes are a
 
 Reading checks what the TIFF headers declare (page count, each page's shape and dtype, where its
 data lies) before decoding anything: at most 256 pages (h = 16), one shape and one dtype, data
-inside the file, and no more than ``HBIS_MAX_STACK_MB`` MiB once decoded (default 1024, an
+inside the file, and no more than ``HBIS_MAX_STACK_MB`` MiB once decoded (default 4096, an
 environment variable the user can raise; :mod:`hbis_torch.tiff_io`). A hostile file is refused in
 one line, quickly.
 A *burst* stack (``"kind": "burst"``) holds frames of a hand-held or otherwise freely moving camera

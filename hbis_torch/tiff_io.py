@@ -4,7 +4,7 @@ decoded, tifffile stays quiet, and a written file holds one ImageDescription and
 Reading (:func:`read_tiff`) refuses, in one :class:`StackFormatError` line naming the file, more
 pages than the caller allows, a sample format that cannot be read, pages of different shapes or
 dtypes, data lying beyond the end of the file (a truncated file), and more than
-``HBIS_MAX_STACK_MB`` MiB once decoded (:func:`max_decoded_bytes`; default 1024, an environment
+``HBIS_MAX_STACK_MB`` MiB once decoded (:func:`max_decoded_bytes`; default 4096, an environment
 variable the user can raise). The hbis-stack/1 format on top of it is :mod:`hbis_torch.stack_io`.
 """
 
@@ -22,16 +22,20 @@ import numpy as np
 from hbis_torch.checks import MAX_H
 from hbis_torch.errors import HbisInputError, StackFormatError
 
-#: Default of HBIS_MAX_STACK_MB: the most a file may take once decoded, MiB (h = 16 on the whole
-#: 960 x 1280 sensor in uint16 is 600 MiB).
-DEFAULT_MAX_STACK_MB = 1024
+#: Default of HBIS_MAX_STACK_MB: the most a file (or a burst's frames together) may take once
+#: decoded, MiB. h = 16 on the whole 960 x 1280 sensor in uint16 is 600 MiB; 16 frames of 12 MP in
+#: 16-bit RGB are 1099 MiB, of 24 MP 2197 MiB (the 1024 of before refused them). Whether the machine
+#: can hold the job is hbis_torch.budget's estimate, checked next; this bounds what a header alone
+#: may ask for (a 20000 x 20000 page, 16 of them, stays refused).
+DEFAULT_MAX_STACK_MB = 4096
 
 
-def max_decoded_bytes() -> int:
-    """The most bytes one file may take once decoded: ``HBIS_MAX_STACK_MB`` MiB (default 1024)."""
+def max_decoded_bytes(default_mb: float = DEFAULT_MAX_STACK_MB) -> int:
+    """The most bytes one file may take once decoded: ``HBIS_MAX_STACK_MB`` MiB (default
+    ``default_mb``, :data:`DEFAULT_MAX_STACK_MB` unless the caller bounds its files lower)."""
     text = os.environ.get("HBIS_MAX_STACK_MB", "").strip()
     if not text:
-        return DEFAULT_MAX_STACK_MB * 2**20
+        return int(default_mb * 2**20)
     try:
         mb = float(text)
     except ValueError:

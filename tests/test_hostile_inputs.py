@@ -267,8 +267,23 @@ def test_the_bomb_in_a_fresh_process_stays_small(corpus, tmp_path):
     assert not (tmp_path / "o.tif").exists()
 
 
+def test_the_default_limit_takes_a_large_burst_and_refuses_a_bomb(monkeypatch):
+    """16 frames of 24 MP in 16-bit RGB (2197 MiB) fit the default decoding limit (1024 MiB had
+    refused 12 MP ones); 16 pages of 20000 x 20000 do not, and a scene image keeps 1024 MiB."""
+    from hbis_torch.capture.frames import FrameInfo, check_decoded_size
+    from hbis_torch.simulate.rasters import SCENE_MAX_MB
+    from hbis_torch.tiff_io import max_decoded_bytes
+
+    monkeypatch.delenv("HBIS_MAX_STACK_MB", raising=False)
+    burst = FrameInfo(16, (4000, 6000, 3), np.dtype(np.uint16))
+    assert check_decoded_size([burst], ["burst.tif"]) == 16 * 4000 * 6000 * 3 * 2
+    with pytest.raises(HbisInputError, match="over the limit of 4096 MiB"):
+        check_decoded_size([FrameInfo(16, (20000, 20000), np.dtype(np.uint8))], ["bomb.tif"])
+    assert max_decoded_bytes(SCENE_MAX_MB) == 1024 * 2**20 < max_decoded_bytes()
+
+
 def test_the_size_limit_can_be_raised(corpus, monkeypatch):
-    with pytest.raises(StackFormatError, match="over the limit of 1024 MiB"):
+    with pytest.raises(StackFormatError, match="over the limit of 4096 MiB"):
         read_stack(corpus["16 pages of 20000 x 20000"])
     monkeypatch.setenv("HBIS_MAX_STACK_MB", "0.001")
     with pytest.raises(StackFormatError, match="over the limit of 0 MiB"):

@@ -55,6 +55,11 @@ def photo(name: str) -> np.ndarray:
     return to_gray(getattr(skimage.data, name)())
 
 
+#: A scene image's default limit of float32 work, MiB (``HBIS_MAX_STACK_MB`` overrides it): one
+#: picture, not a burst of them, so the stacks' larger default does not apply.
+SCENE_MAX_MB = 1024
+
+
 def _check_declared(path, shape, itemsize: int, limit: int) -> None:
     """Refuse an image whose header declares more than ``limit`` bytes of float32 work, before decoding.
 
@@ -72,7 +77,7 @@ def read_image_file(path) -> np.ndarray:
     from hbis_torch.tiff_io import max_decoded_bytes, quiet_tifffile
 
     path = Path(path)
-    limit = max_decoded_bytes()
+    limit = max_decoded_bytes(SCENE_MAX_MB)
     try:
         if path.suffix.lower() in (".tif", ".tiff"):
             import tifffile
