@@ -80,14 +80,16 @@ def estimate_reconstruct(frames: int, width: int, height: int, channels: int = 1
 # the libraries; per frame pixel (the frames and their weights in float32, a piece of positions at
 # a time); per frame pixel where the lattice's batches are kept for the splat's second pass (bursts
 # of up to hbis_torch.reconstruct.classical.sr.KEEP_SAMPLES samples); per frame pixel of each
-# channel beyond the first; per output pixel where the lattice's holes are fitted (up to
+# channel beyond the first; per output pixel (the lattice's sums, the image, the Wiener filter's
+# spectra); per output pixel more where the lattice's holes are fitted (up to
 # hbis_torch.reconstruct.classical.lattice_fit.MAX_FIT_NODES nodes: its normal equations); the
 # learned method's own (the adaptation's window and the network's tiles, and its output).
 _BURST_BASE = (300 * MiB, 2.0)
-_BURST_PER_FRAME_PIXEL = (20, 1.3e-7)
+_BURST_PER_FRAME_PIXEL = (10, 0.8e-7)
 _BURST_KEPT_PER_FRAME_PIXEL = 24
-_BURST_PER_EXTRA_CHANNEL_PIXEL = (6, 0.65e-7)
-_BURST_FITTED_PER_OUTPUT_PIXEL = (145, 3e-7)
+_BURST_PER_EXTRA_CHANNEL_PIXEL = (6, 0.4e-7)
+_BURST_PER_OUTPUT_PIXEL = (42, 4e-7)  # (seconds: per output pixel of each channel)
+_BURST_FITTED_PER_OUTPUT_PIXEL = 103
 _BURST_LEARNED = (100 * MiB, 8)  # bytes, and bytes per output pixel and channel; its time: 1.5 x + 2 s
 # A burst's assemble: the libraries; per frame pixel its float32 frames, their luminance and the
 # registration's pyramids; per byte of the frames as decoded (bytes, seconds: decoding them).
@@ -109,9 +111,8 @@ def estimate_reconstruct_burst(frames: int, width: int, height: int, channels: i
     memory += samples * (_BURST_PER_FRAME_PIXEL[0] + (_BURST_KEPT_PER_FRAME_PIXEL if samples <= KEEP_SAMPLES else 0)
                          + (channels - 1) * _BURST_PER_EXTRA_CHANNEL_PIXEL[0])
     seconds += samples * (_BURST_PER_FRAME_PIXEL[1] + (channels - 1) * _BURST_PER_EXTRA_CHANNEL_PIXEL[1])
-    if nodes <= MAX_FIT_NODES:
-        memory += nodes * _BURST_FITTED_PER_OUTPUT_PIXEL[0]
-        seconds += nodes * channels * _BURST_FITTED_PER_OUTPUT_PIXEL[1]
+    memory += nodes * (_BURST_PER_OUTPUT_PIXEL[0] + (_BURST_FITTED_PER_OUTPUT_PIXEL if nodes <= MAX_FIT_NODES else 0))
+    seconds += nodes * channels * _BURST_PER_OUTPUT_PIXEL[1]
     if method == "learned":
         memory += _BURST_LEARNED[0] + _BURST_LEARNED[1] * nodes * channels
         seconds = 1.5 * seconds + 2.0

@@ -73,6 +73,8 @@ def test_a_burst_is_estimated_by_its_own_path():
     rgb = budget.estimate_reconstruct_burst(16, 4000, 3000, 3, 2)
     assert 3 * GiB < grey.memory_bytes < 6 * GiB < rgb.memory_bytes < 9 * GiB
     assert budget.estimate_reconstruct(16, 4000, 3000).memory_bytes > 40 * GiB  # what it was estimated by
+    # the output's share: at S = 4 it peaks 2.4 times as high as at S = 2 (no lattice fit at either)
+    assert budget.estimate_reconstruct_burst(16, 4000, 3000, 1, 4).memory_bytes > 2.2 * grey.memory_bytes
     vga = budget.estimate_reconstruct_burst(16, 640, 480)
     assert 0.5 * GiB < vga.memory_bytes < budget.estimate_reconstruct_burst(16, 640, 480, scale=4).memory_bytes
     learned = budget.estimate_reconstruct_burst(16, 640, 480, method="learned")
