@@ -7,10 +7,10 @@ Each case is SIZE:grey|rgb:S:METHOD. Its burst (:func:`hbis_torch.training.handh
 motion ``translation``, 16 frames, seed 0; an RGB burst's channels the grey frames times
 bench_handheld.py's ``COLOUR_GAINS``) is written as a multi-page TIFF, then ``hbis assemble --burst --scale S``
 and ``hbis reconstruct --method METHOD`` run as a user runs them: ``python -m hbis_torch`` in a
-fresh process each (so the program's own settings apply, glibc's malloc among them), with
-``HBIS_MAX_STACK_MB`` raised for the 12 MP bursts and ``--force`` (so that an estimate too large
-cannot stop the measurement). Each process's peak resident set (``ru_maxrss``, read in the
-process at its end) and wall seconds are printed beside :mod:`hbis_torch.budget`'s estimates for
+fresh process each (so the program's own settings apply, glibc's malloc and the decoding limit
+among them), with ``--force`` (so that an estimate too large cannot stop the measurement). Each
+process's peak resident set (``ru_maxrss``, read in the process at its end) and wall seconds are
+printed beside :mod:`hbis_torch.budget`'s estimates for
 the same job (:func:`~hbis_torch.budget.estimate_assemble_burst`,
 :func:`~hbis_torch.budget.estimate_reconstruct_burst`) and the ratio estimated / measured, which
 the estimates are meant to keep between about 0.7 and 2 (they tell 1 GB from 40 GB before any
@@ -80,8 +80,7 @@ def burst_file(folder: Path, width: int, height: int, colour: bool) -> Path:
 
 
 def _env(threads: int | None = None) -> dict:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-               HBIS_MAX_STACK_MB="65536")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     if threads:
         env["OMP_NUM_THREADS"] = str(threads)
     return env

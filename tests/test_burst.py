@@ -363,7 +363,7 @@ def test_the_learned_method_streams_the_samples_with_the_same_bits(monkeypatch, 
     for streams in (True, False):
         monkeypatch.setattr(learned.learned_burst, "streams", streams)
         learned._last.clear()  # (the adaptation is kept for the next call on the same positions)
-        images[streams] = [reconstruct(stack, "learned", adapt=adapt) for adapt in (True, False)]
+        images[streams] = [reconstruct(stack, "learned", adapt=adapted) for adapted in (True, False)]
     learned._last.clear()
     assert given == [("BurstPositions", torch.float32), ("Tensor", torch.float64)], given
     assert all(np.array_equal(a, b) for a, b in zip(images[True], images[False]))
