@@ -189,6 +189,20 @@ def test_wiener_inverse_in_place_gives_the_same_image(monkeypatch):
         assert float((whole - in_place).abs().max()) < 1e-6
 
 
+def test_a_large_images_separable_blur_in_bands_is_the_whole_images_to_the_bit(monkeypatch):
+    import importlib
+
+    splat_module = importlib.import_module("hbis_torch.reconstruct.classical.splat")
+    gen = torch.Generator().manual_seed(3)
+    for shape, dtype, band in (((2, 700, 300), torch.float32, 300), ((1500, 300), torch.float64, 450)):
+        img = torch.rand(shape, generator=gen, dtype=dtype)
+        for sigma in (1.0, 4.0):
+            monkeypatch.setattr(splat_module, "BLUR_BAND_ROWS", 10**6)
+            whole = splat_module._separable_blur(img, sigma)
+            monkeypatch.setattr(splat_module, "BLUR_BAND_ROWS", band)  # two and three bands, with halos
+            assert torch.equal(splat_module._separable_blur(img, sigma), whole), (shape, sigma)
+
+
 def test_the_separable_blur_is_the_blur_at_the_holes_at_every_node():
     from hbis_torch.reconstruct.classical.splat import _separable_blur
 

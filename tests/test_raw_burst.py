@@ -332,3 +332,24 @@ def test_the_green_plane_is_not_fitted_at_the_lattices_holes(monkeypatch):
     stack, _ = raw_burst_stack(burst.mosaics, "BGGR", burst.raw, 2)
     image = reconstruct_raw_burst(stack)
     assert np.isfinite(image).all()
+
+
+@pytest.mark.parametrize("flip", [0, 6])
+def test_outputs_made_in_bands_are_the_whole_images_conversion(tmp_path, monkeypatch, flip):
+    from hbis_torch.reconstruct import raw_output
+    from hbis_torch.reconstruct.raw_output import camera_to_srgb, orient, preview_path, srgb_gamma, write_raw_outputs
+
+    image = np.random.default_rng(1).random((90, 70, 3), dtype=np.float32)  # balanced, some above 1: clipped
+    raw = {"white_balance": [2.0, 1.0, 1.6], "colour_matrix": [[1.6, -0.4, -0.2], [-0.3, 1.5, -0.2], [0.0, -0.5, 1.5]],
+           "orientation": flip}
+    monkeypatch.setattr(raw_output, "BAND_ROWS", 16)  # six bands, the last one short
+    write_raw_outputs(tmp_path / "a.tif", image, {"raw": raw})
+    write_raw_outputs(tmp_path / "a.dng", image, {"raw": raw})
+    srgb = orient(camera_to_srgb(image, raw), flip)
+    assert np.array_equal(tifffile.imread(tmp_path / "a.tif"), np.round(srgb * 65535).astype(np.uint16))
+    import cv2
+
+    preview = cv2.imread(str(preview_path(tmp_path / "a.tif")), cv2.IMREAD_UNCHANGED)[..., ::-1]
+    assert np.array_equal(preview, np.round(srgb_gamma(srgb) * 255).astype(np.uint8))
+    camera = orient(image, flip)  # the DNG keeps the camera's RGB, turned
+    assert np.array_equal(tifffile.imread(tmp_path / "a.dng"), np.round(camera * 65535).astype(np.uint16))

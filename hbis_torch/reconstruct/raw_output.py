@@ -12,6 +12,11 @@ import numpy as np
 
 from hbis_torch.errors import HbisInputError
 
+# Rows converted at a time: at 8000 x 6000 the whole image's float temporaries took 2 GB beside
+# the 0.6 GB image.
+BAND_ROWS = 256
+
+
 def orient(image: np.ndarray, flip: int) -> np.ndarray:
     """Turn an image (H, W, ...) as LibRaw's ``flip`` says (0 as recorded, 3: 180 deg, 5: 90 deg
     counter-clockwise, 6: 90 deg clockwise)."""
@@ -37,6 +42,37 @@ def srgb_gamma(linear: np.ndarray) -> np.ndarray:
     """The sRGB transfer curve (IEC 61966-2-1) of linear values in [0, 1]."""
     linear = np.clip(linear, 0, 1)
     return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+
+
+def srgb_outputs(image: np.ndarray, raw: dict, linear: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+    """The 16-bit linear sRGB and the 8-bit sRGB preview of linear camera RGB, made a band of
+    rows at a time (:data:`BAND_ROWS`).
+
+    Parameters
+    ----------
+    image : np.ndarray, shape (H, W, 3), float32
+        Linear camera RGB.
+    raw : dict
+        The stack's ``raw`` block (:func:`camera_to_srgb`).
+    linear : bool
+        False: no 16-bit image (None in its place).
+
+    Returns
+    -------
+    linear_srgb : np.ndarray or None, shape (H, W, 3), uint16
+        :func:`camera_to_srgb` times 65535, rounded.
+    preview : np.ndarray, shape (H, W, 3), uint8
+        :func:`srgb_gamma` of it times 255, rounded.
+    """
+    H, W, _ = image.shape
+    out = np.empty((H, W, 3), np.uint16) if linear else None
+    preview = np.empty((H, W, 3), np.uint8)
+    for y in range(0, H, BAND_ROWS):
+        srgb = camera_to_srgb(image[y:y + BAND_ROWS], raw)
+        if out is not None:
+            out[y:y + BAND_ROWS] = np.round(srgb * 65535)
+        preview[y:y + BAND_ROWS] = np.round(srgb_gamma(srgb) * 255)
+    return out, preview
 
 
 def preview_path(path) -> Path:
@@ -69,23 +105,23 @@ def write_raw_outputs(path, image: np.ndarray, meta: dict) -> list:
     path = Path(path)
     raw = meta["raw"]
     flip = int(raw.get("orientation", 0))
-    srgb = camera_to_srgb(image, raw)
+    dng = path.suffix.lower() == ".dng"
+    data, preview = srgb_outputs(image, raw, linear=not dng)
     written = []
-    if path.suffix.lower() == ".dng":
+    if dng:
         _write_dng(path, orient(image, flip), raw)
     else:
         import tifffile
 
         info = {**meta, "colour_space": "linear sRGB (IEC 61966-2-1 primaries, D65), white-balanced; "
                 "1 = the white level", "transfer": "linear"}
-        data = np.round(orient(srgb, flip) * 65535).astype(np.uint16)
         with atomic_path(path) as tmp:
-            tifffile.imwrite(tmp, np.ascontiguousarray(data), photometric="rgb", metadata=None,
+            tifffile.imwrite(tmp, np.ascontiguousarray(orient(data, flip)), photometric="rgb", metadata=None,
                              description=json.dumps(info, default=float), software="hbis-torch",
                              extratags=_camera_tags(raw))
     written.append(path)
     cv2 = import_cv2("writing the sRGB preview PNG")
-    preview = np.round(srgb_gamma(orient(srgb, flip)) * 255).astype(np.uint8)
+    preview = orient(preview, flip)
     target = preview_path(path)
     with atomic_path(target) as tmp:
         ok, encoded = cv2.imencode(".png", np.ascontiguousarray(preview[..., ::-1]))
@@ -114,7 +150,9 @@ def _write_dng(path: Path, image: np.ndarray, raw: dict) -> None:
     from hbis_torch.io_utils import atomic_path
 
     H, W, _ = image.shape
-    data = np.ascontiguousarray(np.round(image * 65535).astype(np.uint16))
+    data = np.empty((H, W, 3), np.uint16)
+    for y in range(0, H, BAND_ROWS):  # the turned image is a view: its rows are the bands
+        data[y:y + BAND_ROWS] = np.round(image[y:y + BAND_ROWS] * 65535)
     # ColorMatrix1 maps XYZ (D65) to camera RGB: inverse of (sRGB <- XYZ)^-1 ... composed with the balance.
     srgb_from_xyz = np.array([[3.2404542, -1.5371385, -0.4985314], [-0.9692660, 1.8760108, 0.0415560],
                               [0.0556434, -0.2040259, 1.0572252]])

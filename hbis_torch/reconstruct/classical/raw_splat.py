@@ -174,7 +174,9 @@ def blur_pair(*images: Tensor, sigma: float) -> Tensor:
     all images in one batch."""
     from hbis_torch.reconstruct.classical.splat import SEPARABLE_MAX_SIGMA, _gaussian_blur, _separable_blur
 
-    both = torch.stack(images).to(torch.float32)
+    both = torch.empty((len(images),) + tuple(images[0].shape), dtype=torch.float32)
+    for part, image in zip(both, images):  # not stacked in float64 first: 0.7 GB at 8000 x 6000
+        part.copy_(image)
     return (_separable_blur if sigma <= SEPARABLE_MAX_SIGMA else _gaussian_blur)(both, sigma)
 
 

@@ -469,6 +469,10 @@ def _gaussian_blur(img: Tensor, sigma: float) -> Tensor:
     return out[:, pad:pad + rows, pad:pad + cols].reshape(img.shape)
 
 
+# A larger image's separable blur goes a band of at least this many rows at a time.
+BLUR_BAND_ROWS = 1024
+
+
 def _separable_blur(img: Tensor, sigma: float) -> Tensor:
     """:func:`_blur_at` at every node of ``img`` (..., rows, cols): the same sampled Gaussian
     taps out to 4 sigma and mirrored borders, by kornia's separable convolution.
@@ -480,9 +484,24 @@ def _separable_blur(img: Tensor, sigma: float) -> Tensor:
     from kornia.filters import gaussian_blur2d
 
     rows, cols = img.shape[-2:]
-    taps = 2 * min(math.ceil(4 * sigma), rows - 1, cols - 1) + 1
-    out = gaussian_blur2d(img.reshape(-1, 1, rows, cols), (taps, taps), (sigma, sigma), border_type="reflect",
-                          separable=True)
+    radius = min(math.ceil(4 * sigma), rows - 1, cols - 1)
+    flat = img.reshape(-1, 1, rows, cols)
+
+    def blur(part: Tensor) -> Tensor:
+        return gaussian_blur2d(part, (2 * radius + 1,) * 2, (sigma, sigma), border_type="reflect", separable=True)
+
+    bands = rows // BLUR_BAND_ROWS
+    if bands < 2 or cols < 256:
+        return blur(flat).reshape(img.shape)
+    # Bands of rows with the taps' halo: kornia's padded copies and sums of a band, not of the whole
+    # image (an 8000 x 6000 lattice's pair took 1.5 GB more). Each tap is summed in the same order,
+    # so the values are the whole image's to the bit; every band is BLUR_BAND_ROWS rows or more,
+    # so kornia takes the same path for each.
+    out = torch.empty_like(flat)
+    edges = [round(k * rows / bands) for k in range(bands + 1)]
+    for top, bottom in zip(edges[:-1], edges[1:]):
+        lo, hi = max(top - radius, 0), min(bottom + radius, rows)
+        out[:, :, top:bottom] = blur(flat[:, :, lo:hi].contiguous())[:, :, top - lo:bottom - lo]
     return out.reshape(img.shape)
 
 
