@@ -3,9 +3,11 @@
     python benchmarks/bench_burst_budget.py [--cases 640x480:grey:2:classical 4000x3000:rgb:2:classical ...]
         [--threads 1] [--cache DIR] [--json benchmarks/results/bench_burst_budget.json]
 
-Each case is SIZE:grey|rgb:S:METHOD. Its burst (:func:`hbis_torch.training.handheld_render.render_burst`,
+Each case is SIZE:grey|rgb|raw:S:METHOD. Its burst (:func:`hbis_torch.training.handheld_render.render_burst`,
 motion ``translation``, 16 frames, seed 0; an RGB burst's channels the grey frames times
-bench_handheld.py's ``COLOUR_GAINS``) is written as a multi-page TIFF, then ``hbis assemble --burst --scale S``
+bench_handheld.py's ``COLOUR_GAINS``) is written as a multi-page TIFF (a raw burst as 16 DNG files of an
+RGGB mosaic, 12 bits over a black level of 256, as benchmarks/bench_raw_burst.py makes it; its output is
+RGB at S times the mosaic's size), then ``hbis assemble --burst --scale S``
 and ``hbis reconstruct --method METHOD`` run as a user runs them: ``python -m hbis_torch`` in a
 fresh process each (so the program's own settings apply, glibc's malloc and the decoding limit
 among them), with ``--force`` (so that an estimate too large cannot stop the measurement). Each
@@ -53,17 +55,36 @@ print("RESULT", code, time.perf_counter() - t, resource.getrusage(resource.RUSAG
 """
 
 
-def parse_case(text: str) -> tuple[int, int, bool, int, str]:
-    """SIZE:grey|rgb:S:METHOD -> (width, height, colour, S, method); ValueError if malformed."""
-    size, colour, scale, method = text.split(":")
+KINDS = ("grey", "rgb", "raw")
+BLACK, WHITE = 256, 4095  # a raw burst's levels (12 bits in a 16-bit container)
+
+
+def parse_case(text: str) -> tuple[int, int, str, int, str]:
+    """SIZE:grey|rgb|raw:S:METHOD -> (width, height, kind, S, method); ValueError if malformed."""
+    size, kind, scale, method = text.split(":")
     width, height = (int(v) for v in size.lower().split("x"))
-    if min(width, height) < 64 or colour not in ("grey", "rgb") or int(scale) not in (2, 3, 4) or method not in METHODS:
+    if min(width, height) < 64 or kind not in KINDS or int(scale) not in (2, 3, 4) or method not in METHODS:
         raise ValueError(text)
-    return width, height, colour == "rgb", int(scale), method
+    return width, height, kind, int(scale), method
 
 
-def burst_file(folder: Path, width: int, height: int, colour: bool) -> Path:
-    """The burst's TIFF in ``folder``, rendered (in a process of its own) where it is not there yet."""
+def burst_files(folder: Path, width: int, height: int, kind: str) -> list[Path]:
+    """The burst's files in ``folder`` (one TIFF; a raw burst's DNGs), made where they are not there yet."""
+    if kind == "raw":
+        frames = folder / f"budget_translation_{width}x{height}_F{FRAMES}_raw"
+        if not frames.exists():
+            grey = burst_files(folder, width, height, "grey")[0]
+            code = ("import sys, numpy as np, tifffile; from pathlib import Path\n"
+                    "from hbis_torch.capture.dng import write_mosaic_dng\n"
+                    "out = Path(sys.argv[2] + '.part'); out.mkdir()\n"
+                    "for k, page in enumerate(tifffile.TiffFile(sys.argv[1]).pages):\n"
+                    "    frame = page.asarray()\n"
+                    f"    mosaic = np.round({BLACK} + frame.astype(np.float32) * (({WHITE} - {BLACK}) / 65535))\n"
+                    f"    write_mosaic_dng(out / f'f{{k:02d}}.dng', mosaic.astype(np.uint16), 'RGGB', {BLACK}, {WHITE})\n"
+                    "out.rename(sys.argv[2])\n")
+            subprocess.run([sys.executable, "-c", code, str(grey), str(frames)], check=True, env=_env())
+        return sorted(frames.glob("*.dng"))
+    colour = kind == "rgb"
     path = folder / f"budget_translation_{width}x{height}_F{FRAMES}{'_rgb' * colour}.tif"
     if not path.exists():
         from bench_handheld import COLOUR_GAINS  # benchmarks/ is the script's folder: its colour bursts
@@ -76,7 +97,7 @@ def burst_file(folder: Path, width: int, height: int, colour: bool) -> Path:
                 f"if {colour} else frame, photometric={'rgb' if colour else 'minisblack'!r})\n")
         subprocess.run([sys.executable, "-c", code, str(path)], check=True, env=_env())
         Path(str(path) + ".part").rename(path)
-    return path
+    return [path]
 
 
 def _env(threads: int | None = None) -> dict:
@@ -103,19 +124,20 @@ def run_case(case: str, folder: Path, work: Path, threads: int) -> dict:
     """Assemble and reconstruct one case's burst; measured and estimated, side by side."""
     from hbis_torch.budget import estimate_assemble_burst, estimate_reconstruct, estimate_reconstruct_burst
 
-    width, height, colour, scale, method = parse_case(case)
-    frames = burst_file(folder, width, height, colour)
+    width, height, kind, scale, method = parse_case(case)
+    frames = burst_files(folder, width, height, kind)
     stack, image = work / "stack.tif", work / "image.tif"
-    channels = 3 if colour else 1
+    channels = 3 if kind == "rgb" else 1
     row = {"case": case, "frames": FRAMES, "width": width, "height": height, "channels": channels, "scale": scale,
-           "method": method}
-    row["assemble"] = run_hbis(["assemble", "--burst", str(frames), "--scale", str(scale), "--out", str(stack),
+           "method": method, "raw": kind == "raw"}
+    row["assemble"] = run_hbis(["assemble", "--burst", *map(str, frames), "--scale", str(scale), "--out", str(stack),
                                 "--overwrite", "--force", "-q"], threads)
     row["reconstruct"] = run_hbis(["reconstruct", str(stack), "--method", method, "--out", str(image), "--overwrite",
                                    "--force", "-q"], threads)
     pixels = FRAMES * width * height
     estimates = {"assemble": estimate_assemble_burst(pixels * channels * 2, pixels),
-                 "reconstruct": estimate_reconstruct_burst(FRAMES, width, height, channels, scale, method)}
+                 "reconstruct": estimate_reconstruct_burst(FRAMES, width, height, channels, scale, method,
+                                                           raw=kind == "raw")}
     # what the scan stack's terms, which every stack was estimated by before bursts had their own, said
     as_scan = estimate_reconstruct(FRAMES, width, height, channels)
     row["reconstruct"]["as_scan_estimated_mib"] = as_scan.memory_bytes / 2**20
@@ -132,7 +154,7 @@ def run_case(case: str, folder: Path, work: Path, threads: int) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0], epilog=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--cases", nargs="+", default=list(DEFAULT_CASES), help="SIZE:grey|rgb:S:METHOD (default: "
+    p.add_argument("--cases", nargs="+", default=list(DEFAULT_CASES), help="SIZE:grey|rgb|raw:S:METHOD (default: "
                    "640 x 480 grey and RGB at S = 2 and 4, both methods; 4000 x 3000 grey and RGB, classical, S = 2)")
     p.add_argument("--threads", type=int, default=1, help="OMP_NUM_THREADS of the hbis processes (default 1)")
     p.add_argument("--cache", type=Path, help="folder that keeps the rendered bursts")
@@ -143,7 +165,8 @@ def main(argv=None) -> int:
         try:
             parse_case(case)
         except ValueError:
-            problem = f"--cases {case!r}: give SIZE:grey|rgb:S:METHOD (64 px or more, S 2 to 4, classical or learned)"
+            problem = (f"--cases {case!r}: give SIZE:grey|rgb|raw:S:METHOD (64 px or more, S 2 to 4, classical or "
+                       "learned)")
             break
     if problem is None and args.threads < 1:
         problem = "--threads takes 1 or more"

@@ -91,6 +91,10 @@ _BURST_PER_EXTRA_CHANNEL_PIXEL = (6, 0.4e-7)
 _BURST_PER_OUTPUT_PIXEL = (42, 4e-7)  # (seconds: per output pixel of each channel)
 _BURST_FITTED_PER_OUTPUT_PIXEL = 103
 _BURST_LEARNED = (100 * MiB, 8)  # bytes, and bytes per output pixel and channel; its time: 1.5 x + 2 s
+# A raw burst's joint demosaicking (per output pixel of the RGB image: each colour's sums, its
+# plane in float64, the finished planes and the output in float32, the holes' whole-image blurs),
+# in place of the output's terms above (it fits no holes).
+_RAW_BURST_PER_OUTPUT_PIXEL = (80, 1.0e-6)
 # A burst's assemble: the libraries; per frame pixel its float32 frames, their luminance and the
 # registration's pyramids; per byte of the frames as decoded (bytes, seconds: decoding them).
 _ASSEMBLE_BURST = (300 * MiB, 2.0)
@@ -99,10 +103,11 @@ _ASSEMBLE_BURST_PER_DECODED_BYTE = (1, 1e-8)
 
 
 def estimate_reconstruct_burst(frames: int, width: int, height: int, channels: int = 1, scale: int = 2,
-                               method: str = "classical") -> Estimate:
+                               method: str = "classical", raw: bool = False) -> Estimate:
     """``hbis reconstruct`` of a burst stack of ``frames`` frames of ``width`` x ``height`` px
     (x ``channels``) at scale ``scale``, by ``method`` (the learned method adds its network's
-    share; any other method is estimated as the classical one)."""
+    share; any other method is estimated as the classical one). ``raw``: a raw burst (one
+    channel, a Bayer mosaic), which every method demosaicks jointly into RGB."""
     from hbis_torch.reconstruct.classical.lattice_fit import MAX_FIT_NODES
     from hbis_torch.reconstruct.classical.sr import KEEP_SAMPLES
 
@@ -111,6 +116,11 @@ def estimate_reconstruct_burst(frames: int, width: int, height: int, channels: i
     memory += samples * (_BURST_PER_FRAME_PIXEL[0] + (_BURST_KEPT_PER_FRAME_PIXEL if samples <= KEEP_SAMPLES else 0)
                          + (channels - 1) * _BURST_PER_EXTRA_CHANNEL_PIXEL[0])
     seconds += samples * (_BURST_PER_FRAME_PIXEL[1] + (channels - 1) * _BURST_PER_EXTRA_CHANNEL_PIXEL[1])
+    if raw:
+        memory += nodes * _RAW_BURST_PER_OUTPUT_PIXEL[0]
+        seconds += nodes * _RAW_BURST_PER_OUTPUT_PIXEL[1]
+        return Estimate(f"reconstructing a raw burst of {frames} frames of {width} x {height} px at S = {scale}",
+                        int(memory), seconds)
     memory += nodes * (_BURST_PER_OUTPUT_PIXEL[0] + (_BURST_FITTED_PER_OUTPUT_PIXEL if nodes <= MAX_FIT_NODES else 0))
     seconds += nodes * channels * _BURST_PER_OUTPUT_PIXEL[1]
     if method == "learned":

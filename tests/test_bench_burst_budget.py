@@ -31,12 +31,17 @@ def test_bad_input_is_refused_before_any_work(bench, argv, capsys):
     assert len(err) == 1 and err[0].startswith("bench_burst_budget: ")
 
 
-def test_a_small_burst_is_measured_beside_its_estimates(tmp_path):
+@pytest.mark.parametrize("kind", ["rgb", "raw"])
+def test_a_small_burst_is_measured_beside_its_estimates(tmp_path, kind):
+    if kind == "raw":
+        pytest.importorskip("rawpy")
+        pytest.importorskip("pidng")
     out = tmp_path / "budget.json"
-    subprocess.run([sys.executable, str(SCRIPT), "--cases", "64x64:rgb:2:classical", "--cache", str(tmp_path),
+    subprocess.run([sys.executable, str(SCRIPT), "--cases", f"64x64:{kind}:2:classical", "--cache", str(tmp_path),
                     "--json", str(out)], check=True, capture_output=True, text=True)
     row = json.loads(out.read_text())["rows"][0]
-    assert (row["channels"], row["scale"], row["method"]) == (3, 2, "classical")
+    assert (row["channels"], row["raw"], row["scale"], row["method"]) == (3 if kind == "rgb" else 1, kind == "raw",
+                                                                          2, "classical")
     for step in ("assemble", "reconstruct"):
         measured = row[step]
         assert measured["exit_code"] == 0 and 100 < measured["peak_rss_mib"] < 2000, measured

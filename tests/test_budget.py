@@ -81,6 +81,10 @@ def test_a_burst_is_estimated_by_its_own_path():
     assert learned.memory_bytes > vga.memory_bytes and learned.seconds > vga.seconds
     assemble = budget.estimate_assemble_burst(16 * 4000 * 3000 * 2, 16 * 4000 * 3000)
     assert 2 * GiB < assemble.memory_bytes < 4 * GiB
+    # a raw burst of 12 MP mosaics: an RGB output of 8000 x 6000, joint (5.0 GiB measured:
+    # benchmarks/results/bench_burst_budget_raw.json), above the grey burst's own terms
+    raw = budget.estimate_reconstruct_burst(16, 4000, 3000, 1, 2, raw=True)
+    assert grey.memory_bytes < raw.memory_bytes and 4.5 * GiB < raw.memory_bytes < 7 * GiB
 
 
 def test_burst_commands_are_refused_before_any_work_and_run_with_force(tmp_path, capsys, monkeypatch, caplog):
@@ -102,3 +106,27 @@ def test_burst_commands_are_refused_before_any_work_and_run_with_force(tmp_path,
     with caplog.at_level(logging.INFO, logger="hbis_torch"):
         assert main([*reconstruct, "--force", "-v"]) == 0 and out.exists()
     assert "running anyway (--force)" in caplog.text
+
+
+def test_a_raw_burst_is_refused_from_its_headers_before_any_frame_is_read(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("rawpy")
+    pytest.importorskip("pidng")
+    pytest.importorskip("cv2")
+    from hbis_torch.capture import raw as raw_module
+    from hbis_torch.capture.dng import write_mosaic_dng
+    from hbis_torch.training.heldout_burst import BurstCondition
+    from hbis_torch.training.heldout_raw import BLACK, WHITE, make_raw_burst
+
+    burst = make_raw_burst("chelsea", "GRBG", "indoor", 2, 64, 5, BurstCondition("raw", frames=4))
+    frames = [str(write_mosaic_dng(tmp_path / f"f{k}.dng", m, "GRBG", BLACK, WHITE)) for k, m in enumerate(burst.mosaics)]
+    stack, out = tmp_path / "burst.tif", tmp_path / "sr.tif"
+    assemble = ["-q", "assemble", "--burst", "--scale", "2", "--out", str(stack), *frames]
+    monkeypatch.setattr(budget, "available_memory_bytes", lambda: 2**20)
+    read = raw_module.read_raw
+    monkeypatch.setattr(raw_module, "read_raw", lambda path: pytest.fail("a frame was read"))
+    assert main(assemble) == 2 and not stack.exists()
+    assert "assembling a burst of 0 MiB of frames would need about" in capsys.readouterr().err
+    monkeypatch.setattr(raw_module, "read_raw", read)
+    assert main([*assemble, "--force"]) == 0 and stack.exists()
+    assert main(["-q", "reconstruct", str(stack), "--out", str(out)]) == 2 and not out.exists()
+    assert "reconstructing a raw burst of 4 frames of 64 x 64 px at S = 2 would need" in capsys.readouterr().err

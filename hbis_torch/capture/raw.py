@@ -169,6 +169,21 @@ def _rational(value) -> float | None:
     return None
 
 
+def raw_size(path) -> tuple[int, int] | None:
+    """The visible (height, width) of a raw file from its header (LibRaw opens it without
+    unpacking the pixels); None where LibRaw cannot open it (:func:`read_raw` says why)."""
+    rawpy = import_rawpy()
+    raw = rawpy.RawPy()
+    try:
+        with _quiet_stderr():
+            raw.open_file(str(path))
+        return int(raw.sizes.height), int(raw.sizes.width)
+    except rawpy.LibRawError:
+        return None
+    finally:
+        raw.close()
+
+
 def read_raw(path) -> RawFrame:
     """Read one raw file (LibRaw through rawpy), refusing in one line what cannot be used.
 

@@ -168,21 +168,27 @@ def run_burst(args) -> int:
     check_distinct_paths({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()},
                          {"--out": args.out})
     check_output_path(args.out, overwrite=args.overwrite)
+    from hbis_torch.budget import check_budget, estimate_assemble_burst
     from hbis_torch.capture.raw import assemble_raw_burst, is_raw_burst
+    from hbis_torch.cli import map_large_arrays
 
     if is_raw_burst(args.frames):  # DNG and LibRaw's formats: the [raw] extra (docs/raw-bursts.md)
+        from hbis_torch.capture.raw import raw_size
+
+        size = raw_size(args.frames[0])  # the header: too large is refused before decoding
+        if size is not None:  # (unreadable: the reading's own line says why)
+            pixels = len(args.frames) * math.prod(size)
+            check_budget(estimate_assemble_burst(2 * pixels, pixels), args.force)
+            map_large_arrays(pixels)
         stack, messages = assemble_raw_burst(args.frames, args.scale, args.reference, args.motion, roi=args.roi,
                                              bit_depth=args.bit_depth)
     else:
-        from hbis_torch.budget import check_budget, estimate_assemble_burst
         from hbis_torch.capture.frames import probe_frames
 
         declared, _, _ = probe_frames(args.frames)  # headers only: too large is refused before decoding
         count = declared.count or 1  # (a video that does not say how many: its first frame's worth at least)
         check_budget(estimate_assemble_burst(count * declared.frame_bytes, count * math.prod(declared.shape[:2])),
                      args.force)
-        from hbis_torch.cli import map_large_arrays
-
         map_large_arrays(count * math.prod(declared.shape))  # as hbis reconstruct does
         frames, names = read_frames(args.frames)
         stack, messages = assemble_burst(frames, args.scale, args.reference, args.motion, roi=args.roi,

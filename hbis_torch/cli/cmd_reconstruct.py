@@ -136,7 +136,8 @@ def reconstruct_one(args, path: Path, prepared: tuple, threads: int | None = Non
     f = stack.frames
     channels = f.shape[3] if f.ndim == 4 else 1
     if stack.kind == "burst":
-        estimate = estimate_reconstruct_burst(f.shape[0], f.shape[2], f.shape[1], channels, stack.h, args.method)
+        estimate = estimate_reconstruct_burst(f.shape[0], f.shape[2], f.shape[1], channels, stack.h, args.method,
+                                              raw=isinstance(stack.meta.get("raw"), dict))
     else:
         estimate = estimate_reconstruct(f.shape[0], f.shape[2], f.shape[1], channels)
     check_budget(estimate, args.force)
