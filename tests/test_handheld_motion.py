@@ -118,3 +118,31 @@ def test_the_local_field_is_bilinear_between_tile_centres():
     # at a tile's centre ((j + 0.5) 32 - 0.5, (i + 0.5) 32 - 0.5), the tile's own offset
     centre = torch.tensor([2.5 * 32 - 0.5, 1.5 * 32 - 0.5], dtype=torch.float64).expand(2, 1, 2)
     assert torch.allclose(sample_offsets(offsets, centre, 32)[:, 0], offsets[:, 1, 2], atol=1e-5)
+
+
+def test_frames_that_turn_almost_two_degrees_register_from_their_features_turn(monkeypatch):
+    """A turn below 2 degrees was started from the features' shift alone, beyond the fit's reach
+    from there at 320 px (frames rejected as "too little texture", or trusted with no turn at
+    all); now the features' turn is tried too, and every start while the best is not settled."""
+    import hbis_torch.training.handheld_render as handheld
+
+    monkeypatch.setattr(handheld, "MAX_ROTATION_DEG", 2.0)
+    burst = render_burst("similarity", 2, 16, W, H, seed=3)
+    stack, messages = assemble_burst(burst.frames, 2)
+    assert not messages, messages
+    true = burst.oracle_motions()
+    turns = np.degrees(np.arctan2(true[:, 1, 0], true[:, 0, 0]))
+    assert np.abs(turns).max() > 1.9  # (the burst turns that far)
+    assert _corner_error(stack.motions, true).max() < 0.05
+
+
+def test_a_trusted_frame_keeps_its_own_fit_not_its_start():
+    """The scan's registration puts a frame fitted to worse than its 0.05 px back at its starting
+    motion; a burst judges the fit by its own measure, so it must keep the fit it judged (on
+    this 48 px burst a frame kept its phase-correlation start, 0.21 px off)."""
+    burst = render_burst("translation", 2, 16, 48, 48, seed=0)
+    stack, _ = assemble_burst(burst.frames, 2)
+    corners = np.array([[0, 0, 1], [47, 0, 1], [0, 47, 1], [47, 47, 1]], float).T
+    a, b = stack.motions @ corners, burst.oracle_motions() @ corners
+    error = np.abs(a[:, :2] / a[:, 2:] - b[:, :2] / b[:, 2:]).max((1, 2))
+    assert (stack.confidence >= 0.5).all() and error.max() < 0.1, error

@@ -144,6 +144,18 @@ def test_low_texture_is_flagged(shifts):
     assert any("too little texture" in m for m in reg.messages)
 
 
+def test_a_motion_the_model_cannot_hold_is_not_called_too_little_texture():
+    from hbis_torch.training.handheld_render import render_burst
+
+    burst = render_burst("similarity", 2, 2, 320, 240, seed=0)
+    turned = burst.frames.astype(np.float32) / 65535
+    turned[1] = ndimage.rotate(turned[0], 2.0, reshape=False, order=3, mode="reflect")  # 2 deg: 7 px at the corners
+    reg = register_stack(torch.tensor(turned), 0, model="translation")
+    assert not bool(reg.ok[1])
+    assert any("its motion does not fit it" in m for m in reg.messages), reg.messages
+    assert not any("too little texture" in m for m in reg.messages)
+
+
 def test_flat_frame_is_not_ok(frames):
     bad = frames.clone()
     bad[2] = 0.3

@@ -42,6 +42,10 @@ MOTIONS = ("auto", "translation", "similarity", "affine", "homography")
 MAX_BURST_FRAMES = 256
 # Below this confidence another start is tried; frames left below BURST_MIN_CONFIDENCE are rejected.
 RETRY_CONFIDENCE = 0.6
+# A frame registered again from other starts (_register_pair) tries each while its best is below
+# this, and keeps the best: a frame whose turn of 1.5 degrees was missed still fits its centre to
+# 0.05 px and passes RETRY_CONFIDENCE, where the turn found fits to 0.01 px.
+SETTLED_CONFIDENCE = 0.95
 BURST_PRECISION_PX = 0.15
 MATCH_RESIDUAL_ONE, MATCH_RESIDUAL_ZERO = 0.3, 0.6
 FULL_OVERLAP = 0.5
@@ -167,7 +171,8 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
         predictions[model] = project(start, model, shape)
         predictions[model][reference] = np.eye(3)
     # every model's fit from the same preparation of the frames (register_models)
-    fits = register_models(grey, reference, predictions, lambda _: bar.update(), motion_tolerance_px=MODEL_TOLERANCE_PX)
+    fits = register_models(grey, reference, predictions, lambda _: bar.update(), motion_tolerance_px=MODEL_TOLERANCE_PX,
+                           min_confidence=0.0)
     if fits:
         from hbis_torch.registration.evidence import model_evidence
 
@@ -218,8 +223,9 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
 
 
 def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbour: np.ndarray):
-    """The best registration of ``frame`` to ``ref`` from up to three starts (phase correlation,
-    the neighbour's motion, matched features), trying the next only while the last is untrusted.
+    """The best registration of ``frame`` to ``ref`` from up to four starts (phase correlation,
+    the neighbour's motion, matched features' shift, then with their turn), trying the next while
+    the best is below :data:`SETTLED_CONFIDENCE`.
 
     Returns (the :class:`~hbis_torch.registration.Registration` of the pair, a note on the start
     used, "" for phase correlation).
@@ -228,19 +234,32 @@ def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbou
 
     pair = torch.stack((ref, frame))
     shape = tuple(ref.shape)
-    best, note = register_stack(pair, 0, model=motion, ladder=ALL_MODELS, motion_tolerance_px=MODEL_TOLERANCE_PX), ""
+    best, note = register_stack(pair, 0, model=motion, ladder=ALL_MODELS, motion_tolerance_px=MODEL_TOLERANCE_PX,
+                                min_confidence=0.0), ""
     if motion == "auto" and best.model != "translation":
         best = _simplest_that_predicts(pair, best)
+    features = {}  # the features' whole motion, matched once
+
+    def matched(small_turn: bool):
+        if "motion" not in features:
+            features["motion"] = feature_start(ref.numpy(), frame.numpy(), small_turn=True)
+        whole = features["motion"]
+        plain = None if whole is None else _without_small_turn(whole, shape)
+        if not small_turn:
+            return plain
+        return None if plain is whole else whole  # a small turn, tried once the shift alone failed
+
     starts = (("the neighbouring frame's motion", lambda: neighbour if not np.allclose(neighbour, np.eye(3)) else None),
-              ("matched features", lambda: feature_start(ref.numpy(), frame.numpy())))
+              ("matched features", lambda: matched(False)),
+              ("matched features with their turn", lambda: matched(True)))
     for name, start in starts:
-        if burst_confidence(best, shape) >= RETRY_CONFIDENCE:
+        if burst_confidence(best, shape) >= SETTLED_CONFIDENCE:
             break
         guess = start()
         if guess is None:
             continue
         again = register_stack(pair, 0, prediction=np.stack((np.eye(3), guess)), model=motion, ladder=ALL_MODELS,
-                               motion_tolerance_px=MODEL_TOLERANCE_PX)
+                               motion_tolerance_px=MODEL_TOLERANCE_PX, min_confidence=0.0)
         if burst_confidence(again, shape) > burst_confidence(best, shape):
             best, note = again, f", started from {name}"
     return best, note
@@ -256,7 +275,7 @@ def _simplest_that_predicts(pair: torch.Tensor, richer):
     """
     from hbis_torch.registration import register_stack
 
-    plain = register_stack(pair, 0, model="translation")
+    plain = register_stack(pair, 0, model="translation", min_confidence=0.0)
     if not bool(torch.isfinite(plain.homographies).all()):
         return richer
     simple_error = prediction_error(pair[0], pair[1], plain.homographies[1].numpy())
@@ -313,7 +332,12 @@ def burst_confidence(reg, shape, index: int = 1) -> float:
     i.e. a correlation of 0.75; noise and aliasing on the shared sequences leave 0.05 to 0.2);
     and by how much of the reference the frame covers (:func:`overlap`): 1 from
     :data:`FULL_OVERLAP` up, 0 at none (the fit compares only the points both frames see, so a
-    motion wrong by a whole frame can look precise on the few it keeps).
+    motion wrong by a whole frame can look precise on the few it keeps); a fit that did not
+    converge counts half, as in the scan's confidence.
+
+    The burst's registrations keep every frame's own fit (``register_stack(...,
+    min_confidence=0)``), which this judges: the scan's threshold would put a frame fitted to
+    0.05 to 0.1 px back at its starting motion while its fit was judged here.
     """
     precision = float(reg.precision_px[index])
     residual = float(reg.residual[index])
@@ -321,16 +345,22 @@ def burst_confidence(reg, shape, index: int = 1) -> float:
         return 0.0
     match = float(np.clip((MATCH_RESIDUAL_ZERO - residual) / (MATCH_RESIDUAL_ZERO - MATCH_RESIDUAL_ONE), 0, 1))
     covered = min(1.0, overlap(reg.homographies[index].numpy(), shape) / FULL_OVERLAP)
-    return float(np.exp(-(precision / BURST_PRECISION_PX) ** 2)) * match * covered
+    converged = reg.converged is None or bool(reg.converged[index])
+    return float(np.exp(-(precision / BURST_PRECISION_PX) ** 2)) * match * covered * (1.0 if converged else 0.5)
 
 
-def feature_start(reference: np.ndarray, frame: np.ndarray) -> np.ndarray | None:
+def feature_start(reference: np.ndarray, frame: np.ndarray, small_turn: bool = False) -> np.ndarray | None:
     """A homography frame px -> reference px from ORB features and RANSAC (OpenCV), for motion
     beyond phase correlation's reach; None where too few features match.
 
     Parameters
     ----------
     reference, frame : np.ndarray, shape (H, W), float32 in [0, 1]
+    small_turn : bool
+        Keep a turn below 2 degrees and a zoom below 3 % too. By default such a start is its shift
+        at the frame's centre (:func:`_shift_only`): what features say of so small a turn is mostly
+        their noise on a small frame, and the fit finds it from there; on a large one a turn of
+        1.5 degrees moves the corners by 10 px, beyond the fit's reach from a shift alone.
     """
     try:
         import cv2
@@ -357,14 +387,21 @@ def feature_start(reference: np.ndarray, frame: np.ndarray) -> np.ndarray | None
     # OpenCV's pixel centres are at integers too; undo the enlargement: (x + 0.5) * s - 0.5.
     up = np.array([[scale, 0, (scale - 1) / 2], [0, scale, (scale - 1) / 2], [0, 0, 1.0]])
     start = np.linalg.inv(up) @ np.vstack((matrix, [0, 0, 1])) @ up
-    zoom, angle = np.hypot(start[0, 0], start[1, 0]), np.degrees(np.arctan2(start[1, 0], start[0, 0]))
-    if abs(zoom - 1) < 0.03 and abs(angle) < 2:  # what features say of so small a turn is mostly their noise:
-        H, W = reference.shape              # start from their shift at the centre, and let the fit decide
-        centre = np.array([(W - 1) / 2, (H - 1) / 2, 1.0])
-        moved = start @ centre
-        start = np.eye(3)
-        start[:2, 2] = moved[:2] / moved[2] - centre[:2]
-    return start
+    return start if small_turn else _without_small_turn(start, reference.shape)
+
+
+def _without_small_turn(motion: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``motion`` itself where it turns by 2 degrees or more or zooms by 3 % or more, else the
+    translation that moves the centre of a frame of ``shape`` (H, W) as it does."""
+    zoom, angle = np.hypot(motion[0, 0], motion[1, 0]), np.degrees(np.arctan2(motion[1, 0], motion[0, 0]))
+    if abs(zoom - 1) >= 0.03 or abs(angle) >= 2:
+        return motion
+    H, W = shape
+    centre = np.array([(W - 1) / 2, (H - 1) / 2, 1.0])
+    moved = motion @ centre
+    out = np.eye(3)
+    out[:2, 2] = moved[:2] / moved[2] - centre[:2]
+    return out
 
 
 def warp_to_reference(frame: torch.Tensor, motion: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:

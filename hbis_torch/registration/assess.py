@@ -52,6 +52,7 @@ def _assess(fit: _Fit, precision: Tensor, flat: Tensor, noise: Tensor, ref: int,
     is_flat, converged = flat.tolist(), fit.converged.tolist()
     other_scene = ((fit.correlation < MIN_CORRELATION) & unexplained).tolist()
     correlation, occluded, error = fit.correlation.tolist(), mismatch.tolist(), precision.tolist()
+    misfit, over_noise = unexplained.tolist(), (residual / noise.clamp_min(1e-12)).tolist()
     for k in range(F):
         if k == ref or is_flat[ref]:
             continue
@@ -63,6 +64,10 @@ def _assess(fit: _Fit, precision: Tensor, flat: Tensor, noise: Tensor, ref: int,
         elif occluded[k] > OCCLUSION_FRACTION:
             messages.append(f"frame {k}: {100 * occluded[k]:.0f}% of its pixels do not match "
                             "the reference and were left out (occlusion or a moving object?)")
+        elif error[k] > PRECISION_SCALE_PX and misfit[k]:  # the error comes from the residual, not the texture
+            messages.append(f"frame {k}: its motion does not fit it (residual {over_noise[k]:.0f} times the "
+                            f"noise's; expected error {error[k]:.3f} px): a turn, perspective or shift beyond "
+                            "the fit's reach from its start, a changed scene, or aliasing")
         elif error[k] > PRECISION_SCALE_PX:
             messages.append(f"frame {k}: too little texture above the noise to register "
                             f"(expected error {error[k]:.3f} px)")

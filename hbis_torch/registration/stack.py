@@ -66,6 +66,8 @@ class Registration:
     out_of_order : Tensor, shape (F,), bool
         Frames found nearer another frame's predicted position than their own (needs a
         prediction; all False without one).
+    converged : Tensor, shape (F,), bool
+        Whether each frame's fit converged (True for the reference).
     """
 
     homographies: Tensor
@@ -76,6 +78,7 @@ class Registration:
     precision_px: Tensor | None = None
     residual: Tensor | None = None
     out_of_order: Tensor | None = None
+    converged: Tensor | None = None
 
     def displacement(self, u: float, v: float) -> Tensor:
         """(F, 2): where frame pixel (u, v) lands in the reference, minus (u, v), in px."""
@@ -229,7 +232,9 @@ def register_stack(
     precision[ref] = 0.0
     residual = fit.sigma.clone()
     residual[ref] = 0.0
-    return Registration(Hk, chosen, confidence, ok, messages, precision, residual, out_of_order)
+    converged = fit.converged.clone()
+    converged[ref] = True
+    return Registration(Hk, chosen, confidence, ok, messages, precision, residual, out_of_order, converged)
 
 
 #: Set while :func:`register_models` runs: the preparations its fits share, by their settings.
