@@ -150,6 +150,7 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
     names = names or [f"frame {k}" for k in range(F)]
     motions = np.repeat(np.eye(3)[None], F, 0)
     confidence, models = np.ones(F), ["identity"] * F
+    standing = np.ones(F)  # what decides another start: the confidence, halved where the fit did not converge
     gain_offset = np.tile([1.0, 0.0], (F, 1))
     messages: list[str] = []
     ref = grey[reference]
@@ -185,18 +186,20 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
                          ", ".join(f"{m} {evidence[m][k] - evidence[chosen][k]:+.1f}" for m in candidates
                                    if m != chosen))
             motions[k], models[k], confidence[k] = reg.homographies[k].numpy(), chosen, conf
+            standing[k] = fit_standing(reg, shape, k)
     else:
-        confidence[todo] = 0.0
+        confidence[todo] = standing[todo] = 0.0
     # Frames left untrusted (every frame, for frames too small for a pyramid): the ladder on the
     # pair, from phase correlation, then the neighbour's motion, then matched features.
     for direction in (range(reference + 1, F), range(reference - 1, -1, -1)):
         neighbour = np.eye(3)
         for k in direction:
-            if k in todo and confidence[k] < RETRY_CONFIDENCE:
+            if k in todo and standing[k] < RETRY_CONFIDENCE:
                 reg, how = _register_pair(ref, grey[k], motion, neighbour)
-                conf = burst_confidence(reg, shape)
-                if conf > confidence[k] or confidence[k] == 0:
+                conf, stands = burst_confidence(reg, shape), fit_standing(reg, shape)
+                if stands > standing[k] or confidence[k] == 0:
                     motions[k], models[k], confidence[k] = reg.homographies[1].numpy(), reg.model, conf
+                    standing[k] = stands
                     if how:
                         log.info("frame %d (%s): %s%s", k, names[k], reg.model, how)
                 if confidence[k] < BURST_MIN_CONFIDENCE:
@@ -225,7 +228,7 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
 def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbour: np.ndarray):
     """The best registration of ``frame`` to ``ref`` from up to four starts (phase correlation,
     the neighbour's motion, matched features' shift, then with their turn), trying the next while
-    the best is below :data:`SETTLED_CONFIDENCE`.
+    the best (:func:`fit_standing`) is below :data:`SETTLED_CONFIDENCE`.
 
     Returns (the :class:`~hbis_torch.registration.Registration` of the pair, a note on the start
     used, "" for phase correlation).
@@ -253,14 +256,14 @@ def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbou
               ("matched features", lambda: matched(False)),
               ("matched features with their turn", lambda: matched(True)))
     for name, start in starts:
-        if burst_confidence(best, shape) >= SETTLED_CONFIDENCE:
+        if fit_standing(best, shape) >= SETTLED_CONFIDENCE:
             break
         guess = start()
         if guess is None:
             continue
         again = register_stack(pair, 0, prediction=np.stack((np.eye(3), guess)), model=motion, ladder=ALL_MODELS,
                                motion_tolerance_px=MODEL_TOLERANCE_PX, min_confidence=0.0)
-        if burst_confidence(again, shape) > burst_confidence(best, shape):
+        if fit_standing(again, shape) > fit_standing(best, shape):
             best, note = again, f", started from {name}"
     return best, note
 
@@ -332,8 +335,7 @@ def burst_confidence(reg, shape, index: int = 1) -> float:
     i.e. a correlation of 0.75; noise and aliasing on the shared sequences leave 0.05 to 0.2);
     and by how much of the reference the frame covers (:func:`overlap`): 1 from
     :data:`FULL_OVERLAP` up, 0 at none (the fit compares only the points both frames see, so a
-    motion wrong by a whole frame can look precise on the few it keeps); a fit that did not
-    converge counts half, as in the scan's confidence.
+    motion wrong by a whole frame can look precise on the few it keeps).
 
     The burst's registrations keep every frame's own fit (``register_stack(...,
     min_confidence=0)``), which this judges: the scan's threshold would put a frame fitted to
@@ -345,8 +347,17 @@ def burst_confidence(reg, shape, index: int = 1) -> float:
         return 0.0
     match = float(np.clip((MATCH_RESIDUAL_ZERO - residual) / (MATCH_RESIDUAL_ZERO - MATCH_RESIDUAL_ONE), 0, 1))
     covered = min(1.0, overlap(reg.homographies[index].numpy(), shape) / FULL_OVERLAP)
+    return float(np.exp(-(precision / BURST_PRECISION_PX) ** 2)) * match * covered
+
+
+def fit_standing(reg, shape, index: int = 1) -> float:
+    """:func:`burst_confidence`, halved where the fit did not converge: what decides whether a
+    frame is fitted again from another start, and which start's fit it keeps (a start a turn away
+    can leave a shift that fits the frame's centre and wanders). The frame's confidence stays
+    :func:`burst_confidence` itself: on a small aliased frame a fit can wander at 0.01 px and be
+    good."""
     converged = reg.converged is None or bool(reg.converged[index])
-    return float(np.exp(-(precision / BURST_PRECISION_PX) ** 2)) * match * covered * (1.0 if converged else 0.5)
+    return burst_confidence(reg, shape, index) * (1.0 if converged else 0.5)
 
 
 def feature_start(reference: np.ndarray, frame: np.ndarray, small_turn: bool = False) -> np.ndarray | None:
