@@ -134,6 +134,8 @@ def test_frames_that_turn_almost_two_degrees_register_from_their_features_turn(m
     turns = np.degrees(np.arctan2(true[:, 1, 0], true[:, 0, 0]))
     assert np.abs(turns).max() > 1.9  # (the burst turns that far)
     assert _corner_error(stack.motions, true).max() < 0.05
+    # a frame refined by a shift from a turned start turned: its model says so
+    assert all(m == "similarity" for m in stack.meta["motion_models"][1:]), stack.meta["motion_models"]
 
 
 def test_a_trusted_frame_keeps_its_own_fit_not_its_start():
@@ -146,3 +148,15 @@ def test_a_trusted_frame_keeps_its_own_fit_not_its_start():
     a, b = stack.motions @ corners, burst.oracle_motions() @ corners
     error = np.abs(a[:, :2] / a[:, 2:] - b[:, :2] / b[:, 2:]).max((1, 2))
     assert (stack.confidence >= 0.5).all() and error.max() < 0.1, error
+
+
+def test_a_motion_is_named_by_the_simplest_model_that_holds_it():
+    from hbis_torch.capture.burst import model_of
+
+    turn = np.radians(1.5)
+    similarity = np.array([[np.cos(turn), -np.sin(turn), 2.0], [np.sin(turn), np.cos(turn), -1.0], [0, 0, 1]])
+    shift = np.array([[1, 0, 0.4], [0, 1, -0.3], [0, 0, 1.0]])
+    assert model_of(np.eye(3)) == model_of(shift) == "translation"
+    assert model_of(similarity) == model_of(2 * similarity) == model_of(similarity @ shift) == "similarity"
+    assert model_of(np.diag([1.01, 1.0, 1.0])) == "affine"
+    assert model_of(np.array([[1, 0, 0], [0, 1, 0], [1e-5, 0, 1.0]])) == "homography"

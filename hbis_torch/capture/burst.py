@@ -25,7 +25,7 @@ homographies frame px -> reference px; confidence (F,) in [0, 1]; gain_offset (F
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -264,8 +264,24 @@ def _register_pair(ref: torch.Tensor, frame: torch.Tensor, motion: str, neighbou
         again = register_stack(pair, 0, prediction=np.stack((np.eye(3), guess)), model=motion, ladder=ALL_MODELS,
                                motion_tolerance_px=MODEL_TOLERANCE_PX, min_confidence=0.0)
         if fit_standing(again, shape) > fit_standing(best, shape):
-            best, note = again, f", started from {name}"
+            # the fit refines the start's motion: a turned start and a shift on it is a turn
+            model = max(again.model, model_of(guess), key=ALL_MODELS.index)
+            best, note = replace(again, model=model), f", started from {name}"
     return best, note
+
+
+def model_of(motion: np.ndarray) -> str:
+    """The simplest model of :data:`~hbis_torch.registration.homography.ALL_MODELS` that holds
+    ``motion`` (3, 3), to rounding."""
+    m = motion / motion[2, 2]
+    if np.abs(m[2, :2]).max() > 1e-12:
+        return "homography"
+    a = m[:2, :2]
+    if np.abs(a - np.eye(2)).max() <= 1e-12:
+        return "translation"
+    if abs(a[0, 0] - a[1, 1]) <= 1e-12 and abs(a[0, 1] + a[1, 0]) <= 1e-12:
+        return "similarity"
+    return "affine"
 
 
 def _simplest_that_predicts(pair: torch.Tensor, richer):
