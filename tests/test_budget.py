@@ -112,13 +112,11 @@ def test_a_raw_burst_is_refused_from_its_headers_before_any_frame_is_read(tmp_pa
     pytest.importorskip("rawpy")
     pytest.importorskip("pidng")
     pytest.importorskip("cv2")
-    from hbis_torch.capture import raw as raw_module
-    from hbis_torch.capture.dng import write_mosaic_dng
-    from hbis_torch.training.heldout_burst import BurstCondition
-    from hbis_torch.training.heldout_raw import BLACK, WHITE, make_raw_burst
+    from dng_bursts import write_dng_burst
 
-    burst = make_raw_burst("chelsea", "GRBG", "indoor", 2, 64, 5, BurstCondition("raw", frames=4))
-    frames = [str(write_mosaic_dng(tmp_path / f"f{k}.dng", m, "GRBG", BLACK, WHITE)) for k, m in enumerate(burst.mosaics)]
+    from hbis_torch.capture import raw as raw_module
+
+    frames = write_dng_burst(tmp_path, size=64)
     stack, out = tmp_path / "burst.tif", tmp_path / "sr.tif"
     assemble = ["-q", "assemble", "--burst", "--scale", "2", "--out", str(stack), *frames]
     monkeypatch.setattr(budget, "available_memory_bytes", lambda: 2**20)

@@ -113,12 +113,9 @@ def test_a_raw_burst_on_the_cluster_writes_what_the_in_process_batch_writes(clus
     pytest.importorskip("rawpy")
     pytest.importorskip("pidng")
     pytest.importorskip("cv2")
-    from hbis_torch.capture.dng import write_mosaic_dng
-    from hbis_torch.training.heldout_burst import BurstCondition
-    from hbis_torch.training.heldout_raw import BLACK, WHITE, make_raw_burst
+    from dng_bursts import write_dng_burst
 
-    burst = make_raw_burst("chelsea", "GRBG", "indoor", 2, 48, 5, BurstCondition("raw", frames=4))
-    frames = [str(write_mosaic_dng(tmp_path / f"f{k}.dng", m, "GRBG", BLACK, WHITE)) for k, m in enumerate(burst.mosaics)]
+    frames = write_dng_burst(tmp_path, size=48)
     stack = tmp_path / "raw.tif"
     assert main(["-q", "assemble", "--burst", "--scale", "2", "--out", str(stack), *frames]) == 0
     here, there = tmp_path / "here", tmp_path / "there"
