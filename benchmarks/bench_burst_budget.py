@@ -80,7 +80,8 @@ def burst_files(folder: Path, width: int, height: int, kind: str) -> list[Path]:
                     "for k, page in enumerate(tifffile.TiffFile(sys.argv[1]).pages):\n"
                     "    frame = page.asarray()\n"
                     f"    mosaic = np.round({BLACK} + frame.astype(np.float32) * (({WHITE} - {BLACK}) / 65535))\n"
-                    f"    write_mosaic_dng(out / f'f{{k:02d}}.dng', mosaic.astype(np.uint16), 'RGGB', {BLACK}, {WHITE})\n"
+                    f"    write_mosaic_dng(out / f'f{{k:02d}}.dng', mosaic.astype(np.uint16), 'RGGB',\n"
+                    f"                     {BLACK}, {WHITE})\n"
                     "out.rename(sys.argv[2])\n")
             subprocess.run([sys.executable, "-c", code, str(grey), str(frames)], check=True, env=_env())
         return sorted(frames.glob("*.dng"))

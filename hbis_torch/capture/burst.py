@@ -384,10 +384,10 @@ def feature_start(reference: np.ndarray, frame: np.ndarray, small_turn: bool = F
     ----------
     reference, frame : np.ndarray, shape (H, W), float32 in [0, 1]
     small_turn : bool
-        Keep a turn below 2 degrees and a zoom below 3 % too. By default such a start is its shift
-        at the frame's centre (:func:`_shift_only`): what features say of so small a turn is mostly
-        their noise on a small frame, and the fit finds it from there; on a large one a turn of
-        1.5 degrees moves the corners by 10 px, beyond the fit's reach from a shift alone.
+        Keep a turn below 2 degrees and a zoom below 3 % too. By default such a start is its
+        shift at the frame's centre (:func:`_without_small_turn`): what features say of so small
+        a turn is mostly their noise on a small frame, and the fit finds it from there; on a large
+        one a turn of 1.5 degrees moves the corners by 10 px, beyond the fit's reach from a shift.
     """
     try:
         import cv2
