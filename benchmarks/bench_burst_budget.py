@@ -26,7 +26,6 @@ depend on it, and one thread keeps the seconds from a busy machine's contention)
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys

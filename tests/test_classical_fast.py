@@ -19,7 +19,7 @@ from hbis_torch.reconstruct.classical.periodic import (
     smooth_spectrum,
 )
 from hbis_torch.reconstruct.classical import wiener
-from hbis_torch.reconstruct.classical.splat import _holes
+from hbis_torch.reconstruct.classical.holes import _holes
 from hbis_torch.reconstruct.classical.wiener import _add_at, _mean_3x3, _Model, _ring_of, _ring_sums
 
 
@@ -191,7 +191,7 @@ def test_all_finite_by_the_sum_agrees_with_isfinite():
 
 def test_fill_holes_in_place_gives_the_same_image():
     """Holes of every kind (empty nodes, a wide empty band, weak nodes): the same bits in place."""
-    from hbis_torch.reconstruct.classical.splat import fill_holes
+    from hbis_torch.reconstruct.classical.holes import fill_holes
 
     gen = torch.Generator().manual_seed(8)
     den = torch.rand((60, 70), generator=gen) + 0.5

@@ -10,13 +10,13 @@ import pytest
 import torch
 
 from hbis_torch.config import FoveaSystem
-from hbis_torch.errors import HbisInputError
 from hbis_torch.metrics import psnr
 from hbis_torch.optics import interpolate_positions, landing_at, node_positions, sensor_position
 from hbis_torch.reconstruct.classical import classical_sr, optics_cutoff, wiener_deblur
 from hbis_torch.reconstruct.classical import shift_image
 from hbis_torch.reconstruct.classical import sr as classical_sr_module
-from hbis_torch.reconstruct.classical.splat import _blur_at, _gaussian_blur, fill_holes, gradient_into
+from hbis_torch.reconstruct.classical.holes import _blur_at, _gaussian_blur, fill_holes
+from hbis_torch.reconstruct.classical.splat import gradient_into
 from hbis_torch.reconstruct.positions import stack_sample_nodes, stack_sample_positions
 from hbis_torch.scan import plan_scan
 from hbis_torch.simulate.cases import make_stack
@@ -192,19 +192,19 @@ def test_wiener_inverse_in_place_gives_the_same_image(monkeypatch):
 def test_a_large_images_separable_blur_in_bands_is_the_whole_images_to_the_bit(monkeypatch):
     import importlib
 
-    splat_module = importlib.import_module("hbis_torch.reconstruct.classical.splat")
+    holes = importlib.import_module("hbis_torch.reconstruct.classical.holes")
     gen = torch.Generator().manual_seed(3)
     for shape, dtype, band in (((2, 700, 300), torch.float32, 300), ((1500, 300), torch.float64, 450)):
         img = torch.rand(shape, generator=gen, dtype=dtype)
         for sigma in (1.0, 4.0):
-            monkeypatch.setattr(splat_module, "BLUR_BAND_ROWS", 10**6)
-            whole = splat_module._separable_blur(img, sigma)
-            monkeypatch.setattr(splat_module, "BLUR_BAND_ROWS", band)  # two and three bands, with halos
-            assert torch.equal(splat_module._separable_blur(img, sigma), whole), (shape, sigma)
+            monkeypatch.setattr(holes, "BLUR_BAND_ROWS", 10**6)
+            whole = holes._separable_blur(img, sigma)
+            monkeypatch.setattr(holes, "BLUR_BAND_ROWS", band)  # two and three bands, with halos
+            assert torch.equal(holes._separable_blur(img, sigma), whole), (shape, sigma)
 
 
 def test_the_separable_blur_is_the_blur_at_the_holes_at_every_node():
-    from hbis_torch.reconstruct.classical.splat import _separable_blur
+    from hbis_torch.reconstruct.classical.holes import _separable_blur
 
     gen = torch.Generator().manual_seed(7)
     for shape in ((60, 70), (9, 40), (5, 5)):

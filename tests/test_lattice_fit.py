@@ -6,7 +6,8 @@ import torch
 
 from hbis_torch.reconstruct.classical import lattice_fit
 from hbis_torch.reconstruct.classical.lattice import NodeBatch
-from hbis_torch.reconstruct.classical.splat import fill_holes, splat_on_lattice
+from hbis_torch.reconstruct.classical.holes import fill_holes
+from hbis_torch.reconstruct.classical.splat import splat_on_lattice
 
 SIGMA = 0.45
 ROWS, COLS = 48, 64

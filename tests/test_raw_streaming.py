@@ -11,7 +11,8 @@ pytest.importorskip("skimage")
 from hbis_torch.capture.raw import normalised, raw_burst_stack  # noqa: E402
 from hbis_torch.reconstruct.classical import raw_burst as rb  # noqa: E402
 from hbis_torch.reconstruct.classical.raw_splat import PlanePositions, Splat  # noqa: E402
-from hbis_torch.reconstruct.classical.splat import fill_holes, splat  # noqa: E402
+from hbis_torch.reconstruct.classical.holes import fill_holes  # noqa: E402
+from hbis_torch.reconstruct.classical.splat import splat  # noqa: E402
 from hbis_torch.reconstruct.positions import BurstPositions  # noqa: E402
 from hbis_torch.training.heldout_burst import BurstCondition  # noqa: E402
 from hbis_torch.training.heldout_raw import make_raw_burst  # noqa: E402

@@ -56,7 +56,8 @@ from __future__ import annotations
 
 
 from hbis_torch.reconstruct.classical.method import reconstruct_classical, stack_fill_factor
-from hbis_torch.reconstruct.classical.splat import common_offset, fill_holes, snap_to_lattice, splat
+from hbis_torch.reconstruct.classical.holes import fill_holes
+from hbis_torch.reconstruct.classical.splat import common_offset, snap_to_lattice, splat
 from hbis_torch.reconstruct.classical.sr import classical_sr, lattice_image, lattice_noise, lattice_noise_params
 from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, optics_cutoff, splat_transfer
 from hbis_torch.reconstruct.classical.periodic import periodic_smooth, shift_image

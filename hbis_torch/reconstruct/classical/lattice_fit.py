@@ -83,7 +83,7 @@ def fill_holes_from_samples(image: Tensor, den: Tensor, typical: float, batches,
     den : Tensor, shape (rows, cols)
         The splat's weight at each node.
     typical : float
-        The typical node's weight (:func:`~hbis_torch.reconstruct.classical.splat.typical_weight`).
+        The typical node's weight (:func:`~hbis_torch.reconstruct.classical.holes.typical_weight`).
     batches, kernel_sigma, shared
         As :func:`fit_lattice`'s.
 

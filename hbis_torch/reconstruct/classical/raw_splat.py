@@ -6,7 +6,7 @@ reference's grid, are added onto the output grid by the classical method's Gauss
 (:class:`Splat`: :func:`~hbis_torch.reconstruct.classical.splat.splat`'s sums in a third of its
 time), a band of rows at a time (:func:`bands`), their positions computed where read
 (:class:`PlanePositions`); the plane is the numerator over the denominator with the holes filled
-(:func:`~hbis_torch.reconstruct.classical.splat.fill_holes` with its whole-image blurs in
+(:func:`~hbis_torch.reconstruct.classical.holes.fill_holes` with its whole-image blurs in
 float32, :func:`blur_pair`), and where clipped samples carry most of a
 node's weight it goes to the clip level (:func:`plane_from_sums`). Red and blue are splatted as
 differences from green, which in noisy frames go through a guided filter with green the guide
@@ -167,12 +167,12 @@ class PlanePositions:
 
 
 def blur_pair(*images: Tensor, sigma: float) -> Tensor:
-    """The whole-image blur of :func:`~hbis_torch.reconstruct.classical.splat.fill_holes` of
+    """The whole-image blur of :func:`~hbis_torch.reconstruct.classical.holes.fill_holes` of
     ``images`` (each (rows, cols); ``num`` and ``den``) in float32: (len(images), rows, cols)
     float32. As there, the sampled taps' convolution up to
-    :data:`~hbis_torch.reconstruct.classical.splat.SEPARABLE_MAX_SIGMA`, else the FFT's Gaussian,
+    :data:`~hbis_torch.reconstruct.classical.holes.SEPARABLE_MAX_SIGMA`, else the FFT's Gaussian,
     all images in one batch."""
-    from hbis_torch.reconstruct.classical.splat import SEPARABLE_MAX_SIGMA, _gaussian_blur, _separable_blur
+    from hbis_torch.reconstruct.classical.holes import SEPARABLE_MAX_SIGMA, _gaussian_blur, _separable_blur
 
     both = torch.empty((len(images),) + tuple(images[0].shape), dtype=torch.float32)
     for part, image in zip(both, images):  # not stacked in float64 first: 0.7 GB at 8000 x 6000
@@ -182,7 +182,7 @@ def blur_pair(*images: Tensor, sigma: float) -> Tensor:
 
 def plane_from_sums(acc: "Splat", lost_acc: "Splat | None") -> tuple[Tensor, Tensor | None]:
     """A colour's plane from its splat's sums (both released): num / den with the holes filled
-    (:func:`~hbis_torch.reconstruct.classical.splat.fill_holes`, over num's memory; its blurs of
+    (:func:`~hbis_torch.reconstruct.classical.holes.fill_holes`, over num's memory; its blurs of
     the whole image, where the holes are many, in float32 with both sums in one batch,
     :func:`blur_pair`: two thirds of the time; the holes and the typical weight are still found on
     the float64 sums, whose values come in few distinct sums of the splat's weights that float32's
@@ -190,7 +190,7 @@ def plane_from_sums(acc: "Splat", lost_acc: "Splat | None") -> tuple[Tensor, Ten
     ``lost_acc`` (None: none clipped), carry the most of a node's weight, the mask of the nodes that
     go to the clip level (the unclipped samples' share of the weight below :data:`CLIPPED_SHARE`;
     its holes filled from around them). Returns (plane (S H, S W) float64, mask or None)."""
-    from hbis_torch.reconstruct.classical.splat import fill_holes
+    from hbis_torch.reconstruct.classical.holes import fill_holes
 
     num, den = acc.result(0, release=True), acc.result(1, release=True)
     missing = lost_acc.result(0, release=True) if lost_acc is not None else None

@@ -14,16 +14,10 @@ from torch import Tensor
 from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import NodePositions, interpolate_positions
+from hbis_torch.reconstruct.classical.holes import every_other, fill_holes, lower_median, typical_weight
 from hbis_torch.reconstruct.classical.lattice import batch_slices, common_offset_of, node_batch
 from hbis_torch.reconstruct.classical.lattice_fit import fill_holes_from_samples
-from hbis_torch.reconstruct.classical.splat import (
-    every_other,
-    fill_holes,
-    lower_median,
-    splat,
-    splat_on_lattice,
-    typical_weight,
-)
+from hbis_torch.reconstruct.classical.splat import splat, splat_on_lattice
 from hbis_torch.reconstruct.classical.wiener import wiener_deblur
 from hbis_torch.sensor.noise import fit_noise_params, immerkaer
 
@@ -270,7 +264,7 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         Where the nodes sit relative to the output pixels, HR px.
     typical : float
         The median of ``den`` over the nodes that received samples
-        (:func:`~hbis_torch.reconstruct.classical.splat.typical_weight`).
+        (:func:`~hbis_torch.reconstruct.classical.holes.typical_weight`).
     """
     F, H, W = frames.shape
     shape = (h * H, h * W)
