@@ -49,6 +49,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 from hbis_torch.reconstruct.lens_blur import burst_lens_sigma
 from hbis_torch.reconstruct.single_frame import enlarge, single_frame
+from hbis_torch.registration.threaded_sample import grid_sample_threaded
 
 # Robustness: a sample keeps weight exp(-(d / tau)^2), d the blurred difference to the reference
 # at its position, tau = NOISE_TOLERANCE x the difference's noise + CONTRAST_TOLERANCE x the local
@@ -134,7 +135,7 @@ def _sample(images: Tensor, positions: Tensor) -> Tensor:
         torch.add(torch.tensor(-1.0, dtype=positions.dtype), positions[..., axis], alpha=2 / max(size - 1, 1),
                   out=grid[..., axis])
     flat = grid.reshape(1, 1, -1, 2)
-    out = torch.nn.functional.grid_sample(images[None].to(torch.float32), flat, mode="bilinear",
+    out = grid_sample_threaded(images[None].to(torch.float32), flat, mode="bilinear",
                                           padding_mode="border", align_corners=True)
     return out.reshape((C,) + positions.shape[:-1])
 

@@ -14,6 +14,8 @@ import math
 import torch
 from torch import Tensor
 
+from hbis_torch.registration.threaded_sample import grid_sample_threaded
+
 
 def _fast_fft_size(n: int) -> int:
     """The smallest integer >= n whose only prime factors are 2, 3 and 5."""
@@ -220,7 +222,7 @@ def _spline_fetch(coefficients: Tensor, points: Tensor) -> Tensor:
     at = (torch.stack((w1 / g0 - 1, 1 + f2 * f / (6 * g1))) + i.to(dtype)) * scale - 1
     # The four fetches (u0, v0), (u1, v0), (u0, v1), (u1, v1): index [v fetch, u fetch].
     grid = torch.stack((at[None, :, ..., 0].expand(2, 2, F, N), at[:, None, ..., 1].expand(2, 2, F, N)), -1)
-    got = torch.nn.functional.grid_sample(coefficients[None], grid.view(1, 1, 4 * F * N, 2), mode="bilinear",
+    got = grid_sample_threaded(coefficients[None], grid.view(1, 1, 4 * F * N, 2), mode="bilinear",
                                           padding_mode="zeros", align_corners=True).view(C, 4, F, N)
     weights = torch.stack((g0, g1))  # (2, F, N, 2): [fetch, ..., axis]
     # The four fetches' weights (v weight times u weight), in the fetches' order: (4, F, N).

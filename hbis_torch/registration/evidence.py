@@ -13,6 +13,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hbis_torch.registration.threaded_sample import grid_sample_threaded
+
 #: Share of the points a trimmed error keeps (the best ones): a moving object's are left out.
 TRIM = 0.75
 #: Pixels of a frame that score each model's motion (:func:`model_evidence`): a regular grid of about this many.
@@ -69,8 +71,8 @@ def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: li
         qu, qv = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
         inside = (qu >= 3) & (qu <= W - 4) & (qv >= 3) & (qv <= H - 4)
         grid = torch.stack((2 * qu / (W - 1) - 1, 2 * qv / (H - 1) - 1), -1).float().nan_to_num_(0.0, 0.0, 0.0)
-        target = torch.nn.functional.grid_sample(ref, grid.reshape(1, 1, -1, 2), mode="bilinear",
-                                                 align_corners=True).reshape(len(names), -1).double()
+        target = grid_sample_threaded(ref, grid.reshape(1, 1, -1, 2), mode="bilinear", align_corners=True)
+        target = target.reshape(len(names), -1).double()
         counts = inside.sum(1).tolist()
         for i, model in enumerate(names):
             if counts[i] < 64 or not np.isfinite(motions[model][k]).all():  # (finite points, finite motion)

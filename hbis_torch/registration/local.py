@@ -29,6 +29,7 @@ from torch import Tensor
 
 # The shifted reference (:func:`_shift`) is made in the warp's pieces: PIECE_SAMPLES pixels at a
 # time, in grids of more pixels than PIECES_FROM.
+from hbis_torch.registration.threaded_sample import grid_sample_threaded
 from hbis_torch.registration.warp import PIECE_SAMPLES, PIECES_FROM, warp_onto_reference
 
 #: Side of a tile, LR px: small enough to follow a rolling shutter's skew down a frame, large
@@ -120,7 +121,7 @@ def _shift(image: Tensor, offsets: Tensor, tile: int, spread: tuple[Tensor, Tens
         grid = torch.empty((1, piece.stop - first, size[1], 2), dtype=torch.float32)  # no stacking copy
         torch.add(field[:, piece, :, 0], axes[1][None, None, :], out=grid[..., 0])
         torch.add(field[:, piece, :, 1], axes[0][piece][None, :, None], out=grid[..., 1])
-        out[:, :, piece] = torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border",
+        out[:, :, piece] = grid_sample_threaded(image, grid, mode="bilinear", padding_mode="border",
                                                            align_corners=True)
     return out
 

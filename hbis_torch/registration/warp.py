@@ -18,6 +18,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hbis_torch.registration.threaded_sample import grid_sample_threaded
+
 #: A reference pixel counts as covered where it maps within this far (px) outside the frame's
 #: outer pixel centres (Kornia's ones channel sampled above 0.999 bilinearly, as the callers had it).
 EDGE_TOLERANCE_PX = 1e-3
@@ -126,7 +128,7 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
     step = max(1, PIECE_SAMPLES // max(cols, 1))
     if rows * cols <= PIECES_FROM and out is None:
         grid = sampling_grid(motion, shape, size)
-        warped = torch.nn.functional.grid_sample(images, grid, mode=mode, padding_mode="zeros", align_corners=True)
+        warped = grid_sample_threaded(images, grid, mode=mode, padding_mode="zeros", align_corners=True)
         return warped, inside(grid, shape)
     # A piece of rows at a time (each pixel's the same values): the grid's temporaries stay
     # small and in the cache, where a 12 MP frame's would be 96 MB of fresh pages.
@@ -136,7 +138,7 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
     for first in range(0, rows, step):
         piece = slice(first, min(first + step, rows))
         grid = _grid(m, shape, (rows, cols), piece)
-        warped[..., piece, :] = torch.nn.functional.grid_sample(images, grid, mode=mode, padding_mode="zeros",
+        warped[..., piece, :] = grid_sample_threaded(images, grid, mode=mode, padding_mode="zeros",
                                                                 align_corners=True)
         valid[piece] = inside(grid, shape)
     return warped, valid

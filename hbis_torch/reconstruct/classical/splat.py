@@ -14,6 +14,7 @@ from torch import Tensor
 
 from hbis_torch.reconstruct.classical.holes import fill_holes, typical_weight
 from hbis_torch.reconstruct.classical.second_pass import FirstPass
+from hbis_torch.registration.threaded_sample import grid_sample_threaded
 
 # Rows of the grid spread at a time by :meth:`NodeSums.spread` (and :func:`_add_slope_terms`).
 SPREAD_ROWS = 64
@@ -361,15 +362,7 @@ def _sample(image: Tensor, x: Tensor, y: Tensor) -> tuple[Tensor, ...]:
     grid = torch.empty((1, 1, len(x), 2), dtype=image.dtype)
     torch.mul(x, 2 / max(cols - 1, 1), out=grid[0, 0, :, 0]).sub_(1)
     torch.mul(y, 2 / max(rows - 1, 1), out=grid[0, 0, :, 1]).sub_(1)
-    # grid_sample runs its batch in parallel, not the points of one: the points as a batch of
-    # one row per thread, against the same image (expanded, not copied)
-    parts = torch.get_num_threads()
-    if parts > 1 and len(x) % parts == 0 and len(x) >= 1 << 16:
-        out = torch.nn.functional.grid_sample(image.expand(parts, -1, -1, -1), grid.view(parts, 1, -1, 2),
-                                              mode="bilinear", padding_mode="border", align_corners=True)
-        return tuple(out.movedim(0, 1).reshape(image.shape[1], len(x)))
-    return tuple(torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border",
-                                                 align_corners=True)[0, :, 0])
+    return tuple(grid_sample_threaded(image, grid, mode="bilinear", padding_mode="border", align_corners=True)[0, :, 0])
 
 
 def _repeat_border(frame: Tensor) -> None:
