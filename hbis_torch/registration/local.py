@@ -96,7 +96,7 @@ def _field_at(offsets: Tensor, points: Tensor, tile: int) -> Tensor:
         b = (0.5 / tile - 0.5) * (2 / max(count - 1, 1)) - 1
         torch.add(torch.tensor(b, dtype=flat.dtype), flat[..., axis], alpha=a, out=grid[:, 0, :, axis])
     field = offsets.permute(0, 3, 1, 2).to(torch.float32)
-    out = torch.nn.functional.grid_sample(field, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    out = grid_sample_threaded(field, grid, mode="bilinear", padding_mode="border", align_corners=True)
     return out[:, :, 0]
 
 
