@@ -36,3 +36,15 @@ def test_a_batch_of_several_and_few_points_go_straight_through(two_threads):
     small = torch.rand((1, 10, 10, 2)) * 2 - 1
     assert torch.equal(grid_sample_threaded(image[:1], small, align_corners=True),
                        torch.nn.functional.grid_sample(image[:1], small, align_corners=True))
+
+
+@pytest.mark.parametrize("shape", [(512, 640), (1, 4 * MIN_POINTS), (257, 511)])
+def test_written_into_a_slice_of_the_callers_memory(two_threads, shape):
+    generator = torch.Generator().manual_seed(1)
+    image = torch.rand((1, 3, 60, 80), generator=generator)
+    grid = torch.rand((1, *shape, 2), generator=generator) * 2 - 1
+    memory = torch.full((1, 3, shape[0] + 6, shape[1]), -1.0)
+    got = grid_sample_threaded(image, grid, out=memory[:, :, 2:2 + shape[0]], align_corners=True)
+    expected = torch.nn.functional.grid_sample(image, grid, align_corners=True)
+    assert torch.equal(got, expected) and torch.equal(memory[:, :, 2:2 + shape[0]], expected)
+    assert bool((memory[:, :, :2] == -1).all()) and bool((memory[:, :, 2 + shape[0]:] == -1).all())

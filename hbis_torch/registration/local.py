@@ -121,8 +121,8 @@ def _shift(image: Tensor, offsets: Tensor, tile: int, spread: tuple[Tensor, Tens
         grid = torch.empty((1, piece.stop - first, size[1], 2), dtype=torch.float32)  # no stacking copy
         torch.add(field[:, piece, :, 0], axes[1][None, None, :], out=grid[..., 0])
         torch.add(field[:, piece, :, 1], axes[0][piece][None, :, None], out=grid[..., 1])
-        out[:, :, piece] = grid_sample_threaded(image, grid, mode="bilinear", padding_mode="border",
-                                                           align_corners=True)
+        grid_sample_threaded(image, grid, out=out[:, :, piece], mode="bilinear", padding_mode="border",
+                             align_corners=True)
     return out
 
 

@@ -17,7 +17,7 @@ from torch import Tensor
 MIN_POINTS = 1 << 14
 
 
-def grid_sample_threaded(images: Tensor, grid: Tensor, **options) -> Tensor:
+def grid_sample_threaded(images: Tensor, grid: Tensor, out: Tensor | None = None, **options) -> Tensor:
     """``torch.nn.functional.grid_sample(images, grid, **options)``, the points split over threads.
 
     Parameters
@@ -26,25 +26,35 @@ def grid_sample_threaded(images: Tensor, grid: Tensor, **options) -> Tensor:
         Split only where B = 1 (a batch of several runs in parallel already).
     grid : Tensor, shape (B, rows, cols, 2)
         grid_sample's coordinates.
+    out : Tensor, shape (B, C, rows, cols), optional
+        Written with the result and returned (the caller's memory: a split result with several
+        channels is gathered straight into it, one copy rather than two).
     **options
         grid_sample's ``mode``, ``padding_mode`` and ``align_corners``.
 
     Returns
     -------
-    Tensor, shape (B, C, rows, cols), in ``images``' dtype: the same values as grid_sample's.
+    Tensor, shape (B, C, rows, cols), in ``images``' dtype: the same values as grid_sample's
+    (``out`` where given).
     """
     parts = torch.get_num_threads()
     B, rows, cols, _ = grid.shape
-    if B != 1 or images.shape[0] != 1 or parts < 2 or rows * cols < MIN_POINTS or not grid.is_contiguous():
-        return torch.nn.functional.grid_sample(images, grid, **options)
-    if rows % parts == 0:
-        batches = grid.view(parts, rows // parts, cols, 2)
-    elif (rows * cols) % parts == 0:
-        batches = grid.view(parts, 1, rows * cols // parts, 2)
-    else:
-        return torch.nn.functional.grid_sample(images, grid, **options)
-    out = torch.nn.functional.grid_sample(images.expand(parts, -1, -1, -1), batches, **options)  # (parts, C, ., .)
+    batches = None
+    if B == 1 and images.shape[0] == 1 and parts > 1 and rows * cols >= MIN_POINTS and grid.is_contiguous():
+        if rows % parts == 0:
+            batches = grid.view(parts, rows // parts, cols, 2)
+        elif (rows * cols) % parts == 0:
+            batches = grid.view(parts, 1, rows * cols // parts, 2)
+    if batches is None:
+        result = torch.nn.functional.grid_sample(images, grid, **options)
+        return result if out is None else out.copy_(result)
+    result = torch.nn.functional.grid_sample(images.expand(parts, -1, -1, -1), batches, **options)  # (parts, C, ., .)
     channels = images.shape[1]
+    if out is not None and rows % parts == 0:  # each channel's rows split in the parts (a view of any out)
+        out.view(channels, parts, rows // parts, cols).copy_(result.movedim(0, 1))
+        return out
     if channels == 1:  # the parts' points in order: a view
-        return out.view(1, 1, rows, cols)
-    return out.movedim(0, 1).reshape(1, channels, rows, cols)
+        result = result.view(1, 1, rows, cols)
+    else:
+        result = result.movedim(0, 1).reshape(1, channels, rows, cols)
+    return result if out is None else out.copy_(result)
