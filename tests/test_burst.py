@@ -155,7 +155,7 @@ def test_two_frames_only(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--scale", "2"], "--phases is required"),
     (["--burst"], "--burst needs --scale"),
-    (["--burst", "--scale", "2", "--reference", "9"], "not a frame index"),
+    (["--burst", "--scale", "2", "--reference", "9"], "neither a frame index"),
     (["--burst", "--scale", "2", "--phases", "p.json"], "do(es) not apply to a burst"),
     (["--burst", "--scale", "2", "--roi", "0,0,200,10"], "lies outside"),
 ])

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from hbis_torch.capture.frames import bit_depth_hint
+from hbis_torch.capture.sharpness import SHARPEST, choose_reference
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 from hbis_torch.stack_io import BURST_MIN_CONFIDENCE, Stack, make_burst_meta, validate_stack
@@ -503,7 +504,7 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     return gain, offset
 
 
-def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: str = "auto", roi=None,
+def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, motion: str = "auto", roi=None,
                    bit_depth: int | None = None, names: list | None = None) -> tuple[Stack, list]:
     """Build and validate a burst stack from captured frames.
 
@@ -513,8 +514,10 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
         uint8, uint16 or float32 (in [0, 1]), in capture order; F >= 2.
     scale : int
         Output scale S (1..16): the reconstruction refines the reference grid S times.
-    reference : int
-        The frame whose grid the output refines.
+    reference : int or "sharpest"
+        The frame whose grid the output refines, or the sharpest frame
+        (:func:`~hbis_torch.capture.sharpness.choose_reference`, which also names a given
+        reference that is clearly blurred).
     motion : str
         One of :data:`MOTIONS`.
     roi : (u0, v0, width, height) or None
@@ -533,8 +536,9 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int = 0, motion: s
     grey = luminance(frames)
     if bit_depth is not None and frames.dtype != np.float32:
         grey.mul_((2 ** (frames.dtype.itemsize * 8) - 1) / (2 ** bit_depth - 1))
+    reference, messages = choose_reference(grey, reference)
     found = register_burst(grey, reference, motion, names)
-    messages = list(found.messages)
+    messages += found.messages
     hint = bit_depth_hint(frames) if bit_depth is None else None
     if hint is not None:
         messages.append(hint)
@@ -565,9 +569,10 @@ def check_burst_input(frames, scale, reference, motion, roi, bit_depth) -> tuple
         raise HbisInputError(f"a burst needs 2 to {MAX_BURST_FRAMES} frames, got {len(frames)}")
     if isinstance(scale, bool) or not isinstance(scale, (int, np.integer)) or not 1 <= scale <= MAX_H:
         raise HbisInputError(f"--scale must be an integer from 1 to {MAX_H}, got {scale!r}")
-    if isinstance(reference, bool) or not isinstance(reference, (int, np.integer)) \
-            or not 0 <= reference < len(frames):
-        raise HbisInputError(f"--reference {reference!r} is not a frame index (0..{len(frames) - 1})")
+    if reference != SHARPEST and (isinstance(reference, bool) or not isinstance(reference, (int, np.integer))
+                                  or not 0 <= reference < len(frames)):
+        raise HbisInputError(f"--reference {reference!r} is neither a frame index (0..{len(frames) - 1}) "
+                             f"nor '{SHARPEST}'")
     if motion not in MOTIONS:
         raise HbisInputError(f"--motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
     height, width = frames.shape[1:3]

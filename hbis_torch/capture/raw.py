@@ -469,6 +469,9 @@ def assemble_raw_burst(paths, scale: int, reference: int = 0, motion: str = "aut
         raise HbisInputError(f"a burst needs 2 to {MAX_BURST_FRAMES} frames, got {len(paths)}")
     if isinstance(scale, bool) or not isinstance(scale, (int, np.integer)) or not 1 <= scale <= MAX_H:
         raise HbisInputError(f"--scale must be an integer from 1 to {MAX_H}, got {scale!r}")
+    if reference == "sharpest":
+        raise HbisInputError("--reference sharpest takes grey and RGB frames; for raw frames give the frame's index "
+                             "(the assemble names a reference that is clearly blurred)")
     if isinstance(reference, bool) or not isinstance(reference, (int, np.integer)) or not 0 <= reference < len(paths):
         raise HbisInputError(f"--reference {reference!r} is not a frame index (0..{len(paths) - 1})")
     if motion not in MOTIONS:
@@ -522,6 +525,7 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     import torch
 
     from hbis_torch.capture.burst import register_burst
+    from hbis_torch.capture.sharpness import choose_reference
     from hbis_torch.registration.pyramid import from_level
     from hbis_torch.stack_io import Stack, make_burst_meta, validate_stack
 
@@ -529,6 +533,7 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     raw = dict(raw)
     values, clipped = normalised(mosaics, raw)
     grey, raw["grey_scale"] = registration_grey(values, cfa, raw["white_balance"], reference, clipped)
+    _, said = choose_reference(torch.from_numpy(grey), reference)  # (a blurred reference is named)
     found = register_burst(torch.from_numpy(grey), reference, motion, names)
     motions = from_level(found.motions, 1)  # a 2 x 2 cell is a pixel of the pyramid's first level
     extra = {}
@@ -540,4 +545,4 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
                            reference_index=reference, bit_depth=16, cfa=cfa, raw=raw, **extra)
     mosaics = np.ascontiguousarray(mosaics, dtype=np.uint16)
     validate_stack(mosaics, meta, "assembled raw burst")
-    return Stack(mosaics, meta), list(found.messages)
+    return Stack(mosaics, meta), said + list(found.messages)

@@ -15,6 +15,19 @@ from hbis_torch.errors import HbisInputError
 CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 
 
+def _reference(text: str):
+    """``--reference``: a frame index from 0 to 255, or ``sharpest``."""
+    from hbis_torch.capture.sharpness import SHARPEST
+
+    if text == SHARPEST:
+        return SHARPEST
+    try:
+        return bounded_int(0, 255)(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected a frame index from 0 to 255 or '{SHARPEST}', "
+                                         f"got {text[:40]!r}") from None
+
+
 def _roi(text: str):
     try:
         values = tuple(int(t) for t in text.replace(" ", "").split(","))
@@ -56,8 +69,10 @@ def register(sub) -> None:
     b.add_argument("--burst", action="store_true", help="the frames are a burst: measure each frame's motion")
     b.add_argument("--scale", type=bounded_int(1, 16), help="with --burst: the output scale S (the reconstruction "
                    "refines the reference frame's grid S times; required)")
-    b.add_argument("--reference", type=bounded_int(0, 255), default=0,
-                   help="with --burst: the frame whose grid the output refines (default 0)")
+    b.add_argument("--reference", type=_reference, default=0,
+                   help="with --burst: the frame whose grid the output refines (default 0; a reference clearly "
+                   "blurrier than the burst's sharpest frame is named), or 'sharpest': the sharpest frame "
+                   "(grey and RGB frames)")
     b.add_argument("--motion", choices=("auto", "translation", "similarity", "affine", "homography"), default="auto",
                    help="with --burst: the motion model; 'auto' (default) picks, frame by frame, the simplest model "
                    "whose residual is at the noise level")

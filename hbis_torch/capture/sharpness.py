@@ -1,0 +1,97 @@
+"""How sharp each frame of a burst is, and which frame to refine.
+
+A hand-held burst's frames are not equally sharp: the first is often shaken by the press of the
+shutter, and a frame taken while the hand moves is smeared. The output is drawn on the reference
+frame's grid and the robustness weights compare every frame with it, so a blurred reference costs
+detail everywhere. :func:`frame_sharpness` measures each frame by the mean squared gradient of its
+central part, blurred a little against the noise, over the part's variance (a focus measure, as
+burst pipelines pick their reference frame by, that a frame's gain and offset leave alone: a
+hand-held burst's exposure moves by a few per cent); :func:`choose_reference` takes the sharpest frame where asked
+(``--reference sharpest``) and otherwise says when the given reference is clearly the blurrier.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from hbis_torch.notices import act
+
+#: Side (px) of the central square of each frame that is measured: the frames of a burst move by
+#: a few pixels, so their centres show nearly the same scene, and a 12 MP frame costs no more
+#: than a small one (16 frames: a few milliseconds).
+CENTRE_PX = 256
+#: Gaussian sigma (px) of the blur before the gradients: the noise's own gradients, alike in
+#: every frame, would otherwise weigh as much as the scene's.
+BLUR_PX = 0.5
+#: A reference whose sharpness is under this share of the sharpest frame's is named as blurred
+#: (a setting, not tuned: frames of one burst that are equally sharp differ by a few per cent with
+#: the noise and the motion; a frame shaken by a pixel or more loses half or more).
+BLURRED_SHARE = 0.7
+#: ``--reference sharpest`` takes the first frame within this share of the sharpest frame's
+#: sharpness: equally sharp frames differ by up to about 5 % (the noise, the motion), so a burst of
+#: them keeps its first frame rather than one that won by chance.
+SHARP_SHARE = 0.95
+#: What ``--reference`` takes for the sharpest frame.
+SHARPEST = "sharpest"
+
+
+def frame_sharpness(grey: torch.Tensor) -> np.ndarray:
+    """The mean squared gradient of each frame's central :data:`CENTRE_PX` square, blurred by a
+    Gaussian of :data:`BLUR_PX`, over the square's variance.
+
+    Parameters
+    ----------
+    grey : Tensor, shape (F, H, W), float32
+        The frames' luminance, in [0, 1].
+
+    Returns
+    -------
+    np.ndarray, shape (F,), float64
+        Per px^2; larger is sharper (0 for a flat frame). Comparable between frames of one burst
+        only (the scene sets its scale).
+    """
+    import kornia
+
+    F, H, W = grey.shape
+    rows, cols = min(H, CENTRE_PX), min(W, CENTRE_PX)
+    top, left = (H - rows) // 2, (W - cols) // 2
+    centre = grey[:, None, top:top + rows, left:left + cols].contiguous()  # (Kornia's blur of a view: 20 x slower)
+    blurred = kornia.filters.gaussian_blur2d(centre, (5, 5), (BLUR_PX, BLUR_PX), border_type="replicate")[:, 0]
+    dy, dx = blurred.diff(dim=1)[:, :, :-1], blurred.diff(dim=2)[:, :-1, :]
+    energy = (dx.square() + dy.square()).mean(dim=(1, 2), dtype=torch.float64)
+    variance = blurred.var(dim=(1, 2)).double()
+    return torch.where(variance > 0, energy / variance.clamp_min(1e-30), 0.0).numpy()
+
+
+def choose_reference(grey: torch.Tensor, reference: int | str) -> tuple[int, list[str]]:
+    """The reference frame's index, and a line where the reference is blurred.
+
+    Parameters
+    ----------
+    grey : Tensor, shape (F, H, W), float32
+        The frames' luminance, in [0, 1].
+    reference : int or "sharpest"
+        A frame's index, or :data:`SHARPEST` for the sharpest frame (:func:`frame_sharpness`: the
+        first within :data:`SHARP_SHARE` of the sharpest's).
+
+    Returns
+    -------
+    index : int
+    messages : list of str
+        For a given index whose frame's sharpness is under :data:`BLURRED_SHARE` of the sharpest
+        frame's: a line that says so and how to refine the sharpest instead (it asks the user to
+        act, :func:`~hbis_torch.notices.act`); for ``"sharpest"``, which frame it is.
+    """
+    sharpness = frame_sharpness(grey)
+    best = int(np.argmax(sharpness))
+    if reference == SHARPEST:
+        first = int(np.flatnonzero(sharpness >= SHARP_SHARE * sharpness[best])[0])
+        return first, [f"reference: frame {first}, the sharpest of the burst (--reference sharpest)"]
+    share = float(sharpness[reference] / sharpness[best]) if sharpness[best] > 0 else 1.0
+    if share >= BLURRED_SHARE:
+        return int(reference), []
+    line = (f"the reference, frame {reference}, is blurred: its sharpness is {100 * share:.0f} % of frame {best}'s "
+            "(shaken or out of focus); the output is drawn on its grid and every frame is compared with it: "
+            "--reference sharpest refines the sharpest frame instead")
+    return int(reference), [act(line)]
