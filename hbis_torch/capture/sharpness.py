@@ -4,10 +4,11 @@ A hand-held burst's frames are not equally sharp: the first is often shaken by t
 shutter, and a frame taken while the hand moves is smeared. The output is drawn on the reference
 frame's grid and the robustness weights compare every frame with it, so a blurred reference costs
 detail everywhere. :func:`frame_sharpness` measures each frame by the mean squared gradient of its
-central part, blurred a little against the noise, over the part's variance (a focus measure, as
-burst pipelines pick their reference frame by, that a frame's gain and offset leave alone: a
-hand-held burst's exposure moves by a few per cent); :func:`choose_reference` takes the sharpest frame where asked
-(``--reference sharpest``) and otherwise says when the given reference is clearly the blurrier.
+central part, blurred a little against the noise, over the part's variance: a focus measure, as
+burst pipelines pick their reference frame by, that a frame's gain and offset leave alone (a
+hand-held burst's exposure moves by a few per cent). :func:`choose_reference` takes the sharpest
+frame where asked (``--reference sharpest``) and otherwise says when the given reference is
+clearly blurrier than the sharpest.
 """
 
 from __future__ import annotations
