@@ -92,3 +92,55 @@ def test_raw_frames_refuse_the_sharpest_reference_before_reading(tmp_path):
 
 def test_sharpness_is_zero_for_flat_frames():
     assert np.array_equal(frame_sharpness(torch.full((3, 40, 40), 0.5)), np.zeros(3))
+
+
+@pytest.fixture(scope="module")
+def larger():
+    """A hand-held burst of 8 equally sharp frames of 192 x 128 px, and its truth."""
+    return render_burst("all", 2, 8, 192, 128, seed=5)
+
+
+def test_blurred_frames_are_named_the_reference_never_and_at_most_half(larger):
+    from hbis_torch.capture.sharpness import blurred_frames
+
+    frames = _blurred(_blurred(larger.frames, 3), 0)
+    found, line = blurred_frames(luminance(frames), 0)
+    assert found == [3] and "left out 1 blurred frame(s): [3]" in line
+    assert blurred_frames(luminance(larger.frames), 0) == ([], None)
+    trusted = np.ones(8, bool)
+    trusted[3] = False  # an untrusted frame is not looked at
+    assert blurred_frames(luminance(frames), 0, trusted) == ([], None)
+    many = larger.frames
+    for k in (1, 2, 4, 5, 6):
+        many = _blurred(many, k, 0.5 + 0.1 * k)
+    found, _ = blurred_frames(luminance(many), 0)
+    assert found == [4, 5, 6]  # the blurriest three of the seven others
+    small = np.ascontiguousarray(frames[:, :100, :100])  # under MIN_SIDE_TO_LEAVE_OUT: none
+    assert blurred_frames(luminance(small), 0) == ([], None)
+
+
+def test_reconstruct_leaves_blurred_frames_out_as_if_untrusted(larger):
+    from hbis_torch.reconstruct import reconstruct
+    from hbis_torch.stack_io import Stack
+
+    frames = _blurred(_blurred(larger.frames, 3), 5, 1.2)
+    stack, _ = assemble_burst(frames, 2)
+    notes = []
+    image = reconstruct(stack, "classical", messages=notes)
+    assert any("left out 2 blurred frame(s): [3, 5]" in m for m in notes)
+    assert not any("motion is not trusted" in m for m in notes)
+    untrusted = Stack(stack.frames, {**stack.meta, "confidence": [0.0 if k in (3, 5) else c
+                                                                  for k, c in enumerate(stack.confidence)]})
+    assert np.array_equal(image, reconstruct(untrusted, "classical"))
+    notes = []
+    kept = reconstruct(stack, "classical", messages=notes, keep_blurred=True)
+    assert not any("blurred frame" in m for m in notes) and not np.array_equal(kept, image)
+
+
+def test_keep_blurred_is_refused_on_a_scan_in_one_line(tmp_path, capsys):
+    scan = tmp_path / "scan.tif"
+    assert main(["simulate", "--scene", "flat", "--h", "2", "--roi", "600,400,16,12", "--out", str(scan), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["reconstruct", str(scan), "--keep-blurred", "--out", str(tmp_path / "sr.tif")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--keep-blurred is for burst stacks" in err[0] and not (tmp_path / "sr.tif").exists()

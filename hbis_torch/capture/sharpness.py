@@ -35,6 +35,10 @@ BLURRED_SHARE = 0.7
 SHARP_SHARE = 0.95
 #: What ``--reference`` takes for the sharpest frame.
 SHARPEST = "sharpest"
+#: Frames whose shorter side is under this many px are never left out as blurred: on a frame that
+#: small a moving object or the scene's edge entering the view changes the measure as much as a
+#: shake does (on the held-out matrix's 48 px bursts, a moving object took frames to 0.5).
+MIN_SIDE_TO_LEAVE_OUT = 128
 
 
 def frame_sharpness(grey: torch.Tensor) -> np.ndarray:
@@ -96,3 +100,43 @@ def choose_reference(grey: torch.Tensor, reference: int | str) -> tuple[int, lis
             "(shaken or out of focus); the output is drawn on its grid and every frame is compared with it: "
             "--reference sharpest refines the sharpest frame instead")
     return int(reference), [act(line)]
+
+
+def blurred_frames(grey: torch.Tensor, reference: int, trusted=None) -> tuple[list[int], str | None]:
+    """The frames other than the reference whose sharpness is under :data:`BLURRED_SHARE` of the
+    sharpest frame's, the blurriest first and at most half of the others, and a line naming them
+    (None where there are none); none for frames smaller than :data:`MIN_SIDE_TO_LEAVE_OUT`.
+
+    The fusion leaves them out: a frame shaken or out of focus brings little the sharp frames do
+    not, and its blur goes into every pixel it lands on (the robustness weights compare it with the
+    reference through a blur, so they do not see it). Where more than half the frames seem blurred,
+    the sharpest may be the odd one out: the rest are kept.
+
+    Parameters
+    ----------
+    grey : Tensor, shape (F, H, W), float32
+        The frames' luminance.
+    reference : int
+        Never left out.
+    trusted : Tensor, shape (F,), bool, optional
+        Only these frames are looked at (and the sharpest is among them and the reference).
+
+    Returns
+    -------
+    frames : list of int
+    line : str or None
+    """
+    if min(grey.shape[1:]) < MIN_SIDE_TO_LEAVE_OUT:
+        return [], None
+    sharpness = frame_sharpness(grey)
+    considered = [k for k in range(len(sharpness)) if k == reference or trusted is None or bool(trusted[k])]
+    best = max(considered, key=lambda k: sharpness[k])
+    if sharpness[best] <= 0:
+        return [], None
+    out = sorted((k for k in considered if k != reference and sharpness[k] < BLURRED_SHARE * sharpness[best]),
+                 key=lambda k: sharpness[k])[:(len(considered) - 1) // 2]
+    if not out:
+        return [], None
+    out.sort()
+    return out, (f"left out {len(out)} blurred frame(s): {out} (sharpness under {100 * BLURRED_SHARE:.0f} % of "
+                 f"frame {best}'s: shaken or out of focus)")

@@ -52,6 +52,9 @@ def register(sub) -> None:
                    "luminance, interpolating the chroma ('luma', a third of the work); not for raw Bayer stacks, which "
                    "a method with its own raw path (classical, learned) demosaicks jointly, each colour at full "
                    "resolution, and not for grey stacks")
+    p.add_argument("--keep-blurred", action="store_true",
+                   help="bursts: use every trusted frame, however blurred (by default a frame whose sharpness is "
+                   "under 70 %% of the sharpest frame's, shaken or out of focus, is left out and named)")
     from hbis_torch.cli.cmd_assemble import add_calibration_args
 
     add_calibration_args(p)
@@ -117,6 +120,8 @@ def prepare(args) -> tuple:
         kw["threads"] = args.threads
     if args.colour is not None:
         kw["colour"] = args.colour
+    if args.keep_blurred:
+        kw["keep_blurred"] = True
     from hbis_torch.capture.calibration import load_calibration
 
     return kw, load_calibration(args.dark, args.flat, args.bad_pixels)

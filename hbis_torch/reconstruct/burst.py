@@ -45,11 +45,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hbis_torch.capture.sharpness import blurred_frames
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 from hbis_torch.reconstruct.lens_blur import burst_lens_sigma
 from hbis_torch.reconstruct.single_frame import enlarge, single_frame
 from hbis_torch.registration.threaded_sample import grid_sample_threaded
+from hbis_torch.stack_io import BURST_MIN_CONFIDENCE
 
 # Robustness: a sample keeps weight exp(-(d / tau)^2), d the blurred difference to the reference
 # at its position, tau = NOISE_TOLERANCE x the difference's noise + CONTRAST_TOLERANCE x the local
@@ -311,7 +313,7 @@ def coverage(positions, weights: Tensor, reference: int) -> np.ndarray:
 
 
 def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
-                  tally: _Tally | None = None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                  tally: _Tally | None = None, leave_out=()) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Steps 1 to 3 of the module docstring: what every method's burst path is handed.
 
     Parameters
@@ -326,6 +328,9 @@ def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
         whole float64 arrays: 24 bytes a sample less (a 12 MP burst of 16 frames: 4.6 GB).
     tally : _Tally, optional
         :func:`robustness_weights`'.
+    leave_out : sequence of int
+        Frames given no weight besides the untrusted ones (blurred frames,
+        :func:`~hbis_torch.capture.sharpness.blurred_frames`).
 
     Returns
     -------
@@ -333,6 +338,7 @@ def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
         Brightness-corrected.
     positions : Tensor, shape (F, H, W, 2), float64, or BurstPositions
     trusted : Tensor, shape (F,), bool
+        The frames whose motion is trusted, less ``leave_out``.
     weights : Tensor, shape (F, H, W), float64 (float32 if ``lazy``)
         The robustness weights (:func:`robustness_weights`).
     """
@@ -340,6 +346,9 @@ def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
 
     frames = corrected_frames(stack) if frames is None else frames
     positions, trusted = burst_positions(stack, lazy=True)
+    if len(leave_out):
+        trusted = trusted.clone()
+        trusted[list(leave_out)] = False
     if tally is None:
         weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index)
     else:
@@ -350,7 +359,7 @@ def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
 
 
 def reconstruct_burst(stack, method, registration: str = "auto", messages: list | None = None,
-                      colour: str | None = None, **kw) -> np.ndarray:
+                      colour: str | None = None, keep_blurred: bool = False, **kw) -> np.ndarray:
     """Super-resolve a burst stack with a registered method (module docstring).
 
     Parameters
@@ -366,6 +375,9 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
         Receives the lines about rejected samples, the fallback and the method's own.
     colour : {"luma", "channels"} or None
         For RGB bursts (default ``"channels"``); refused on grey ones.
+    keep_blurred : bool
+        Use every trusted frame; by default frames clearly blurrier than the sharpest are left out
+        (:func:`~hbis_torch.capture.sharpness.blurred_frames`).
     **kw
         The method's options.
 
@@ -400,7 +412,11 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
         return fallback
     # the coverage and the lattice's fill added up beside the weights (each frame's positions once)
     tally = _Tally(tuple(frames.shape[1:3]), ref, range(scale, 1, -1))
-    frames, positions, trusted, weights = burst_samples(stack, frames, lazy=True, tally=tally)
+    blurred, line = ([], None) if keep_blurred else blurred_frames(_luma(frames), ref,
+                                                                    stack.confidence >= BURST_MIN_CONFIDENCE)
+    if line:
+        notes.append(line + " (--keep-blurred keeps them)")
+    frames, positions, trusted, weights = burst_samples(stack, frames, lazy=True, tally=tally, leave_out=blurred)
     if not tally.added:  # weights from elsewhere (a robustness_weights that takes no tally)
         tally = _tally(positions, weights, ref, range(scale, 1, -1))
     cover = tally.coverage()
@@ -408,7 +424,7 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
         notes.append("no frame but the reference could be used (none registered, or none agrees with it): the output "
                      "is the single-frame estimate (the reference frame enlarged, bicubic)")
         return fallback
-    _report_weights(weights, trusted, ref, notes)
+    _report_weights(weights, trusted, ref, notes, blurred)
     if scale == 1:  # the reference's own grid: nothing to fill
         run_scale, fill = 1, np.ones(cover.shape, dtype=np.float32)
     else:
@@ -517,9 +533,10 @@ def scale_to_run(positions, weights: Tensor, scale: int) -> tuple[int, np.ndarra
     return _tally(positions, weights, -1, range(scale, 1, -1)).run_scale(scale)
 
 
-def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: list) -> None:
-    """Lines naming untrusted frames and frames whose samples were mostly down-weighted."""
-    left_out = [k for k in range(len(trusted)) if not bool(trusted[k])]
+def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: list, blurred=()) -> None:
+    """Lines naming untrusted frames (but the ``blurred`` ones, named apart) and frames whose
+    samples were mostly down-weighted."""
+    left_out = [k for k in range(len(trusted)) if not bool(trusted[k]) and k not in blurred]
     if left_out:
         notes.append(f"left out {len(left_out)} frame(s) whose motion is not trusted: {left_out}")
     # a sum in float64, then divided (a mean with a dtype converts first: seven times as long)

@@ -179,11 +179,14 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     if getattr(stack, "kind", "hbis") == "burst" and isinstance(stack.meta.get("raw"), dict):  # raw Bayer burst
         # named, not imported: the classical package imports this one
         joint = _resolve("hbis_torch.reconstruct.classical.raw_burst:reconstruct_raw_burst")
+        kw.pop("keep_blurred", None)  # (the joint raw path keeps every trusted frame)
         return joint(stack, entry, registration=registration, **kw)
     if getattr(stack, "kind", "hbis") == "burst" and entry.burst is not None:  # measured motion, robustness
         from hbis_torch.reconstruct.burst import reconstruct_burst
 
         return reconstruct_burst(stack, entry, registration=registration, **kw)
+    if kw.pop("keep_blurred", False):
+        raise HbisInputError("--keep-blurred is for burst stacks (hbis assemble --burst): a scan's frames are all used")
     if registration == "data" and len(stack.frames) > 1:
         ref = stack.frames[stack.reference_index]
         if ref.min() == ref.max():  # nothing to register to: every other frame would be left out
