@@ -144,3 +144,10 @@ def test_keep_blurred_is_refused_on_a_scan_in_one_line(tmp_path, capsys):
     assert main(["reconstruct", str(scan), "--keep-blurred", "--out", str(tmp_path / "sr.tif")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--keep-blurred is for burst stacks" in err[0] and not (tmp_path / "sr.tif").exists()
+
+
+def test_rgb_frames_are_measured_on_their_centres_luma(larger):
+    from hbis_torch.reconstruct.burst import _rgb_luma
+
+    rgb = torch.from_numpy(larger.frames.astype(np.float32) / 65535)[..., None] * torch.tensor([1.0, 0.9, 0.75])
+    assert np.allclose(frame_sharpness(rgb), frame_sharpness(_rgb_luma(rgb)), rtol=1e-5)

@@ -47,8 +47,9 @@ def frame_sharpness(grey: torch.Tensor) -> np.ndarray:
 
     Parameters
     ----------
-    grey : Tensor, shape (F, H, W), float32
-        The frames' luminance, in [0, 1].
+    grey : Tensor, shape (F, H, W) or (F, H, W, 3), float32
+        The frames' luminance in [0, 1], or RGB frames (the central square's BT.601 luma is
+        taken: a colour burst's whole luma is never made for it).
 
     Returns
     -------
@@ -58,10 +59,13 @@ def frame_sharpness(grey: torch.Tensor) -> np.ndarray:
     """
     import kornia
 
-    F, H, W = grey.shape
+    F, H, W = grey.shape[:3]
     rows, cols = min(H, CENTRE_PX), min(W, CENTRE_PX)
     top, left = (H - rows) // 2, (W - cols) // 2
-    centre = grey[:, None, top:top + rows, left:left + cols].contiguous()  # (Kornia's blur of a view: 20 x slower)
+    centre = grey[:, top:top + rows, left:left + cols]
+    if centre.ndim == 4:
+        centre = centre @ torch.tensor([0.299, 0.587, 0.114], dtype=centre.dtype)
+    centre = centre[:, None].contiguous()  # (Kornia's blur of a view: 20 x slower)
     blurred = kornia.filters.gaussian_blur2d(centre, (5, 5), (BLUR_PX, BLUR_PX), border_type="replicate")[:, 0]
     dy, dx = blurred.diff(dim=1)[:, :, :-1], blurred.diff(dim=2)[:, :-1, :]
     energy = (dx.square() + dy.square()).mean(dim=(1, 2), dtype=torch.float64)
@@ -114,8 +118,8 @@ def blurred_frames(grey: torch.Tensor, reference: int, trusted=None) -> tuple[li
 
     Parameters
     ----------
-    grey : Tensor, shape (F, H, W), float32
-        The frames' luminance.
+    grey : Tensor, shape (F, H, W) or (F, H, W, 3), float32
+        The frames' luminance, or RGB frames (:func:`frame_sharpness`).
     reference : int
         Never left out.
     trusted : Tensor, shape (F,), bool, optional
@@ -126,7 +130,7 @@ def blurred_frames(grey: torch.Tensor, reference: int, trusted=None) -> tuple[li
     frames : list of int
     line : str or None
     """
-    if min(grey.shape[1:]) < MIN_SIDE_TO_LEAVE_OUT:
+    if min(grey.shape[1:3]) < MIN_SIDE_TO_LEAVE_OUT:
         return [], None
     sharpness = frame_sharpness(grey)
     considered = [k for k in range(len(sharpness)) if k == reference or trusted is None or bool(trusted[k])]

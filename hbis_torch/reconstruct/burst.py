@@ -412,8 +412,8 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
         return fallback
     # the coverage and the lattice's fill added up beside the weights (each frame's positions once)
     tally = _Tally(tuple(frames.shape[1:3]), ref, range(scale, 1, -1))
-    blurred, line = ([], None) if keep_blurred else blurred_frames(_luma(frames), ref,
-                                                                    stack.confidence >= BURST_MIN_CONFIDENCE)
+    trusted_motion = stack.confidence >= BURST_MIN_CONFIDENCE
+    blurred, line = ([], None) if keep_blurred else blurred_frames(frames, ref, trusted_motion)
     if line:
         notes.append(line + " (--keep-blurred keeps them)")
     frames, positions, trusted, weights = burst_samples(stack, frames, lazy=True, tally=tally, leave_out=blurred)
