@@ -151,3 +151,23 @@ def test_rgb_frames_are_measured_on_their_centres_luma(larger):
 
     rgb = torch.from_numpy(larger.frames.astype(np.float32) / 65535)[..., None] * torch.tensor([1.0, 0.9, 0.75])
     assert np.allclose(frame_sharpness(rgb), frame_sharpness(_rgb_luma(rgb)), rtol=1e-5)
+
+
+def test_raw_bursts_leave_out_their_blurred_frames_too():
+    from hbis_torch.capture.raw import raw_burst_stack
+    from hbis_torch.reconstruct import reconstruct
+    from hbis_torch.training.heldout_burst import BurstCondition
+    from hbis_torch.training.heldout_raw import make_raw_burst
+
+    burst = make_raw_burst("chelsea", "RGGB", "indoor", 1, 288, 3, BurstCondition("raw", frames=6))
+    mosaics = burst.mosaics.copy()
+    for dy in (0, 1):  # frame 4 blurred plane by plane (each colour apart)
+        for dx in (0, 1):
+            mosaics[4, dy::2, dx::2] = np.round(gaussian_filter(mosaics[4, dy::2, dx::2].astype(np.float64), 1.0))
+    stack, _ = raw_burst_stack(mosaics, "RGGB", burst.raw, 1)
+    notes = []
+    reconstruct(stack, "classical", messages=notes)
+    assert any("left out 1 blurred frame(s): [4]" in m for m in notes)
+    notes = []
+    reconstruct(stack, "classical", messages=notes, keep_blurred=True)
+    assert not any("blurred frame" in m for m in notes)

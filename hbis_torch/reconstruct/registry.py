@@ -179,7 +179,6 @@ def reconstruct(stack, method: str = "classical", registration: str = "auto", **
     if getattr(stack, "kind", "hbis") == "burst" and isinstance(stack.meta.get("raw"), dict):  # raw Bayer burst
         # named, not imported: the classical package imports this one
         joint = _resolve("hbis_torch.reconstruct.classical.raw_burst:reconstruct_raw_burst")
-        kw.pop("keep_blurred", None)  # (the joint raw path keeps every trusted frame)
         return joint(stack, entry, registration=registration, **kw)
     if getattr(stack, "kind", "hbis") == "burst" and entry.burst is not None:  # measured motion, robustness
         from hbis_torch.reconstruct.burst import reconstruct_burst

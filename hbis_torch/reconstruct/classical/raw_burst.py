@@ -50,6 +50,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hbis_torch.capture.sharpness import blurred_frames
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 from hbis_torch.reconstruct.classical.raw_splat import PlanePositions, Splat, bands, guided_difference, plane_from_sums
@@ -463,6 +464,14 @@ def _finished(plane: Tensor, change: Tensor | None) -> Tensor:
     return plane.clamp_(0, 1).to(torch.float32)
 
 
+def _cells(values: np.ndarray) -> torch.Tensor:
+    """The mean of each 2 x 2 cell of mosaics (F, H, W), whatever their colours: (F, H // 2, W // 2)
+    float32, a luminance to compare the frames' sharpness by."""
+    F, H, W = values.shape
+    cells = values[:, :H - H % 2, :W - W % 2].reshape(F, H // 2, 2, W // 2, 2).mean(axis=(2, 4))
+    return torch.from_numpy(cells.astype(np.float32))
+
+
 def raw_inputs(stack) -> dict:
     """What the joint path takes from a raw burst stack: normalised samples (with the
     registration's gain and offset), clipped samples, motions, trust, balance and the noise."""
@@ -493,7 +502,7 @@ def raw_inputs(stack) -> dict:
 
 
 def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messages: list | None = None,
-                          colour: str | None = None, robust: bool = True,
+                          colour: str | None = None, robust: bool = True, keep_blurred: bool = False,
                           kernel_sigma: float | None = None, chroma: float | None = None, **kw) -> np.ndarray:
     """Jointly demosaick and super-resolve a raw burst stack (module docstring).
 
@@ -510,6 +519,9 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
         Refused otherwise (the planes are joint).
     robust : bool
         Robustness weights (True) or every trusted sample at 1.
+    keep_blurred : bool
+        Use every trusted frame; by default frames clearly blurrier than the sharpest are left out
+        (:func:`~hbis_torch.capture.sharpness.blurred_frames`, on the mosaics' 2 x 2 cells).
     kernel_sigma : float, optional
         The splat's Gaussian, output px; default from the noise (:func:`kernel_for_noise`).
     chroma : float, optional
@@ -552,6 +564,11 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
     left_out = [k for k, t in enumerate(inputs["trusted"]) if not t]
     if left_out:
         notes.append(f"left out {len(left_out)} frame(s) whose motion is not trusted: {left_out}")
+    if not keep_blurred:
+        blurred, line = blurred_frames(_cells(inputs["values"]), inputs["reference"], inputs["trusted"])
+        inputs["trusted"][blurred] = False
+        if line:
+            notes.append(line + " (--keep-blurred keeps them)")
     if int(inputs["clipped"].sum()):
         share = float(inputs["clipped"].mean())
         notes.append(f"{100 * share:.2f} % of the samples are clipped: left out of their colour, which is set to "
