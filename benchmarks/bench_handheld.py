@@ -33,6 +33,10 @@ The goal: 16 frames of 12 MP at S = 2 in <= 6 GB.
 
 Timings on a machine shared with other jobs are noisy: the ratios are measured side by side in
 one run, and the JSON says on what machine and under what load (the load average before and after).
+A virtual machine's speed also drifts from one hour to the next, so a change is timed against
+``--baseline DIR``, a checkout of another commit: each of its start-up and full-burst processes
+runs right after this checkout's (its own ``benchmarks/bench_handheld.py``, no learned method, no
+vidsr), and ``own_over_baseline`` is this checkout's own time over the baseline's.
 """
 
 from __future__ import annotations
@@ -121,11 +125,12 @@ def child(path: str, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: 
 
 
 def run_child(path: Path, scale: int, mode: str, learned: bool, vidsr: bool, max_gb: float = 0,
-              allocator: str = "hbis") -> dict:
-    cmd = [sys.executable, __file__, "--child", str(path), "--scale", str(scale), "--mode", mode,
-           "--max-gb", str(max_gb), "--allocator", allocator]
+              allocator: str = "hbis", root: Path = ROOT) -> dict:
+    """One burst's process of the checkout ``root`` (this one by default): its result line."""
+    cmd = [sys.executable, str(root / "benchmarks" / "bench_handheld.py"), "--child", str(path), "--scale",
+           str(scale), "--mode", mode, "--max-gb", str(max_gb), "--allocator", allocator]
     cmd += ["--no-learned"] * (not learned) + ["--no-vidsr"] * (not vidsr)
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")])))
     done = subprocess.run(cmd, capture_output=True, text=True, env=env)
     lines = [x for x in done.stdout.splitlines() if x.startswith("RESULT ")]
     if done.returncode != 0 or not lines:
@@ -144,6 +149,14 @@ def fastest(runs: list) -> dict:
     best = dict(min(runs, key=lambda r: r["to_classical_s"]))
     best["peak_rss_mb"] = max(r["peak_rss_mb"] for r in runs)
     return best
+
+
+def _commit(root: Path) -> str:
+    """``git rev-parse HEAD`` of the checkout ``root``, with ``-dirty`` where tracked files changed."""
+    head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                           capture_output=True, text=True).stdout.strip()
+    return (head or "unknown") + ("-dirty" if dirty else "")
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -178,6 +191,9 @@ def main(argv=None) -> int:
     p.add_argument("--json", type=Path, help="write the results here (atomically)")
     p.add_argument("--cache", type=Path, help="keep the rendered bursts in this folder and reuse them (a 12 MP "
                    "burst takes minutes to render)")
+    p.add_argument("--baseline", type=Path, metavar="DIR", help="a checkout of another commit (git worktree add "
+                   "DIR COMMIT), each of whose burst processes runs right after this checkout's: its own time "
+                   "beside this one's, under the same machine")
     p.add_argument("--child", help=argparse.SUPPRESS)
     p.add_argument("--mode", default="full", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -203,6 +219,9 @@ def main(argv=None) -> int:
     if args.cache is not None and not args.cache.is_dir():
         print(f"bench_handheld: --cache {args.cache}: the folder does not exist", file=sys.stderr)
         return 2
+    if args.baseline is not None and not (args.baseline / "benchmarks" / "bench_handheld.py").is_file():
+        print(f"bench_handheld: --baseline {args.baseline}: not a checkout of the project", file=sys.stderr)
+        return 2
     if args.json is not None and not args.json.parent.is_dir():
         print(f"bench_handheld: --json {args.json}: the folder does not exist", file=sys.stderr)
         return 2
@@ -225,28 +244,7 @@ def main(argv=None) -> int:
             row = {"size": f"{w}x{h}", "megapixels": w * h / 1e6, "frames": args.frames, "scale": args.scale,
                    "motion": args.motion, "colour": args.colour,
                    "render_s": time.perf_counter() - t}
-            small = w * h <= 1_000_000
-            repeats = args.repeats if small else 1
-            row["parent_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-            row["start_runs"] = [run_child(path, args.scale, "start", False, False, allocator=args.allocator)
-                                 for _ in range(args.repeats)]
-            row["full_runs"] = [run_child(path, args.scale, "full", small and not args.no_learned and i == 0,
-                                          small and not args.no_vidsr and i == 0, args.max_gb, args.allocator)
-                                for i in range(repeats)]
-            row["start"], row["full"] = (fastest(row["start_runs"]), fastest(row["full_runs"]))
-            full, start = row["full"], row["start"]
-            if "failed" not in full and "failed" not in start:
-                for key in ("learned_s", "vidsr_s"):  # measured in the first run only
-                    if key in row["full_runs"][0]:
-                        full[key] = row["full_runs"][0][key]
-                row["own_s"] = full["to_classical_s"] - start["to_classical_s"]
-                row["own_over_floor"] = row["own_s"] / full["floor_s"]
-                if "learned_s" in full:
-                    row["learned_over_classical"] = full["learned_s"] / full["classical_s"]
-                    row["learned_over_classical_with_assemble"] = ((full["learned_s"] + full["assemble_s"])
-                                                                   / (full["classical_s"] + full["assemble_s"]))
-                if "vidsr_s" in full:
-                    row["vidsr_over_hbis"] = full["vidsr_s"] / (full["assemble_s"] + full["classical_s"])
+            measure(row, path, w, h, args)
             rows.append(row)
             print(json.dumps(row), flush=True)
             if args.cache is None:
@@ -262,6 +260,50 @@ def main(argv=None) -> int:
     return 0
 
 
+def measure(row: dict, path: Path, w: int, h: int, args) -> None:
+    """Fill ``row`` with the start-up and full-burst runs of the burst at ``path`` (w x h px), this
+    checkout's and the ``--baseline``'s interleaved, and the ratios (module docstring)."""
+    small = w * h <= 1_000_000
+    repeats = args.repeats if small else 1
+    row["parent_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    base = {"root": str(args.baseline), "commit": _commit(args.baseline), "start_runs": [],
+            "full_runs": []} if args.baseline else None
+    row["start_runs"], row["full_runs"] = [], []
+    for _ in range(args.repeats):
+        row["start_runs"].append(run_child(path, args.scale, "start", False, False, allocator=args.allocator))
+        if base:
+            base["start_runs"].append(run_child(path, args.scale, "start", False, False,
+                                                allocator=args.allocator, root=args.baseline))
+    for i in range(repeats):
+        row["full_runs"].append(run_child(path, args.scale, "full", small and not args.no_learned and i == 0,
+                                          small and not args.no_vidsr and i == 0, args.max_gb, args.allocator))
+        if base:
+            base["full_runs"].append(run_child(path, args.scale, "full", False, False, args.max_gb,
+                                               args.allocator, root=args.baseline))
+    if base:
+        base["start"], base["full"] = fastest(base["start_runs"]), fastest(base["full_runs"])
+        if "failed" not in base["full"] and "failed" not in base["start"]:
+            base["own_s"] = base["full"]["to_classical_s"] - base["start"]["to_classical_s"]
+            base["own_over_floor"] = base["own_s"] / base["full"]["floor_s"]
+        row["baseline"] = base
+    row["start"], row["full"] = (fastest(row["start_runs"]), fastest(row["full_runs"]))
+    full, start = row["full"], row["start"]
+    if "failed" not in full and "failed" not in start:
+        for key in ("learned_s", "vidsr_s"):  # measured in the first run only
+            if key in row["full_runs"][0]:
+                full[key] = row["full_runs"][0][key]
+        row["own_s"] = full["to_classical_s"] - start["to_classical_s"]
+        row["own_over_floor"] = row["own_s"] / full["floor_s"]
+        if "learned_s" in full:
+            row["learned_over_classical"] = full["learned_s"] / full["classical_s"]
+            row["learned_over_classical_with_assemble"] = ((full["learned_s"] + full["assemble_s"])
+                                                           / (full["classical_s"] + full["assemble_s"]))
+        if "vidsr_s" in full:
+            row["vidsr_over_hbis"] = full["vidsr_s"] / (full["assemble_s"] + full["classical_s"])
+        if base and "own_s" in base:
+            row["own_over_baseline"] = row["own_s"] / base["own_s"]
+
+
 def summary(r: dict) -> str:
     """One line per size."""
     f = r["full"]
@@ -275,6 +317,10 @@ def summary(r: dict) -> str:
         text += f"; learned {f['learned_s']:.2f} s = {r['learned_over_classical']:.1f} x classical"
     if "vidsr_over_hbis" in r:
         text += f"; vidsr {f['vidsr_s']:.2f} s = {r['vidsr_over_hbis']:.1f} x assemble + classical"
+    if "own_over_baseline" in r:
+        b = r["baseline"]
+        text += (f"; the baseline {b['commit'][:10]}: own time {b['own_s']:.2f} s = {b['own_over_floor']:.0f} x "
+                 f"the floor, this one {r['own_over_baseline']:.2f} x its")
     return text
 
 
