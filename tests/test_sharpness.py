@@ -171,3 +171,17 @@ def test_raw_bursts_leave_out_their_blurred_frames_too():
     notes = []
     reconstruct(stack, "classical", messages=notes, keep_blurred=True)
     assert not any("blurred frame" in m for m in notes)
+
+
+def test_validate_holds_out_no_blurred_frame_of_a_burst(larger):
+    from hbis_torch.validate import cross_validate
+    from hbis_torch.validate.frames import holdout_frames
+
+    frames = _blurred(larger.frames, holdout_frames(8, 0, 3)[1])
+    stack, _ = assemble_burst(frames, 2)
+    notes = []
+    result = cross_validate(stack, ("single-frame",), holdout=3, messages=notes)
+    assert holdout_frames(8, 0, 3)[1] not in result.held_out and len(result.held_out) == 3
+    assert any("are blurred" in m for m in notes)
+    assert cross_validate(assemble_burst(larger.frames, 2)[0], ("single-frame",), holdout=3).held_out == \
+        holdout_frames(8, 0, 3)

@@ -165,6 +165,28 @@ def _positions(stack, gray, registration: str, messages: list):
     return positions.numpy(), trusted.numpy()
 
 
+def _choosable(stack, gray, trusted, messages: list | None):
+    """The frames a burst may hold out: its trusted ones but those blurred
+    (:func:`~hbis_torch.capture.sharpness.blurred_frames`: a shaken frame's prediction from the
+    others would score its shake, not the method); a scan's trusted ones."""
+    if stack.kind != "burst":
+        return trusted
+    import torch
+
+    from hbis_torch.capture.sharpness import blurred_frames
+
+    blurred, _ = blurred_frames(torch.from_numpy(np.ascontiguousarray(gray, dtype=np.float32)),
+                                stack.reference_index, trusted)
+    if not blurred:
+        return trusted
+    if messages is not None:
+        messages.append(f"frame(s) {blurred} are blurred (shaken or out of focus): held out only where too few "
+                        "others are")
+    out = np.array(trusted, dtype=bool)
+    out[blurred] = False
+    return out
+
+
 class _Scorer:
     """Predicts and scores held-out frames of one stack (the forward model's fixed parts)."""
 
@@ -264,7 +286,7 @@ def cross_validate(stack, methods=DEFAULT_METHODS, holdout: int | None = None, *
     options = dict(method_options or {})
     observed, gray, reference = _observed_and_gray(stack)
     positions, trusted = _positions(stack, gray, registration, messages if messages is not None else [])
-    held = holdout_frames(count, stack.reference_index, holdout, trusted)
+    held = holdout_frames(count, stack.reference_index, holdout, _choosable(stack, gray, trusted, messages))
     doubtful = [k for k in held if not trusted[k]]
     if doubtful and messages is not None:
         messages.append(act(f"held-out frame(s) {doubtful}: their motion is not trusted (too few trusted frames to "
