@@ -137,8 +137,8 @@ def _sample(images: Tensor, positions: Tensor) -> Tensor:
         torch.add(torch.tensor(-1.0, dtype=positions.dtype), positions[..., axis], alpha=2 / max(size - 1, 1),
                   out=grid[..., axis])
     flat = grid.reshape(1, 1, -1, 2)
-    out = grid_sample_threaded(images[None].to(torch.float32), flat, mode="bilinear",
-                                          padding_mode="border", align_corners=True)
+    out = grid_sample_threaded(images[None].to(torch.float32), flat, mode="bilinear", padding_mode="border",
+                               align_corners=True)
     return out.reshape((C,) + positions.shape[:-1])
 
 

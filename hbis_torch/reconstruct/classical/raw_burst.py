@@ -465,11 +465,17 @@ def _finished(plane: Tensor, change: Tensor | None) -> Tensor:
 
 
 def _cells(values: np.ndarray) -> torch.Tensor:
-    """The mean of each 2 x 2 cell of mosaics (F, H, W), whatever their colours: (F, H // 2, W // 2)
-    float32, a luminance to compare the frames' sharpness by."""
+    """The mean of each 2 x 2 cell of the mosaics' (F, H, W) centre, whatever their colours, a
+    luminance to compare the frames' sharpness by: (F, h, w) float32, the cells of the central
+    square that :func:`~hbis_torch.capture.sharpness.frame_sharpness` reads (a 12 MP burst's are not
+    all made)."""
+    from hbis_torch.capture.sharpness import CENTRE_PX
+
     F, H, W = values.shape
-    cells = values[:, :H - H % 2, :W - W % 2].reshape(F, H // 2, 2, W // 2, 2).mean(axis=(2, 4))
-    return torch.from_numpy(cells.astype(np.float32))
+    rows, cols = min(H // 2, CENTRE_PX), min(W // 2, CENTRE_PX)
+    top, left = (H // 2 - rows) // 2 * 2, (W // 2 - cols) // 2 * 2  # even: whole cells of the pattern
+    centre = values[:, top:top + 2 * rows, left:left + 2 * cols]
+    return torch.from_numpy(centre.reshape(F, rows, 2, cols, 2).mean(axis=(2, 4)).astype(np.float32))
 
 
 def raw_inputs(stack) -> dict:
