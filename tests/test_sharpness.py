@@ -185,3 +185,19 @@ def test_validate_holds_out_no_blurred_frame_of_a_burst(larger):
     assert any("are blurred" in m for m in notes)
     assert cross_validate(assemble_burst(larger.frames, 2)[0], ("single-frame",), holdout=3).held_out == \
         holdout_frames(8, 0, 3)
+
+
+def test_a_raw_bursts_blurred_reference_is_named_with_the_sharpest_index():
+    from hbis_torch.capture.raw import raw_burst_stack
+    from hbis_torch.training.heldout_burst import BurstCondition
+    from hbis_torch.training.heldout_raw import make_raw_burst
+
+    burst = make_raw_burst("chelsea", "RGGB", "indoor", 1, 160, 3, BurstCondition("raw", frames=4))
+    mosaics = burst.mosaics.copy()
+    for dy in (0, 1):  # the reference blurred plane by plane
+        for dx in (0, 1):
+            mosaics[0, dy::2, dx::2] = np.round(gaussian_filter(mosaics[0, dy::2, dx::2].astype(np.float64), 1.5))
+    stack, messages = raw_burst_stack(mosaics, "RGGB", burst.raw, 1)
+    named = [m for m in messages if "is blurred" in m]
+    assert stack.reference_index == 0 and len(named) == 1 and asks_to_act(named[0])
+    assert "--reference sharpest" not in named[0] and "--reference " in named[0]

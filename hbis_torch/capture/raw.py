@@ -533,7 +533,7 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     raw = dict(raw)
     values, clipped = normalised(mosaics, raw)
     grey, raw["grey_scale"] = registration_grey(values, cfa, raw["white_balance"], reference, clipped)
-    _, said = choose_reference(torch.from_numpy(grey), reference)  # (a blurred reference is named)
+    _, said = choose_reference(torch.from_numpy(grey), reference, offer_sharpest=False)  # a blurred one named
     found = register_burst(torch.from_numpy(grey), reference, motion, names)
     motions = from_level(found.motions, 1)  # a 2 x 2 cell is a pixel of the pyramid's first level
     extra = {}
