@@ -82,12 +82,26 @@ def test_assemble_with_the_sharpest_reference(burst, tmp_path, capsys):
     assert len(err) == 1 and "'sharpest'" in err[0] and not (tmp_path / "b.tif").exists()
 
 
-def test_raw_frames_refuse_the_sharpest_reference_before_reading(tmp_path):
+def test_raw_frames_take_the_sharpest_reference(tmp_path):
+    pytest.importorskip("rawpy")
+    pytest.importorskip("pidng")
+    from hbis_torch.capture.dng import write_mosaic_dng
     from hbis_torch.capture.raw import assemble_raw_burst
-    from hbis_torch.errors import HbisInputError
+    from hbis_torch.training.heldout_burst import BurstCondition
+    from hbis_torch.training.heldout_raw import BLACK, WHITE, make_raw_burst
 
-    with pytest.raises(HbisInputError, match="grey and RGB frames"):
-        assemble_raw_burst([tmp_path / "a.dng", tmp_path / "b.dng"], 2, reference="sharpest")
+    burst = make_raw_burst("chelsea", "GRBG", "indoor", 1, 96, 5, BurstCondition("raw", frames=4))
+    mosaics = burst.mosaics.copy()
+    for dy in (0, 1):  # frame 0 blurred plane by plane
+        for dx in (0, 1):
+            mosaics[0, dy::2, dx::2] = np.round(gaussian_filter(mosaics[0, dy::2, dx::2].astype(np.float64), 1.5))
+    paths = [str(write_mosaic_dng(tmp_path / f"f{k}.dng", m, "GRBG", BLACK, WHITE, exposure_s=0.01 * (k + 1),
+                                  iso=100)) for k, m in enumerate(mosaics)]
+    stack, messages = assemble_raw_burst(paths, 1, reference="sharpest")
+    k = stack.reference_index
+    assert k != 0 and f"reference: frame {k}, the sharpest of the burst (--reference sharpest)" in messages
+    assert stack.meta["raw"]["gain"][k] == pytest.approx(1.0)  # the exposures are scaled to the new reference's
+    assert stack.meta["raw"]["gain"][0] == pytest.approx((k + 1) / 1.0)
 
 
 def test_sharpness_is_zero_for_flat_frames():
@@ -187,7 +201,7 @@ def test_validate_holds_out_no_blurred_frame_of_a_burst(larger):
         holdout_frames(8, 0, 3)
 
 
-def test_a_raw_bursts_blurred_reference_is_named_with_the_sharpest_index():
+def test_a_raw_bursts_blurred_reference_is_named():
     from hbis_torch.capture.raw import raw_burst_stack
     from hbis_torch.training.heldout_burst import BurstCondition
     from hbis_torch.training.heldout_raw import make_raw_burst
@@ -200,4 +214,4 @@ def test_a_raw_bursts_blurred_reference_is_named_with_the_sharpest_index():
     stack, messages = raw_burst_stack(mosaics, "RGGB", burst.raw, 1)
     named = [m for m in messages if "is blurred" in m]
     assert stack.reference_index == 0 and len(named) == 1 and asks_to_act(named[0])
-    assert "--reference sharpest" not in named[0] and "--reference " in named[0]
+    assert "--reference sharpest" in named[0]

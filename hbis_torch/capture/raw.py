@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hbis_torch.capture.sharpness import SHARPEST, choose_reference
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 
@@ -434,6 +435,23 @@ def registration_grey(values: np.ndarray, cfa: str, balance, reference: int = 0,
     return grey.astype(np.float32), top
 
 
+def centre_cells(values: np.ndarray):
+    """The mean of each 2 x 2 cell of the mosaics' (F, H, W) centre, whatever their colours, a
+    luminance to compare the frames' sharpness by: (F, h, w) float32 Tensor, the cells of the
+    central square that :func:`~hbis_torch.capture.sharpness.frame_sharpness` reads (a 12 MP
+    burst's are not all made). The mosaics may be raw levels or normalised values: the sharpness
+    is the same for both."""
+    import torch
+
+    from hbis_torch.capture.sharpness import CENTRE_PX
+
+    F, H, W = values.shape
+    rows, cols = min(H // 2, CENTRE_PX), min(W // 2, CENTRE_PX)
+    top, left = (H // 2 - rows) // 2 * 2, (W // 2 - cols) // 2 * 2  # even: whole cells of the pattern
+    centre = values[:, top:top + 2 * rows, left:left + 2 * cols]
+    return torch.from_numpy(centre.reshape(F, rows, 2, cols, 2).mean(axis=(2, 4)).astype(np.float32))
+
+
 def assemble_raw_burst(paths, scale: int, reference: int = 0, motion: str = "auto", roi=None,
                        bit_depth: int | None = None) -> tuple:
     """Read raw frames, check them together, register them and build a raw burst stack.
@@ -469,18 +487,17 @@ def assemble_raw_burst(paths, scale: int, reference: int = 0, motion: str = "aut
         raise HbisInputError(f"a burst needs 2 to {MAX_BURST_FRAMES} frames, got {len(paths)}")
     if isinstance(scale, bool) or not isinstance(scale, (int, np.integer)) or not 1 <= scale <= MAX_H:
         raise HbisInputError(f"--scale must be an integer from 1 to {MAX_H}, got {scale!r}")
-    if reference == "sharpest":
-        raise HbisInputError("--reference sharpest takes grey and RGB frames; for raw frames give the frame's index "
-                             "(the assemble names a reference that is clearly blurred)")
-    if isinstance(reference, bool) or not isinstance(reference, (int, np.integer)) or not 0 <= reference < len(paths):
-        raise HbisInputError(f"--reference {reference!r} is not a frame index (0..{len(paths) - 1})")
+    if reference != SHARPEST and (isinstance(reference, bool) or not isinstance(reference, (int, np.integer))
+                                  or not 0 <= reference < len(paths)):
+        raise HbisInputError(f"--reference {reference!r} is neither a frame index (0..{len(paths) - 1}) "
+                             f"nor '{SHARPEST}'")
     if motion not in MOTIONS:
         raise HbisInputError(f"--motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         raise HbisInputError(f"{missing[0]}: no such file")
     frames = [read_raw(p) for p in paths]
-    raw, _, messages = check_raw_frames(frames, reference)
+    raw, _, messages = check_raw_frames(frames, 0 if reference == SHARPEST else reference)
     height, width = frames[0].mosaic.shape
     u0, v0, w, h = (0, 0, width, height) if roi is None else (int(r) for r in roi)
     if w < 1 or h < 1 or u0 < 0 or v0 < 0 or u0 + w > width or v0 + h > height:
@@ -489,10 +506,15 @@ def assemble_raw_burst(paths, scale: int, reference: int = 0, motion: str = "aut
     if min(w, h) < 48:
         raise HbisInputError(f"raw frames of {w} x {h} px are too small to register (at least 48 x 48: 24 x 24 "
                              "cells of 2 x 2)")
+    mosaics = np.stack([f.mosaic[v0:v0 + h, u0:u0 + w] for f in frames])
+    if reference == SHARPEST:  # the exposure gains, balance and camera record are the reference's
+        reference, said = choose_reference(centre_cells(mosaics), SHARPEST)
+        if reference:
+            raw, _, messages = check_raw_frames(frames, reference)
+        messages += said
     cfa = shifted_cfa(frames[0].cfa, v0, u0)
     black = np.asarray(raw["black"])
     raw["black"] = np.stack([np.roll(b, (-(v0 % 2), -(u0 % 2)), axis=(0, 1)) for b in black]).tolist()
-    mosaics = np.stack([f.mosaic[v0:v0 + h, u0:u0 + w] for f in frames])
     del frames
     stack, more = raw_burst_stack(mosaics, cfa, raw, scale, reference, motion, (u0, v0, w, h),
                                   [p.name for p in paths])
@@ -525,7 +547,6 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     import torch
 
     from hbis_torch.capture.burst import register_burst
-    from hbis_torch.capture.sharpness import choose_reference
     from hbis_torch.registration.pyramid import from_level
     from hbis_torch.stack_io import Stack, make_burst_meta, validate_stack
 
@@ -533,7 +554,7 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     raw = dict(raw)
     values, clipped = normalised(mosaics, raw)
     grey, raw["grey_scale"] = registration_grey(values, cfa, raw["white_balance"], reference, clipped)
-    _, said = choose_reference(torch.from_numpy(grey), reference, offer_sharpest=False)  # a blurred one named
+    _, said = choose_reference(torch.from_numpy(grey), reference)  # (a blurred reference is named)
     found = register_burst(torch.from_numpy(grey), reference, motion, names)
     motions = from_level(found.motions, 1)  # a 2 x 2 cell is a pixel of the pyramid's first level
     extra = {}

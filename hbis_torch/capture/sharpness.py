@@ -73,7 +73,7 @@ def frame_sharpness(grey: torch.Tensor) -> np.ndarray:
     return torch.where(variance > 0, energy / variance.clamp_min(1e-30), 0.0).numpy()
 
 
-def choose_reference(grey: torch.Tensor, reference: int | str, offer_sharpest: bool = True) -> tuple[int, list[str]]:
+def choose_reference(grey: torch.Tensor, reference: int | str) -> tuple[int, list[str]]:
     """The reference frame's index, and a line where the reference is blurred.
 
     Parameters
@@ -83,9 +83,6 @@ def choose_reference(grey: torch.Tensor, reference: int | str, offer_sharpest: b
     reference : int or "sharpest"
         A frame's index, or :data:`SHARPEST` for the sharpest frame (:func:`frame_sharpness`: the
         first within :data:`SHARP_SHARE` of the sharpest's).
-    offer_sharpest : bool
-        The line about a blurred reference offers ``--reference sharpest`` (else the sharpest
-        frame's index: raw bursts take no ``sharpest``).
 
     Returns
     -------
@@ -105,7 +102,7 @@ def choose_reference(grey: torch.Tensor, reference: int | str, offer_sharpest: b
         return int(reference), []
     line = (f"the reference, frame {reference}, is blurred: its sharpness is {100 * share:.0f} % of frame {best}'s "
             "(shaken or out of focus); the output is drawn on its grid and every frame is compared with it: "
-            f"--reference {SHARPEST if offer_sharpest else best} refines the sharpest frame instead")
+            f"--reference {SHARPEST} refines the sharpest frame instead")
     return int(reference), [act(line)]
 
 

@@ -71,8 +71,7 @@ def register(sub) -> None:
                    "refines the reference frame's grid S times; required)")
     b.add_argument("--reference", type=_reference, default=0,
                    help="with --burst: the frame whose grid the output refines (default 0; a reference clearly "
-                   "blurrier than the burst's sharpest frame is named), or 'sharpest': the sharpest frame "
-                   "(grey and RGB frames)")
+                   "blurrier than the burst's sharpest frame is named), or 'sharpest': the sharpest frame")
     b.add_argument("--motion", choices=("auto", "translation", "similarity", "affine", "homography"), default="auto",
                    help="with --burst: the motion model; 'auto' (default) picks, frame by frame, the simplest model "
                    "whose residual is at the noise level")

@@ -50,6 +50,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hbis_torch.capture.raw import centre_cells
 from hbis_torch.capture.sharpness import blurred_frames
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
@@ -464,20 +465,6 @@ def _finished(plane: Tensor, change: Tensor | None) -> Tensor:
     return plane.clamp_(0, 1).to(torch.float32)
 
 
-def _cells(values: np.ndarray) -> torch.Tensor:
-    """The mean of each 2 x 2 cell of the mosaics' (F, H, W) centre, whatever their colours, a
-    luminance to compare the frames' sharpness by: (F, h, w) float32, the cells of the central
-    square that :func:`~hbis_torch.capture.sharpness.frame_sharpness` reads (a 12 MP burst's are not
-    all made)."""
-    from hbis_torch.capture.sharpness import CENTRE_PX
-
-    F, H, W = values.shape
-    rows, cols = min(H // 2, CENTRE_PX), min(W // 2, CENTRE_PX)
-    top, left = (H // 2 - rows) // 2 * 2, (W // 2 - cols) // 2 * 2  # even: whole cells of the pattern
-    centre = values[:, top:top + 2 * rows, left:left + 2 * cols]
-    return torch.from_numpy(centre.reshape(F, rows, 2, cols, 2).mean(axis=(2, 4)).astype(np.float32))
-
-
 def raw_inputs(stack) -> dict:
     """What the joint path takes from a raw burst stack: normalised samples (with the
     registration's gain and offset), clipped samples, motions, trust, balance and the noise."""
@@ -571,7 +558,7 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
     if left_out:
         notes.append(f"left out {len(left_out)} frame(s) whose motion is not trusted: {left_out}")
     if not keep_blurred:
-        blurred, line = blurred_frames(_cells(inputs["values"]), inputs["reference"], inputs["trusted"])
+        blurred, line = blurred_frames(centre_cells(inputs["values"]), inputs["reference"], inputs["trusted"])
         inputs["trusted"][blurred] = False
         if line:
             notes.append(line + " (--keep-blurred keeps them)")
