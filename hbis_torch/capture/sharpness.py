@@ -48,8 +48,9 @@ def frame_sharpness(grey: torch.Tensor) -> np.ndarray:
     Parameters
     ----------
     grey : Tensor, shape (F, H, W) or (F, H, W, 3), float32
-        The frames' luminance in [0, 1], or RGB frames (the central square's BT.601 luma is
-        taken: a colour burst's whole luma is never made for it).
+        The frames' luminance, or RGB frames (the central square's BT.601 luma is taken: a colour
+        burst's whole luma is never made for it); in any units (a gain and an offset leave the
+        measure as it is).
 
     Returns
     -------
@@ -79,7 +80,7 @@ def choose_reference(grey: torch.Tensor, reference: int | str) -> tuple[int, lis
     Parameters
     ----------
     grey : Tensor, shape (F, H, W), float32
-        The frames' luminance, in [0, 1].
+        The frames' luminance (:func:`frame_sharpness`).
     reference : int or "sharpest"
         A frame's index, or :data:`SHARPEST` for the sharpest frame (:func:`frame_sharpness`: the
         first within :data:`SHARP_SHARE` of the sharpest's).
