@@ -72,6 +72,19 @@ def test_the_lens_blur_and_the_moving_object_show():
     assert outside[where].mean() > 5 * np.median(outside[INNER])
 
 
+def test_shaken_frames_are_the_reference_seen_through_their_motion_and_a_smear():
+    burst = render_burst("shaken", 2, 9, W, H, noise=False, keep_clean=True, seed=3)
+    assert len(burst.shaken) == 2 and 0 not in burst.shaken
+    for k in range(1, 9):
+        frame, through = burst.clean[k].astype(np.float64), reference_at_flow(burst, k)
+        error = np.abs(through - frame)[INNER].mean()
+        if k in burst.shaken:  # smeared: softer than the reference seen through the motion
+            assert error > 3e-3
+            assert np.abs(np.diff(frame, axis=1))[INNER].mean() < 0.9 * np.abs(np.diff(through, axis=1))[INNER].mean()
+        else:
+            assert error < 3e-3
+
+
 def test_every_motion_renders():
     for motion in MOTIONS:
         burst = render_burst(motion, 2, 2, 48, 40, seed=0)

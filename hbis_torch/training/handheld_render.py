@@ -24,7 +24,10 @@ each turned, zoomed, tilted and sheared a little, blurred by the lens, noisy, 16
   centres at integers (the convention of :mod:`hbis_torch.reconstruct.positions`), frame 0 the
   reference (the identity); for ``rolling_shutter`` a shift per row added after it
   (:attr:`HandheldBurst.row_shift`); a textured object that moves on its own between every two
-  frames; a gain and offset per frame.
+  frames; a gain and offset per frame; for ``shaken``, a similarity's motion and a quarter of the
+  frames besides the reference smeared while the shutter was open (the scene blurred before the
+  lens: along a line of :data:`SHAKE_PX` LR px in a random direction, or by a Gaussian of
+  :data:`SHAKE_SIGMA_PX`, in turn; :attr:`HandheldBurst.shaken`).
 
 :func:`render_burst` returns a :class:`HandheldBurst`: the frames (F, H, W) uint16, the truth
 (S H, S W) float32 on the reference frame's output grid (the scene itself, without the lens),
@@ -40,7 +43,8 @@ import functools
 import numpy as np
 
 #: The motions of a burst: each alone, and all of them at once.
-MOTIONS = ("translation", "similarity", "homography", "rolling_shutter", "moving_object", "brightness", "all")
+MOTIONS = ("translation", "similarity", "homography", "rolling_shutter", "moving_object", "brightness", "all",
+           "shaken")
 #: Output pixels per photograph pixel in the scene.
 PHOTO_PX = 1.25
 #: How far (LR px) the scene reaches beyond the reference frame on every side.
@@ -57,6 +61,9 @@ MAX_PERSPECTIVE_PX = 2.0
 MAX_SHEAR_PX = 2.0
 #: Largest relative change of gain of the ``brightness`` motion, and of the offset (of white).
 MAX_GAIN, MAX_OFFSET = 0.07, 0.01
+#: The ``shaken`` motion's smear: a line of this length (LR px, drawn between) or a Gaussian of
+#: this sigma (LR px, drawn between), in turn.
+SHAKE_PX, SHAKE_SIGMA_PX = (2.0, 4.0), (0.6, 1.2)
 
 
 @dataclasses.dataclass
@@ -102,6 +109,7 @@ class HandheldBurst:
     scale: int
     motion: str
     clean: np.ndarray | None = None
+    shaken: tuple = ()  # the frames the ``shaken`` motion smeared
 
     def flow(self, k: int) -> np.ndarray:
         """Where each pixel centre of frame ``k`` lies in the reference: (H, W, 2) (x, y), reference px."""
@@ -220,7 +228,7 @@ def draw_motion(motion: str, frames: int, width: int, height: int, rng: np.rando
     t = (np.arange(height) - cy) / height  # -0.5 .. 0.5 down the frame
     for k in range(1, frames):
         m = np.eye(3)
-        if motion in ("similarity", "homography") or every:
+        if motion in ("similarity", "homography", "shaken") or every:
             turn = MAX_ROTATION_DEG if motion != "homography" else MAX_ROTATION_DEG / 2
             a = np.deg2rad(rng.uniform(-turn, turn))
             z = 1 + rng.uniform(-MAX_ZOOM, MAX_ZOOM)
@@ -239,6 +247,28 @@ def draw_motion(motion: str, frames: int, width: int, height: int, rng: np.rando
         if motion == "brightness" or every:
             gain_offset[k] = 1 + rng.uniform(-MAX_GAIN, MAX_GAIN), rng.uniform(-MAX_OFFSET, MAX_OFFSET)
     return motions, row_shift, gain_offset, motion == "moving_object" or every
+
+
+def _smears(frames: int, scale: int, rng: np.random.Generator) -> dict:
+    """The ``shaken`` motion's smears: {frame: kernel on the scene's grid (``scale`` px a LR px),
+    normalised}, a quarter of the frames besides the reference, a line and a Gaussian in turn."""
+    chosen = sorted(rng.choice(np.arange(1, frames), size=max(1, (frames - 1) // 4), replace=False).tolist())
+    out = {}
+    for i, k in enumerate(chosen):
+        if i % 2 == 0:  # a line in a random direction, sampled finely and binned onto the grid
+            length, angle = rng.uniform(*SHAKE_PX) * scale, rng.uniform(0, np.pi)
+            t = np.linspace(-0.5, 0.5, 64 * int(np.ceil(length)) + 1) * length
+            half = int(np.ceil(length / 2)) + 1
+            kernel = np.zeros((2 * half + 1, 2 * half + 1))
+            np.add.at(kernel, (np.round(half + t * np.sin(angle)).astype(int), np.round(half + t * np.cos(angle))
+                               .astype(int)), 1.0)
+        else:
+            sigma = rng.uniform(*SHAKE_SIGMA_PX) * scale
+            half = int(np.ceil(3 * sigma))
+            axis = np.exp(-0.5 * (np.arange(-half, half + 1) / sigma) ** 2)
+            kernel = np.outer(axis, axis)
+        out[k] = kernel / kernel.sum()
+    return out
 
 
 def _filtered(scene: np.ndarray, scale: int, blur_sigma_px: float) -> np.ndarray:
@@ -293,6 +323,7 @@ def render_burst(motion: str = "all", scale: int = 2, frames: int = 16, width: i
     S, m = int(scale), MARGIN_PX
     rng = np.random.default_rng([seed, MOTIONS.index(motion), S, frames])
     motions, row_shift, gain_offset, moving = draw_motion(motion, frames, width, height, rng)
+    smears = _smears(frames, S, rng) if motion == "shaken" else {}
     scene = collage(S * (height + 2 * m), S * (width + 2 * m), np.random.default_rng([seed, S]))
 
     object_offset, object_box, layer = np.zeros((frames, 2)), None, None
@@ -318,7 +349,11 @@ def render_burst(motion: str = "all", scale: int = 2, frames: int = 16, width: i
     coeffs = None
     signals = np.empty((frames, height, width), np.float32)
     for k in range(frames):
-        if coeffs is None or layer is not None:
+        if k in smears:  # this frame's own scene, smeared
+            from scipy.ndimage import convolve
+
+            coeffs = _filtered(convolve(scene_of(k), smears[k], mode="mirror"), S, blur_sigma_px)
+        elif coeffs is None or layer is not None or k - 1 in smears:
             coeffs = _filtered(scene_of(k), S, blur_sigma_px)
         total = np.zeros((height, width))
         for dv in offsets:
@@ -345,4 +380,4 @@ def render_burst(motion: str = "all", scale: int = 2, frames: int = 16, width: i
             out[k] = np.clip(np.round(signals[k].astype(np.float64) * white), 0, white)
     truth = scene_of(0)[S * m:S * (m + height), S * m:S * (m + width)].astype(np.float32)
     return HandheldBurst(out, truth, motions, row_shift, gain_offset, object_offset, object_box,
-                         float(blur_sigma_px), S, motion, signals if keep_clean else None)
+                         float(blur_sigma_px), S, motion, signals if keep_clean else None, tuple(sorted(smears)))
