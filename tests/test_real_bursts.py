@@ -29,7 +29,7 @@ def _check(name: str, scale: int, count: int | None = None):
     frames = frames[:count]
     stack, messages = assemble_burst(frames, scale, names=names[:len(frames)])
     assert stack.kind == "burst" and (stack.confidence >= 0.5).sum() >= len(frames) // 2
-    # every rejection names its frame; text's and disk's first frame is their blurriest
+    # every rejection names its frame; disk's and text's first frames are named as blurred
     assert all(m.startswith(("frame ", "the reference, frame 0, is blurred")) for m in messages)
     for method in ("classical", "learned"):
         image = reconstruct(stack, method)

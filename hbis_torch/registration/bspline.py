@@ -223,7 +223,7 @@ def _spline_fetch(coefficients: Tensor, points: Tensor) -> Tensor:
     # The four fetches (u0, v0), (u1, v0), (u0, v1), (u1, v1): index [v fetch, u fetch].
     grid = torch.stack((at[None, :, ..., 0].expand(2, 2, F, N), at[:, None, ..., 1].expand(2, 2, F, N)), -1)
     got = grid_sample_threaded(coefficients[None], grid.view(1, 1, 4 * F * N, 2), mode="bilinear",
-                                          padding_mode="zeros", align_corners=True).view(C, 4, F, N)
+                               padding_mode="zeros", align_corners=True).view(C, 4, F, N)
     weights = torch.stack((g0, g1))  # (2, F, N, 2): [fetch, ..., axis]
     # The four fetches' weights (v weight times u weight), in the fetches' order: (4, F, N).
     weights = (weights[:, None, ..., 1] * weights[None, ..., 0]).view(4, F, N)

@@ -27,9 +27,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from hbis_torch.registration.threaded_sample import grid_sample_threaded
+
 # The shifted reference (:func:`_shift`) is made in the warp's pieces: PIECE_SAMPLES pixels at a
 # time, in grids of more pixels than PIECES_FROM.
-from hbis_torch.registration.threaded_sample import grid_sample_threaded
 from hbis_torch.registration.warp import PIECE_SAMPLES, PIECES_FROM, warp_onto_reference
 
 #: Side of a tile, LR px: small enough to follow a rolling shutter's skew down a frame, large

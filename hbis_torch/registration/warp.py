@@ -139,6 +139,6 @@ def warp_onto_reference(images: Tensor, motion: np.ndarray, mode: str = "bilinea
         piece = slice(first, min(first + step, rows))
         grid = _grid(m, shape, (rows, cols), piece)
         warped[..., piece, :] = grid_sample_threaded(images, grid, mode=mode, padding_mode="zeros",
-                                                                align_corners=True)
+                                                     align_corners=True)
         valid[piece] = inside(grid, shape)
     return warped, valid
