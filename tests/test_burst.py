@@ -109,6 +109,8 @@ def test_frame_of_another_scene_is_rejected_and_named():
     stack, messages = assemble_burst(frames, 2, names=[f"f{k}.png" for k in range(5)])
     assert stack.confidence[3] == 0 and (np.delete(stack.confidence, 3) > 0.5).all()
     assert any(m.startswith("frame 3 (f3.png) rejected") for m in messages), messages
+    # said of the frame named, not of the pair's "frame 1"; and no reference blurred beside another scene
+    assert not any("frame 1" in m or ": it:" in m or "; it:" in m or "is blurred" in m for m in messages), messages
     image = reconstruct(stack, "classical")
     assert np.isfinite(image).all()
     gain = psnr(image, burst.truth) - psnr(_single(burst), burst.truth)

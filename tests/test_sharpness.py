@@ -61,6 +61,23 @@ def test_a_blurred_reference_is_named_and_sharpest_takes_another(burst):
     assert index != 0 and messages == [f"reference: frame {index}, the sharpest of the burst (--reference sharpest)"]
 
 
+def test_a_reference_is_compared_with_the_frames_that_register_only(burst):
+    """A frame of another, busier scene is sharper than every frame of the burst; registration
+    rejects it, and the reference is not called blurred beside it."""
+    other = burst.copy()
+    other[3] = (np.random.default_rng(0).random(burst.shape[1:]) * 255).astype(burst.dtype)
+    grey = luminance(other)
+    assert len(choose_reference(grey, 0)[1]) == 1  # beside every frame: named
+    trusted = np.ones(len(burst), dtype=bool)
+    trusted[3] = False
+    assert choose_reference(grey, 0, trusted) == (0, [])
+    trusted[0] = False  # the reference itself is always compared
+    assert choose_reference(grey, 0, trusted) == (0, [])
+    stack, messages = assemble_burst(other, 2)
+    assert stack.confidence[3] == 0 and not any("is blurred" in m for m in messages), messages
+    assert not any(": it:" in m or "; it:" in m for m in messages), messages
+
+
 def test_assemble_with_the_sharpest_reference(burst, tmp_path, capsys):
     frames = _blurred(burst, 0)
     stack, messages = assemble_burst(frames, 2, reference="sharpest")

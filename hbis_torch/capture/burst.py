@@ -111,6 +111,13 @@ def luminance(frames: np.ndarray) -> torch.Tensor:
     return result
 
 
+def _of_the_frame(message: str) -> str:
+    """A pair registration's line about its frame 1, said of the frame named before it:
+    "frame 1: its motion ..." -> "its motion ...", "frame 1 is flat" -> "it is flat"."""
+    prefix = "frame 1: "
+    return message[len(prefix):] if message.startswith(prefix) else message.replace("frame 1", "it", 1)
+
+
 def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
                    names: list | None = None) -> BurstMotion:
     """Measure every frame's motion, model, brightness and confidence relative to the reference.
@@ -204,7 +211,7 @@ def register_burst(grey: torch.Tensor, reference: int = 0, motion: str = "auto",
                     if how:
                         log.info("frame %d (%s): %s%s", k, names[k], reg.model, how)
                 if confidence[k] < BURST_MIN_CONFIDENCE:
-                    why = "; ".join(m.replace("frame 1", "it") for m in reg.messages
+                    why = "; ".join(_of_the_frame(m) for m in reg.messages
                                     if "not registered" not in m) or "its motion is not measurable"
                     messages.append(f"frame {k} ({names[k]}) rejected (registration confidence "
                                     f"{confidence[k]:.2f}{how}): {why}")
@@ -536,8 +543,11 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
     grey = luminance(frames)
     if bit_depth is not None and frames.dtype != np.float32:
         grey.mul_((2 ** (frames.dtype.itemsize * 8) - 1) / (2 ** bit_depth - 1))
-    reference, messages = choose_reference(grey, reference)
+    given = reference != SHARPEST
+    reference, messages = (reference, []) if given else choose_reference(grey, reference)
     found = register_burst(grey, reference, motion, names)
+    if given:  # compared with the frames that register: another scene's sharpness says nothing of it
+        _, messages = choose_reference(grey, reference, found.confidence >= BURST_MIN_CONFIDENCE)
     messages += found.messages
     hint = bit_depth_hint(frames) if bit_depth is None else None
     if hint is not None:

@@ -548,14 +548,15 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
 
     from hbis_torch.capture.burst import register_burst
     from hbis_torch.registration.pyramid import from_level
-    from hbis_torch.stack_io import Stack, make_burst_meta, validate_stack
+    from hbis_torch.stack_io import BURST_MIN_CONFIDENCE, Stack, make_burst_meta, validate_stack
 
     F, H, W = mosaics.shape
     raw = dict(raw)
     values, clipped = normalised(mosaics, raw)
     grey, raw["grey_scale"] = registration_grey(values, cfa, raw["white_balance"], reference, clipped)
-    _, said = choose_reference(torch.from_numpy(grey), reference)  # (a blurred reference is named)
     found = register_burst(torch.from_numpy(grey), reference, motion, names)
+    # a blurred reference is named, beside the frames that register (assemble_burst's rule)
+    _, said = choose_reference(torch.from_numpy(grey), reference, found.confidence >= BURST_MIN_CONFIDENCE)
     motions = from_level(found.motions, 1)  # a 2 x 2 cell is a pixel of the pyramid's first level
     extra = {}
     if getattr(found, "local", None) is not None:  # [handheld]'s local shifts, from cells to pixels

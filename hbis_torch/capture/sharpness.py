@@ -76,7 +76,7 @@ def frame_sharpness(grey: torch.Tensor) -> np.ndarray:
     return torch.where(variance > 0, energy / variance.clamp_min(1e-30), 0.0).numpy()
 
 
-def choose_reference(grey: torch.Tensor, reference: int | str) -> tuple[int, list[str]]:
+def choose_reference(grey: torch.Tensor, reference: int | str, trusted=None) -> tuple[int, list[str]]:
     """The reference frame's index, and a line where the reference is blurred.
 
     Parameters
@@ -86,6 +86,10 @@ def choose_reference(grey: torch.Tensor, reference: int | str) -> tuple[int, lis
     reference : int or "sharpest"
         A frame's index, or :data:`SHARPEST` for the sharpest frame (:func:`frame_sharpness`: the
         first within :data:`SHARP_SHARE` of the sharpest's).
+    trusted : Tensor or np.ndarray, shape (F,), bool, optional
+        For a given index: the frames it is compared with (and itself); a frame of another scene,
+        which registration rejects, has a sharpness of its own that says nothing of the
+        reference's. Default: every frame (before registration).
 
     Returns
     -------
@@ -96,10 +100,14 @@ def choose_reference(grey: torch.Tensor, reference: int | str) -> tuple[int, lis
         act, :func:`~hbis_torch.notices.act`); for ``"sharpest"``, which frame it is.
     """
     sharpness = frame_sharpness(grey)
-    best = int(np.argmax(sharpness))
     if reference == SHARPEST:
-        first = int(np.flatnonzero(sharpness >= SHARP_SHARE * sharpness[best])[0])
+        first = int(np.flatnonzero(sharpness >= SHARP_SHARE * sharpness.max())[0])
         return first, [f"reference: frame {first}, the sharpest of the burst (--reference sharpest)"]
+    if trusted is not None:
+        compared = np.array(trusted, dtype=bool)
+        compared[reference] = True
+        sharpness = np.where(compared, sharpness, 0.0)
+    best = int(np.argmax(sharpness))
     share = float(sharpness[reference] / sharpness[best]) if sharpness[best] > 0 else 1.0
     if share >= BLURRED_SHARE:
         return int(reference), []
