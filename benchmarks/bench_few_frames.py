@@ -22,7 +22,7 @@ from hbis_torch.capture.burst import assemble_burst
 from hbis_torch.metrics import psnr
 from hbis_torch.provenance import run_recorded
 from hbis_torch.reconstruct import reconstruct
-import hbis_torch.reconstruct.burst as burst
+import hbis_torch.reconstruct.burst_fill as burst_fill
 from hbis_torch.reconstruct.single_frame import single_frame
 from hbis_torch.simulate.burst import random_motions, simulate_burst
 
@@ -48,12 +48,12 @@ def measure(args):
             sim = simulate_burst(truth, 2, motions, noise=0.005, seed=seed)
             stack, _ = assemble_burst(sim.frames, 2)
             shipped = psnr(reconstruct(stack, "classical"), truth)
-            limits = burst.NO_FILL, burst.FULL_FILL
-            burst.NO_FILL, burst.FULL_FILL = -1.0, -0.5  # every node counts as filled: no blend
+            limits = burst_fill.NO_FILL, burst_fill.FULL_FILL
+            burst_fill.NO_FILL, burst_fill.FULL_FILL = -1.0, -0.5  # every node counts as filled: no blend
             try:
                 unblended = psnr(reconstruct(stack, "classical"), truth)
             finally:
-                burst.NO_FILL, burst.FULL_FILL = limits
+                burst_fill.NO_FILL, burst_fill.FULL_FILL = limits
             scores.append((psnr(single_frame(sim.frames[0] / 255.0, 2), truth), shipped, unblended))
         one, shipped, unblended = np.mean(scores, axis=0)
         print(f"| {count} | {one:.2f} | {shipped:.2f} | {unblended:.2f} |")

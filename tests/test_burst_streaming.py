@@ -199,9 +199,9 @@ def test_the_lazy_samples_keep_the_weights_values_in_float32(stack):
 
 
 def test_the_tally_drops_samples_beyond_the_grid_or_without_weight():
-    from hbis_torch.reconstruct.burst import _Tally
+    from hbis_torch.reconstruct.burst_fill import Tally
 
-    tally = _Tally((4, 5), 0, (2,))
+    tally = Tally((4, 5), 0, (2,))
     where = torch.zeros(4, 5, 2, dtype=torch.float64)
     where[1, 2], where[2, 3], where[3, 4] = float("nan"), float("inf"), 7.0  # nowhere, nowhere, beyond
     where[0, 1] = torch.tensor([4.0, 3.0])  # the last pixel

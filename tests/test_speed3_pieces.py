@@ -135,7 +135,7 @@ def test_luminance_in_torch_memory_is_the_float32_division():
 
 
 def test_the_tally_in_pieces_of_rows_has_the_sums_of_the_whole_frame(monkeypatch):
-    from hbis_torch.reconstruct import burst as B
+    from hbis_torch.reconstruct import burst_fill
 
     rng = np.random.default_rng(5)
     H, Wd = 37, 53
@@ -146,8 +146,8 @@ def test_the_tally_in_pieces_of_rows_has_the_sums_of_the_whole_frame(monkeypatch
     where[3, 0, 0] = float("nan")  # a sample that lands nowhere
 
     def tally(piece):
-        monkeypatch.setattr(B, "TALLY_PIECE_SAMPLES", piece)
-        t = B._Tally((H, Wd), 0, (3, 2))
+        monkeypatch.setattr(burst_fill, "TALLY_PIECE_SAMPLES", piece)
+        t = burst_fill.Tally((H, Wd), 0, (3, 2))
         for k in range(4):
             t.add(k, where[k], weights[k])
         return t

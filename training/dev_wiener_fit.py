@@ -217,14 +217,14 @@ def wiener_input(kind, S, F, seed, cache: Path):
             seen[name] = function(*a, **k)
             return seen[name]
         return recording
-    saved = sr.wiener_deblur, B._blend_weight, B._Tally.run_scale, B.single_frame
+    saved = sr.wiener_deblur, B._blend_weight, B.Tally.run_scale, B.single_frame
     sr.wiener_deblur = recorder("call", sr.wiener_deblur)
     B._blend_weight, B.single_frame = recorder("alpha", B._blend_weight), recorder("fallback", B.single_frame)
-    B._Tally.run_scale = recorder("run", B._Tally.run_scale)
+    B.Tally.run_scale = recorder("run", B.Tally.run_scale)
     try:
         out = reconstruct(stack, "classical")
     finally:
-        sr.wiener_deblur, B._blend_weight, B._Tally.run_scale, B.single_frame = saved
+        sr.wiener_deblur, B._blend_weight, B.Tally.run_scale, B.single_frame = saved
     run_scale, fill = seen["run"]
     alpha = seen["alpha"]
     if S <= 2 or float(fill.mean()) < B.RUN_FILL:  # classical_burst.fill_blend_to = 2

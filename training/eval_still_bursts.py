@@ -10,7 +10,7 @@ the held-out photographs, a Gaussian lens of 0.3 LR px, 640 x 480, motion ``tran
 shifts are drawn up to ``spread`` LR px each way (0: only the noise differs; 2.5: the renderer's
 own hand-held shifts), and scores against the truth (a border of 4 LR px left out): bicubic of the
 reference, the classical and learned methods as they are, and the same with the still rule off
-(``hbis_torch.reconstruct.burst.STILL_SPACING`` set to 0: the code before the rule, the same
+(``hbis_torch.reconstruct.burst_fill.STILL_SPACING`` set to 0: the code before the rule, the same
 bits). The rule's setting was chosen on the training photographs (seeds 12 and 13); these are
 other photographs and seeds.
 """
@@ -29,7 +29,7 @@ def run_cell(scale: int, count: int, spread: float, seed: int, learned: bool) ->
     import eval_third_renderer as third
     from eval_handheld import bicubic, psnr
 
-    import hbis_torch.reconstruct.burst as burst_module
+    import hbis_torch.reconstruct.burst_fill as burst_fill
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.reconstruct import reconstruct
     from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS
@@ -38,16 +38,16 @@ def run_cell(scale: int, count: int, spread: float, seed: int, learned: bool) ->
     frames, truth, _ = third.render("translation", scale, count, 640, 480, seed, HELD_OUT_PHOTOS)
     stack, _ = assemble_burst(frames, scale)
     out = {"bicubic": psnr(bicubic(frames[0], scale), truth, BORDER_LR, scale)}
-    rule = burst_module.STILL_SPACING
+    rule = burst_fill.STILL_SPACING
     for method in ("classical", "learned") if learned else ("classical",):
         notes: list[str] = []
         out[method] = psnr(reconstruct(stack, method, messages=notes), truth, BORDER_LR, scale)
         out[f"{method}_said"] = [n for n in notes if "hardly moved" in n]
-        burst_module.STILL_SPACING = 0.0
+        burst_fill.STILL_SPACING = 0.0
         try:
             out[f"{method}_without_rule"] = psnr(reconstruct(stack, method), truth, BORDER_LR, scale)
         finally:
-            burst_module.STILL_SPACING = rule
+            burst_fill.STILL_SPACING = rule
     return out
 
 

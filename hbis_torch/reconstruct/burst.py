@@ -39,8 +39,6 @@ References
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 from torch import Tensor
@@ -48,6 +46,8 @@ from torch import Tensor
 from hbis_torch.capture.sharpness import blurred_frames
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
+from hbis_torch.reconstruct.burst_fill import RUN_FILL, Tally, report_still, tally_frames
+from hbis_torch.reconstruct.burst_fill import coverage, scale_to_run  # noqa: F401 (this module's API too)
 from hbis_torch.reconstruct.lens_blur import burst_lens_sigma
 from hbis_torch.reconstruct.single_frame import enlarge, single_frame
 from hbis_torch.registration.threaded_sample import grid_sample_threaded
@@ -62,29 +62,6 @@ CONTRAST_TOLERANCE = 1.5
 # Where the other frames' samples in a reference pixel weigh less than this, the output leans on
 # the single-frame estimate (fully where they weigh nothing).
 FULL_COVERAGE = 2.0
-# Share of the output lattice's nodes near a pixel that samples land on: below NO_FILL the output is
-# the single-frame estimate, from FULL_FILL up the method's alone.
-NO_FILL, FULL_FILL = 0.4, 0.8
-# A burst is reconstructed at the largest scale (from S down to 2) where the mean of that share
-# reaches this (:func:`scale_to_run`). A method's burst function with an attribute ``fill_blend_to``
-# gets the fill's blend only for bursts asked at scales up to it (the classical method's: 2), or
-# where no scale's lattice reaches RUN_FILL; above it, the run scale's choice guards the lattice (it
-# is filled on average) and the coverage's blend the frame's edges. On the training simulator
-# (photographs, 640 x 480, lens blur 0.3 LR px given / estimated, shifts to 2 px and turns to
-# 0.5 deg, 3 seeds) leaving it out there gained the classical method +1.15 / +0.88 dB at S = 3 with
-# F = 8, +0.10 / +0.11 with F = 16, +0.92 / +0.88 and +1.00 / +1.00 at S = 4 with F = 8 and 16, and
-# +0.6 to +1.0 dB at S = 3 with F = 4 (run at S = 2), never less; with shifts alone (whole sub-pixel
-# phases empty) +0.03 to +1.05 dB in every burst: the deblurred lattice beats its blend with the
-# enlarged reference even where a third of the nodes are empty. At S = 2 itself it is kept: on
-# 40 x 40 px bursts of 3 to 6 frames it gains 0.4 to 1.1 dB (benchmarks/bench_few_frames.py).
-RUN_FILL = 0.5
-# A still frame's samples (a tripod's: STILL_FRAME_SHARE of them within STILL_SPACING of the S
-# lattice's node spacing of the reference's, both axes) count for the fill as landing on the
-# reference's nodes. At even S the reference's samples lie halfway between nodes, and a still
-# frame's fell on either side by their noise and seemed to fill every node: the lattice was
-# deblurred from one phase. On the training simulator (photographs, 640 x 480, S = 2, 8 frames)
-# frames still to 0.0 / 0.1 LR px gave 1.25 / 0.70 dB under the single frame, with it +0.00 / +0.17.
-STILL_SPACING, STILL_FRAME_SHARE = 0.2, 0.9
 
 
 def corrected_frames(stack, channel: int | None = None) -> Tensor:
@@ -171,8 +148,8 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
     trusted : Tensor, shape (F,), bool
         Frames whose motion is trusted (the others get 0).
     reference : int
-    tally : _Tally, optional
-        Is handed every frame's positions and weights with any weight (:meth:`_Tally.add`),
+    tally : Tally, optional
+        Is handed every frame's positions and weights with any weight (:meth:`Tally.add`),
         which then need not be computed again.
 
     Returns
@@ -223,131 +200,8 @@ def _minimum_3x3(image: Tensor) -> Tensor:
     return out
 
 
-# Samples :meth:`_Tally.add` takes at a time (a piece of rows): a 12 MP frame's indices in one go
-# are 96 MB of fresh pages each, which on this project's benchmark machine cost more to fault in
-# than the sums themselves (the same sums either way).
-TALLY_PIECE_SAMPLES = 1 << 16
-
-
-class _Tally:
-    """What :func:`coverage` and :func:`scale_to_run` add up over the frames, a frame at a time
-    (its positions and weights), for frames of ``shape`` (H, W) and the output scales ``scales``."""
-
-    def __init__(self, shape: tuple[int, int], reference: int, scales=()):
-        H, W = shape
-        self.shape, self.reference = shape, reference
-        # framed by one node each way (:meth:`_framed_index`)
-        self.cover = torch.zeros((H + 2) * (W + 2), dtype=torch.float64)
-        self.hits = {s: torch.zeros((s * H + 2) * (s * W + 2), dtype=torch.bool) for s in scales}
-        self.added = 0  # frames added
-        self.still: dict[int, list] = {s: [] for s in scales}  # still frames at each scale (:meth:`_still`)
-        self.others = 0  # frames other than the reference added
-
-    def add(self, k: int, where: Tensor, weight: Tensor) -> None:
-        """Frame ``k``'s positions (H, W, 2) and weights (H, W).
-
-        Samples beyond the grid go to a one-node frame around it (indices clamped), which is
-        dropped, and samples that add nothing (weight 0, or at most 0.1 for the fill) to one
-        node of it: no boolean selection of the samples (a third of the time), the same sums
-        (a weight of 0 adds nothing, and the others are added in the same order). A piece of
-        :data:`TALLY_PIECE_SAMPLES` samples at a time, in row order: the same sums, in the same
-        order, with temporaries that stay small enough to be reused rather than paged in fresh."""
-        self.added += 1
-        self.others += k != self.reference
-        still = self._still(k, where, weight)
-        rows = max(1, TALLY_PIECE_SAMPLES // self.shape[1])
-        for r in range(0, where.shape[0], rows):
-            self._add_rows(k, where[r:r + rows], weight[r:r + rows],
-                           {s: None if m is None else m[r:r + rows] for s, m in still.items()})
-
-    def _still(self, k: int, where: Tensor, weight: Tensor) -> dict:
-        """Per scale s of the fill: frame ``k``'s samples within :data:`STILL_SPACING` of the
-        reference's phase on the s-times lattice, (H, W) bool, where they are
-        :data:`STILL_FRAME_SHARE` of its samples of weight > 0.1 (a still frame, which
-        ``still[s]`` then names); else None (the reference; a frame that moved, whose samples near
-        the reference's phase are as many as chance puts there, and stay)."""
-        out = dict.fromkeys(self.hits)
-        if k == self.reference or not self.hits:
-            return out
-        # each sample's distance from the reference's samples' places, the larger axis's (LR px)
-        offset = (where - where.round()).abs_().amax(-1)
-        landed = weight > 0.1
-        count = int(landed.sum())
-        for s in self.hits:
-            still = offset < STILL_SPACING / s
-            if count and int(still.logical_and(landed).sum()) >= STILL_FRAME_SHARE * count:
-                self.still[s].append(k)
-                out[s] = still
-        return out
-
-    def _add_rows(self, k: int, where: Tensor, weight: Tensor, still: dict) -> None:
-        """:meth:`add` for a piece of the frame's rows (``still``: :meth:`_still`'s at each scale)."""
-        H, W = self.shape
-        if not math.isfinite(float(where.sum())):  # (a degenerate motion) such samples land nowhere
-            keep = torch.isfinite(where).all(-1)
-            where, weight = torch.where(keep[..., None], where, -2.0), weight * keep
-        if k != self.reference:  # coverage: the other frames' weights in the pixel each sample lands in
-            index = self._framed_index(where, 1, H, W)
-            self.cover.index_add_(0, index, weight.reshape(-1).to(torch.float64))
-        for s, hit in self.hits.items():  # the lattice nodes that samples of weight > 0.1 land on
-            # a still frame's samples land where the reference's do (STILL_SPACING)
-            at = where if still[s] is None else torch.where(still[s][..., None], where.round(), where)
-            index = self._framed_index(at, s, s * H, s * W)
-            hit[torch.where(weight.reshape(-1) > 0.1, index, 0)] = True
-
-    @staticmethod
-    def _framed_index(where: Tensor, s: int, rows: int, cols: int) -> Tensor:
-        """Flat index (N,) int64 in a (rows + 2, cols + 2) grid framed by one node of the node
-        nearest each position (H, W, 2) on the s-times grid, clamped to the frame."""
-        u = (s * (where[..., 0] + 0.5) - 0.5) if s != 1 else where[..., 0]
-        v = (s * (where[..., 1] + 0.5) - 0.5) if s != 1 else where[..., 1]
-        u = u.round().clamp_(-1, cols).to(torch.int64)
-        v = v.round().clamp_(-1, rows).to(torch.int64)
-        return v.add_(1).mul_(cols + 2).add_(u).add_(1).reshape(-1)
-
-    def coverage(self) -> np.ndarray:
-        H, W = self.shape
-        return self.cover.reshape(H + 2, W + 2)[1:-1, 1:-1].numpy().copy()
-
-    def fill(self, s: int) -> np.ndarray:
-        """:func:`_lattice_fill` at scale ``s``."""
-        H, W = self.shape
-        size = 2 * s + 1
-        hit = self.hits[s].reshape(s * H + 2, s * W + 2)[1:-1, 1:-1].to(torch.float32)
-        fill = torch.nn.functional.avg_pool2d(hit.reshape(1, 1, s * H, s * W), size, 1, size // 2,
-                                              count_include_pad=False)[0, 0]
-        return ((fill - NO_FILL) / (FULL_FILL - NO_FILL)).clamp(0, 1).numpy()
-
-    def run_scale(self, scale: int) -> tuple[int, np.ndarray]:
-        """:func:`scale_to_run` from the hits at ``scale`` down to 2."""
-        first = None
-        for s in range(scale, 1, -1):
-            fill = self.fill(s)
-            first = fill if first is None else first
-            if float(fill.mean()) >= RUN_FILL:
-                return s, fill
-        return scale, first
-
-
-def _tally(positions, weights: Tensor, reference: int, scales=()) -> _Tally:
-    """:class:`_Tally` of every frame with any weight (a frame's positions computed once)."""
-    F, H, W = weights.shape
-    tally = _Tally((H, W), reference, scales)
-    for k in range(F):
-        if bool((weights[k] > 0).any()):
-            tally.add(k, positions[k], weights[k])
-    return tally
-
-
-def coverage(positions, weights: Tensor, reference: int) -> np.ndarray:
-    """How much the frames other than the reference put into each reference pixel: the sum of
-    their samples' weights over the pixel each lands in, (H, W) float64. ``positions`` as
-    :func:`robustness_weights`'; weights (F, H, W)."""
-    return _tally(positions, weights, reference).coverage()
-
-
 def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
-                  tally: _Tally | None = None, leave_out=()) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                  tally: Tally | None = None, leave_out=()) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Steps 1 to 3 of the module docstring: what every method's burst path is handed.
 
     Parameters
@@ -360,7 +214,7 @@ def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
         Positions as a :class:`~hbis_torch.reconstruct.positions.BurstPositions` (computed a
         band at a time where they are read) and weights in float32 (the same values), not the
         whole float64 arrays: 24 bytes a sample less (a 12 MP burst of 16 frames: 4.6 GB).
-    tally : _Tally, optional
+    tally : Tally, optional
         :func:`robustness_weights`'.
     leave_out : sequence of int
         Frames given no weight besides the untrusted ones (blurred frames,
@@ -445,14 +299,14 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
                          "again, moving the camera a little between frames"))
         return fallback
     # the coverage and the lattice's fill added up beside the weights (each frame's positions once)
-    tally = _Tally(tuple(frames.shape[1:3]), ref, range(scale, 1, -1))
+    tally = Tally(tuple(frames.shape[1:3]), ref, range(scale, 1, -1))
     trusted_motion = stack.confidence >= BURST_MIN_CONFIDENCE
     blurred, line = ([], None) if keep_blurred else blurred_frames(frames, ref, trusted_motion)
     if line:
         notes.append(line + " (--keep-blurred keeps them)")
     frames, positions, trusted, weights = burst_samples(stack, frames, lazy=True, tally=tally, leave_out=blurred)
     if not tally.added:  # weights from elsewhere (a robustness_weights that takes no tally)
-        tally = _tally(positions, weights, ref, range(scale, 1, -1))
+        tally = tally_frames(positions, weights, ref, range(scale, 1, -1))
     cover = tally.coverage()
     if float(cover.max()) == 0.0:
         notes.append("no frame but the reference could be used (none registered, or none agrees with it): the output "
@@ -463,7 +317,7 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
         run_scale, fill = 1, np.ones(cover.shape, dtype=np.float32)
     else:
         run_scale, fill = tally.run_scale(scale)
-        _report_still(tally, notes)
+        report_still(tally, notes)
     del tally
     if not getattr(run, "streams", False):  # a method that wants the whole arrays gets them
         positions, weights = positions.whole(), weights.double()
@@ -545,45 +399,6 @@ def _blend_weight(cover: np.ndarray, scale: int) -> np.ndarray:
     # order=1, mode="nearest", grid_mode=True: the same float32 values, a third of its time)
     big = torch.nn.functional.interpolate(alpha[None, None], scale_factor=scale, mode="bilinear", align_corners=False)
     return big[0, 0].clamp_(0, 1).to(torch.float32).numpy()
-
-
-def _lattice_fill(positions, weights: Tensor, scale: int) -> np.ndarray:
-    """The method's share (S H, S W) float32 from how the samples fill the output lattice: the
-    share of output pixels near each (within S px) that a sample of weight > 0.5 lands on; 1 from
-    :data:`FULL_FILL` up, 0 at :data:`NO_FILL` and below. A few frames leave whole sub-pixel
-    phases empty, and deblurring the filled-in lattice then costs more than it gains (4 random
-    frames at S = 2: 2 to 4 dB under the single frame on simulated bursts; 8: 5 dB over it)."""
-    return _tally(positions, weights, -1, (scale,)).fill(scale)
-
-
-def scale_to_run(positions, weights: Tensor, scale: int) -> tuple[int, np.ndarray]:
-    """The scale a burst is reconstructed at: the largest s from ``scale`` down to 2 whose lattice
-    the samples fill (the mean of :func:`_lattice_fill` at s at least :data:`RUN_FILL`), else
-    ``scale`` (the fallback's blend then leans on the single frame); and :func:`_lattice_fill` at
-    it. A scale the samples do not fill leaves whole sub-pixel phases empty; at a coarser one the
-    same samples still add what they resolve, and the image is enlarged to the scale asked for.
-    ``positions`` as :func:`robustness_weights`'; weights (F, H, W)."""
-    if scale == 1:  # the reference's own grid: nothing to fill
-        return 1, np.ones((weights.shape[1], weights.shape[2]), dtype=np.float32)
-    return _tally(positions, weights, -1, range(scale, 1, -1)).run_scale(scale)
-
-
-def _report_still(tally: _Tally, notes: list) -> None:
-    """A line naming the frames that hardly moved against the reference (:meth:`_Tally._still` on the
-    coarsest lattice tried, S = 2, the loosest test); one that asks the user to act where every
-    frame added is so."""
-    scale = min(tally.still, default=None)
-    still = [] if scale is None else sorted(tally.still[scale])
-    if not still:
-        return
-    within = f"within {STILL_SPACING / scale:.2f} LR px of its pixel grid"
-    if len(still) < tally.others:
-        notes.append(f"frame(s) {still} hardly moved against the reference ({within}): they add no new "
-                     "sub-pixel samples, only less noise")
-        return
-    notes.append(act(f"the frames hardly moved against the reference (all {len(still)} {within}): they hold no "
-                     "detail beyond the reference's, so the output is close to the reference enlarged; for "
-                     "super-resolution move the camera a little between frames (a hand-held burst moves enough)"))
 
 
 def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: list, blurred=()) -> None:

@@ -86,5 +86,5 @@ classical_burst.streams = True
 classical_burst.shares_samples = True
 # The lattice fill's blend with the single frame only for bursts asked at S = 2 (or filling no
 # scale's lattice): above it, a scale the samples fill on average deblurs better than the blend
-# (hbis_torch.reconstruct.burst.RUN_FILL's notes).
+# (hbis_torch.reconstruct.burst_fill.RUN_FILL's notes).
 classical_burst.fill_blend_to = 2
