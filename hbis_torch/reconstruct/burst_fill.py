@@ -54,6 +54,11 @@ STILL_SPACING, STILL_FRAME_SHARE, STILL_BURST_SHARE = 0.2, 0.9, 0.5
 TALLY_PIECE_SAMPLES = 1 << 16
 
 
+def _phase_offset(where: Tensor) -> Tensor:
+    """How far each position (..., 2) lies from the reference's pixel grid, the larger axis's, LR px (...)."""
+    return (where - where.round()).abs_().amax(-1)
+
+
 class Tally:
     """What :func:`coverage` and :func:`scale_to_run` add up over the frames, a frame at a time
     (its positions and weights), for frames of ``shape`` (H, W) and the output scales ``scales``."""
@@ -65,7 +70,7 @@ class Tally:
         self.cover = torch.zeros((H + 2) * (W + 2), dtype=torch.float64)
         self.hits = {s: torch.zeros((s * H + 2) * (s * W + 2), dtype=torch.bool) for s in scales}
         self.added = 0  # frames added
-        self.still: dict[int, list] = {s: [] for s in scales}  # still frames at each scale (:meth:`_still`)
+        self.still: dict[int, list] = {s: [] for s in scales}  # still frames per scale (:meth:`_still_scales`)
         self.still_hits: dict[int, Tensor] = {}  # the nodes still frames' samples land on unmoved, per scale
         self.others = 0  # frames other than the reference added
 
@@ -80,34 +85,31 @@ class Tally:
         order, with temporaries that stay small enough to be reused rather than paged in fresh."""
         self.added += 1
         self.others += k != self.reference
-        still = self._still(k, where, weight)
         rows = max(1, TALLY_PIECE_SAMPLES // self.shape[1])
+        still = self._still_scales(k, where, weight, rows)
         for r in range(0, where.shape[0], rows):
-            self._add_rows(k, where[r:r + rows], weight[r:r + rows],
-                           {s: None if m is None else m[r:r + rows] for s, m in still.items()})
+            self._add_rows(k, where[r:r + rows], weight[r:r + rows], still)
 
-    def _still(self, k: int, where: Tensor, weight: Tensor) -> dict:
-        """Per scale s of the fill: frame ``k``'s samples within :data:`STILL_SPACING` of the
-        reference's phase on the s-times lattice, (H, W) bool, where they are
-        :data:`STILL_FRAME_SHARE` of its samples of weight > 0.1 (a still frame, which
-        ``still[s]`` then names); else None (the reference; a frame that moved, whose samples near
-        the reference's phase are as many as chance puts there, and stay)."""
-        out = dict.fromkeys(self.hits)
+    def _still_scales(self, k: int, where: Tensor, weight: Tensor, rows: int) -> tuple:
+        """The scales s on whose lattice frame ``k`` is still: :data:`STILL_FRAME_SHARE` of its
+        samples of weight > 0.1 within :data:`STILL_SPACING` of the s lattice's node spacing of the
+        reference's phase (and ``still[s]`` names it). None for the reference. A piece of rows at
+        a time, as :meth:`add`."""
         if k == self.reference or not self.hits:
-            return out
-        # each sample's distance from the reference's samples' places, the larger axis's (LR px)
-        offset = (where - where.round()).abs_().amax(-1)
-        landed = weight > 0.1
-        count = int(landed.sum())
-        for s in self.hits:
-            still = offset < STILL_SPACING / s
-            if count and int(still.logical_and(landed).sum()) >= STILL_FRAME_SHARE * count:
-                self.still[s].append(k)
-                out[s] = still
-        return out
+            return ()
+        count, near = 0, dict.fromkeys(self.hits, 0)
+        for r in range(0, where.shape[0], rows):
+            offset, landed = _phase_offset(where[r:r + rows]), weight[r:r + rows] > 0.1
+            count += int(landed.sum())
+            for s in self.hits:
+                near[s] += int((offset < STILL_SPACING / s).logical_and_(landed).sum())
+        still = tuple(s for s in self.hits if count and near[s] >= STILL_FRAME_SHARE * count)
+        for s in still:
+            self.still[s].append(k)
+        return still
 
-    def _add_rows(self, k: int, where: Tensor, weight: Tensor, still: dict) -> None:
-        """:meth:`add` for a piece of the frame's rows (``still``: :meth:`_still`'s at each scale)."""
+    def _add_rows(self, k: int, where: Tensor, weight: Tensor, still: tuple) -> None:
+        """:meth:`add` for a piece of the frame's rows (``still``: :meth:`_still_scales`')."""
         H, W = self.shape
         if not math.isfinite(float(where.sum())):  # (a degenerate motion) such samples land nowhere
             keep = torch.isfinite(where).all(-1)
@@ -116,13 +118,14 @@ class Tally:
             index = self._framed_index(where, 1, H, W)
             self.cover.index_add_(0, index, weight.reshape(-1).to(torch.float64))
         landed = weight.reshape(-1) > 0.1
+        offset = _phase_offset(where) if still else None
         for s, hit in self.hits.items():  # the lattice nodes that samples of weight > 0.1 land on
             at = where
-            if still[s] is not None:  # where a still frame's land, kept apart; moved to the reference's
+            if s in still:  # where a still frame's land, kept apart; moved to the reference's
                 if s not in self.still_hits:
                     self.still_hits[s] = torch.zeros_like(hit)
                 self.still_hits[s][torch.where(landed, self._framed_index(where, s, s * H, s * W), 0)] = True
-                at = torch.where(still[s][..., None], where.round(), where)
+                at = torch.where((offset < STILL_SPACING / s)[..., None], where.round(), where)
             hit[torch.where(landed, self._framed_index(at, s, s * H, s * W), 0)] = True
 
     @staticmethod
@@ -141,7 +144,7 @@ class Tally:
 
     def mostly_still(self, s: int) -> bool:
         """Whether at least :data:`STILL_BURST_SHARE` of the frames added (but the reference) are
-        still on the ``s``-times lattice (:meth:`_still`)."""
+        still on the ``s``-times lattice (:meth:`_still_scales`)."""
         return bool(self.still.get(s)) and len(self.still[s]) >= STILL_BURST_SHARE * self.others
 
     def fill(self, s: int) -> np.ndarray:
@@ -206,9 +209,9 @@ def scale_to_run(positions, weights: Tensor, scale: int) -> tuple[int, np.ndarra
 
 
 def report_still(tally: Tally, notes: list) -> None:
-    """A line naming the frames that hardly moved against the reference (:meth:`Tally._still` on the
-    coarsest lattice tried, S = 2, the loosest test); one that asks the user to act where most of
-    the frames (:data:`STILL_BURST_SHARE`) are so."""
+    """A line naming the frames that hardly moved against the reference (:meth:`Tally._still_scales`
+    on the coarsest lattice tried, S = 2, the loosest test); one that asks the user to act where
+    most of the frames (:data:`STILL_BURST_SHARE`) are so."""
     scale = min(tally.still, default=None)
     still = [] if scale is None else sorted(tally.still[scale])
     if not still:
