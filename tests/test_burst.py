@@ -453,34 +453,3 @@ def test_assemble_runs_on_the_threads_asked_and_gives_them_back(tmp_path, monkey
     capsys.readouterr()
     assert main(many) == 2 and "--threads is for one input" in capsys.readouterr().err
     assert not (tmp_path / "many").exists()
-
-
-def test_the_wiener_noise_is_never_under_half_the_frames_own():
-    # a burst whose shifts crowd near the reference's phase fills nodes in pairs from the same samples,
-    # and the lattice's own noise estimate read 0.4 of the frames' noise: the floor holds it at half
-    import torch
-
-    import hbis_torch.reconstruct.classical.burst as classical_burst_module
-    from hbis_torch.reconstruct.burst import burst_samples
-    from hbis_torch.reconstruct.classical.burst import FRAME_NOISE_SHARE, frames_noise
-
-    rng = np.random.default_rng(0)
-    flat = torch.from_numpy(0.5 + rng.normal(0, 0.01, (5, 700, 600))).float()
-    assert frames_noise(flat) == pytest.approx(0.01, rel=0.05)  # read on the central 512 px square
-    seen = {}
-
-    def spy(*args, **kw):
-        seen.update(kw)
-        return torch.zeros(2, 2)
-
-    burst = _burst(count=6)
-    stack, _ = assemble_burst(burst.frames, 2)
-    _, positions, _, weights = burst_samples(stack)
-    frames = torch.from_numpy(burst.frames.astype(np.float32) / 255)
-    with pytest.MonkeyPatch.context() as m:
-        m.setattr(classical_burst_module, "classical_sr", spy)
-        classical_burst_module.burst_sr(frames, positions, 2, weights)
-        assert seen["noise_floor"] == pytest.approx(FRAME_NOISE_SHARE * frames_noise(frames))
-        seen.clear()
-        classical_burst_module.burst_sr(frames, positions, 2, weights, noise=0.01)  # a noise given: no floor
-        assert "noise_floor" not in seen

@@ -13,16 +13,6 @@ from hbis_torch.reconstruct.classical.sr import _peak_weight, classical_sr, latt
 
 # The scale whose lattice a burst's samples fill, where their noise is measured for finer scales.
 NOISE_SCALE = 2
-# The Wiener filter's noise is never taken below this share of what the frames' own noise gives a
-# node (their median noise, measured on each frame's central FRAME_NOISE_PX square, over the root of
-# the samples a node gets). The lattice's own estimate reads the spread of neighbouring nodes, and a
-# burst whose shifts crowd near the reference's phase (one axis nearly still) fills nodes in pairs
-# from the same samples: it read 0.4 of that noise there, and the image was deblurred into
-# 1.8 to 2.1 dB under bicubic. On the training simulator (photographs, 640 x 480, S = 2, 16 frames
-# shifted up to 0.15 or 0.2 LR px, seeds 12 and 13) the share 0.5 took those to -0.78 / -0.40 dB
-# against bicubic (0.7: -0.30 / -0.09) and left seven other bursts, S = 2 to 4, as they were (0.7
-# cost one of them 0.05 dB).
-FRAME_NOISE_SHARE, FRAME_NOISE_PX = 0.5, 512
 
 
 def burst_sample_noise(frames: Tensor, positions: Tensor, weights: Tensor, kernel_sigma: float = 0.45) -> float:
@@ -44,25 +34,13 @@ def burst_sample_noise(frames: Tensor, positions: Tensor, weights: Tensor, kerne
     return lattice_noise(image, kernel_sigma, den > 0.5 * typical) * math.sqrt(max(samples_per_node, 1.0))
 
 
-def frames_noise(frames: Tensor) -> float:
-    """The median over the frames (F, H, W) of their noise (:func:`~hbis_torch.sensor.noise.noise_sigma`)
-    on each one's central :data:`FRAME_NOISE_PX` square, in the frames' units."""
-    from hbis_torch.sensor.noise import noise_sigma
-
-    F, H, W = frames.shape
-    rows, cols = min(H, FRAME_NOISE_PX), min(W, FRAME_NOISE_PX)
-    top, left = (H - rows) // 2, (W - cols) // 2
-    return float(noise_sigma(frames[:, top:top + rows, left:left + cols].float()).median())
-
-
 def burst_sr(frames: Tensor, positions: Tensor, scale: int, weights: Tensor, deblur: bool = True, **kw) -> Tensor:
     """The classical image of a burst's samples: splat with the robustness weights, then the
     Wiener deblurring of the pixel area (a burst records no optics: no optical cutoff).
 
     Samples of many frames at different offsets share the lattice's nodes (``mixed_offsets``).
-    The Wiener filter's noise is measured on the lattice, as a scan's, but never taken below
-    :data:`FRAME_NOISE_SHARE` of the frames' own (:func:`frames_noise`), and at scales above
-    :data:`NOISE_SCALE` never below :func:`burst_sample_noise`, each averaged over the samples a
+    The Wiener filter's noise is measured on the lattice, as a scan's, but at scales above
+    :data:`NOISE_SCALE` never taken below :func:`burst_sample_noise` averaged over the samples a
     node gets. A scan puts a sample on every node; a burst's random shifts leave nodes empty
     where a node gets about one sample or fewer (S = 3 and 4). The empty nodes are filled
     smoothly, and the lattice's own estimate fell to a third of the noise there (Emily at
@@ -85,11 +63,8 @@ def burst_sr(frames: Tensor, positions: Tensor, scale: int, weights: Tensor, deb
     -------
     Tensor, shape (S H, S W), float32 in [0, 1]
     """
-    if deblur and kw.get("noise") is None and "noise_floor" not in kw:
-        kw["noise_floor"] = FRAME_NOISE_SHARE * frames_noise(frames)
-        if scale > NOISE_SCALE:
-            kw["noise_floor"] = max(kw["noise_floor"],
-                                    burst_sample_noise(frames, positions, weights, kw.get("kernel_sigma", 0.45)))
+    if deblur and scale > NOISE_SCALE and kw.get("noise") is None and "noise_floor" not in kw:
+        kw["noise_floor"] = burst_sample_noise(frames, positions, weights, kw.get("kernel_sigma", 0.45))
     kw.setdefault("fit_holes", True)
     return classical_sr(frames, positions, scale, deblur, weights=weights, cutoff=None, mixed_offsets=True, **kw)
 
