@@ -208,6 +208,39 @@ def scale_to_run(positions, weights: Tensor, scale: int) -> tuple[int, np.ndarra
     return tally_frames(positions, weights, -1, range(scale, 1, -1)).run_scale(scale)
 
 
+def still_frames(positions, trusted, reference: int, scale: int) -> list[int]:
+    """The trusted frames but the reference that are still on the ``scale``-times lattice by the
+    fill's rule (:meth:`Tally._still_scales`), read on three bands of four rows (top, middle,
+    bottom): for a burst path without a tally (raw bursts). ``positions``: a
+    :class:`~hbis_torch.reconstruct.positions.BurstPositions` or (F, H, W, 2) float64."""
+    F, H = positions.shape[:2]
+    rows = sorted({0, max(0, H // 2 - 2), max(0, H - 4)})
+    out = []
+    for k in range(F):
+        if k != reference and bool(trusted[k]):
+            offset = torch.cat([_phase_offset(positions[k, r:r + 4]).reshape(-1) for r in rows])
+            if float((offset < STILL_SPACING / scale).double().mean()) >= STILL_FRAME_SHARE:
+                out.append(k)
+    return out
+
+
+def still_run_scale(positions, trusted, reference: int, scale: int, notes: list) -> int:
+    """``scale``, or 1 where at least :data:`STILL_BURST_SHARE` of the trusted frames but the
+    reference are still (:func:`still_frames`), with a line that asks the user to act: for a burst
+    path without a fill test (raw bursts, fused at the frames' own size and enlarged)."""
+    moved = int(np.sum(np.asarray(trusted, dtype=bool))) - 1
+    if scale == 1 or moved < 1:
+        return scale
+    still = still_frames(positions, trusted, reference, scale)
+    if len(still) < STILL_BURST_SHARE * moved:
+        return scale
+    notes.append(act(f"the frames hardly moved against the reference ({len(still)} of {moved}, within "
+                     f"{STILL_SPACING / scale:.2f} px of its pixel grid): they hold little detail beyond its own, so "
+                     f"they were fused at their own size and enlarged to S = {scale} (bicubic); for "
+                     "super-resolution move the camera a little between frames"))
+    return 1
+
+
 def report_still(tally: Tally, notes: list) -> None:
     """A line naming the frames that hardly moved against the reference (:meth:`Tally._still_scales`
     on the coarsest lattice tried, S = 2, the loosest test); one that asks the user to act where
