@@ -33,7 +33,7 @@ STAGES = (
     ("assemble", "every model's fit", "registration/stack.py", "register_models"),
     ("assemble", "model evidence", "registration/evidence.py", "model_evidence"),
     ("assemble", "local shifts", "registration/local.py", "local_offsets"),
-    ("assemble", "brightness fit", "capture/burst.py", "fit_gain_offset"),
+    ("assemble", "brightness fit", "capture/brightness.py", "fit_gain_offset"),
     ("classical", "robustness weights (and positions)", "reconstruct/burst.py", "robustness_weights"),
     ("classical", "lens estimate", "reconstruct/lens_blur.py", "burst_lens_sigma"),
     ("classical", "splat", "reconstruct/classical/splat.py", "splat_on_lattice"),

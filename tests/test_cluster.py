@@ -157,7 +157,7 @@ def test_bursts_and_validate_many_match_one_at_a_time(cluster, inputs, tmp_path,
     assert main(["-q", "assemble", "--burst", "--scale", "2", *bursts, "--out-dir", str(here)]) == 0
     # Byte for byte: one command per burst, the in-process --out-dir and the Dask workers
     # (torch.linalg.lstsq's default driver once made a burst's gain differ in its last bits from
-    # run to run: hbis_torch.capture.burst.LSTSQ_DRIVER).
+    # run to run: hbis_torch.capture.brightness.LSTSQ_DRIVER).
     assert len(_tree(one)) == 2 and _tree(one) == _tree(there) == _tree(here)
     capsys.readouterr()
     stacks = [str(p) for p in sorted(there.glob("*.burst.tif"))]

@@ -3,7 +3,7 @@
 torch.linalg.lstsq's default CPU driver (gelsy) reads its pivot array without initialising it
 (pytorch/pytorch#71222), so a line fit's last bits followed whatever the allocator handed back:
 about one burst in 150 assembled twice in one process came out with another gain. The burst's
-gain fit uses a driver that does not (:data:`hbis_torch.capture.burst.LSTSQ_DRIVER`); the model
+gain fit uses a driver that does not (:data:`hbis_torch.capture.brightness.LSTSQ_DRIVER`); the model
 evidence's line is fitted in closed form (:func:`hbis_torch.registration.evidence.trimmed_line_mse`).
 """
 

@@ -12,8 +12,9 @@ Each frame's motion to the reference is measured from the data (no optics, no ph
    whole frame from the reference better than a translation does (:func:`prediction_error`):
    the simplest model that explains the frame. A frame identical to the reference gets
    ``identity``;
-3. *brightness*: the frame, warped onto the reference grid by Kornia, is matched to the
-   reference by a robust least-squares gain and offset (saturated pixels and outliers left out);
+3. *brightness* (:mod:`hbis_torch.capture.brightness`): the frame, warped onto the reference
+   grid, is matched to the reference by a robust least-squares gain and offset (saturated pixels
+   and outliers left out);
 4. *trust*: the registration's confidence; a frame that does not match the reference (another
    scene) or cannot be registered gets confidence 0 and is named in the messages.
 
@@ -30,6 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
+from hbis_torch.capture.brightness import fit_gain_offset, gain_fit_levels, gain_fit_reference
 from hbis_torch.capture.frames import bit_depth_hint
 from hbis_torch.capture.sharpness import SHARPEST, choose_reference
 from hbis_torch.errors import HbisInputError
@@ -53,13 +55,6 @@ FULL_OVERLAP = 0.5
 MODEL_TOLERANCE_PX = 0.01
 # A richer model than translation is kept only if it predicts the frame this much better (relative).
 RICHER_GAIN = 0.01
-# The brightness fit halves frames whose shorter side is at least twice this (fit_gain_offset).
-GAIN_FIT_SIDE = 128
-# Pixels this close to the white or black level count as saturated (left out of the gain fit).
-SATURATION_MARGIN = 2.0 / 255.0
-# torch.linalg.lstsq's default on the CPU, gelsy, reads its pivot array uninitialised (pytorch#71222),
-# so the same line fit differed in its last bits from run to run; gelsd (SVD) gives the same bits.
-LSTSQ_DRIVER = "gelsd"
 
 
 @dataclass
@@ -367,7 +362,8 @@ def burst_confidence(reg, shape, index: int = 1) -> float:
     """
     precision = float(reg.precision_px[index])
     residual = float(reg.residual[index])
-    if not (np.isfinite(precision) and np.isfinite(residual)) or not bool(torch.isfinite(reg.homographies[index]).all()):
+    finite = np.isfinite(precision) and np.isfinite(residual)
+    if not finite or not bool(torch.isfinite(reg.homographies[index]).all()):
         return 0.0
     match = float(np.clip((MATCH_RESIDUAL_ZERO - residual) / (MATCH_RESIDUAL_ZERO - MATCH_RESIDUAL_ONE), 0, 1))
     covered = min(1.0, overlap(reg.homographies[index].numpy(), shape) / FULL_OVERLAP)
@@ -437,78 +433,6 @@ def _without_small_turn(motion: np.ndarray, shape: tuple[int, int]) -> np.ndarra
     out = np.eye(3)
     out[:2, 2] = moved[:2] / moved[2] - centre[:2]
     return out
-
-
-def warp_to_reference(frame: torch.Tensor, motion: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """Frame (H, W) resampled onto the reference grid through its homography (bilinear,
-    :func:`~hbis_torch.registration.warp.warp_onto_reference`).
-
-    Returns the warped frame (H, W) and where it is valid (H, W) bool (inside the frame).
-    """
-    from hbis_torch.registration.warp import warp_onto_reference
-
-    warped, valid = warp_onto_reference(frame[None, None].float(), motion)
-    return warped[0, 0], valid
-
-
-def gain_fit_levels(shape: tuple[int, int]) -> int:
-    """How many times :func:`fit_gain_offset` halves frames of ``shape`` (H, W)."""
-    levels = 0
-    while min(shape) >> levels >= 2 * GAIN_FIT_SIDE:
-        levels += 1
-    return levels
-
-
-def gain_fit_reference(reference: torch.Tensor) -> tuple[torch.Tensor, int]:
-    """The reference (H, W) as :func:`fit_gain_offset` compares frames with it, halved as they
-    are, and how many times."""
-    from hbis_torch.registration.pyramid import pyramid
-
-    levels = gain_fit_levels(tuple(reference.shape))
-    return (pyramid(reference[None], levels)[-1][0] if levels else reference), levels
-
-
-def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.ndarray,
-                    reduced: tuple | None = None, halved: torch.Tensor | None = None) -> tuple[float, float]:
-    """(g, o) with ``g * frame + o`` matching the reference where both see the same scene.
-
-    A least-squares line through the warped frame's and the reference's pixels (both blurred a
-    little against aliasing), refitted once without the pixels more than 3 robust sigmas off
-    (a moving object) and without saturated pixels. A fit that is not sensible (g outside
-    [0.5, 2]) is refused in favour of (1, 0). Frames larger than :data:`GAIN_FIT_SIDE` twice
-    over are halved (a Gaussian pyramid) until they are not: two numbers need no millions of
-    pixels, and the warp's cost was most of a large burst's brightness fit. ``reduced``:
-    :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a burst's frames;
-    ``halved``: the frame halved as ``reduced`` says, where the caller has it (a burst's pyramid).
-    """
-    import kornia
-
-    from hbis_torch.registration.pyramid import pyramid, to_level
-
-    reference, levels = gain_fit_reference(reference) if reduced is None else reduced
-    if levels:
-        frame = pyramid(frame[None], levels)[-1][0] if halved is None else halved
-        motion = to_level(np.asarray(motion)[None], levels)[0]
-    warped, valid = warp_to_reference(frame, motion)
-    # (blurred together: Kornia's faster path takes images of 128k pixels or more)
-    blur = kornia.filters.gaussian_blur2d(torch.stack((warped, reference))[:, None], (5, 5), (1.0, 1.0),
-                                          border_type="replicate")[:, 0]
-    x, y = blur[0][valid].double(), blur[1][valid].double()
-    lo, hi = SATURATION_MARGIN, 1.0 - SATURATION_MARGIN
-    use = (x > lo) & (x < hi) & (y > lo) & (y < hi)
-    gain, offset = 1.0, 0.0
-    for _ in range(2):
-        x_used, y_used = x[use], y[use]  # gathered once: most of the fit's time went on gathers
-        if len(x_used) < 16 or float(x_used.std()) < 1e-4:
-            return 1.0, 0.0
-        A = torch.stack((x_used, torch.ones_like(x_used)), -1)
-        gain, offset = torch.linalg.lstsq(A, y_used[:, None], driver=LSTSQ_DRIVER).solution[:, 0].tolist()
-        r = y - (gain * x + offset)
-        spread = 1.4826 * float(r[use].abs().median()) + 1e-6
-        use = use & (r.abs() < 3 * spread)
-    if not 0.5 <= gain <= 2.0:
-        return 1.0, 0.0
-    return gain, offset
 
 
 def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, motion: str = "auto", roi=None,

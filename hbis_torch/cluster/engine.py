@@ -419,7 +419,7 @@ def _run_here(job, sources, outputs, report, overwrite, bar, jobs: int = 1) -> N
     """Run the tasks in this process, ``jobs`` side by side on threads (torch and its libraries
     release the interpreter lock in their kernels), each on one torch thread as on a worker: the
     same sums in the same order, the same bits (tested, for bursts too: the last-bit differences
-    once seen between two bursts assembled at once were :data:`hbis_torch.capture.burst.LSTSQ_DRIVER`'s
+    once seen between two bursts assembled at once were :data:`hbis_torch.capture.brightness.LSTSQ_DRIVER`'s
     cause)."""
     from concurrent.futures import ThreadPoolExecutor
 
