@@ -93,7 +93,7 @@ class Tally:
     def _still_scales(self, k: int, where: Tensor, weight: Tensor, rows: int) -> tuple:
         """The scales s on whose lattice frame ``k`` is still: :data:`STILL_FRAME_SHARE` of its
         samples of weight > 0.1 within :data:`STILL_SPACING` of the s lattice's node spacing of the
-        reference's phase (and ``still[s]`` names it). None for the reference. A piece of rows at
+        reference's phase (and ``still[s]`` names it); none for the reference. A piece of rows at
         a time, as :meth:`add`."""
         if k == self.reference or not self.hits:
             return ()
@@ -148,7 +148,13 @@ class Tally:
         return bool(self.still.get(s)) and len(self.still[s]) >= STILL_BURST_SHARE * self.others
 
     def fill(self, s: int) -> np.ndarray:
-        """:func:`lattice_fill` at scale ``s``."""
+        """The method's share (S H, S W) float32 at scale ``s`` from how the samples fill the output
+        lattice: the share of output pixels near each (within S px) that a sample of weight > 0.1
+        lands on; 1 from :data:`FULL_FILL` up, 0 at :data:`NO_FILL` and below. A few frames leave
+        whole sub-pixel phases empty, and deblurring the filled-in lattice then costs more than it
+        gains (4 random frames at S = 2: 2 to 4 dB under the single frame on simulated bursts; 8:
+        5 dB over it). Where most frames are still (:meth:`mostly_still`), theirs land on the
+        reference's nodes."""
         H, W = self.shape
         size = 2 * s + 1
         hit = self.hits[s]
@@ -183,26 +189,17 @@ def tally_frames(positions, weights: Tensor, reference: int, scales=()) -> Tally
 def coverage(positions, weights: Tensor, reference: int) -> np.ndarray:
     """How much the frames other than the reference put into each reference pixel: the sum of
     their samples' weights over the pixel each lands in, (H, W) float64. ``positions`` as
-    :func:`robustness_weights`'; weights (F, H, W)."""
+    :func:`~hbis_torch.reconstruct.burst.robustness_weights`'; weights (F, H, W)."""
     return tally_frames(positions, weights, reference).coverage()
-
-
-def lattice_fill(positions, weights: Tensor, scale: int) -> np.ndarray:
-    """The method's share (S H, S W) float32 from how the samples fill the output lattice: the
-    share of output pixels near each (within S px) that a sample of weight > 0.5 lands on; 1 from
-    :data:`FULL_FILL` up, 0 at :data:`NO_FILL` and below. A few frames leave whole sub-pixel
-    phases empty, and deblurring the filled-in lattice then costs more than it gains (4 random
-    frames at S = 2: 2 to 4 dB under the single frame on simulated bursts; 8: 5 dB over it)."""
-    return tally_frames(positions, weights, -1, (scale,)).fill(scale)
 
 
 def scale_to_run(positions, weights: Tensor, scale: int) -> tuple[int, np.ndarray]:
     """The scale a burst is reconstructed at: the largest s from ``scale`` down to 2 whose lattice
-    the samples fill (the mean of :func:`lattice_fill` at s at least :data:`RUN_FILL`), else
-    ``scale`` (the fallback's blend then leans on the single frame); and :func:`lattice_fill` at
+    the samples fill (the mean of :meth:`Tally.fill` at s at least :data:`RUN_FILL`), else
+    ``scale`` (the fallback's blend then leans on the single frame); and :meth:`Tally.fill` at
     it. A scale the samples do not fill leaves whole sub-pixel phases empty; at a coarser one the
     same samples still add what they resolve, and the image is enlarged to the scale asked for.
-    ``positions`` as :func:`robustness_weights`'; weights (F, H, W)."""
+    ``positions`` as :func:`~hbis_torch.reconstruct.burst.robustness_weights`'; weights (F, H, W)."""
     if scale == 1:  # the reference's own grid: nothing to fill
         return 1, np.ones((weights.shape[1], weights.shape[2]), dtype=np.float32)
     return tally_frames(positions, weights, -1, range(scale, 1, -1)).run_scale(scale)
