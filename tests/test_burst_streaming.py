@@ -243,3 +243,15 @@ def test_the_blend_weight_is_the_coverage_enlarged_bilinear():
         got = _blend_weight(cover, scale)
         assert got.dtype == np.float32 and got.shape == expected.shape
         assert np.array_equal(got, expected), (shape, scale)
+
+
+def test_positions_asked_not_to_keep_compute_only_the_bands_read():
+    # the raw path's still test reads three bands of each frame: a small burst's positions are not
+    # made whole for it (keep=False), and the bands are the kept ones' to the bit
+    from hbis_torch.reconstruct.positions import BurstPositions
+
+    motions = np.repeat(np.eye(3)[None], 3, 0)
+    motions[1:, :2, 2] = [[0.3, -0.2], [1.7, 0.4]]
+    kept, fresh = BurstPositions(motions, 40, 30), BurstPositions(motions, 40, 30, keep=False)
+    assert torch.equal(kept[1, 18:22], fresh[1, 18:22]) and torch.equal(kept[2], fresh[2])
+    assert kept._kept is not None and fresh._kept is None

@@ -93,6 +93,9 @@ class BurstPositions:
         Local shifts on top of each motion (:mod:`hbis_torch.registration.local`).
     tile : int
         Their tiles' side, px.
+    keep : bool
+        Keep a small burst's frames once computed (default); False computes every read afresh,
+        for a reader of a few bands (a whole frame's positions are not made for them).
     """
 
     dtype = torch.float64
@@ -100,14 +103,14 @@ class BurstPositions:
     computed_where_read = True
 
     def __init__(self, motions: np.ndarray, height: int, width: int, offsets: Tensor | None = None,
-                 tile: int = 32):
+                 tile: int = 32, keep: bool = True):
         self.motions = torch.as_tensor(np.asarray(motions, dtype=np.float64))
         self.offsets, self.tile = offsets, int(tile)
         self.shape = (len(self.motions), int(height), int(width), 2)
         count = self.shape[0] * self.shape[1] * self.shape[2]
         # each frame's positions once computed (small bursts: CACHE_BYTES; allocated at the first
         # read), and which frames they are
-        self._keep, self._kept = 16 * count <= CACHE_BYTES, None
+        self._keep, self._kept = keep and 16 * count <= CACHE_BYTES, None
         self._done = [False] * self.shape[0]
 
     def __len__(self) -> int:

@@ -210,18 +210,18 @@ def _log_share(value: float, low: float, high: float) -> float:
     return float(np.clip(np.log(value / low) / np.log(high / low), 0, 1))
 
 
-def _lazy_positions(motions: np.ndarray, height: int, width: int, local: dict | None = None):
+def _lazy_positions(motions: np.ndarray, height: int, width: int, local: dict | None = None, keep: bool = True):
     """Every pixel (u, v) of every frame moved by its homography, plus the local shifts there
     (``local``: a stack's ``local_motion``, :mod:`hbis_torch.registration.local`), computed where
-    they are read (:class:`~hbis_torch.reconstruct.positions.BurstPositions`: ``[k]`` frame k's
-    (H, W, 2), ``[frames, rows, cols]`` a band's, float64): 16 bytes a sample held whole would be
-    3 GB for 16 frames of 12 MP."""
+    they are read (:class:`~hbis_torch.reconstruct.positions.BurstPositions`, ``keep`` as its:
+    ``[k]`` frame k's (H, W, 2), ``[frames, rows, cols]`` a band's, float64): 16 bytes a sample held
+    whole would be 3 GB for 16 frames of 12 MP."""
     from hbis_torch.reconstruct.positions import BurstPositions
 
     if local is None:
-        return BurstPositions(motions, height, width)
+        return BurstPositions(motions, height, width, keep=keep)
     offsets = torch.as_tensor(np.asarray(local["offsets"], dtype=np.float64))
-    return BurstPositions(motions, height, width, offsets, int(local["tile_px"]))
+    return BurstPositions(motions, height, width, offsets, int(local["tile_px"]), keep=keep)
 
 
 def _positions(motions: np.ndarray, height: int, width: int, local: dict | None = None) -> Tensor:
@@ -573,8 +573,8 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
                              cells=True)
     # (the joint splat of a still burst at S = 2 fell 1.6 to 2.6 dB under the reference demosaicked and
     # enlarged; at its own size and enlarged it gained 1.1 to 1.5 dB: development photographs, 128 px)
-    scale = still_run_scale(_lazy_positions(inputs["motions"], *inputs["values"].shape[1:], inputs["local"]),
-                            inputs["trusted"], inputs["reference"], stack.h, notes)
+    scale = still_run_scale(_lazy_positions(inputs["motions"], *inputs["values"].shape[1:], inputs["local"],
+                                            keep=False), inputs["trusted"], inputs["reference"], stack.h, notes)
     if kernel_sigma is None:
         kernel_sigma = kernel_for_noise(inputs["noise"])
     if chroma is None:
