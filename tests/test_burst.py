@@ -453,3 +453,22 @@ def test_assemble_runs_on_the_threads_asked_and_gives_them_back(tmp_path, monkey
     capsys.readouterr()
     assert main(many) == 2 and "--threads is for one input" in capsys.readouterr().err
     assert not (tmp_path / "many").exists()
+
+
+def test_scale_to_run_leaves_the_given_reference_out_of_the_still_test():
+    # the reference, one still frame and two that moved: one still of three others is not most of
+    # them, so the fill is the one without the rule; counted with them (reference -1), two of four are
+    import torch
+
+    import hbis_torch.reconstruct.burst_fill as burst_fill
+    from hbis_torch.reconstruct.burst_fill import scale_to_run
+
+    grid = torch.stack(torch.meshgrid(torch.arange(12.0), torch.arange(10.0), indexing="xy"), -1).double()
+    jitter = torch.from_numpy(np.random.default_rng(0).uniform(-0.04, 0.04, grid.shape))
+    positions = torch.stack((grid, grid + jitter, grid + 0.3, grid - 0.27))
+    weights = torch.ones(4, 10, 12)
+    given = scale_to_run(positions, weights, 2, reference=0)[1]
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(burst_fill, "STILL_SPACING", 0.0)
+        assert np.array_equal(given, scale_to_run(positions, weights, 2, reference=0)[1])
+    assert not np.array_equal(given, scale_to_run(positions, weights, 2)[1])

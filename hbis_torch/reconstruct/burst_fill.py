@@ -193,16 +193,19 @@ def coverage(positions, weights: Tensor, reference: int) -> np.ndarray:
     return tally_frames(positions, weights, reference).coverage()
 
 
-def scale_to_run(positions, weights: Tensor, scale: int) -> tuple[int, np.ndarray]:
+def scale_to_run(positions, weights: Tensor, scale: int, reference: int = -1) -> tuple[int, np.ndarray]:
     """The scale a burst is reconstructed at: the largest s from ``scale`` down to 2 whose lattice
     the samples fill (the mean of :meth:`Tally.fill` at s at least :data:`RUN_FILL`), else
     ``scale`` (the fallback's blend then leans on the single frame); and :meth:`Tally.fill` at
     it. A scale the samples do not fill leaves whole sub-pixel phases empty; at a coarser one the
     same samples still add what they resolve, and the image is enlarged to the scale asked for.
-    ``positions`` as :func:`~hbis_torch.reconstruct.burst.robustness_weights`'; weights (F, H, W)."""
+    ``positions`` as :func:`~hbis_torch.reconstruct.burst.robustness_weights`'; weights (F, H, W).
+    ``reference``: the reference frame's index, which the still test leaves out as
+    :func:`~hbis_torch.reconstruct.burst.reconstruct_burst` does (-1: every frame is tested, the
+    reference, still by definition, with them)."""
     if scale == 1:  # the reference's own grid: nothing to fill
         return 1, np.ones((weights.shape[1], weights.shape[2]), dtype=np.float32)
-    return tally_frames(positions, weights, -1, range(scale, 1, -1)).run_scale(scale)
+    return tally_frames(positions, weights, reference, range(scale, 1, -1)).run_scale(scale)
 
 
 def still_frames(positions, trusted, reference: int, scale: int) -> list[int]:
