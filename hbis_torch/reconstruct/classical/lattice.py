@@ -105,6 +105,16 @@ def _spline_parts(positions: NodePositions, part: tuple[slice, slice], h: int, o
 TIE_MARGIN = 1e-3
 
 
+CLUSTERED = 0.7
+"""A burst's samples whose phases in the reference's pixel have a resultant length (the circular
+mean's, 1 for one phase) of at least this along an axis cluster within about 0.2 LR px of one
+phase (a tripod's shake, a steady hand: phases uniform within +-0.22 px give 0.7). Their common
+offset on the lattice, a scan's rule, would put every sample on one node in S along that axis and
+leave the others to the hole fit; the output grid instead places the cluster about the
+reference's phase (between two nodes at even S, on one at odd S), with samples on both sides of
+every node. Development bursts (``training/eval_still_bursts.py --photos training``) chose it."""
+
+
 def _nearest_node(axis: _Axis, pixel: Tensor, dim: int, h: int, shift: float) -> tuple[Tensor, Tensor, float]:
     """The nearest node (int32) along one axis of every sample of ``axis`` (frames, rows, cols),
     node minus sample (float32, HR px) and its largest magnitude; ``pixel`` (int32) is the
@@ -129,11 +139,16 @@ def _nearest_node(axis: _Axis, pixel: Tensor, dim: int, h: int, shift: float) ->
     return node, gap, reach
 
 
-def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_step: int) -> tuple[float, float]:
+def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_step: int,
+                     mixed_offsets: bool = False) -> tuple[float, float]:
     """The samples' common sub-pixel offset (x, y) on the lattice, HR px, from every
     ``row_step``-th row of the batches ``part_list``: the circular mean of the coordinates'
-    fractional parts (:func:`~hbis_torch.reconstruct.classical.splat.offset_from_sums`)."""
+    fractional parts (:func:`~hbis_torch.reconstruct.classical.splat.offset_from_sums`).
+
+    With ``mixed_offsets`` (a burst), an axis along which the samples cluster in the reference's
+    pixel (:data:`CLUSTERED`) keeps the output grid (offset 0) instead."""
     sums = [[0.0, 0.0, 0], [0.0, 0.0, 0]]
+    pixel_sums = [[0.0, 0.0, 0], [0.0, 0.0, 0]]  # of the phases in the reference's pixel (mixed_offsets)
     height = positions.height if isinstance(positions, NodePositions) else positions.shape[1]
     for part in part_list:
         if not range(height)[part[1]][every_nth_row(part, row_step)]:
@@ -154,14 +169,28 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
             else:
                 coord = (taken[..., axis].reshape(-1) + 0.5) * h - 0.5
                 rest = coord.sub_(torch.round(coord)).to(torch.float32)
-            if keep is not None:
-                rest = rest[keep]
-            # the fractional part in float32: its cosine and sine are the same to 1e-7, the sums in float64
-            angle = rest.mul_(2 * math.pi)
-            sums[axis][0] += float(torch.cos(angle).sum(dtype=torch.float64))
-            sums[axis][1] += float(torch.sin(angle).sum(dtype=torch.float64))
-            sums[axis][2] += angle.numel()
-    return offset_from_sums(*sums[0]), offset_from_sums(*sums[1])
+            _add_angles(sums[axis], rest, keep)
+            if mixed_offsets and taken is not None:
+                place = taken[..., axis].reshape(-1)
+                _add_angles(pixel_sums[axis], place.sub(torch.round(place)).to(torch.float32), keep)
+    offset = [offset_from_sums(*sums[axis]) for axis in (0, 1)]
+    for axis in (0, 1):
+        cos_sum, sin_sum, count = pixel_sums[axis]
+        if count and math.hypot(cos_sum, sin_sum) / count >= CLUSTERED:
+            offset[axis] = 0.0
+    return offset[0], offset[1]
+
+
+def _add_angles(sums: list, rest: Tensor, keep: Tensor | None) -> None:
+    """Adds the cosines and sines of 2 pi ``rest`` (float32, the fractional parts; those ``keep``
+    marks, where given) and their count to ``sums`` ([cos, sin, count]), in float64."""
+    if keep is not None:
+        rest = rest[keep]
+    # the fractional part in float32: its cosine and sine are the same to 1e-7, the sums in float64
+    angle = rest.mul_(2 * math.pi)
+    sums[0] += float(torch.cos(angle).sum(dtype=torch.float64))
+    sums[1] += float(torch.sin(angle).sum(dtype=torch.float64))
+    sums[2] += angle.numel()
 
 
 def node_batch(frames: Tensor, positions, part: tuple[slice, slice], h: int, offset: tuple[float, float],

@@ -275,7 +275,7 @@ def lattice_image(frames: Tensor, positions: Tensor, h: int, kernel_sigma: float
         row_step = OFFSET_ROW_STRIDE if H <= 512 else min(16, H // 64)
         cache = {} if shared is None else shared  # (a call alone keeps what it computes for itself)
         if "offset" not in cache:
-            cache["offset"] = common_offset_of(positions, slices, h, weights, row_step)
+            cache["offset"] = common_offset_of(positions, slices, h, weights, row_step, mixed_offsets)
         offset = cache["offset"]
         # With one batch (a stack of up to BATCH_SAMPLES samples, 16 frames of 256^2), or a burst
         # (two passes) of up to KEEP_SAMPLES, the batches are computed once for both passes.
