@@ -1,7 +1,7 @@
-"""Bursts that hardly moved (a tripod, a fixed camera): the output against the single frame.
+"""Bursts that hardly moved (a tripod, a fixed camera, a steady hand): the output against the single frame.
 
     python training/eval_still_bursts.py --out benchmarks/results/eval_still_bursts.json
-        [--seeds 30 31] [--spreads 0 0.05 0.1 0.2 2.5] [--no-learned]
+        [--seeds 30 31] [--spreads 0 0.05 0.1 0.2 2.5] [--no-learned] [--photos held-out|training]
     python training/eval_still_bursts.py --raw --out benchmarks/results/eval_still_bursts_raw.json
 
 A burst whose frames did not move holds no detail beyond its reference frame's, only less noise;
@@ -12,8 +12,10 @@ shifts are drawn up to ``spread`` LR px each way (0: only the noise differs; 2.5
 own hand-held shifts), and scores against the truth (a border of 4 LR px left out): bicubic of the
 reference, the classical and learned methods as they are, and the same with the still rule off
 (``hbis_torch.reconstruct.burst_fill.STILL_SPACING`` set to 0: the code before the rule, the same
-bits). The rule's setting was chosen on the training photographs (seeds 12 and 13); these are
-other photographs and seeds. ``--raw``: raw bursts through the joint path (:func:`run_raw_cell`),
+bits), and with the lattice placed by the samples' common offset even where their shifts cluster
+(``hbis_torch.reconstruct.classical.lattice.CLUSTERED`` set past 1: the code before that rule).
+The rules' settings were chosen on the training photographs (``--photos training``, seeds 12 to
+14); the defaults are other photographs and seeds. ``--raw``: raw bursts through the joint path (:func:`run_raw_cell`),
 which the rule runs at the frames' own size and enlarges where most frames are still.
 """
 
@@ -27,17 +29,20 @@ CELLS = ((2, 8), (2, 16), (3, 16), (4, 16))  # (S, F)
 BORDER_LR = 4
 
 
-def run_cell(scale: int, count: int, spread: float, seed: int, learned: bool) -> dict:
+def run_cell(scale: int, count: int, spread: float, seed: int, learned: bool, photos: str = "held-out") -> dict:
     import eval_third_renderer as third
     from eval_handheld import bicubic, psnr
 
     import hbis_torch.reconstruct.burst_fill as burst_fill
+    import hbis_torch.reconstruct.classical.lattice as lattice
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.reconstruct import reconstruct
     from hbis_torch.simulate.rasters import HELD_OUT_PHOTOS
+    from hbis_torch.training.data import TRAIN_PHOTOS
 
     third.MAX_SHIFT_PX = spread
-    frames, truth, _ = third.render("translation", scale, count, 640, 480, seed, HELD_OUT_PHOTOS)
+    frames, truth, _ = third.render("translation", scale, count, 640, 480, seed,
+                                    HELD_OUT_PHOTOS if photos == "held-out" else TRAIN_PHOTOS)
     stack, _ = assemble_burst(frames, scale)
     out = {"bicubic": psnr(bicubic(frames[0], scale), truth, BORDER_LR, scale)}
     rule = burst_fill.STILL_SPACING
@@ -50,6 +55,12 @@ def run_cell(scale: int, count: int, spread: float, seed: int, learned: bool) ->
             out[f"{method}_without_rule"] = psnr(reconstruct(stack, method), truth, BORDER_LR, scale)
         finally:
             burst_fill.STILL_SPACING = rule
+        clustered = lattice.CLUSTERED
+        lattice.CLUSTERED = 2.0
+        try:
+            out[f"{method}_without_placement"] = psnr(reconstruct(stack, method), truth, BORDER_LR, scale)
+        finally:
+            lattice.CLUSTERED = clustered
     return out
 
 
@@ -98,8 +109,22 @@ def summary(cells: dict) -> dict:
             "without_rule_minus_bicubic_worst_db": float(min(c[f"{method}_without_rule"] - c["bicubic"] for c in rows)),
             "minus_without_rule_worst_db": float(min(c[method] - c[f"{method}_without_rule"] for c in rows)),
             "minus_without_rule_best_db": float(max(c[method] - c[f"{method}_without_rule"] for c in rows)),
+            **_placement(rows, method),
             "cells_named_still": len(still), "cells": len(rows)}
     return out
+
+
+def _placement(rows: list, method: str) -> dict:
+    """What the clustered shifts' placement of the lattice gained, where a cell has it."""
+    rows = [c for c in rows if f"{method}_without_placement" in c]
+    if not rows:
+        return {}
+    gains = [c[method] - c[f"{method}_without_placement"] for c in rows]
+    return {"without_placement_minus_bicubic_worst_db": float(min(c[f"{method}_without_placement"] - c["bicubic"]
+                                                                  for c in rows)),
+            "minus_without_placement_worst_db": float(min(gains)),
+            "minus_without_placement_best_db": float(max(gains)),
+            "cells_placement_changed": sum(abs(g) > 0 for g in gains)}
 
 
 def main(argv=None) -> int:
@@ -113,6 +138,8 @@ def main(argv=None) -> int:
     p.add_argument("--spreads", nargs="+", type=float, default=[0.0, 0.05, 0.1, 0.2, 2.5],
                    help="the frames' largest shift each way, LR px")
     p.add_argument("--no-learned", action="store_true", help="the classical method alone")
+    p.add_argument("--photos", choices=("held-out", "training"), default="held-out",
+                   help="the held-out photographs (default) or the training ones (development data)")
     p.add_argument("--raw", action="store_true",
                    help="raw bursts instead (the joint path; held-out photographs chelsea and rocket, S = 2 and 3)")
     args = p.parse_args(argv)
@@ -127,7 +154,7 @@ def main(argv=None) -> int:
                         for photo in ("chelsea", "rocket") for scale in (2, 3)]
             else:
                 jobs = [(f"S={scale}|F={count}|shift {spread:g}|seed {seed}", run_cell,
-                         (scale, count, spread, seed, not args.no_learned)) for scale, count in CELLS]
+                         (scale, count, spread, seed, not args.no_learned, args.photos)) for scale, count in CELLS]
             for key, run, job in jobs:
                 cells[key] = run(*job)
                 print(key, {k: round(v, 2) if isinstance(v, float) else v for k, v in cells[key].items()}, flush=True)
