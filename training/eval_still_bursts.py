@@ -115,7 +115,9 @@ def summary(cells: dict) -> dict:
 
 
 def _placement(rows: list, method: str) -> dict:
-    """What the clustered shifts' placement of the lattice gained, where a cell has it."""
+    """What the clustered shifts' placement of the lattice gained, where a cell has it. The learned
+    method's adaptation is bounded by a share of the classical step's seconds, so its figures vary a
+    little from run to run and its count of cells changed includes some whose input did not move."""
     rows = [c for c in rows if f"{method}_without_placement" in c]
     if not rows:
         return {}
