@@ -118,6 +118,11 @@ every node. On development bursts (``training/eval_still_bursts.py --photos trai
 of 0.3) and moved classical by -0.07 to +4.04 dB: from as low as 2.1 dB under bicubic to at least
 0.75 dB over it. Shifts up to 0.3 px (resultant lengths about 0.35 to 0.77) gained or lost a few
 tenths with the output grid, so the threshold sits above most of them."""
+PHASE_SAMPLES = 1 << 14
+"""At most about this many samples of a batch's rows taken for the offset (evenly spaced among
+them) have their phases in the reference's pixel read for :data:`CLUSTERED`: a sixteenth of the
+cosines the offset's own sums take on a full batch (all of them would add a tenth to a 640 x 480
+burst's classical step); a burst's phases vary from frame to frame, not sample to sample."""
 
 
 def _nearest_node(axis: _Axis, pixel: Tensor, dim: int, h: int, shift: float) -> tuple[Tensor, Tensor, float]:
@@ -175,9 +180,11 @@ def common_offset_of(positions, part_list, h: int, weights: Tensor | None, row_s
                 coord = (taken[..., axis].reshape(-1) + 0.5) * h - 0.5
                 rest = coord.sub_(torch.round(coord)).to(torch.float32)
             _add_angles(sums[axis], rest, keep)
-            if mixed_offsets and taken is not None:
+            if mixed_offsets and taken is not None:  # a spread of the batch's samples tells the cluster
                 place = taken[..., axis].reshape(-1)
-                _add_angles(pixel_sums[axis], place.sub(torch.round(place)).to(torch.float32), keep)
+                step = max(1, place.numel() // PHASE_SAMPLES)
+                _add_angles(pixel_sums[axis], place[::step].sub(torch.round(place[::step])).to(torch.float32),
+                            None if keep is None else keep[::step])
     offset = [offset_from_sums(*sums[axis]) for axis in (0, 1)]
     for axis in (0, 1):
         cos_sum, sin_sum, count = pixel_sums[axis]
