@@ -121,8 +121,9 @@ tenths with the output grid, so the threshold sits above most of them."""
 PHASE_SAMPLES = 1 << 14
 """At most about this many samples of a batch's rows taken for the offset (evenly spaced among
 them) have their phases in the reference's pixel read for :data:`CLUSTERED`: a sixteenth of the
-cosines the offset's own sums take on a full batch (all of them would add a tenth to a 640 x 480
-burst's classical step); a burst's phases vary from frame to frame, not sample to sample."""
+cosines the offset's own sums take on a full batch (all of them doubled the offset's time, a few
+hundredths of a second on 16 frames of 640 x 480); a burst's phases vary from frame to frame, not
+sample to sample."""
 
 
 def _nearest_node(axis: _Axis, pixel: Tensor, dim: int, h: int, shift: float) -> tuple[Tensor, Tensor, float]:
