@@ -326,8 +326,6 @@ def test_still_frames_among_moving_ones_are_named_and_fill_nothing():
     assert len(line) == 1 and line[0].startswith("frame(s) [2, 5]") and not asks_to_act(line[0]), notes
     assert psnr(image, burst.truth) > psnr(_single(burst), burst.truth) + 1.0
     # a still frame's samples land on the reference's nodes, whichever side its noise puts them
-    import torch
-
     grid = torch.stack(torch.meshgrid(torch.arange(6.0), torch.arange(5.0), indexing="xy"), -1).double()
     jitter = torch.from_numpy(np.random.default_rng(0).uniform(-0.04, 0.04, grid.shape))
     alone, with_still = Tally((5, 6), 0, (2,)), Tally((5, 6), 0, (2,))
@@ -484,8 +482,6 @@ def test_assemble_runs_on_the_threads_asked_and_gives_them_back(tmp_path, monkey
 def test_scale_to_run_leaves_the_given_reference_out_of_the_still_test():
     # the reference, one still frame and two that moved: one still of three others is not most of
     # them, so the fill is the one without the rule; counted with them (reference -1), two of four are
-    import torch
-
     import hbis_torch.reconstruct.burst_fill as burst_fill
     from hbis_torch.reconstruct.burst_fill import scale_to_run
 

@@ -585,4 +585,3 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
     image = joint_demosaick_sr(inputs["values"], inputs["clipped"], inputs["cfa"], inputs["motions"], scale,
                                weights, kernel_sigma, local=inputs["local"], chroma=chroma)
     return image if scale == stack.h else enlarge(image, tuple(stack.h * n for n in image.shape[:2]))
-
