@@ -45,7 +45,10 @@ RUN_FILL = 0.5
 # training simulator (photographs, 640 x 480, S = 2, 8 frames) frames still to 0.0 / 0.1 LR px gave
 # 1.25 / 0.70 dB under the single frame, with it +0.00 / +0.17. A few still frames among moving ones
 # count where they land, as before: the rule is for bursts that hardly moved (applied to every still
-# frame, it moved the held-out hand-held cells that hold one to three by -0.25 to +0.14 dB).
+# frame, it moved the held-out hand-held cells that hold one to three by -0.25 to +0.14 dB). Those
+# figures predate the clustered shifts' lattice placement (classical.lattice.CLUSTERED), which mended
+# much of the same failure: since, the rule costs up to 1.40 dB where shifts reach 0.05 to 0.1 px
+# (benchmarks/results/eval_still_bursts.json); a tighter spacing is the notes' candidate.
 STILL_SPACING, STILL_FRAME_SHARE, STILL_BURST_SHARE = 0.2, 0.9, 0.5
 
 # Samples :meth:`Tally.add` takes at a time (a piece of rows): a 12 MP frame's indices in one go

@@ -116,8 +116,9 @@ every node. On development bursts (``training/eval_still_bursts.py --photos trai
 14 --spreads 0.15 0.2 0.3``: benchmarks/results/dev_clustered_bursts.json, 640 x 480, S = 2 to 4,
 8 and 16 frames), it placed 24 of 36 bursts' lattices (all with shifts up to 0.15 or 0.2 px, one
 of 0.3) and moved classical by -0.07 to +4.04 dB: from as low as 2.1 dB under bicubic to at least
-0.75 dB over it. Shifts up to 0.3 px (resultant lengths about 0.35 to 0.77) gained or lost a few
-tenths with the output grid, so the threshold sits above most of them."""
+0.75 dB over it. Shifts up to 0.3 px (resultant lengths about 0.35 to 0.77) moved by -0.36 to
++1.10 dB with the output grid (measured once, seeds 12 and 13), so the threshold sits above most
+of them."""
 PHASE_SAMPLES = 1 << 14
 """At most about this many samples of a batch's rows taken for the offset (evenly spaced among
 them) have their phases in the reference's pixel read for :data:`CLUSTERED`: a sixteenth of the
