@@ -2,6 +2,7 @@
 
     python training/eval_still_bursts.py --out benchmarks/results/eval_still_bursts.json
         [--seeds 30 31] [--spreads 0 0.05 0.1 0.2 2.5] [--no-learned] [--photos held-out|training]
+        [--still-spacings 0.1 0.05 0.02]
     python training/eval_still_bursts.py --raw --out benchmarks/results/eval_still_bursts_raw.json
 
 A burst whose frames did not move holds no detail beyond its reference frame's, only less noise;
@@ -30,7 +31,8 @@ CELLS = ((2, 8), (2, 16), (3, 16), (4, 16))  # (S, F)
 BORDER_LR = 4
 
 
-def run_cell(scale: int, count: int, spread: float, seed: int, learned: bool, photos: str = "held-out") -> dict:
+def run_cell(scale: int, count: int, spread: float, seed: int, learned: bool, photos: str = "held-out",
+             spacings: tuple = ()) -> dict:
     import eval_third_renderer as third
     from eval_handheld import bicubic, psnr
 
@@ -51,11 +53,13 @@ def run_cell(scale: int, count: int, spread: float, seed: int, learned: bool, ph
         notes: list[str] = []
         out[method] = psnr(reconstruct(stack, method, messages=notes), truth, BORDER_LR, scale)
         out[f"{method}_said"] = [n for n in notes if "hardly moved" in n]
-        burst_fill.STILL_SPACING = 0.0
-        try:
-            out[f"{method}_without_rule"] = psnr(reconstruct(stack, method), truth, BORDER_LR, scale)
-        finally:
-            burst_fill.STILL_SPACING = rule
+        for spacing in (0.0, *spacings):
+            burst_fill.STILL_SPACING = spacing
+            try:
+                key = f"{method}_without_rule" if spacing == 0 else f"{method}_still_spacing_{spacing:g}"
+                out[key] = psnr(reconstruct(stack, method), truth, BORDER_LR, scale)
+            finally:
+                burst_fill.STILL_SPACING = rule
         clustered = lattice.CLUSTERED
         lattice.CLUSTERED = 2.0
         try:
@@ -110,7 +114,7 @@ def summary(cells: dict) -> dict:
             "without_rule_minus_bicubic_worst_db": float(min(c[f"{method}_without_rule"] - c["bicubic"] for c in rows)),
             "minus_without_rule_worst_db": float(min(c[method] - c[f"{method}_without_rule"] for c in rows)),
             "minus_without_rule_best_db": float(max(c[method] - c[f"{method}_without_rule"] for c in rows)),
-            **_placement(rows, method),
+            **_placement(rows, method), **_spacings(rows, method),
             "cells_named_still": len(still), "cells": len(rows)}
     return out
 
@@ -130,6 +134,17 @@ def _placement(rows: list, method: str) -> dict:
             "cells_placement_changed": sum(abs(g) > 0 for g in gains)}
 
 
+def _spacings(rows: list, method: str) -> dict:
+    """Each other still spacing's (``--still-spacings``) classical - bicubic, mean and worst."""
+    out = {}
+    for key in sorted({k for c in rows for k in c if k.startswith(f"{method}_still_spacing_")}):
+        gains = [c[key] - c["bicubic"] for c in rows]
+        out[key.removeprefix(f"{method}_")] = {"minus_bicubic_mean_db": float(sum(gains) / len(gains)),
+                                               "minus_bicubic_worst_db": float(min(gains))}
+    gains = [c[method] - c["bicubic"] for c in rows]
+    return out and {"minus_bicubic_mean_db": float(sum(gains) / len(gains)), **out}
+
+
 def main(argv=None) -> int:
     from hbis_torch.provenance import write_results
 
@@ -143,11 +158,14 @@ def main(argv=None) -> int:
     p.add_argument("--no-learned", action="store_true", help="the classical method alone")
     p.add_argument("--photos", choices=("held-out", "training"), default="held-out",
                    help="the held-out photographs (default) or the training ones (development data)")
+    p.add_argument("--still-spacings", nargs="+", type=float, default=[],
+                   help="other still spacings (burst_fill.STILL_SPACING) scored beside the default, each a column")
     p.add_argument("--raw", action="store_true",
                    help="raw bursts instead (the joint path; held-out photographs chelsea and rocket, S = 2 and 3)")
     args = p.parse_args(argv)
-    if any(s < 0 for s in args.spreads):
-        print("eval_still_bursts: --spreads takes shifts of 0 LR px or more", file=sys.stderr)
+    if any(s < 0 for s in args.spreads) or any(s <= 0 for s in args.still_spacings):
+        print("eval_still_bursts: --spreads takes shifts of 0 LR px or more, --still-spacings above 0",
+              file=sys.stderr)
         return 2
     cells = {}
     for seed in args.seeds:
@@ -157,7 +175,8 @@ def main(argv=None) -> int:
                         for photo in ("chelsea", "rocket") for scale in (2, 3)]
             else:
                 jobs = [(f"S={scale}|F={count}|shift {spread:g}|seed {seed}", run_cell,
-                         (scale, count, spread, seed, not args.no_learned, args.photos)) for scale, count in CELLS]
+                         (scale, count, spread, seed, not args.no_learned, args.photos, tuple(args.still_spacings)))
+                        for scale, count in CELLS]
             for key, run, job in jobs:
                 cells[key] = run(*job)
                 print(key, {k: round(v, 2) if isinstance(v, float) else v for k, v in cells[key].items()}, flush=True)
