@@ -46,10 +46,22 @@ RUN_FILL = 0.5
 # 1.25 / 0.70 dB under the single frame, with it +0.00 / +0.17. A few still frames among moving ones
 # count where they land, as before: the rule is for bursts that hardly moved (applied to every still
 # frame, it moved the held-out hand-held cells that hold one to three by -0.25 to +0.14 dB). Those
-# figures predate the clustered shifts' lattice placement (classical.lattice.CLUSTERED), which mended
-# much of the same failure: since, the rule costs up to 1.40 dB where shifts reach 0.05 to 0.1 px
-# (benchmarks/results/eval_still_bursts.json); a tighter spacing is the notes' candidate.
-STILL_SPACING, STILL_FRAME_SHARE, STILL_BURST_SHARE = 0.2, 0.9, 0.5
+# figures, and the spacing of 0.2 they chose, predate the clustered shifts' lattice placement
+# (classical.lattice.CLUSTERED), which mended much of the same failure: since, a burst whose frames
+# moved 0.05 to 0.1 LR px gains over the single frame, and 0.2 gave it the single frame. On
+# development bursts (training/eval_still_bursts.py --photos training --seeds 12 13 14 --spreads 0
+# 0.02 0.05 0.1 --no-learned --still-spacings 0.1 0.05 0.02: benchmarks/results/dev_still_spacing.json,
+# 640 x 480, S = 2 to 4, 48 bursts) classical - bicubic averaged +0.17 / +0.48 / +0.60 / +0.60 dB at
+# spacings 0.2 / 0.1 / 0.05 / 0.02, none under it, and +0.64 with no rule at all; but small bursts of
+# frames that did not move at all still need it (the tests' 40 px camera image, six identical frames,
+# noise 0.005, S = 2 to 4, three seeds: with no rule 0.02 to 0.65 dB under the single frame in seven
+# of nine, measured once). 0.05 keeps 0.02's figures (two bursts differ, by up to 0.2 dB) with more
+# room for a still frame's registration error: 0.025 LR px at S = 2, 0.0125 at S = 4.
+STILL_SPACING, STILL_FRAME_SHARE, STILL_BURST_SHARE = 0.05, 0.9, 0.5
+# The raw path (:func:`still_run_scale`) splats on the output grid and has no such placement: without
+# its rule, bursts that moved up to 0.1 LR px at S = 2 fell 0.8 to 1.0 dB under the demosaicked
+# reference (benchmarks/results/eval_still_bursts_raw.json), so it keeps the spacing of 0.2.
+RAW_STILL_SPACING = 0.2
 
 # Samples :meth:`Tally.add` takes at a time (a piece of rows): a 12 MP frame's indices in one go
 # are 96 MB of fresh pages each, which on this project's benchmark machine cost more to fault in
@@ -213,8 +225,8 @@ def scale_to_run(positions, weights: Tensor, scale: int, reference: int = -1) ->
 
 def still_frames(positions, trusted, reference: int, scale: int) -> list[int]:
     """The trusted frames but the reference that are still on the ``scale``-times lattice by the
-    fill's rule (:meth:`Tally._still_scales`), read on three bands of four rows (top, middle,
-    bottom): for a burst path without a tally (raw bursts). ``positions``: a
+    fill's rule (:meth:`Tally._still_scales`) with :data:`RAW_STILL_SPACING`, read on three bands of
+    four rows (top, middle, bottom): for a burst path without a tally (raw bursts). ``positions``: a
     :class:`~hbis_torch.reconstruct.positions.BurstPositions` or (F, H, W, 2) float64."""
     F, H = positions.shape[:2]
     rows = sorted({0, max(0, H // 2 - 2), max(0, H - 4)})
@@ -222,7 +234,7 @@ def still_frames(positions, trusted, reference: int, scale: int) -> list[int]:
     for k in range(F):
         if k != reference and bool(trusted[k]):
             offset = torch.cat([_phase_offset(positions[k, r:r + 4]).reshape(-1) for r in rows])
-            if float((offset < STILL_SPACING / scale).double().mean()) >= STILL_FRAME_SHARE:
+            if float((offset < RAW_STILL_SPACING / scale).double().mean()) >= STILL_FRAME_SHARE:
                 out.append(k)
     return out
 
@@ -238,8 +250,8 @@ def still_run_scale(positions, trusted, reference: int, scale: int, notes: list)
     if len(still) < STILL_BURST_SHARE * moved:
         return scale
     notes.append(act(f"the frames hardly moved against the reference ({len(still)} of {moved}, within "
-                     f"{STILL_SPACING / scale:.2f} px of its pixel grid): they hold little detail beyond its own, so "
-                     f"they were fused at their own size and enlarged to S = {scale} (bicubic); for "
+                     f"{RAW_STILL_SPACING / scale:.2f} px of its pixel grid): they hold little detail beyond its "
+                     f"own, so they were fused at their own size and enlarged to S = {scale} (bicubic); for "
                      "super-resolution move the camera a little between frames"))
     return 1
 
@@ -252,7 +264,7 @@ def report_still(tally: Tally, notes: list) -> None:
     still = [] if scale is None else sorted(tally.still[scale])
     if not still:
         return
-    within = f"within {STILL_SPACING / scale:.2f} LR px of its pixel grid"
+    within = f"within {STILL_SPACING / scale:.3g} LR px of its pixel grid"
     if not tally.mostly_still(scale):
         notes.append(f"frame(s) {still} hardly moved against the reference ({within}): they add no new "
                      "sub-pixel samples, only less noise")
