@@ -288,6 +288,15 @@ def test_a_still_burst_gives_the_single_frame_and_says_so():
             assert len(line) == 1 and asks_to_act(line[0]) and "(all 5, within" in line[0], notes
 
 
+def _small_shifts(scale: int, spread: float, seed: int):
+    """A burst of 12 frames that moved up to ``spread`` px: its stack, truth and the single
+    frame's PSNR."""
+    motions = random_motions(12, (SIZE, SIZE), np.random.default_rng(seed), spread)
+    burst = simulate_burst(_truth(scale), scale, motions, noise=0.005, seed=seed)
+    stack, _ = assemble_burst(burst.frames, scale)
+    return stack, burst.truth, psnr(_single(burst, scale), burst.truth)
+
+
 def test_a_burst_whose_shifts_cluster_gains_over_the_single_frame():
     # A steady hand or a tripod's shake: every frame within 0.2 px of the reference. The samples'
     # common offset on the lattice (a scan's rule) put them all on one node in S along each axis,
@@ -297,12 +306,9 @@ def test_a_burst_whose_shifts_cluster_gains_over_the_single_frame():
     from hbis_torch.reconstruct.classical.sr import common_offset_of
 
     for scale in (2, 3):
-        motions = random_motions(12, (SIZE, SIZE), np.random.default_rng(2), 0.2)
-        burst = simulate_burst(_truth(scale), scale, motions, noise=0.005, seed=2)
-        stack, _ = assemble_burst(burst.frames, scale)
-        single = psnr(_single(burst, scale), burst.truth)
+        stack, truth, single = _small_shifts(scale, 0.2, seed=2)
         for method in ("classical", "learned"):
-            assert psnr(reconstruct(stack, method), burst.truth) > single + 1.0, (scale, method)
+            assert psnr(reconstruct(stack, method), truth) > single + 1.0, (scale, method)
     # the rule is a burst's: a scan's samples sharing one phase keep their common offset
     positions = np.zeros((2, 8, 8, 2))
     positions[..., 0] = np.arange(8)[None, None, :] + 0.1
@@ -318,14 +324,11 @@ def test_a_burst_that_moved_a_tenth_of_a_pixel_is_not_taken_for_a_still_one():
     # sub-pixel detail, where the still rule's old spacing (0.2 of the node spacing) counted them
     # still and gave the single frame (+0.00 dB here, classical and learned).
     for scale in (2, 4):
-        motions = random_motions(12, (SIZE, SIZE), np.random.default_rng(3), 0.1)
-        burst = simulate_burst(_truth(scale), scale, motions, noise=0.005, seed=3)
-        stack, _ = assemble_burst(burst.frames, scale)
-        single = psnr(_single(burst, scale), burst.truth)
+        stack, truth, single = _small_shifts(scale, 0.1, seed=3)
         for method in ("classical", "learned"):
             notes: list = []
             image = reconstruct(stack, method, messages=notes)
-            assert psnr(image, burst.truth) > single + 0.5, (scale, method)
+            assert psnr(image, truth) > single + 0.5, (scale, method)
             assert not any("the frames hardly moved" in n for n in notes), notes
 
 
