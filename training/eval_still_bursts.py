@@ -3,7 +3,7 @@
     python training/eval_still_bursts.py --out benchmarks/results/eval_still_bursts.json
         [--seeds 30 31] [--spreads 0 0.05 0.1 0.2 2.5] [--no-learned] [--photos held-out|training]
         [--still-spacings 0.1 0.05 0.02]
-    python training/eval_still_bursts.py --raw --out benchmarks/results/eval_still_bursts_raw.json
+    python training/eval_still_bursts.py --raw --out benchmarks/results/eval_still_bursts_raw.json [--photos training]
 
 A burst whose frames did not move holds no detail beyond its reference frame's, only less noise;
 its samples all lie where the reference's do, which at even S is halfway between the output
@@ -18,7 +18,8 @@ bits), and with the lattice placed by the samples' common offset even where thei
 The rules' settings were chosen on the training photographs (``--photos training``: the still
 rule's on seeds 12 and 13, the placement's on 12 to 14); the defaults are other photographs and
 seeds. ``--raw``: raw bursts through the joint path (:func:`run_raw_cell`), which the rule runs at
-the frames' own size and enlarges where most frames are still.
+the frames' own size and enlarges where most frames are still (``--photos training``: the colour
+photographs among the training ones, :data:`RAW_PHOTOS`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ import sys
 from pathlib import Path
 
 CELLS = ((2, 8), (2, 16), (3, 16), (4, 16))  # (S, F)
+# --raw's photographs: held-out ones, or the colour photographs among the training ones
+RAW_PHOTOS = {"held-out": ("chelsea", "rocket"), "training": ("immunohistochemistry", "hubble_deep_field")}
 BORDER_LR = 4
 
 
@@ -69,11 +72,12 @@ def run_cell(scale: int, count: int, spread: float, seed: int, learned: bool, ph
     return out
 
 
-def run_raw_cell(scale: int, spread: float, seed: int, photo: str) -> dict:
+def run_raw_cell(scale: int, spread: float, seed: int, photo: str, spacings: tuple = ()) -> dict:
     """A raw cell (``--raw``): the raw matrix's renderer (:mod:`hbis_torch.training.heldout_raw`,
     RGGB, bright, 128 px, 12 frames, shifts up to ``spread`` px), the reference demosaicked
     (OpenCV's edge-aware) and enlarged (bicubic) against the joint path with and without the rule
-    (``burst_fill.STILL_BURST_SHARE`` set past 1)."""
+    (``burst_fill.STILL_BURST_SHARE`` set past 1), and with each of ``spacings`` as
+    ``burst_fill.RAW_STILL_SPACING``."""
     import cv2
     from eval_raw import score, single_frame_demosaicks
 
@@ -99,6 +103,13 @@ def run_raw_cell(scale: int, spread: float, seed: int, photo: str) -> dict:
         out["joint_without_rule"] = score(reconstruct_raw_burst(stack), burst.truth)["psnr"]
     finally:
         burst_fill.STILL_BURST_SHARE = rule
+    spacing = burst_fill.RAW_STILL_SPACING
+    for other in spacings:
+        burst_fill.RAW_STILL_SPACING = other
+        try:
+            out[f"joint_still_spacing_{other:g}"] = score(reconstruct_raw_burst(stack), burst.truth)["psnr"]
+        finally:
+            burst_fill.RAW_STILL_SPACING = spacing
     return out
 
 
@@ -159,9 +170,11 @@ def main(argv=None) -> int:
     p.add_argument("--photos", choices=("held-out", "training"), default="held-out",
                    help="the held-out photographs (default) or the training ones (development data)")
     p.add_argument("--still-spacings", nargs="+", type=float, default=[],
-                   help="other still spacings (burst_fill.STILL_SPACING) scored beside the default, each a column")
+                   help="other still spacings (burst_fill.STILL_SPACING; with --raw, RAW_STILL_SPACING) scored "
+                        "beside the default, each a column")
     p.add_argument("--raw", action="store_true",
-                   help="raw bursts instead (the joint path; held-out photographs chelsea and rocket, S = 2 and 3)")
+                   help="raw bursts instead (the joint path, S = 2 and 3; held-out photographs chelsea and rocket, "
+                        "with --photos training immunohistochemistry and hubble_deep_field)")
     args = p.parse_args(argv)
     if any(s < 0 for s in args.spreads) or any(s <= 0 for s in args.still_spacings):
         print("eval_still_bursts: --spreads takes shifts of 0 LR px or more, --still-spacings above 0",
@@ -171,8 +184,9 @@ def main(argv=None) -> int:
     for seed in args.seeds:
         for spread in args.spreads:
             if args.raw:
-                jobs = [(f"{photo}|S={scale}|shift {spread:g}|seed {seed}", run_raw_cell, (scale, spread, seed, photo))
-                        for photo in ("chelsea", "rocket") for scale in (2, 3)]
+                jobs = [(f"{photo}|S={scale}|shift {spread:g}|seed {seed}", run_raw_cell,
+                         (scale, spread, seed, photo, tuple(args.still_spacings)))
+                        for photo in RAW_PHOTOS[args.photos] for scale in (2, 3)]
             else:
                 jobs = [(f"S={scale}|F={count}|shift {spread:g}|seed {seed}", run_cell,
                          (scale, count, spread, seed, not args.no_learned, args.photos, tuple(args.still_spacings)))
