@@ -60,8 +60,14 @@ RUN_FILL = 0.5
 STILL_SPACING, STILL_FRAME_SHARE, STILL_BURST_SHARE = 0.05, 0.9, 0.5
 # The raw path (:func:`still_run_scale`) splats on the output grid and has no such placement: without
 # its rule, bursts that moved up to 0.1 LR px at S = 2 fell 0.8 to 1.0 dB under the demosaicked
-# reference (benchmarks/results/eval_still_bursts_raw.json), so it keeps the spacing of 0.2.
-RAW_STILL_SPACING = 0.2
+# reference (benchmarks/results/eval_still_bursts_raw.json), and each colour's samples lie two
+# pixels apart, so frames that moved a little more still fill few of its phases. On development
+# raw bursts (training/eval_still_bursts.py --raw --photos training --seeds 12 13 14 --spreads 0 0.1
+# 0.2 0.3 0.5 --still-spacings 0.3 0.4: benchmarks/results/dev_raw_still_spacing.json, 60 bursts)
+# the joint path less the demosaicked reference averaged +1.68 / +1.86 / +1.85 dB at 0.2 / 0.3 /
+# 0.4: 0.3 moved every burst by -0.01 to +3.06 dB (shifts up to 0.2 px at S = 2 had fallen 1.8 dB
+# under it), 0.4 lost up to 0.58 dB at shifts of 0.2 px (S = 3) and 0.3 px (S = 2).
+RAW_STILL_SPACING = 0.3
 
 # Samples :meth:`Tally.add` takes at a time (a piece of rows): a 12 MP frame's indices in one go
 # are 96 MB of fresh pages each, which on this project's benchmark machine cost more to fault in
