@@ -3,7 +3,8 @@
     python training/eval_still_bursts.py --out benchmarks/results/eval_still_bursts.json
         [--seeds 30 31] [--spreads 0 0.05 0.1 0.2 2.5] [--no-learned] [--photos held-out|training]
         [--still-spacings 0.1 0.05 0.02]
-    python training/eval_still_bursts.py --raw --out benchmarks/results/eval_still_bursts_raw.json [--photos training]
+    python training/eval_still_bursts.py --raw --out benchmarks/results/eval_still_bursts_raw.json
+        [--photos training] [--still-spacings 0.2]
 
 A burst whose frames did not move holds no detail beyond its reference frame's, only less noise;
 its samples all lie where the reference's do, which at even S is halfway between the output
@@ -16,8 +17,9 @@ reference, the classical and learned methods as they are, and the same with the 
 bits), and with the lattice placed by the samples' common offset even where their shifts cluster
 (``hbis_torch.reconstruct.classical.lattice.CLUSTERED`` set past 1: the code before that rule).
 The rules' settings were chosen on the training photographs (``--photos training``: the still
-rule's on seeds 12 and 13, the placement's on 12 to 14); the defaults are other photographs and
-seeds. ``--raw``: raw bursts through the joint path (:func:`run_raw_cell`), which the rule runs at
+rule's first spacing on seeds 12 and 13, its present one, the raw path's and the placement on 12
+to 14); the defaults are other photographs and seeds. ``--still-spacings`` scores other spacings
+beside the default in the same run, each a column. ``--raw``: raw bursts through the joint path (:func:`run_raw_cell`), which the rule runs at
 the frames' own size and enlarges where most frames are still (``--photos training``: the colour
 photographs among the training ones, :data:`RAW_PHOTOS`).
 """
@@ -146,7 +148,8 @@ def _placement(rows: list, method: str) -> dict:
 
 
 def _spacings(rows: list, method: str) -> dict:
-    """Each other still spacing's (``--still-spacings``) classical - bicubic, mean and worst."""
+    """Each other still spacing's (``--still-spacings``) ``method`` - bicubic (the demosaicked
+    reference's, for raw cells), mean and worst, beside the default's mean."""
     out = {}
     for key in sorted({k for c in rows for k in c if k.startswith(f"{method}_still_spacing_")}):
         gains = [c[key] - c["bicubic"] for c in rows]
