@@ -19,9 +19,10 @@ bits), and with the lattice placed by the samples' common offset even where thei
 The rules' settings were chosen on the training photographs (``--photos training``: the still
 rule's first spacing on seeds 12 and 13, its present one, the raw path's and the placement on 12
 to 14); the defaults are other photographs and seeds. ``--still-spacings`` scores other spacings
-beside the default in the same run, each a column. ``--raw``: raw bursts through the joint path (:func:`run_raw_cell`), which the rule runs at
-the frames' own size and enlarges where most frames are still (``--photos training``: the colour
-photographs among the training ones, :data:`RAW_PHOTOS`).
+beside the default in the same run, each a column. ``--raw``: raw bursts through the joint path
+(:func:`run_raw_cell`), which the rule runs at the frames' own size and enlarges where most frames
+are still (``--photos training``: the colour photographs among the training ones,
+:data:`RAW_PHOTOS`).
 """
 
 from __future__ import annotations
