@@ -146,11 +146,21 @@ def test_motion_beyond_the_coarse_range_is_found_or_rejected():
 
 
 def test_two_frames_only(tmp_path):
+    # two frames leave whole sub-pixel phases empty: the output leans on the reference enlarged, and
+    # a line says so and asks for more frames (a burst that fills its lattice gets no such line)
+    from hbis_torch.notices import asks_to_act
+
     burst = _burst(count=2)
     stack, _ = assemble_burst(burst.frames, 2)
     for method in ("classical", "learned"):
-        image = reconstruct(stack, method)
+        notes: list = []
+        image = reconstruct(stack, method, messages=notes)
         assert np.isfinite(image).all() and psnr(image, burst.truth) > psnr(_single(burst), burst.truth) - 0.5
+        line = [n for n in notes if "fill too little" in n]
+        assert len(line) == 1 and line[0].startswith("the 2 frames'") and asks_to_act(line[0]), notes
+    notes = []
+    reconstruct(assemble_burst(_burst(count=12).frames, 2)[0], "classical", messages=notes)
+    assert not any("fill too little" in n for n in notes), notes
     with pytest.raises(Exception, match="2 to 256 frames"):
         assemble_burst(burst.frames[:1], 2)
 

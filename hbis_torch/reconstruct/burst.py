@@ -318,6 +318,11 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     else:
         run_scale, fill = tally.run_scale(scale)
         report_still(tally, notes)
+        if float(fill.mean()) < RUN_FILL and not tally.mostly_still(min(tally.still)):
+            coarser = " (or any coarser one down to S = 2)" if scale > 2 else ""
+            notes.append(act(f"the {tally.added} frames' samples fill too little of the S = {scale} lattice{coarser} "
+                             "to reconstruct it whole: where they leave sub-pixel phases empty, the output leans on "
+                             "the reference frame enlarged (bicubic); for more detail capture more frames"))
     del tally
     if not getattr(run, "streams", False):  # a method that wants the whole arrays gets them
         positions, weights = positions.whole(), weights.double()
