@@ -481,7 +481,14 @@ FRAME_CASES = {
     "truncated AVI": (lambda d: [(d / "t.avi").write_bytes(_avi(d / "full.avi").read_bytes()[:300]) and d / "t.avi"],
                       "t.avi: "),
     "video among images": (lambda d: [*_frame_files(d, 3), _avi(d / "v.avi")], "give it alone"),
+    # what tifffile.imwrite(path, frames) makes of three grey frames unless told photometric='minisblack'
+    "three frames as one planar RGB page": (lambda d: [_planar_rgb(d / "p.tif")], "photometric='minisblack'"),
 }
+
+
+def _planar_rgb(path: Path) -> Path:
+    tifffile.imwrite(path, np.zeros((3, ROI[3], ROI[2]), np.uint16), photometric="rgb", planarconfig="separate")
+    return path
 
 
 @pytest.mark.parametrize("name", list(FRAME_CASES))

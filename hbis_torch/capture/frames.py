@@ -124,6 +124,12 @@ def _tiff_header(path: Path) -> FrameInfo:
     with quiet_tifffile(), tifffile.TiffFile(path) as tif:
         pages = declared_pages(tif, path, MAX_FILE_PAGES)  # counts, shapes, dtypes, truncation, the limit
         shape, dtype = tuple(int(n) for n in pages[0].shape), pages[0].dtype
+        planar = getattr(pages[0], "planarconfig", None) == tifffile.PLANARCONFIG.SEPARATE
+    if planar and len(shape) == 3 and shape[0] in (3, 4):
+        # tifffile.imwrite(path, frames) stores 3 or 4 grey frames so, unless told otherwise
+        raise HbisInputError(f"{path}: a page of {shape[0]} colour planes of {shape[2]} x {shape[1]} px (planar RGB), "
+                             f"which is not read; {shape[0]} grey frames go one page each (tifffile.imwrite(path, "
+                             "frames, photometric='minisblack')), an RGB frame as (H, W, 3) pixels")
     if len(shape) == 3 and shape[-1] in (1, 4):
         shape = shape[:2] if shape[-1] == 1 else (*shape[:2], 3)
     if dtype == np.float64:
