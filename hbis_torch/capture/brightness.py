@@ -15,6 +15,13 @@ import torch
 GAIN_FIT_SIDE = 128
 # Pixels this close to the white or black level count as saturated (left out of the gain fit).
 SATURATION_MARGIN = 2.0 / 255.0
+# A fitted gain outside [1 / GAIN_RANGE, GAIN_RANGE] is taken for a failed fit and refused. An
+# exposure bracket of +-2 EV (phones' HDR bursts, auto exposure that swings) needs gains of 4 and
+# 1/4: with the range of 2 the project had, such frames kept a gain of 1, were down-weighted as a
+# brightness change and added little (development bursts, the third renderer's training photographs,
+# 320 x 240, 8 frames at S = 2, seeds 12 and 13, exposures x 0.25 to x 2.5: classical - bicubic
+# -0.05 to +1.52 dB with the range of 2, +0.82 to +2.28 with 5, measured once).
+GAIN_RANGE = 5.0
 # torch.linalg.lstsq's default on the CPU, gelsy, reads its pivot array uninitialised (pytorch#71222),
 # so the same line fit differed in its last bits from run to run; gelsd (SVD) gives the same bits.
 LSTSQ_DRIVER = "gelsd"
@@ -56,9 +63,10 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     A least-squares line through the warped frame's and the reference's pixels (both blurred a
     little against aliasing), refitted once without the pixels more than 3 robust sigmas off
     (a moving object) and without saturated pixels. A fit that is not sensible (g outside
-    [0.5, 2]) is refused in favour of (1, 0). Frames larger than :data:`GAIN_FIT_SIDE` twice
-    over are halved (a Gaussian pyramid) until they are not: two numbers need no millions of
-    pixels, and the warp's cost was most of a large burst's brightness fit. ``reduced``:
+    [1 / :data:`GAIN_RANGE`, :data:`GAIN_RANGE`]) is refused in favour of (1, 0). Frames larger
+    than :data:`GAIN_FIT_SIDE` twice over are halved (a Gaussian pyramid) until they are not: two
+    numbers need no millions of pixels, and the warp's cost was most of a large burst's brightness
+    fit. ``reduced``:
     :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a burst's frames;
     ``halved``: the frame halved as ``reduced`` says, where the caller has it (a burst's pyramid).
     """
@@ -87,6 +95,6 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
         r = y - (gain * x + offset)
         spread = 1.4826 * float(r[use].abs().median()) + 1e-6
         use = use & (r.abs() < 3 * spread)
-    if not 0.5 <= gain <= 2.0:
+    if not 1.0 / GAIN_RANGE <= gain <= GAIN_RANGE:
         return 1.0, 0.0
     return gain, offset
