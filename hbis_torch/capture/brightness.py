@@ -66,9 +66,9 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     [1 / :data:`GAIN_RANGE`, :data:`GAIN_RANGE`]) is refused in favour of (1, 0). Frames larger
     than :data:`GAIN_FIT_SIDE` twice over are halved (a Gaussian pyramid) until they are not: two
     numbers need no millions of pixels, and the warp's cost was most of a large burst's brightness
-    fit. ``reduced``:
-    :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a burst's frames;
-    ``halved``: the frame halved as ``reduced`` says, where the caller has it (a burst's pyramid).
+    fit. ``reduced``: :func:`gain_fit_reference` of ``reference``, where the caller keeps it for a
+    burst's frames; ``halved``: the frame halved as ``reduced`` says, where the caller has it (a
+    burst's pyramid).
     """
     import kornia
 

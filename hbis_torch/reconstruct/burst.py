@@ -46,7 +46,7 @@ from torch import Tensor
 from hbis_torch.capture.sharpness import blurred_frames
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
-from hbis_torch.reconstruct.burst_fill import RUN_FILL, Tally, report_still, tally_frames
+from hbis_torch.reconstruct.burst_fill import RUN_FILL, Tally, report_still, report_unfilled, tally_frames
 from hbis_torch.reconstruct.burst_fill import coverage, scale_to_run  # noqa: F401 (this module's API too)
 from hbis_torch.reconstruct.lens_blur import burst_lens_sigma
 from hbis_torch.reconstruct.single_frame import enlarge, single_frame
@@ -318,11 +318,7 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
     else:
         run_scale, fill = tally.run_scale(scale)
         report_still(tally, notes)
-        if float(fill.mean()) < RUN_FILL and not tally.mostly_still(min(tally.still)):
-            coarser = " (or any coarser one down to S = 2)" if scale > 2 else ""
-            notes.append(act(f"the {tally.added} frames' samples fill too little of the S = {scale} lattice{coarser} "
-                             "to reconstruct it whole: where they leave sub-pixel phases empty, the output leans on "
-                             "the reference frame enlarged (bicubic); for more detail capture more frames"))
+        report_unfilled(tally, fill, scale, notes)
     del tally
     if not getattr(run, "streams", False):  # a method that wants the whole arrays gets them
         positions, weights = positions.whole(), weights.double()

@@ -279,3 +279,15 @@ def report_still(tally: Tally, notes: list) -> None:
     notes.append(act(f"the frames hardly moved against the reference ({which}, {within}): they hold little "
                      "detail beyond the reference's, so the output leans on the reference enlarged; for "
                      "super-resolution move the camera a little between frames (a hand-held burst moves enough)"))
+
+
+def report_unfilled(tally: Tally, fill: np.ndarray, scale: int, notes: list) -> None:
+    """A line that asks for more frames where the samples fill no lattice from ``scale`` down to 2
+    (``fill``, :meth:`Tally.run_scale`'s, under :data:`RUN_FILL` on average), so that the output
+    leans on the reference enlarged; a burst that hardly moved has :func:`report_still`'s instead."""
+    if float(fill.mean()) >= RUN_FILL or tally.mostly_still(min(tally.still)):
+        return
+    coarser = " (or any coarser one down to S = 2)" if scale > 2 else ""
+    notes.append(act(f"the {tally.added} frames' samples fill too little of the S = {scale} lattice{coarser} to "
+                     "reconstruct it whole: where they leave sub-pixel phases empty, the output leans on the "
+                     "reference frame enlarged (bicubic); for more detail capture more frames"))
