@@ -22,7 +22,7 @@ to 14); the defaults are other photographs and seeds. ``--still-spacings`` score
 beside the default in the same run, each a column. ``--raw``: raw bursts through the joint path
 (:func:`run_raw_cell`), which the rule runs at the frames' own size and enlarges where most frames
 are still (``--photos training``: the colour photographs among the training ones,
-:data:`RAW_PHOTOS`).
+:data:`RAW_CELL_PHOTOS`).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from pathlib import Path
 
 CELLS = ((2, 8), (2, 16), (3, 16), (4, 16))  # (S, F)
 # --raw's photographs: held-out ones, or the colour photographs among the training ones
-RAW_PHOTOS = {"held-out": ("chelsea", "rocket"), "training": ("immunohistochemistry", "hubble_deep_field")}
+RAW_CELL_PHOTOS = {"held-out": ("chelsea", "rocket"), "training": ("immunohistochemistry", "hubble_deep_field")}
 BORDER_LR = 4
 
 
@@ -156,8 +156,10 @@ def _spacings(rows: list, method: str) -> dict:
         gains = [c[key] - c["bicubic"] for c in rows]
         out[key.removeprefix(f"{method}_")] = {"minus_bicubic_mean_db": float(sum(gains) / len(gains)),
                                                "minus_bicubic_worst_db": float(min(gains))}
+    if not out:
+        return {}
     gains = [c[method] - c["bicubic"] for c in rows]
-    return out and {"minus_bicubic_mean_db": float(sum(gains) / len(gains)), **out}
+    return {"minus_bicubic_mean_db": float(sum(gains) / len(gains)), **out}
 
 
 def main(argv=None) -> int:
@@ -190,7 +192,7 @@ def main(argv=None) -> int:
             if args.raw:
                 jobs = [(f"{photo}|S={scale}|shift {spread:g}|seed {seed}", run_raw_cell,
                          (scale, spread, seed, photo, tuple(args.still_spacings)))
-                        for photo in RAW_PHOTOS[args.photos] for scale in (2, 3)]
+                        for photo in RAW_CELL_PHOTOS[args.photos] for scale in (2, 3)]
             else:
                 jobs = [(f"S={scale}|F={count}|shift {spread:g}|seed {seed}", run_cell,
                          (scale, count, spread, seed, not args.no_learned, args.photos, tuple(args.still_spacings)))
