@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 #: ``--motion`` choices: ``auto`` climbs translation -> similarity -> affine -> homography per frame.
 MOTIONS = ("auto", "translation", "similarity", "affine", "homography")
 MAX_BURST_FRAMES = 256
+MIN_BURST_PX = 24  # the smallest side a burst's frames (or their picture inside black bands) may have
 # Below this confidence another start is tried; frames left below BURST_MIN_CONFIDENCE are rejected.
 RETRY_CONFIDENCE = 0.6
 # A frame registered again from other starts (_register_pair) tries each while its best is below
@@ -452,7 +453,8 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
     motion : str
         One of :data:`MOTIONS`.
     roi : (u0, v0, width, height) or None
-        Cut the frames to this rectangle first (None: whole frames).
+        Cut the frames to this rectangle first. None: whole frames, less any still black bands at
+        their edges (a letterbox; :mod:`hbis_torch.capture.borders`), which a message names.
     bit_depth : int or None
         Significant bits of integer frames (default: the dtype's).
     names : list of str, optional
@@ -463,7 +465,10 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
     stack : Stack
     messages : list of str
     """
+    cut = [] if roi is not None else None  # (no roi: the frames are cut to their picture, if banded)
     frames, roi = check_burst_input(frames, scale, reference, motion, roi, bit_depth)
+    if cut is None:
+        frames, roi, cut = _inside_bands(frames, bit_depth)
     grey = luminance(frames)
     if bit_depth is not None and frames.dtype != np.float32:
         grey.mul_((2 ** (frames.dtype.itemsize * 8) - 1) / (2 ** bit_depth - 1))
@@ -472,7 +477,7 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
     found = register_burst(grey, reference, motion, names)
     if given:  # compared with the frames that register: another scene's sharpness says nothing of it
         _, messages = choose_reference(grey, reference, found.confidence >= BURST_MIN_CONFIDENCE)
-    messages += found.messages
+    messages += cut + found.messages
     hint = bit_depth_hint(frames) if bit_depth is None else None
     if hint is not None:
         messages.append(hint)
@@ -489,6 +494,29 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
     frames = np.ascontiguousarray(frames)
     validate_stack(frames, meta, "assembled burst")
     return Stack(frames, meta), messages
+
+
+def _inside_bands(frames: np.ndarray, bit_depth: int | None) -> tuple[np.ndarray, tuple, list]:
+    """Whole frames cut to the picture inside still black bands at their edges
+    (:func:`~hbis_torch.capture.borders.picture_inside_bands`), if the picture is large enough to
+    register: (frames, roi, the message that says so, or none)."""
+    from hbis_torch.capture.borders import picture_inside_bands
+
+    height, width = frames.shape[1:3]
+    if frames.dtype == np.float32:
+        white = 1.0
+    else:  # the bits the values use, where not given (a 10-bit camera in a 16-bit file: 1023)
+        white = 2 ** (max(int(frames.max()).bit_length(), 1) if bit_depth is None else int(bit_depth)) - 1
+    picture = picture_inside_bands(frames, white)
+    if picture is None or min(picture[2:]) < MIN_BURST_PX:
+        return frames, (0, 0, width, height), []
+    u0, v0, w, h = picture
+    bands = [f"{n} px at the {side}" for n, side in ((v0, "top"), (height - v0 - h, "bottom"), (u0, "left"),
+                                                     (width - u0 - w, "right")) if n]
+    line = act(f"the frames have still black bands ({', '.join(bands)}): the burst is cut to the picture inside "
+               f"them, {w} x {h} px at ({u0}, {v0}), and the output covers it alone; --roi 0,0,{width},{height} "
+               "keeps the whole frames")
+    return frames[:, v0:v0 + h, u0:u0 + w], picture, [line]
 
 
 def check_burst_input(frames, scale, reference, motion, roi, bit_depth) -> tuple[np.ndarray, tuple]:
@@ -516,8 +544,9 @@ def check_burst_input(frames, scale, reference, motion, roi, bit_depth) -> tuple
     if w < 1 or h < 1 or u0 < 0 or v0 < 0 or u0 + w > width or v0 + h > height:
         raise HbisInputError(f"--roi {list(roi)} lies outside the {width} x {height} frames")
     frames = frames[:, v0:v0 + h, u0:u0 + w]
-    if min(h, w) < 24:
-        raise HbisInputError(f"burst frames of {w} x {h} px are too small to register (at least 24 x 24)")
+    if min(h, w) < MIN_BURST_PX:
+        raise HbisInputError(f"burst frames of {w} x {h} px are too small to register "
+                             f"(at least {MIN_BURST_PX} x {MIN_BURST_PX})")
     if frames.dtype not in (np.uint8, np.uint16, np.float32):
         raise HbisInputError(f"frame dtype {frames.dtype} is not one of uint8, uint16, float32")
     if frames.dtype == np.float32 and (not np.isfinite(frames).all() or frames.min() < 0 or frames.max() > 1):

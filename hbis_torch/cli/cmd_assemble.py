@@ -77,7 +77,8 @@ def register(sub) -> None:
                    "whose residual is at the noise level")
     p.add_argument("--out", required=True, type=Path, help="output stack (hbis-stack/1 TIFF)")
     p.add_argument("--roi", type=_roi, help="where the frames sit on the sensor, U0,V0,WIDTH,HEIGHT (default: "
-                   "the whole sensor); full-sensor frames are cut to it; with --burst: the part of the frames to keep")
+                   "the whole sensor); full-sensor frames are cut to it; with --burst: the part of the frames to keep "
+                   "(default: the whole frames less any still black bands at their edges, a letterbox)")
     p.add_argument("--bit-depth", type=bounded_int(1, 16), help="significant bits of integer frames (default: 8 or 16 from the dtype)")
     p.add_argument("--black-level", type=bounded_float(0.0, 65535.0), help="digital number of black (default 0)")
     p.add_argument("--cfa", type=str.upper, choices=CFA_PATTERNS,
