@@ -309,6 +309,7 @@ def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None
         if frames.shape[0] != len(meta["motions"]):
             raise StackFormatError(f"{where}: {frames.shape[0]} frame(s) but {len(meta['motions'])} entries in "
                                    "motions (one per frame)")
+        _check_stuck_pixels(meta.get("stuck_pixels", []), frames.shape[1:3], where)
     else:
         _check_scan_geometry(frames, meta, where)
     u0, v0, width, height = meta["roi"]
@@ -339,6 +340,15 @@ def validate_stack(frames: np.ndarray, meta: dict, where: str = "stack") -> None
     black = meta.get("black_level", 0)
     if black >= white:
         raise StackFormatError(f"{where}: black_level {black} is not below the white level {white}")
+
+
+def _check_stuck_pixels(stuck, shape: tuple[int, int], where: str) -> None:
+    """A burst's ``stuck_pixels``: [row, col] pairs of integers inside the frames."""
+    pairs = isinstance(stuck, (list, tuple)) and all(
+        isinstance(p, (list, tuple)) and len(p) == 2 and all(_is_int(i) for i in p) for p in stuck)
+    if not pairs or any(not (0 <= r < shape[0] and 0 <= c < shape[1]) for r, c in stuck):
+        raise StackFormatError(f"{where}: stuck_pixels must be [row, col] pairs of integers inside the "
+                               f"{shape[1]} x {shape[0]} frames")
 
 
 def _check_scan_geometry(frames: np.ndarray, meta: dict, where: str) -> None:

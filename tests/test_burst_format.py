@@ -38,6 +38,7 @@ def test_burst_round_trip_and_positions(tmp_path):
     with pytest.raises(HbisInputError, match="no prism phases"):
         back.phases_deg
     assert Stack(stack.frames, {**stack.meta, "kind": "hbis"}).kind == "hbis"
+    validate_stack(stack.frames, {**stack.meta, "stuck_pixels": [[0, 0], [9, 19]]}, "b.tif")  # inside
 
 
 @pytest.mark.parametrize("change, message", [
@@ -52,6 +53,9 @@ def test_burst_round_trip_and_positions(tmp_path):
     ({"scale": 3}, "differs from h"),
     ({"reference_index": 3}, "not a frame index"),
     ({"roi": [0, 0, 20, 11]}, "roi is 20 x 11"),
+    ({"stuck_pixels": [[3, 20]]}, "stuck_pixels must be"),
+    ({"stuck_pixels": [[3, 4.0]]}, "stuck_pixels must be"),
+    ({"stuck_pixels": [3, 4]}, "stuck_pixels must be"),
 ])
 def test_bad_burst_meta_is_refused_in_one_line(change, message):
     stack, _ = _burst()

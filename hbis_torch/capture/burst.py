@@ -475,9 +475,10 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
     given = reference != SHARPEST
     reference, messages = (reference, []) if given else choose_reference(grey, reference)
     found = register_burst(grey, reference, motion, names)
+    frames, stuck_at, stuck = _without_stuck_pixels(frames, grey, reference, found)
     if given:  # compared with the frames that register: another scene's sharpness says nothing of it
         _, messages = choose_reference(grey, reference, found.confidence >= BURST_MIN_CONFIDENCE)
-    messages += cut + found.messages
+    messages += cut + found.messages + stuck
     hint = bit_depth_hint(frames) if bit_depth is None else None
     if hint is not None:
         messages.append(hint)
@@ -487,6 +488,8 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
                             "the camera a little between frames"))
     meta = make_burst_meta(scale, roi, found.motions, found.confidence, found.models, found.gain_offset,
                            reference_index=reference, bit_depth=bit_depth)
+    if stuck:  # filled in the frames, and given no weight by the reconstruction
+        meta["stuck_pixels"] = stuck_at.tolist()
     if found.local is not None:  # plain lists already: set here, not walked value by value by make_burst_meta
         from hbis_torch.registration.local import TILE_PX
 
@@ -494,6 +497,19 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
     frames = np.ascontiguousarray(frames)
     validate_stack(frames, meta, "assembled burst")
     return Stack(frames, meta), messages
+
+
+def _without_stuck_pixels(frames: np.ndarray, grey: torch.Tensor, reference: int, found: BurstMotion):
+    """The frames with the sensor's stuck pixels filled (:mod:`hbis_torch.capture.stuck_pixels`),
+    the pixels ((N, 2) row, column) and the line that says so (none where none was found)."""
+    from hbis_torch.capture.stuck_pixels import fill_stuck_pixels, find_stuck_pixels
+
+    pixels = find_stuck_pixels(grey.numpy(), reference, found.motions, found.confidence >= BURST_MIN_CONFIDENCE)
+    if not len(pixels):
+        return frames, pixels, []
+    return fill_stuck_pixels(frames, pixels), pixels, [
+        f"{len(pixels)} stuck pixel(s) of the sensor (hot or dead: they stand out in every frame while the scene "
+        "moves) filled from their neighbours"]
 
 
 def _inside_bands(frames: np.ndarray, bit_depth: int | None) -> tuple[np.ndarray, tuple, list]:

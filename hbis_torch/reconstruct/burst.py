@@ -133,7 +133,8 @@ def _inside(positions: Tensor, shape: tuple[int, int]) -> Tensor:
     return (u >= -0.5) & (u <= W - 0.5) & (v >= -0.5) & (v <= H - 0.5)
 
 
-def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int, tally=None) -> Tensor:
+def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int, tally=None,
+                       sensor: Tensor | None = None) -> Tensor:
     """Per-sample weights in [0, 1]: 1 where the motion explains the sample, towards 0 where not.
 
     Computed a frame at a time (its positions, blur and comparison), so that no array of every
@@ -151,6 +152,9 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
     tally : Tally, optional
         Is handed every frame's positions and weights with any weight (:meth:`Tally.add`),
         which then need not be computed again.
+    sensor : Tensor, shape (H, W), float32, optional
+        Each sensor pixel's weight in every frame: 0 at its stuck pixels (their values were
+        filled from their neighbours, :mod:`hbis_torch.capture.stuck_pixels`), 1 elsewhere.
 
     Returns
     -------
@@ -179,9 +183,11 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
         weight = torch.exp(-((_blur(grey[k][None])[0] - at_ref) / tau) ** 2)
         weight = _minimum_3x3(weight)  # grow each rejection a pixel
         weights[k] = weight * _inside(where, (H, W))
+        if sensor is not None:
+            weights[k] *= sensor
         if tally is not None:
             tally.add(k, where, weights[k])
-    weights[reference] = 1.0
+    weights[reference] = 1.0 if sensor is None else sensor
     if tally is not None:
         tally.add(reference, positions[reference], weights[reference])
     return weights
@@ -237,13 +243,27 @@ def burst_samples(stack, frames: Tensor | None = None, lazy: bool = False,
     if len(leave_out):
         trusted = trusted.clone()
         trusted[list(leave_out)] = False
+    sensor = stuck_pixel_weights(stack)
+    extra = {} if sensor is None else {"sensor": sensor}  # (a robustness_weights put in its place takes neither)
     if tally is None:
-        weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index)
+        weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index, **extra)
     else:
-        weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index, tally)
+        weights = robustness_weights(_luma(frames), positions, trusted, stack.reference_index, tally, **extra)
     if not lazy:
         positions, weights = positions.whole(), weights.double()
     return frames, positions, trusted, weights
+
+
+def stuck_pixel_weights(stack) -> Tensor | None:
+    """(H, W) float32: 0 at the stack's stuck pixels (``stuck_pixels`` in its metadata, filled by
+    ``hbis assemble --burst``), 1 elsewhere; None where it has none."""
+    stuck = stack.meta.get("stuck_pixels")
+    if not stuck:
+        return None
+    rows, cols = torch.as_tensor(stuck, dtype=torch.long).T
+    sensor = torch.ones(stack.frames.shape[1:3], dtype=torch.float32)
+    sensor[rows, cols] = 0.0
+    return sensor
 
 
 def reconstruct_burst(stack, method, registration: str = "auto", messages: list | None = None,

@@ -1,0 +1,129 @@
+"""Stuck pixels of a burst's sensor (hot, or dead), found from the burst itself, and filled.
+
+A hot pixel reads bright in every frame, a dead one dark, at the same place on the sensor. Most
+sensors have a few; long exposures and warm sensors have more. The reference frame's stay in its
+enlarged image wherever no other frame's sample outweighs them, as spots the size of an output
+pixel or more.
+
+A burst shows them apart from the scene: the scene moves across the sensor from frame to frame
+and they do not. A pixel is stuck (:func:`find_stuck_pixels`) when it stands out from all eight of
+its neighbours, the same way, in the reference and in nearly every frame that moved at least
+:data:`MOVED_PX` there (a point of the scene, a star or a glint, moved with those frames; a pixel
+that stands out where the scene did not move cannot be told from one, and is left). Stuck pixels
+are then filled with the mean of their neighbours that are not stuck (:func:`fill_stuck_pixels`),
+as a bad-pixel map's are: the other frames' samples cover the place.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: How far (px) a frame's motion must move the scene at a pixel for that frame to tell the pixel
+#: from a point of the scene.
+MOVED_PX = 1.0
+#: Frames that moved that far, at least: fewer, and the burst cannot tell (nothing is found).
+MIN_MOVED_FRAMES = 3
+#: The share of those frames (and the reference) in which a stuck pixel stands out.
+STANDS_OUT_SHARE = 0.9
+#: How far a pixel must stand out from the nearest of its neighbours: this many times the
+#: reference's noise (a robust spread of its pixels against their neighbours' mean), and at least
+#: :data:`MIN_STEP` of white.
+NOISE_TIMES = 8.0
+MIN_STEP = 0.02
+#: The noise is measured on every this many rows (a spread needs no more).
+SPREAD_ROW_STEP = 4
+_RING = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+
+
+def find_stuck_pixels(grey: np.ndarray, reference: int, motions: np.ndarray, trusted: np.ndarray) -> np.ndarray:
+    """The pixels that stand out from their neighbours, the same way, wherever the scene moved.
+
+    Parameters
+    ----------
+    grey : np.ndarray, shape (F, H, W), float32 in [0, 1]
+        The frames' luminance.
+    reference : int
+    motions : np.ndarray, shape (F, 3, 3)
+        Frame px -> reference px.
+    trusted : np.ndarray, shape (F,), bool
+        The frames whose motion is trusted (the others say nothing).
+
+    Returns
+    -------
+    np.ndarray, shape (N, 2), int
+        (row, column) of each stuck pixel (none on the frame's outer ring of pixels).
+    """
+    import cv2
+
+    ref = np.ascontiguousarray(grey[reference], dtype=np.float32)
+    H, W = ref.shape
+    ring = np.ones((3, 3), np.uint8)
+    ring[1, 1] = 0
+    step = max(NOISE_TIMES * _noise(ref), MIN_STEP)
+    above = ref - cv2.dilate(ref, ring, borderType=cv2.BORDER_REPLICATE)
+    below = cv2.erode(ref, ring, borderType=cv2.BORDER_REPLICATE) - ref
+    found = []
+    for sign, apart in ((1.0, above), (-1.0, below)):
+        inner = apart[1:-1, 1:-1] > step
+        rows, cols = np.nonzero(inner)
+        if rows.size:
+            found.append((sign, rows + 1, cols + 1))
+    others = [k for k in range(len(grey)) if k != reference and trusted[k]]
+    out = []
+    for sign, rows, cols in found:
+        moved = _moved(motions[others], rows, cols)  # (others, N) bool
+        enough = moved.sum(0) >= MIN_MOVED_FRAMES
+        if not enough.any():
+            continue
+        rows, cols, moved = rows[enough], cols[enough], moved[:, enough]
+        values = np.asarray(grey[:, rows, cols])[others] * sign  # (others, N)
+        nearest = np.max([np.asarray(grey[:, rows + dr, cols + dc])[others] * sign for dr, dc in _RING], axis=0)
+        stands = (values - nearest) > step / 2
+        share = (stands & moved).sum(0) / moved.sum(0)
+        keep = share >= STANDS_OUT_SHARE
+        out.append(np.stack([rows[keep], cols[keep]], -1))
+    return np.concatenate(out) if out else np.zeros((0, 2), int)
+
+
+def fill_stuck_pixels(frames: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """``frames`` (F, H, W) or (F, H, W, C), any dtype, with each of ``pixels`` ((N, 2) row,
+    column, none on the outer ring) set to the mean of its neighbours that are not among them
+    (a pixel with none keeps its value): a copy, in the frames' dtype (rounded)."""
+    out = np.array(frames)
+    if not len(pixels):
+        return out
+    rows, cols = pixels[:, 0], pixels[:, 1]
+    H, W = frames.shape[1:3]
+    stuck = np.zeros((H, W), bool)
+    stuck[rows, cols] = True
+    total = np.zeros((len(frames), len(rows), *frames.shape[3:]))
+    count = np.zeros(len(rows))
+    for dr, dc in _RING:
+        good = ~stuck[rows + dr, cols + dc]
+        total += frames[:, rows + dr, cols + dc] * good.reshape(-1, *[1] * (frames.ndim - 3))
+        count += good
+    filled = count > 0
+    mean = total[:, filled] / count[filled].reshape(-1, *[1] * (frames.ndim - 3))
+    if np.issubdtype(out.dtype, np.integer):
+        mean = np.round(mean)
+    out[:, rows[filled], cols[filled]] = mean.astype(out.dtype)
+    return out
+
+
+def _noise(image: np.ndarray) -> float:
+    """A robust spread of the image's pixels against the mean of their four neighbours (scaled to
+    one pixel's noise for white noise; texture adds to it, so a textured frame asks more)."""
+    rows = slice(1, image.shape[0] - 1, SPREAD_ROW_STEP)
+    centre = image[rows, 1:-1]
+    mean = (image[0:-2:SPREAD_ROW_STEP, 1:-1] + image[2::SPREAD_ROW_STEP, 1:-1] + image[rows, :-2] + image[rows, 2:]) / 4
+    residual = centre - mean
+    mad = float(np.median(np.abs(residual - np.median(residual))))
+    return 1.4826 * mad / np.sqrt(1.25)  # (the residual's variance: 1 + 4/16 of a pixel's)
+
+
+def _moved(motions: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(frames, N) whether each frame's motion moves pixel (row, column) at least :data:`MOVED_PX`."""
+    points = np.stack([cols, rows, np.ones_like(cols)]).astype(np.float64)  # (3, N)
+    mapped = motions @ points  # (frames, 3, N)
+    xy = mapped[:, :2] / mapped[:, 2:]
+    return np.hypot(xy[:, 0] - cols, xy[:, 1] - rows) >= MOVED_PX
