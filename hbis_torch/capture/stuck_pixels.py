@@ -113,9 +113,10 @@ def fill_stuck_pixels(frames: np.ndarray, pixels: np.ndarray) -> np.ndarray:
 def _noise(image: np.ndarray) -> float:
     """A robust spread of the image's pixels against the mean of their four neighbours (scaled to
     one pixel's noise for white noise; texture adds to it, so a textured frame asks more)."""
-    rows = slice(1, image.shape[0] - 1, SPREAD_ROW_STEP)
+    step = SPREAD_ROW_STEP
+    rows = slice(1, image.shape[0] - 1, step)
     centre = image[rows, 1:-1]
-    mean = (image[0:-2:SPREAD_ROW_STEP, 1:-1] + image[2::SPREAD_ROW_STEP, 1:-1] + image[rows, :-2] + image[rows, 2:]) / 4
+    mean = (image[0:-2:step, 1:-1] + image[2::step, 1:-1] + image[rows, :-2] + image[rows, 2:]) / 4
     residual = centre - mean
     mad = float(np.median(np.abs(residual - np.median(residual))))
     return 1.4826 * mad / np.sqrt(1.25)  # (the residual's variance: 1 + 4/16 of a pixel's)
