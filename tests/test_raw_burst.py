@@ -390,3 +390,26 @@ def test_outputs_made_in_bands_are_the_whole_images_conversion(tmp_path, monkeyp
     assert np.array_equal(preview, np.round(srgb_gamma(srgb) * 255).astype(np.uint8))
     camera = orient(image, flip)  # the DNG keeps the camera's RGB, turned
     assert np.array_equal(tifffile.imread(tmp_path / "a.dng"), np.round(camera * 65535).astype(np.uint16))
+
+
+def test_a_raw_burst_s_stuck_pixels_are_found_among_their_own_colour_and_given_no_weight():
+    # 20 hot pixels (at white) and 10 dead ones: stood out from the same colour's neighbours two
+    # pixels away, filled, listed, and left out of the splat (26.73 dB left in, 29.87 now, 30.43 clean;
+    # the hot pixels missed lie where the scene is nearly white)
+    import hbis_torch.capture.stuck_pixels as stuck_pixels
+
+    burst = make_raw_burst("coffee", "RGGB", "bright", 2, 96, 5, BurstCondition("raw", frames=8))
+    cells = np.random.default_rng(5).choice(22 * 22, 30, replace=False)
+    rows, cols = 4 + 4 * (cells // 22), 4 + 4 * (cells % 22)
+    mosaics = burst.mosaics.copy()
+    mosaics[:, rows[:20], cols[:20]], mosaics[:, rows[20:], cols[20:]] = WHITE, 0
+    stack, said = raw_burst_stack(mosaics, "RGGB", burst.raw, 2)
+    found = set(map(tuple, stack.meta["stuck_pixels"]))
+    assert found <= set(zip(rows.tolist(), cols.tolist())) and len(found) >= 15, len(found)
+    assert any(f"{len(found)} stuck pixel(s)" in line for line in said), said
+    clean = _psnr(reconstruct_raw_burst(raw_burst_stack(burst.mosaics, "RGGB", burst.raw, 2)[0]), burst.truth)
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(stuck_pixels, "find_stuck_pixels", lambda *a, **k: np.zeros((0, 2), int))
+        left = _psnr(reconstruct_raw_burst(raw_burst_stack(mosaics, "RGGB", burst.raw, 2)[0]), burst.truth)
+    now = _psnr(reconstruct_raw_burst(stack), burst.truth)
+    assert now > left + 2.0 and now > clean - 1.0, (clean, left, now)

@@ -52,12 +52,12 @@ def test_hot_and_dead_pixels_are_found_filled_and_cost_nothing():
     filled = psnr(reconstruct(stack, "classical"), burst.truth)
     import hbis_torch.capture.burst as capture_burst
 
-    kept = capture_burst._without_stuck_pixels
+    kept = capture_burst.without_stuck_pixels
     try:  # the burst as it was before: the reference's stuck pixels stay in the image
-        capture_burst._without_stuck_pixels = lambda frames, *_: (frames, np.zeros((0, 2), int), [])
+        capture_burst.without_stuck_pixels = lambda frames, *_: (frames, np.zeros((0, 2), int), [])
         left = psnr(reconstruct(assemble_burst(frames, 2)[0], "classical"), burst.truth)
     finally:
-        capture_burst._without_stuck_pixels = kept
+        capture_burst.without_stuck_pixels = kept
     assert filled > clean - 0.3 and filled > left + 1.0, (clean, filled, left)
 
 

@@ -547,6 +547,7 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     import torch
 
     from hbis_torch.capture.burst import register_burst
+    from hbis_torch.capture.stuck_pixels import without_stuck_pixels
     from hbis_torch.registration.pyramid import from_level
     from hbis_torch.stack_io import BURST_MIN_CONFIDENCE, Stack, make_burst_meta, validate_stack
 
@@ -558,7 +559,10 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
     # a blurred reference is named, beside the frames that register (assemble_burst's rule)
     _, said = choose_reference(torch.from_numpy(grey), reference, found.confidence >= BURST_MIN_CONFIDENCE)
     motions = from_level(found.motions, 1)  # a 2 x 2 cell is a pixel of the pyramid's first level
-    extra = {}
+    # hot and dead pixels, against their neighbours of the same colour (two pixels away)
+    mosaics, stuck_at, stuck = without_stuck_pixels(mosaics, values, reference, motions,
+                                                    found.confidence >= BURST_MIN_CONFIDENCE, spacing=2)
+    extra = {"stuck_pixels": stuck_at.tolist()} if len(stuck_at) else {}
     if getattr(found, "local", None) is not None:  # [handheld]'s local shifts, from cells to pixels
         from hbis_torch.registration.local import TILE_PX
 
@@ -567,4 +571,4 @@ def raw_burst_stack(mosaics: np.ndarray, cfa: str, raw: dict, scale: int, refere
                            reference_index=reference, bit_depth=16, cfa=cfa, raw=raw, **extra)
     mosaics = np.ascontiguousarray(mosaics, dtype=np.uint16)
     validate_stack(mosaics, meta, "assembled raw burst")
-    return Stack(mosaics, meta), said + list(found.messages)
+    return Stack(mosaics, meta), said + list(found.messages) + stuck

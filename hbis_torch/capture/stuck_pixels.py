@@ -35,39 +35,45 @@ SPREAD_ROW_STEP = 4
 _RING = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
 
-def find_stuck_pixels(grey: np.ndarray, reference: int, motions: np.ndarray, trusted: np.ndarray) -> np.ndarray:
+def find_stuck_pixels(grey: np.ndarray, reference: int, motions: np.ndarray, trusted: np.ndarray,
+                      spacing: int = 1) -> np.ndarray:
     """The pixels that stand out from their neighbours, the same way, wherever the scene moved.
 
     Parameters
     ----------
     grey : np.ndarray, shape (F, H, W), float32 in [0, 1]
-        The frames' luminance.
+        The frames' luminance (or a raw burst's normalised mosaics, with ``spacing`` 2).
     reference : int
     motions : np.ndarray, shape (F, 3, 3)
         Frame px -> reference px.
     trusted : np.ndarray, shape (F,), bool
         The frames whose motion is trusted (the others say nothing).
+    spacing : int
+        How far apart (px) a pixel's eight neighbours lie: 1, or 2 on a Bayer mosaic (its
+        neighbours of the same colour).
 
     Returns
     -------
     np.ndarray, shape (N, 2), int
-        (row, column) of each stuck pixel (none on the frame's outer ring of pixels).
+        (row, column) of each stuck pixel (none within ``spacing`` of the frame's edge).
     """
     import cv2
 
     ref = np.ascontiguousarray(grey[reference], dtype=np.float32)
     H, W = ref.shape
-    ring = np.ones((3, 3), np.uint8)
-    ring[1, 1] = 0
-    step = max(NOISE_TIMES * _noise(ref), MIN_STEP)
+    s = spacing
+    ring = np.zeros((2 * s + 1, 2 * s + 1), np.uint8)
+    ring[::s, ::s] = 1
+    ring[s, s] = 0
+    step = max(NOISE_TIMES * _noise(ref, s), MIN_STEP)
     above = ref - cv2.dilate(ref, ring, borderType=cv2.BORDER_REPLICATE)
     below = cv2.erode(ref, ring, borderType=cv2.BORDER_REPLICATE) - ref
     found = []
     for sign, apart in ((1.0, above), (-1.0, below)):
-        inner = apart[1:-1, 1:-1] > step
+        inner = apart[s:-s, s:-s] > step
         rows, cols = np.nonzero(inner)
         if rows.size:
-            found.append((sign, rows + 1, cols + 1))
+            found.append((sign, rows + s, cols + s))
     others = [k for k in range(len(grey)) if k != reference and trusted[k]]
     out = []
     for sign, rows, cols in found:
@@ -77,7 +83,8 @@ def find_stuck_pixels(grey: np.ndarray, reference: int, motions: np.ndarray, tru
             continue
         rows, cols, moved = rows[enough], cols[enough], moved[:, enough]
         values = np.asarray(grey[:, rows, cols])[others] * sign  # (others, N)
-        nearest = np.max([np.asarray(grey[:, rows + dr, cols + dc])[others] * sign for dr, dc in _RING], axis=0)
+        nearest = np.max([np.asarray(grey[:, rows + s * dr, cols + s * dc])[others] * sign for dr, dc in _RING],
+                         axis=0)
         stands = (values - nearest) > step / 2
         share = (stands & moved).sum(0) / moved.sum(0)
         keep = share >= STANDS_OUT_SHARE
@@ -85,10 +92,23 @@ def find_stuck_pixels(grey: np.ndarray, reference: int, motions: np.ndarray, tru
     return np.concatenate(out) if out else np.zeros((0, 2), int)
 
 
-def fill_stuck_pixels(frames: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+def without_stuck_pixels(frames: np.ndarray, grey: np.ndarray, reference: int, motions: np.ndarray,
+                         trusted: np.ndarray, spacing: int = 1) -> tuple[np.ndarray, np.ndarray, list]:
+    """:func:`find_stuck_pixels` then :func:`fill_stuck_pixels`: (the frames, filled where any
+    was found, the pixels (N, 2), and the line that says so, or none)."""
+    pixels = find_stuck_pixels(grey, reference, motions, trusted, spacing)
+    if not len(pixels):
+        return frames, pixels, []
+    return fill_stuck_pixels(frames, pixels, spacing), pixels, [
+        f"{len(pixels)} stuck pixel(s) of the sensor (hot or dead: they stand out in every frame while the scene "
+        "moves) filled from their neighbours and given no weight"]
+
+
+def fill_stuck_pixels(frames: np.ndarray, pixels: np.ndarray, spacing: int = 1) -> np.ndarray:
     """``frames`` (F, H, W) or (F, H, W, C), any dtype, with each of ``pixels`` ((N, 2) row,
-    column, none on the outer ring) set to the mean of its neighbours that are not among them
-    (a pixel with none keeps its value): a copy, in the frames' dtype (rounded)."""
+    column, none within ``spacing`` of the edge) set to the mean of its eight neighbours
+    ``spacing`` px away that are not among them (a pixel with none keeps its value): a copy, in
+    the frames' dtype (rounded)."""
     out = np.array(frames)
     if not len(pixels):
         return out
@@ -99,8 +119,9 @@ def fill_stuck_pixels(frames: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     total = np.zeros((len(frames), len(rows), *frames.shape[3:]))
     count = np.zeros(len(rows))
     for dr, dc in _RING:
-        good = ~stuck[rows + dr, cols + dc]
-        total += frames[:, rows + dr, cols + dc] * good.reshape(-1, *[1] * (frames.ndim - 3))
+        r, c = rows + spacing * dr, cols + spacing * dc
+        good = ~stuck[r, c]
+        total += frames[:, r, c] * good.reshape(-1, *[1] * (frames.ndim - 3))
         count += good
     filled = count > 0
     mean = total[:, filled] / count[filled].reshape(-1, *[1] * (frames.ndim - 3))
@@ -110,13 +131,14 @@ def fill_stuck_pixels(frames: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     return out
 
 
-def _noise(image: np.ndarray) -> float:
-    """A robust spread of the image's pixels against the mean of their four neighbours (scaled to
-    one pixel's noise for white noise; texture adds to it, so a textured frame asks more)."""
+def _noise(image: np.ndarray, s: int = 1) -> float:
+    """A robust spread of the image's pixels against the mean of their four neighbours ``s`` px
+    away (scaled to one pixel's noise for white noise; texture adds to it, so a textured frame asks
+    more)."""
     step = SPREAD_ROW_STEP
-    rows = slice(1, image.shape[0] - 1, step)
-    centre = image[rows, 1:-1]
-    mean = (image[0:-2:step, 1:-1] + image[2::step, 1:-1] + image[rows, :-2] + image[rows, 2:]) / 4
+    rows = slice(s, image.shape[0] - s, step)
+    centre = image[rows, s:-s]
+    mean = (image[0:-2 * s:step, s:-s] + image[2 * s::step, s:-s] + image[rows, :-2 * s] + image[rows, 2 * s:]) / 4
     residual = centre - mean
     mad = float(np.median(np.abs(residual - np.median(residual))))
     return 1.4826 * mad / np.sqrt(1.25)  # (the residual's variance: 1 + 4/16 of a pixel's)

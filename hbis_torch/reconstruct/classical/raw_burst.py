@@ -46,6 +46,8 @@ References
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import torch
 from torch import Tensor
@@ -339,7 +341,8 @@ def sharp_green(data: Tensor, half, w: Tensor, scale: int, kernel_sigma: float) 
 
 def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motions: np.ndarray, scale: int,
                        weights: Tensor, kernel_sigma: float = KERNEL_SIGMA, differences: bool = True,
-                       deblur: bool = True, local: dict | None = None, chroma: float = 0.0) -> np.ndarray:
+                       deblur: bool = True, local: dict | None = None, chroma: float = 0.0,
+                       sensor: Tensor | None = None) -> np.ndarray:
     """Each colour's plane from its own samples of every frame (module docstring).
 
     Green first; then, with ``differences``, red and blue as green plus the splat of their
@@ -370,6 +373,9 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     chroma : float
         How much of the guided filter the differences take, the sharpened green the guide: 0 none,
         1 all (:func:`chroma_for_noise`, :func:`~.raw_splat.guided_difference`).
+    sensor : Tensor, shape (H, W), float32, optional
+        Each sensor pixel's weight in every frame: 0 at the stack's stuck pixels
+        (:func:`~hbis_torch.reconstruct.burst.stuck_pixel_weights`).
 
     Returns
     -------
@@ -383,20 +389,9 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     any_clipped = bool(clipped_t.any())
     weights = torch.as_tensor(weights)
     per_sample = tuple(weights.shape) == (F, H, W)
-    cell = None if per_sample else weights.to(torch.float32)
-
-    def colour_weights(where, rows=slice(None), which="kept"):
-        """The weights (len(where) F, r, W / 2) float32 of a colour's samples in a band of rows
-        of its pattern positions' grids: of the unclipped samples (``"kept"``: 0 for clipped
-        ones) or of the clipped ones (``"lost"``)."""
-        parts = []
-        for dv, du in where:
-            w = weights[:, dv::2, du::2][:, rows].to(torch.float32) if per_sample else cell[:, rows]
-            if any_clipped:
-                hit = clipped_t[:, dv::2, du::2][:, rows]
-                w = w * (hit if which == "lost" else hit.logical_not())
-            parts.append(w)
-        return torch.cat(parts) if len(parts) > 1 else parts[0]
+    colour_weights = partial(_colour_weights, weights if per_sample else None,
+                             None if per_sample else weights.to(torch.float32), clipped_t if any_clipped else None,
+                             sensor)
 
     def colour_samples(where, rows=slice(None)):
         parts = [frames[:, dv::2, du::2][:, rows] for dv, du in where]
@@ -457,6 +452,24 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         plane = planes.pop(colour)
         result[..., i] = (_finished(plane, change) if colour == "G" else plane).numpy()
     return result
+
+
+def _colour_weights(per_sample: Tensor | None, cell: Tensor | None, clipped: Tensor | None, sensor: Tensor | None,
+                    where, rows=slice(None), which: str = "kept") -> Tensor:
+    """The weights (len(where) F, r, W / 2) float32 of a colour's samples in a band of rows of its
+    pattern positions' grids (:func:`joint_demosaick_sr`'s): of the unclipped samples (``"kept"``:
+    0 for clipped ones) or of the clipped ones (``"lost"``); 0 at the sensor's stuck pixels. From
+    the samples' weights ``per_sample`` (F, H, W), or else the cells' ``cell`` (F, H / 2, W / 2)."""
+    parts = []
+    for dv, du in where:
+        w = per_sample[:, dv::2, du::2][:, rows].to(torch.float32) if per_sample is not None else cell[:, rows]
+        if clipped is not None:
+            hit = clipped[:, dv::2, du::2][:, rows]
+            w = w * (hit if which == "lost" else hit.logical_not())
+        if sensor is not None:
+            w = w * sensor[dv::2, du::2][rows]
+        parts.append(w)
+    return torch.cat(parts) if len(parts) > 1 else parts[0]
 
 
 def _finished(plane: Tensor, change: Tensor | None) -> Tensor:
@@ -582,6 +595,9 @@ def reconstruct_raw_burst(stack, method=None, registration: str = "auto", messag
     if chroma > 0:
         notes.append(f"noisy frames: red and blue's differences from green guided by green "
                      f"({100 * chroma:.0f} % of the guided filter)")
+    from hbis_torch.reconstruct.burst import stuck_pixel_weights
+
     image = joint_demosaick_sr(inputs["values"], inputs["clipped"], inputs["cfa"], inputs["motions"], scale,
-                               weights, kernel_sigma, local=inputs["local"], chroma=chroma)
+                               weights, kernel_sigma, local=inputs["local"], chroma=chroma,
+                               sensor=stuck_pixel_weights(stack))
     return image if scale == stack.h else enlarge(image, tuple(stack.h * n for n in image.shape[:2]))
