@@ -34,6 +34,7 @@ import torch
 from hbis_torch.capture.brightness import fit_gain_offset, gain_fit_levels, gain_fit_reference
 from hbis_torch.capture.frames import bit_depth_hint
 from hbis_torch.capture.sharpness import SHARPEST, choose_reference
+from hbis_torch.capture.stuck_pixels import without_stuck_pixels
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 from hbis_torch.stack_io import BURST_MIN_CONFIDENCE, Stack, make_burst_meta, validate_stack
@@ -437,7 +438,8 @@ def _without_small_turn(motion: np.ndarray, shape: tuple[int, int]) -> np.ndarra
 
 
 def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, motion: str = "auto", roi=None,
-                   bit_depth: int | None = None, names: list | None = None) -> tuple[Stack, list]:
+                   bit_depth: int | None = None, names: list | None = None,
+                   calibration=None) -> tuple[Stack, list]:
     """Build and validate a burst stack from captured frames.
 
     Parameters
@@ -459,26 +461,36 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
         Significant bits of integer frames (default: the dtype's).
     names : list of str, optional
         Where each frame came from (for messages).
+    calibration : hbis_torch.capture.calibration.FrameCalibration, optional
+        Dark frame, flat field and bad-pixel map, of the frames' size as captured (or as cut):
+        the frames are corrected first (float32), and the bad pixels are filled and given no
+        weight, as stuck pixels are.
 
     Returns
     -------
     stack : Stack
     messages : list of str
     """
+    captured = np.shape(frames)[1:3]
     cut = [] if roi is not None else None  # (no roi: the frames are cut to their picture, if banded)
     frames, roi = check_burst_input(frames, scale, reference, motion, roi, bit_depth)
     if cut is None:
         frames, roi, cut = _inside_bands(frames, bit_depth)
+    bad_at, calibrated = np.zeros((0, 2), int), []
+    if calibration:
+        frames, bad_at, calibrated = _calibrated(frames, calibration, roi, captured, bit_depth)
+        bit_depth = None  # (it described the raw numbers)
     grey = luminance(frames)
     if bit_depth is not None and frames.dtype != np.float32:
         grey.mul_((2 ** (frames.dtype.itemsize * 8) - 1) / (2 ** bit_depth - 1))
     given = reference != SHARPEST
     reference, messages = (reference, []) if given else choose_reference(grey, reference)
     found = register_burst(grey, reference, motion, names)
-    frames, stuck_at, stuck = _without_stuck_pixels(frames, grey, reference, found)
+    frames, stuck_at, stuck = without_stuck_pixels(frames, grey.numpy(), reference, found.motions,
+                                                   found.confidence >= BURST_MIN_CONFIDENCE)
     if given:  # compared with the frames that register: another scene's sharpness says nothing of it
         _, messages = choose_reference(grey, reference, found.confidence >= BURST_MIN_CONFIDENCE)
-    messages += cut + found.messages + stuck
+    messages += cut + calibrated + found.messages + stuck
     hint = bit_depth_hint(frames) if bit_depth is None else None
     if hint is not None:
         messages.append(hint)
@@ -488,8 +500,11 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
                             "the camera a little between frames"))
     meta = make_burst_meta(scale, roi, found.motions, found.confidence, found.models, found.gain_offset,
                            reference_index=reference, bit_depth=bit_depth)
-    if stuck:  # filled in the frames, and given no weight by the reconstruction
-        meta["stuck_pixels"] = stuck_at.tolist()
+    unusable = np.unique(np.concatenate([bad_at, stuck_at]), axis=0)
+    if len(unusable):  # filled in the frames, and given no weight by the reconstruction
+        meta["stuck_pixels"] = unusable.tolist()
+    if calibration:
+        meta["calibration"] = {**calibration.names, "bad_pixel_count": len(bad_at)}
     if found.local is not None:  # plain lists already: set here, not walked value by value by make_burst_meta
         from hbis_torch.registration.local import TILE_PX
 
@@ -499,17 +514,25 @@ def assemble_burst(frames: np.ndarray, scale: int, reference: int | str = 0, mot
     return Stack(frames, meta), messages
 
 
-def _without_stuck_pixels(frames: np.ndarray, grey: torch.Tensor, reference: int, found: BurstMotion):
-    """The frames with the sensor's stuck pixels filled (:mod:`hbis_torch.capture.stuck_pixels`),
-    the pixels ((N, 2) row, column) and the line that says so (none where none was found)."""
-    from hbis_torch.capture.stuck_pixels import fill_stuck_pixels, find_stuck_pixels
+def _calibrated(frames: np.ndarray, calibration, roi, captured, bit_depth: int | None):
+    """The frames corrected by ``calibration``
+    (:func:`~hbis_torch.capture.calibration.calibrate_frames`), the bad pixels ((N, 2) row,
+    column) and the line that says what was applied."""
+    from hbis_torch.capture.calibration import calibrate_frames
 
-    pixels = find_stuck_pixels(grey.numpy(), reference, found.motions, found.confidence >= BURST_MIN_CONFIDENCE)
-    if not len(pixels):
-        return frames, pixels, []
-    return fill_stuck_pixels(frames, pixels), pixels, [
-        f"{len(pixels)} stuck pixel(s) of the sensor (hot or dead: they stand out in every frame while the scene "
-        "moves) filled from their neighbours"]
+    if frames.dtype == np.float32:
+        white = 1.0
+    else:
+        white = 2 ** (frames.dtype.itemsize * 8 if bit_depth is None else int(bit_depth)) - 1
+    frames, bad = calibrate_frames(frames, calibration, roi, captured, white)
+    bad_at = np.argwhere(bad)
+    applied = [f"{what} {calibration.names[key]}" for key, what in (("dark", "dark frame"), ("flat", "flat field"),
+                                                                    ("bad_pixels", "bad-pixel map"))
+               if key in calibration.names]
+    line = f"calibrated with the {', the '.join(applied)}"
+    if len(bad_at):
+        line += f": {len(bad_at)} bad pixel(s) filled from their neighbours and given no weight"
+    return frames, bad_at, [line]
 
 
 def _inside_bands(frames: np.ndarray, bit_depth: int | None) -> tuple[np.ndarray, tuple, list]:

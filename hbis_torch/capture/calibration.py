@@ -74,6 +74,18 @@ def load_calibration(dark=None, flat=None, bad_pixels=None) -> FrameCalibration:
     return cal
 
 
+def check_calibration_size(cal: FrameCalibration, captured_shape, roi=None) -> None:
+    """Refuse calibration images that fit neither frames of ``captured_shape`` ((H, W) or (H, W, 3),
+    as a burst's files declare them) nor their cut to ``roi``, before any frame is decoded."""
+    height, width = captured_shape[:2]
+    u0, v0, w, h = roi if roi is not None else (0, 0, width, height)
+    shape = (h, w, *captured_shape[2:])
+    for image, what, key in ((cal.dark, "dark frame", "dark"), (cal.flat, "flat field", "flat"),
+                             (cal.bad, "bad-pixel map", "bad_pixels")):
+        if image is not None:
+            _fit(image, what, cal.names.get(key, ""), shape, (u0, v0, w, h), (height, width))
+
+
 def _fit(image: np.ndarray, what: str, name: str, frame_shape, roi, sensor_shape) -> np.ndarray:
     """``image`` cut to the frames: as it is when it has their size, the ROI when it has the sensor's."""
     hw = image.shape[:2]
@@ -140,21 +152,66 @@ def calibrate_stack(stack, cal: FrameCalibration):
         return stack
     frames = stack.frames
     cam = stack.system.camera
-    roi, shape, sensor = stack.roi, frames.shape[1:], (cam.rows, cam.cols)
     if frames.dtype == np.float32:
         black, scale = 0.0, 1.0
     else:
         black, scale = stack.black_level, float(2 ** stack.bit_depth - 1) - stack.black_level
-    x = stack.to_float().numpy().astype(np.float64)
+    dark, gain, bad = corrections(cal, frames.shape[1:], stack.roi, (cam.rows, cam.cols), black, scale)
+    corrected = (stack.to_float().numpy().astype(np.float64) - dark) / gain
+    if bad.any():
+        corrected = fill_bad_pixels(corrected, bad)
+    corrected = np.clip(corrected, 0.0, 1.0).astype(np.float32)
+    meta = {k: v for k, v in stack.meta.items() if k not in ("bit_depth", "black_level")}
+    meta["calibration"] = {**cal.names, "bad_pixel_count": int(bad.sum())}
+    return Stack(corrected, meta)
+
+
+def calibrate_frames(frames: np.ndarray, cal: FrameCalibration, roi, captured_shape, white: float):
+    """Frames cut to ``roi`` from captured ones, corrected as :func:`calibrate_stack` corrects a
+    stack's, a frame at a time (a burst's frames need not all be held in float64).
+
+    Parameters
+    ----------
+    frames : np.ndarray, shape (F, H, W) or (F, H, W, 3)
+        Any dtype, the captured frames cut to ``roi``.
+    cal : FrameCalibration
+        Images of the frames' size, or of the captured frames' (then cut to ``roi``).
+    roi : (u0, v0, width, height)
+    captured_shape : (rows, cols)
+    white : float
+        The frames' value of white (their black is 0: a dark frame holds the camera's black level).
+
+    Returns
+    -------
+    frames : np.ndarray, float32 in [0, 1]
+    bad : np.ndarray, shape (H, W), bool
+        The bad pixels (from the map, and the flat field's weak ones), filled from their neighbours.
+    """
+    dark, gain, bad = corrections(cal, frames.shape[1:], roi, captured_shape, 0.0, float(white))
+    out = np.empty(frames.shape, np.float32)
+    for k in range(len(frames)):
+        corrected = (frames[k].astype(np.float64) / white - dark) / gain
+        if bad.any():
+            corrected = fill_bad_pixels(corrected[None], bad)[0]
+        out[k] = np.clip(corrected, 0.0, 1.0)
+    return out, bad
+
+
+def corrections(cal: FrameCalibration, shape, roi, sensor_shape, black: float, scale: float):
+    """The per-pixel corrections of frames of ``shape`` (H, W) or (H, W, 3) cut to ``roi`` from a
+    sensor of ``sensor_shape``, in units where ``(raw - black) / scale`` is the frame's value:
+    (dark (0.0 or an array), gain (1.0 or an array), bad (H, W) bool); a flat-field gain below
+    :data:`MIN_GAIN` is a bad pixel (its gain set to 1)."""
     dark = 0.0
     if cal.dark is not None:
-        dark = (_fit(cal.dark, "dark frame", cal.names.get("dark", ""), shape, roi, sensor) - black) / scale
+        dark = (_fit(cal.dark, "dark frame", cal.names.get("dark", ""), shape, roi, sensor_shape) - black) / scale
     bad = np.zeros(shape[:2], dtype=bool)
     if cal.bad is not None:
-        bad |= _fit(cal.bad, "bad-pixel map", cal.names.get("bad_pixels", ""), shape, roi, sensor)
+        bad |= _fit(cal.bad, "bad-pixel map", cal.names.get("bad_pixels", ""), shape, roi, sensor_shape)
     gain = 1.0
     if cal.flat is not None:
-        response = (_fit(cal.flat, "flat field", cal.names.get("flat", ""), shape, roi, sensor) - black) / scale - dark
+        response = (_fit(cal.flat, "flat field", cal.names.get("flat", ""), shape, roi, sensor_shape) - black) / scale
+        response = response - dark
         mean = response[~bad].mean(axis=0) if (~bad).any() else 0.0
         if not np.all(np.asarray(mean) > 0):
             raise HbisInputError(f"flat field {cal.names.get('flat', '')} is no brighter than the dark frame")
@@ -162,10 +219,4 @@ def calibrate_stack(stack, cal: FrameCalibration):
         weak = gain < MIN_GAIN
         bad |= weak.any(axis=-1) if weak.ndim == 3 else weak
         gain = np.where(gain < MIN_GAIN, 1.0, gain)
-    corrected = (x - dark) / gain
-    if bad.any():
-        corrected = fill_bad_pixels(corrected, bad)
-    corrected = np.clip(corrected, 0.0, 1.0).astype(np.float32)
-    meta = {k: v for k, v in stack.meta.items() if k not in ("bit_depth", "black_level")}
-    meta["calibration"] = {**cal.names, "bad_pixel_count": int(bad.sum())}
-    return Stack(corrected, meta)
+    return dark, gain, bad

@@ -165,7 +165,8 @@ def run_scan(args) -> int:
 
 def run_burst(args) -> int:
     """``hbis assemble --burst``: frames with unknown motion -> a burst stack."""
-    from hbis_torch.capture import read_frames
+    from hbis_torch.capture import load_calibration, read_frames
+    from hbis_torch.capture.calibration import check_calibration_size
     from hbis_torch.cli.common import tell
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
@@ -173,21 +174,25 @@ def run_burst(args) -> int:
 
     if args.scale is None:
         raise HbisInputError("--burst needs --scale S (the output scale: 2, 3, 4, ...)")
-    refused = [flag for flag, value in (("--phases", args.phases), ("--cfa", args.cfa), ("--dark", args.dark),
-                                        ("--flat", args.flat), ("--bad-pixels", args.bad_pixels),
+    refused = [flag for flag, value in (("--phases", args.phases), ("--cfa", args.cfa),
                                         ("--black-level", args.black_level),
                                         ("--system", getattr(args, "system", None)),
                                         ("--calibration", getattr(args, "calibration", None))) if value is not None]
     if refused:
         raise HbisInputError(f"{', '.join(refused)} do(es) not apply to a burst (--burst)")
-    check_distinct_paths({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()},
-                         {"--out": args.out})
+    inputs = {"--dark": args.dark, "--flat": args.flat, "--bad-pixels": args.bad_pixels}
+    inputs.update({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()})
+    check_distinct_paths(inputs, {"--out": args.out})
     check_output_path(args.out, overwrite=args.overwrite)
     from hbis_torch.budget import check_budget, estimate_assemble_burst
     from hbis_torch.capture.raw import assemble_raw_burst, is_raw_burst
     from hbis_torch.cli import map_large_arrays
 
+    calibration = load_calibration(args.dark, args.flat, args.bad_pixels)
     if is_raw_burst(args.frames):  # DNG and LibRaw's formats: the [raw] extra (docs/raw-bursts.md)
+        if calibration:
+            raise HbisInputError("--dark, --flat and --bad-pixels are for frames that are images; a raw burst is "
+                                 "read with its own black level, white level and noise profile")
         from hbis_torch.capture.raw import raw_size
 
         size = raw_size(args.frames[0])  # the header: too large is refused before decoding
@@ -201,13 +206,15 @@ def run_burst(args) -> int:
         from hbis_torch.capture.frames import probe_frames
 
         declared, _, _ = probe_frames(args.frames)  # headers only: too large is refused before decoding
+        check_calibration_size(calibration, declared.shape, args.roi)
         count = declared.count or 1  # (a video that does not say how many: its first frame's worth at least)
-        check_budget(estimate_assemble_burst(count * declared.frame_bytes, count * math.prod(declared.shape[:2])),
-                     args.force)
+        corrected = 4 * count * math.prod(declared.shape) if calibration else 0  # the float32 frames
+        check_budget(estimate_assemble_burst(count * declared.frame_bytes + corrected,
+                                             count * math.prod(declared.shape[:2])), args.force)
         map_large_arrays(count * math.prod(declared.shape))  # as hbis reconstruct does
         frames, names = read_frames(args.frames)
         stack, messages = assemble_burst(frames, args.scale, args.reference, args.motion, roi=args.roi,
-                                         bit_depth=args.bit_depth, names=names)
+                                         bit_depth=args.bit_depth, names=names, calibration=calibration)
     write_stack(args.out, stack)
     tell("assemble", messages)
     models = stack.meta["motion_models"]

@@ -136,6 +136,9 @@ def reconstruct_one(args, path: Path, prepared: tuple, threads: int | None = Non
 
     kw, calibration = prepared
     stack = read_stack(path)
+    if calibration and stack.kind == "burst":
+        raise HbisInputError(f"{path.name} is a burst: give --dark, --flat and --bad-pixels to 'hbis assemble "
+                             "--burst', which measures the motion on the corrected frames")
     from hbis_torch.budget import check_budget, estimate_reconstruct, estimate_reconstruct_burst
 
     f = stack.frames
