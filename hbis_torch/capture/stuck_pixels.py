@@ -23,7 +23,8 @@ import numpy as np
 MOVED_PX = 1.0
 #: Frames that moved that far, at least: fewer, and the burst cannot tell (nothing is found).
 MIN_MOVED_FRAMES = 3
-#: The share of those frames (and the reference) in which a stuck pixel stands out.
+#: The share of those frames in which a stuck pixel stands out (by half the step that the
+#: reference's must).
 STANDS_OUT_SHARE = 0.9
 #: How far a pixel must stand out from the nearest of its neighbours: this many times the
 #: reference's noise (a robust spread of its pixels against their neighbours' mean), and at least
@@ -60,7 +61,6 @@ def find_stuck_pixels(grey: np.ndarray, reference: int, motions: np.ndarray, tru
     import cv2
 
     ref = np.ascontiguousarray(grey[reference], dtype=np.float32)
-    H, W = ref.shape
     s = spacing
     ring = np.zeros((2 * s + 1, 2 * s + 1), np.uint8)
     ring[::s, ::s] = 1
