@@ -278,3 +278,26 @@ def test_without_pyav_a_video_is_one_clear_line(tmp_path, monkeypatch):
         read_frames([str(tmp_path / "scan.avi")])
 
 
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_a_phone_jpeg_is_read_the_way_up_a_viewer_shows_it(tmp_path, orientation):
+    """A phone stores a portrait photograph as the sensor read it and says how to turn it (the
+    EXIF orientation): the frames are read upright, as Pillow's exif_transpose turns them, and the
+    header's size is the upright one (so a burst's sizes are checked as they will be read)."""
+    from PIL import Image, ImageOps
+
+    from hbis_torch.capture.frames import probe_image, read_image
+
+    rng = np.random.default_rng(orientation)
+    stored = np.kron(rng.integers(0, 256, (12, 20, 3)), np.ones((8, 8, 1))).astype(np.uint8)  # 96 x 160, blocks
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    path = tmp_path / "p.jpg"
+    Image.fromarray(stored).save(path, quality=98, exif=exif)
+    with Image.open(path) as im:
+        shown = np.asarray(ImageOps.exif_transpose(im))
+    frames = read_image(path)
+    assert frames.shape[1:] == shown.shape and probe_image(path).shape == shown.shape
+    assert np.abs(frames[0].astype(int) - shown).mean() < 2  # (two JPEG decoders)
+    assert (orientation in (5, 6, 7, 8)) == (shown.shape[:2] == (160, 96))

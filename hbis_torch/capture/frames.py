@@ -92,6 +92,28 @@ def _png_header(path: Path) -> FrameInfo:
     return FrameInfo(1, (height, width) if grey else (height, width, 3), dtype)
 
 
+#: EXIF orientations (tag 274) that show the stored image turned a quarter (width and height swap).
+_TURNED = (5, 6, 7, 8)
+
+
+def _orientation(im) -> int:
+    """The EXIF orientation of an open Pillow image (1, as stored, where it has none)."""
+    try:
+        value = int(im.getexif().get(0x0112, 1))
+    except Exception:  # noqa: BLE001 - a damaged EXIF block is no orientation
+        return 1
+    return value if 1 <= value <= 8 else 1
+
+
+def upright(image: np.ndarray, orientation: int) -> np.ndarray:
+    """An image (H, W) or (H, W, C) as a viewer shows it under its EXIF ``orientation`` (1 to 8:
+    as stored, mirrored, turned 180 degrees, flipped, transposed, turned 90 degrees clockwise,
+    transversed, turned 90 degrees anticlockwise), as Pillow's ``ImageOps.exif_transpose``."""
+    turned = {1: image, 2: image[:, ::-1], 3: image[::-1, ::-1], 4: image[::-1], 5: image.swapaxes(0, 1),
+              6: np.rot90(image, -1), 7: image.swapaxes(0, 1)[::-1, ::-1], 8: np.rot90(image, 1)}[orientation]
+    return np.ascontiguousarray(turned)
+
+
 def _pillow_header(path: Path) -> FrameInfo:
     """Size and mode from Pillow, which reads only the header on open."""
     import warnings
@@ -103,6 +125,8 @@ def _pillow_header(path: Path) -> FrameInfo:
         try:
             with Image.open(path) as im:
                 width, height, mode, frames = im.width, im.height, im.mode, getattr(im, "n_frames", 1)
+                if _orientation(im) in _TURNED:  # shown turned a quarter: the frame is that way up
+                    width, height = height, width
         except Image.DecompressionBombError as exc:
             raise HbisInputError(f"{path}: the image declares too many pixels to decode ({_first_line(exc)})") from None
     if mode in ("I;16", "I;16B", "I;16L", "I"):
@@ -294,25 +318,28 @@ def _decode_other(path: Path) -> np.ndarray:
         import cv2
     except ImportError:
         cv2 = None
-    if cv2 is not None:
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise ValueError("OpenCV cannot decode it")
-        if image.ndim == 3:
-            image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA if image.shape[-1] == 4 else cv2.COLOR_BGR2RGB)
-        return image
     import warnings
 
     from PIL import Image
 
+    with open(path, "rb") as f:  # (a PNG's orientation is not read: its header is parsed here, not by Pillow)
+        png = f.read(8) == _PNG_SIGNATURE
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with Image.open(path) as im:
-            if im.mode in ("I", "I;16", "I;16B", "I;16L"):
-                return np.asarray(im).astype(np.uint16)
-            if im.mode not in ("L", "RGB", "RGBA", "F"):
-                im = im.convert("RGB")
-            return np.asarray(im)
+            orientation = 1 if png else _orientation(im)
+            if cv2 is None:
+                if im.mode in ("I", "I;16", "I;16B", "I;16L"):
+                    return upright(np.asarray(im).astype(np.uint16), orientation)
+                if im.mode not in ("L", "RGB", "RGBA", "F"):
+                    im = im.convert("RGB")
+                return upright(np.asarray(im), orientation)
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # (which leaves the EXIF orientation to us)
+    if image is None:
+        raise ValueError("OpenCV cannot decode it")
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA if image.shape[-1] == 4 else cv2.COLOR_BGR2RGB)
+    return upright(image, orientation)
 
 
 def read_video(path, count: int | None = None, info: FrameInfo | None = None) -> np.ndarray:
