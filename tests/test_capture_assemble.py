@@ -301,3 +301,28 @@ def test_a_phone_jpeg_is_read_the_way_up_a_viewer_shows_it(tmp_path, orientation
     assert frames.shape[1:] == shown.shape and probe_image(path).shape == shown.shape
     assert np.abs(frames[0].astype(int) - shown).mean() < 2  # (two JPEG decoders)
     assert (orientation in (5, 6, 7, 8)) == (shown.shape[:2] == (160, 96))
+
+
+def test_a_folder_or_a_wildcard_gives_its_frames_in_number_order(tmp_path, capsys):
+    """A burst given as a folder, or as a wildcard no shell expanded (Windows' does not): its frame
+    files in name order with numbers as numbers (f2 before f10), other files left out; an empty
+    folder and a wildcard that matches nothing are one line each."""
+    from hbis_torch.capture.frames import expand_sources
+
+    folder = tmp_path / "burst"
+    folder.mkdir()
+    for k in (10, 2, 1):
+        tifffile.imwrite(folder / f"f{k}.tif", np.full((30, 40), k, np.uint8))
+    (folder / "notes.json").write_text("{}")
+    (folder / ".f0.tif").write_bytes(b"")  # a hidden file (a sync tool's)
+    names = [Path(p).name for p in expand_sources([folder])]
+    assert names == ["f1.tif", "f2.tif", "f10.tif"]
+    assert [Path(p).name for p in expand_sources([str(folder / "f*.tif")])] == names
+    frames, _ = read_frames(expand_sources([folder]))
+    assert frames[:, 0, 0].tolist() == [1, 2, 10]
+    (tmp_path / "empty").mkdir()
+    for source, fragment in ((tmp_path / "empty", "holds no frame file"), (str(folder / "g*.png"), "matches no file")):
+        out = tmp_path / "b.tif"
+        assert main(["assemble", "--burst", "--scale", "2", "--out", str(out), str(source)]) == 2
+        err = capsys.readouterr().err
+        assert fragment in err and len(err.splitlines()) == 1 and not out.exists()

@@ -33,6 +33,10 @@ from hbis_torch.notices import act
 
 VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv"})
 TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
+#: File name endings taken as raw frames (LibRaw's formats, :mod:`hbis_torch.capture.raw`); any other
+#: file goes the usual way.
+RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf",
+                ".pef", ".srw", ".3fr", ".erf", ".kdc", ".mrw", ".iiq", ".rwl", ".mos", ".dcr", ".mef", ".x3f")
 FRAME_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32))
 MAX_FILE_PAGES = 100_000
 """The most pages (or video frames) one source may declare."""
@@ -406,6 +410,48 @@ def pattern_paths(pattern: str, count: int) -> list[Path]:
         return [Path(pattern.format(index=k)) for k in range(count)]
     except (KeyError, IndexError, ValueError):
         raise HbisInputError(f"frame pattern {pattern!r} may only use {{index}} (e.g. frame_{{index:03d}}.tif)") from None
+
+
+#: Image files a folder given as frames contributes (besides TIFFs and raw frames).
+IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".webp", ".pgm", ".ppm", ".pnm", ".jp2", ".tga"})
+
+
+def expand_sources(sources) -> list[str]:
+    """Frame sources as given, each folder replaced by its frame files (images, TIFFs and raw
+    frames, in name order with numbers compared as numbers: f2 before f10) and each wildcard
+    (``*``, ``?``, ``[``) that names no file by the files it matches, in the same order (a shell
+    that does not expand it, as Windows' does not, passes it on).
+
+    Raises
+    ------
+    HbisInputError
+        A folder that holds no frame file, or a wildcard that matches none.
+    """
+    import glob
+    import re
+
+    def in_order(paths):
+        return sorted(paths, key=lambda p: [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", str(p))])
+
+    out = []
+    for source in map(str, sources):
+        path = Path(source)
+        if path.is_dir():
+            kinds = IMAGE_SUFFIXES | TIFF_SUFFIXES | set(RAW_SUFFIXES)
+            files = [f for f in path.iterdir()
+                     if f.is_file() and f.suffix.lower() in kinds and not f.name.startswith(".")]
+            if not files:
+                raise HbisInputError(f"{source}: a folder that holds no frame file (images, TIFFs or raw frames; "
+                                     "give a video by its name)")
+            out += [str(f) for f in in_order(files)]
+        elif not path.exists() and not is_pattern(source) and any(c in source for c in "*?["):
+            files = [f for f in glob.glob(source) if Path(f).is_file()]
+            if not files:
+                raise HbisInputError(f"{source}: matches no file")
+            out += in_order(files)
+        else:
+            out.append(source)
+    return out
 
 
 def is_pattern(text: str) -> bool:

@@ -39,13 +39,11 @@ from pathlib import Path
 
 import numpy as np
 
+from hbis_torch.capture.frames import RAW_SUFFIXES
 from hbis_torch.capture.sharpness import SHARPEST, choose_reference
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 
-#: File name endings taken as raw frames (LibRaw's formats); any other file goes the usual way.
-RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".orf", ".rw2", ".raf",
-                ".pef", ".srw", ".3fr", ".erf", ".kdc", ".mrw", ".iiq", ".rwl", ".mos", ".dcr", ".mef", ".x3f")
 #: A normalised sample at or above this (before the exposure gain) is clipped (saturated).
 CLIP_LEVEL = 0.99
 #: LibRaw's orientation codes (``sizes.flip``) by name.

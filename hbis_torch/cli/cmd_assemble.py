@@ -53,8 +53,8 @@ def register(sub) -> None:
         "or (--burst) from a burst of frames with unknown motion",
         description="Assemble the frames of one captured scan (in scan order) and the phases file that "
         "'hbis motors scan --out' wrote into an hbis-stack/1 TIFF: the read-back phases become the "
-        "stack's phases_deg and the scan's reference_index is kept. FRAME is several image files, "
-        "one pattern with {index} (e.g. 'cap_{index:03d}.png', replaced by 0..h*h-1), one multi-page "
+        "stack's phases_deg and the scan's reference_index is kept. FRAME is several image files (or a "
+        "folder of them, or a wildcard), one pattern with {index} (e.g. 'cap_{index:03d}.png', replaced by 0..h*h-1), one multi-page "
         "TIFF, or one video file (PyAV). Every frame's size is checked from its header before any is decoded. Everything is checked before anything is written. With --burst, no phases: "
         "the frames are a burst from a freely moving camera (any number >= 2); each frame's motion to the "
         "reference is measured (phase correlation or matched features, then Lucas-Kanade, the simplest motion "
@@ -63,7 +63,9 @@ def register(sub) -> None:
         epilog=examples("hbis assemble --phases phases.json --roi 608,456,64,48 --bit-depth 12 --out stack.tif "
                         "'frames/cap_{index:03d}.tif'", "hbis assemble --burst --scale 3 --out burst.tif clip.avi"),
     )
-    p.add_argument("frames", nargs="+", metavar="FRAME", help="frames in scan order (files, {index} pattern, TIFF, video)")
+    p.add_argument("frames", nargs="+", metavar="FRAME",
+                   help="frames in scan order: files, a folder of them (name order, f2 before f10), a wildcard "
+                   "('frames/*.png'), an {index} pattern, one multi-page TIFF or one video")
     p.add_argument("--phases", help="the phases file of 'hbis motors scan --out' (required unless --burst)")
     b = p.add_argument_group("bursts (frames with unknown motion, no phases)")
     b.add_argument("--burst", action="store_true", help="the frames are a burst: measure each frame's motion")
@@ -124,7 +126,7 @@ def run_scan(args) -> int:
         read_frames,
         read_phases,
     )
-    from hbis_torch.capture.frames import bit_depth_hint, probe_frames
+    from hbis_torch.capture.frames import bit_depth_hint, expand_sources, probe_frames
     from hbis_torch.cli.common import tell
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
     from hbis_torch.stack_io import write_stack
@@ -135,6 +137,7 @@ def run_scan(args) -> int:
     for flag, given in (("--scale", args.scale), ("--reference", args.reference), ("--motion", args.motion != "auto")):
         if given:
             raise HbisInputError(f"{flag} is for bursts: give --burst as well")
+    args.frames = expand_sources(args.frames)  # a folder, or a wildcard the shell left
     inputs = {"--phases": args.phases, "--dark": args.dark, "--flat": args.flat, "--bad-pixels": args.bad_pixels,
               "--system": getattr(args, "system", None), "--calibration": getattr(args, "calibration", None)}
     inputs.update({f"FRAME {k + 1}": f for k, f in enumerate(args.frames) if Path(f).exists()})
@@ -167,6 +170,7 @@ def run_burst(args) -> int:
     """``hbis assemble --burst``: frames with unknown motion -> a burst stack."""
     from hbis_torch.capture import load_calibration, read_frames
     from hbis_torch.capture.calibration import check_calibration_size
+    from hbis_torch.capture.frames import expand_sources
     from hbis_torch.cli.common import tell
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.io_utils import check_distinct_paths, check_output_path
@@ -174,6 +178,7 @@ def run_burst(args) -> int:
 
     if args.scale is None:
         raise HbisInputError("--burst needs --scale S (the output scale: 2, 3, 4, ...)")
+    args.frames = expand_sources(args.frames)  # a folder, or a wildcard the shell left
     refused = [flag for flag, value in (("--phases", args.phases), ("--cfa", args.cfa),
                                         ("--black-level", args.black_level),
                                         ("--system", getattr(args, "system", None)),
