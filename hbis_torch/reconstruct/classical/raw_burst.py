@@ -57,7 +57,14 @@ from hbis_torch.capture.sharpness import blurred_frames
 from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 from hbis_torch.reconstruct.burst_fill import still_run_scale
-from hbis_torch.reconstruct.classical.raw_splat import PlanePositions, Splat, bands, guided_difference, plane_from_sums
+from hbis_torch.reconstruct.classical.raw_splat import (
+    PlanePositions,
+    Splat,
+    bands,
+    guided_difference,
+    plane_from_sums,
+    sample_weights_of_colour,
+)
 from hbis_torch.reconstruct.single_frame import enlarge
 
 KERNEL_SIGMA = 0.5  # joint_demosaick_sr's default
@@ -389,7 +396,7 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
     any_clipped = bool(clipped_t.any())
     weights = torch.as_tensor(weights)
     per_sample = tuple(weights.shape) == (F, H, W)
-    colour_weights = partial(_colour_weights, weights if per_sample else None,
+    colour_weights = partial(sample_weights_of_colour, weights if per_sample else None,
                              None if per_sample else weights.to(torch.float32), clipped_t if any_clipped else None,
                              sensor)
 
@@ -452,24 +459,6 @@ def joint_demosaick_sr(values: np.ndarray, clipped: np.ndarray, cfa: str, motion
         plane = planes.pop(colour)
         result[..., i] = (_finished(plane, change) if colour == "G" else plane).numpy()
     return result
-
-
-def _colour_weights(per_sample: Tensor | None, cell: Tensor | None, clipped: Tensor | None, sensor: Tensor | None,
-                    where, rows=slice(None), which: str = "kept") -> Tensor:
-    """The weights (len(where) F, r, W / 2) float32 of a colour's samples in a band of rows of its
-    pattern positions' grids (:func:`joint_demosaick_sr`'s): of the unclipped samples (``"kept"``:
-    0 for clipped ones) or of the clipped ones (``"lost"``); 0 at the sensor's stuck pixels. From
-    the samples' weights ``per_sample`` (F, H, W), or else the cells' ``cell`` (F, H / 2, W / 2)."""
-    parts = []
-    for dv, du in where:
-        w = per_sample[:, dv::2, du::2][:, rows].to(torch.float32) if per_sample is not None else cell[:, rows]
-        if clipped is not None:
-            hit = clipped[:, dv::2, du::2][:, rows]
-            w = w * (hit if which == "lost" else hit.logical_not())
-        if sensor is not None:
-            w = w * sensor[dv::2, du::2][rows]
-        parts.append(w)
-    return torch.cat(parts) if len(parts) > 1 else parts[0]
 
 
 def _finished(plane: Tensor, change: Tensor | None) -> Tensor:

@@ -2,7 +2,8 @@
 the hole filling (the joint path of :mod:`hbis_torch.reconstruct.classical.raw_burst`).
 
 Each colour's samples of every frame, at the positions the frames' motions give them on the
-reference's grid, are added onto the output grid by the classical method's Gaussian splat
+reference's grid, with their weights (:func:`sample_weights_of_colour`), are added onto the
+output grid by the classical method's Gaussian splat
 (:class:`Splat`: :func:`~hbis_torch.reconstruct.classical.splat.splat`'s sums in a third of its
 time), a band of rows at a time (:func:`bands`), their positions computed where read
 (:class:`PlanePositions`); the plane is the numerator over the denominator with the holes filled
@@ -114,6 +115,26 @@ def bands(frames: int, rows: int, cols: int) -> list[slice]:
     :data:`BAND_SAMPLES` samples."""
     step = max(1, BAND_SAMPLES // max(frames * cols, 1))
     return [slice(r, min(r + step, rows)) for r in range(0, rows, step)]
+
+
+def sample_weights_of_colour(per_sample: Tensor | None, cell: Tensor | None, clipped: Tensor | None,
+                             sensor: Tensor | None, where, rows=slice(None), which: str = "kept") -> Tensor:
+    """The weights (len(where) F, r, W / 2) float32 of a colour's samples in a band of rows of its
+    pattern positions' grids (``where``, (row, column) in the 2 x 2 pattern): of the unclipped
+    samples (``"kept"``: 0 for clipped ones, ``clipped`` (F, H, W) bool) or of the clipped ones
+    (``"lost"``); 0 at the sensor's stuck pixels (``sensor`` (H, W), 0 or 1). From the samples'
+    weights ``per_sample`` (F, H, W), or else the 2 x 2 cells' ``cell`` (F, H / 2, W / 2).
+    """
+    parts = []
+    for dv, du in where:
+        w = per_sample[:, dv::2, du::2][:, rows].to(torch.float32) if per_sample is not None else cell[:, rows]
+        if clipped is not None:
+            hit = clipped[:, dv::2, du::2][:, rows]
+            w = w * (hit if which == "lost" else hit.logical_not())
+        if sensor is not None:
+            w = w * sensor[dv::2, du::2][rows]
+        parts.append(w)
+    return torch.cat(parts) if len(parts) > 1 else parts[0]
 
 
 class PlanePositions:
