@@ -326,3 +326,32 @@ def test_a_folder_or_a_wildcard_gives_its_frames_in_number_order(tmp_path, capsy
         assert main(["assemble", "--burst", "--scale", "2", "--out", str(out), str(source)]) == 2
         err = capsys.readouterr().err
         assert fragment in err and len(err.splitlines()) == 1 and not out.exists()
+
+
+@pytest.mark.parametrize("degrees", [90, -90, 180])
+def test_a_phone_s_portrait_video_is_read_the_way_a_player_shows_it(tmp_path, degrees):
+    """A phone stores a portrait video as the sensor reads it, with a display matrix that turns it:
+    the frames are read turned as a player turns them (anticlockwise by the matrix's rotation),
+    and the probe's size is the shown one."""
+    av = pytest.importorskip("av")
+    from hbis_torch.capture.frames import probe_video
+
+    stored = np.kron(np.random.default_rng(1).integers(0, 256, (6, 10)), np.ones((8, 8))).astype(np.uint8)
+    path = tmp_path / "portrait.mp4"
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 80, 48, "yuv420p"
+        stream.options = {"qscale": "1"}
+        stream.set_display_rotation(degrees)
+        for _ in range(3):
+            frame = av.VideoFrame.from_ndarray(np.repeat(stored[..., None], 3, -1), format="rgb24")
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    frames, _ = read_frames([path])
+    shown = np.rot90(stored, degrees // 90)
+    assert frames.shape[:3] == (3, *shown.shape) and probe_video(path).shape[:2] == shown.shape
+    grey = (frames[0].mean(-1) if frames.ndim == 4 else frames[0]).astype(float)
+    assert np.abs(grey - shown).mean() < 6  # (the codec's loss)
+    assert np.abs(grey - np.rot90(shown, 2)).mean() > 30  # (turned the other way)

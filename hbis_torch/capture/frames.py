@@ -197,6 +197,28 @@ def _import_av(path: Path):
     return av
 
 
+#: Videos of at most this many pixels a frame have their first frame decoded by the probe, for its
+#: display rotation (a larger declared frame is the decoding limit's to refuse first).
+MAX_TURN_PROBE_PX = 1 << 26
+
+
+def _quarter_turns(container, stream) -> int:
+    """Quarter turns anticlockwise (0 to 3) that show a video's first frame as a player does (its
+    display matrix, which phones write for a portrait video); 0 where it has none or does not
+    decode (the reading then says why)."""
+    try:
+        for frame in container.decode(stream):
+            return _turns(frame)
+    except Exception:  # noqa: BLE001 - FFmpeg raises many types for bad files
+        return 0
+    return 0
+
+
+def _turns(frame) -> int:
+    """A decoded video frame's display rotation in quarter turns anticlockwise (0 to 3)."""
+    return round((getattr(frame, "rotation", 0) or 0) / 90) % 4
+
+
 def _video_layout(pix_fmt: str | None) -> tuple[bool, np.dtype]:
     """(grey, dtype) of the frames a pixel format decodes to here."""
     fmt = pix_fmt or ""
@@ -223,6 +245,8 @@ def probe_video(path) -> FrameInfo:
             count = int(stream.frames or 0)
             if not count and stream.duration and stream.average_rate:
                 count = round(float(stream.duration * stream.time_base * stream.average_rate))
+            if 0 < width * height <= MAX_TURN_PROBE_PX and _quarter_turns(container, stream) % 2:
+                width, height = height, width  # a phone's portrait video: shown turned a quarter
     except HbisInputError:
         raise
     except Exception as exc:  # noqa: BLE001 - FFmpeg raises many types for bad files
@@ -366,13 +390,16 @@ def read_video(path, count: int | None = None, info: FrameInfo | None = None) ->
     try:
         with av.open(str(path)) as container:
             for frame in container.decode(container.streams.video[0]):
-                if (frame.height, frame.width) != info.shape[:2]:
-                    raise HbisInputError(f"{path}: frame {len(frames)} is {frame.width} x {frame.height}, but the "
+                turns = _turns(frame)  # shown as a player shows it (a phone's portrait video)
+                shown = (frame.width, frame.height) if turns % 2 else (frame.height, frame.width)
+                if shown != info.shape[:2]:
+                    raise HbisInputError(f"{path}: frame {len(frames)} is {shown[1]} x {shown[0]}, but the "
                                          f"stream declares {info.shape[1]} x {info.shape[0]}")
                 if (len(frames) + 1) * info.frame_bytes > limit or len(frames) >= MAX_FILE_PAGES:
                     raise HbisInputError(f"{path}: the video holds more than {len(frames)} frames, over the limit "
                                          f"of {limit / 2**20:.0f} MiB (raise it with HBIS_MAX_STACK_MB)")
-                frames.append(frame.to_ndarray(format=fmt))
+                image = frame.to_ndarray(format=fmt)
+                frames.append(np.ascontiguousarray(np.rot90(image, turns)) if turns else image)
                 if count is not None and len(frames) >= count:
                     break
     except HbisInputError:
