@@ -86,8 +86,8 @@ def test_photographed_dark_or_white_rows_are_not_bands():
 def test_ten_bits_in_a_sixteen_bit_file_keep_their_dark_rows():
     # 10-bit values written to 16 bits: a dark row of the photograph varies by a few 10-bit steps,
     # under 2/255 of 65535 but not of the values' own white (1023)
-    frames, burst = _letterboxed()
-    tenbit = (burst.frames.astype(np.uint16) * 4)
+    _, burst = _letterboxed()
+    tenbit = burst.frames.astype(np.uint16) * 4
     tenbit[:, :BAND] = np.random.default_rng(3).integers(20, 60, (len(tenbit), BAND, W))  # dark, photographed
     stack, messages = assemble_burst(tenbit, 2)
     assert stack.roi == (0, 0, W, H) and not any("black bands" in m for m in messages)
