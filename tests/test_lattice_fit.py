@@ -61,7 +61,8 @@ def test_holes_come_closer_to_the_scene():
     assert after < 0.85 * before, (float(before), float(after))
 
 
-def test_nodes_with_samples_keep_their_bits():
+def test_nodes_with_samples_keep_their_bits(monkeypatch):
+    monkeypatch.setattr(lattice_fit, "HOLE_SHARE", 0.5)  # (at the default 2 this lattice has no such node)
     batch = clustered_batch()
     image, den, typical = splat_image(batch)
     filled = lattice_fit.fill_holes_from_samples(image.clone(), den, typical, lambda: [batch], SIGMA)
@@ -77,7 +78,8 @@ def test_a_lattice_without_holes_is_not_fitted(monkeypatch):
     monkeypatch.setattr(lattice_fit, "fit_lattice", no_fit)
     image = torch.rand(ROWS, COLS)
     before = image.clone()
-    out = lattice_fit.fill_holes_from_samples(image, torch.ones(ROWS, COLS), 1.0, lambda: [clustered_batch()], SIGMA)
+    every_node = torch.full((ROWS, COLS), lattice_fit.HOLE_SHARE)  # each at the share of the typical weight 1
+    out = lattice_fit.fill_holes_from_samples(image, every_node, 1.0, lambda: [clustered_batch()], SIGMA)
     assert out is image and torch.equal(out, before)
 
 
@@ -139,6 +141,7 @@ def dense_batch_with_a_gap() -> NodeBatch:
 
 
 def test_solving_near_the_holes_matches_the_whole_lattice(monkeypatch):
+    monkeypatch.setattr(lattice_fit, "HOLE_SHARE", 0.5)  # only the gap's nodes take the fit
     batch = dense_batch_with_a_gap()
     image, den, typical = splat_image(batch)
     share = (1 - den / (lattice_fit.HOLE_SHARE * typical)).clamp(0, 1)

@@ -12,18 +12,22 @@ does [1]_, but on the lattice, before any deblurring, so the lens estimate never
 it. The ridge keeps nodes the samples hardly constrain near the splat's value, and the fit is
 spread with the splat's 3-tap kernel, so the Wiener filter's model of the lattice still holds.
 
-Only the holes take the fit (:func:`fill_holes_from_samples`): on development bursts (training
-simulator, S = 2) fitting every node gained up to 2.4 dB with the true lens given (it lost up to
-0.4 dB on two of 17 bursts), but lost up to 1.3 dB where the lens was over-estimated by 40 %
-(five of six bursts; the sixth, whose splat image had failed, gained): a fitted lattice is sharper than the
-splat's, and deblurring too much lens then over-sharpens it. Where the splat had samples, its
-image is kept to the bit.
+Every node takes some of the fit (:func:`fill_holes_from_samples`), in proportion as its splat
+weight falls below twice the typical node's: a hole takes all of it, a typical node half. The
+splat puts each sample on its nearest node, a jitter of a quarter of an output pixel that the
+Wiener filter's model does not hold, and the fit has none. Fitting every node fully gained more
+with the lens's estimate or the true lens (development bursts of two renderers, 640 x 480, S = 2
+to 4), but lost up to 1.1 dB where the lens undone was 40 % too large: a fitted lattice is
+sharper than the splat's, and deblurring too much lens then over-sharpens it. Twice the typical
+weight keeps most of the gain and loses at most 0.6 dB there (``training/dev_hole_share.py``).
+A node of more than twice the typical weight keeps the splat's value to the bit.
 
-Only the nodes within :data:`SOLVE_RADIUS` of a hole are solved for, the others held at the
-splat's value, and only the samples around them are read: a hole's fitted value hardly depends
-on nodes farther away (the ridge and its neighbours' samples hold them), and at 640 x 480 with 16
-frames about a tenth of the nodes are holes, scattered. Every sample is still read once for the
-ridge's scale (:func:`data_weights`).
+Only the nodes within :data:`SOLVE_RADIUS` of a node that takes the fit are solved for, the
+others held at the splat's value, and only the samples around them are read: a node's fitted
+value hardly depends on nodes farther away (the ridge and its neighbours' samples hold them).
+With 16 frames of 640 x 480 at S = 2 that is most of the lattice; a burst of many frames, whose
+nodes are mostly above twice the typical weight, reads far fewer. Every sample is still read once
+for the ridge's scale (:func:`data_weights`).
 
 Shapes: lattices (rows, cols) in HR px; the normal equations on the lattice framed by one node
 each way, (rows + 2, cols + 2). Everything in float32: a node's sums add a few dozen samples, and
@@ -45,11 +49,11 @@ from torch import Tensor
 
 from hbis_torch.reconstruct.classical.lattice import PIECE_SAMPLES
 
-# A node is a hole, and takes the fit, in proportion as its splat weight falls below this share of
-# the typical node's (fully at 0). Chosen on development bursts (training simulator): at 1.0 the
-# fit gained more with the true lens on most of them, and lost up to 0.26 dB with a lens
-# over-estimated by 40 %.
-HOLE_SHARE = 0.5
+# A node takes the fit in proportion as its splat weight falls below this share of the typical
+# node's (fully at 0). Chosen on development bursts of two renderers (training/dev_hole_share.py):
+# 0.5, only the holes, gained least with the lens's estimate; every node gained most but lost up to
+# 1.1 dB with a lens over-estimated by 40 %; 2 lost at most 0.6 dB there.
+HOLE_SHARE = 2.0
 # Lattices of more nodes than this (a 2048 x 2048 frame at S = 2) are not fitted: the normal
 # equations and the solve hold a dozen lattice-sized float32 arrays.
 MAX_FIT_NODES = 1 << 24
@@ -89,8 +93,8 @@ def fill_holes_from_samples(image: Tensor, den: Tensor, typical: float, batches,
 
     Returns
     -------
-    Tensor, shape (rows, cols): ``image`` itself, unchanged where no node is a hole
-    (:data:`HOLE_SHARE`) or the lattice is larger than :data:`MAX_FIT_NODES`.
+    Tensor, shape (rows, cols): ``image`` itself, unchanged where no node's weight is below
+    :data:`HOLE_SHARE` times the typical one or the lattice is larger than :data:`MAX_FIT_NODES`.
     """
     if image.numel() > MAX_FIT_NODES:
         return image
