@@ -2,6 +2,7 @@
 is the mean of its S x S output pixels, pixel centres at integers, homographies frame px ->
 reference px), so that its truth and frames line up as the package assumes."""
 
+import json
 import sys
 from pathlib import Path
 
@@ -175,3 +176,33 @@ def test_a_colour_burst_renders_each_channel_as_the_grey_renderer_does(third):
     assert np.abs(truth[..., 0] - truth[..., 2]).mean() > 0.02
     noisy, _, _ = third.render("similarity", 2, 3, 48, 40, seed=3, photos=("astronaut",), colour=True)
     assert noisy.shape == frames.shape and noisy.dtype == np.uint16
+
+
+def test_redo_runs_the_named_rows_again_and_keeps_the_others(third, tmp_path, monkeypatch):
+    out = tmp_path / "r.json"
+    common = ["--out", str(out), "--cells", "translation:2:4", "--size", "96x64", "--no-vidsr", "--no-learned"]
+    third.main(common)
+    first = json.loads(out.read_text())
+    real_run_cell = third.run_cell
+
+    def marked(motion, scale, count, args, rows=None):
+        cell = real_run_cell(motion, scale, count, args, rows)
+        return {**cell, **{row: {**cell[row], "psnr_db": 99.0} for row in rows or ()}}
+
+    monkeypatch.setattr(third, "run_cell", marked)
+    third.main([*common, "--redo", "classical"])
+    again = json.loads(out.read_text())
+    cell, before = again["cells"]["translation:2:4"], first["cells"]["translation:2:4"]
+    assert cell["classical"]["psnr_db"] == 99.0 and cell["classical"]["run"] == 1
+    assert cell["bicubic"] == before["bicubic"] and cell["classical_lens"] == before["classical_lens"]
+    assert [run["command"] for run in again["provenance"]] == [first["provenance"]["command"],
+                                                               again["provenance"][1]["command"]]
+    assert "--redo classical" in again["provenance"][1]["command"]
+    third.main([*common, "--redo", "classical"])  # done: nothing run again, no run added
+    assert json.loads(out.read_text())["provenance"] == again["provenance"]
+
+
+def test_redo_of_a_row_the_file_lacks_is_refused(third, tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        third.main(["--out", str(tmp_path / "r.json"), "--cells", "translation:2:4", "--no-vidsr", "--redo", "vidsr"])
+    assert stop.value.code == 2 and "--redo vidsr" in capsys.readouterr().err

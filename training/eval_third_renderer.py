@@ -3,6 +3,7 @@
     python training/eval_third_renderer.py --out benchmarks/results/eval_third_renderer.json
         [--cells similarity:2:16 homography:4:16 ...] [--photos held-out|training] [--seed 0]
         [--size 640x480] [--blur 0.3] [--colour] [--point-target] [--no-learned] [--no-vidsr] [--table-only]
+        [--redo classical classical_lens learned]
 
 The held-out matrix (training/eval_handheld.py) renders with the project's own second renderer
 (:mod:`hbis_torch.training.handheld_render`). A result that holds only on one renderer may hold
@@ -53,7 +54,10 @@ setting (benchmarks/peers/vidsr_peer.py), scored by PSNR (over the three channel
 ``--colour``) without 4 LR px of border. Each cell is written to ``--out`` when done; a run that
 stops resumes at the next cell. At the end a summary (each difference's mean and worst, and the cells where classical trails vidsr by more than the
 issue's 0.3 dB) goes into the JSON and, with the table, beside it as ``.md`` (``--table-only``
-writes both again from a finished ``--out``).
+writes both again from a finished ``--out``). ``--redo ROW ...`` runs those rows again in the cells
+``--out`` already holds and keeps the others (the peer's, bicubic's: rows a change of the project's
+method leaves as they were); the file then lists every run's provenance, and each redone row names
+its run (``"run"``: the index in that list).
 """
 
 from __future__ import annotations
@@ -268,8 +272,9 @@ def _integrated(fine: np.ndarray, m: np.ndarray, roll, scale: int, width: int, h
     return total / (n * n)
 
 
-def run_cell(motion: str, scale: int, count: int, args) -> dict:
-    """One cell's rows: PSNR, seconds, and the classical method's notes."""
+def run_cell(motion: str, scale: int, count: int, args, rows=None) -> dict:
+    """One cell's rows (``rows``, default all of ``args.rows``): PSNR, seconds, and the classical
+    method's notes."""
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.reconstruct import reconstruct
 
@@ -277,7 +282,7 @@ def run_cell(motion: str, scale: int, count: int, args) -> dict:
                               colour=args.colour)
     stack, assemble_messages = assemble_burst(frames, scale)
     out = {"models": list(stack.meta["motion_models"]), "assemble_messages": assemble_messages}
-    for row in args.rows:
+    for row in args.rows if rows is None else rows:
         started, notes = time.perf_counter(), []
         if row == "bicubic":
             image = bicubic(frames[0], scale)
@@ -343,6 +348,8 @@ def parse_args(argv):
     p.add_argument("--no-learned", action="store_true")
     p.add_argument("--no-vidsr", action="store_true")
     p.add_argument("--table-only", action="store_true", help="write the summary and the .md from --out alone")
+    p.add_argument("--redo", nargs="+", default=[], metavar="ROW",
+                   help="run these rows again in the cells --out holds, keeping its other rows (the peer's)")
     args = p.parse_args(argv)
     problem = None
     try:
@@ -364,6 +371,8 @@ def parse_args(argv):
         problem = f"--blur {args.blur}: 0 to 2 LR px"
     if problem is None and args.table_only and not args.out.is_file():
         problem = f"--table-only: {args.out} does not exist"
+    if problem is None and args.redo and (not args.out.is_file() or not set(args.redo) <= set(_rows(args))):
+        problem = f"--redo {' '.join(args.redo)}: rows of this run ({', '.join(_rows(args))}) in an --out that exists"
     if problem is None and not args.table_only and args.out.is_file() and _settings(args) != \
             json.loads(args.out.read_text()).get("settings"):
         problem = f"--out {args.out} holds a run of other settings: name another file (it is not overwritten)"
@@ -397,7 +406,7 @@ def _rows(args) -> list:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parse_args(argv)
-    from hbis_torch.provenance import write_results
+    from hbis_torch.provenance import provenance, write_results
 
     settings, done, prov = _settings(args), {}, None
     if args.out.exists():  # (parse_args refused a file of other settings)
@@ -405,17 +414,39 @@ def main(argv=None) -> int:
         settings, done = previous["settings"], previous["cells"]
         prov = previous["provenance"] if args.table_only else None
         args.rows = settings["rows"]
+        if args.redo:
+            prov = _runs_with_this_one(previous["provenance"], provenance(argv=argv))
     todo = [] if args.table_only else [(cell, key) for cell, key in zip(args.parsed, args.cells) if key not in done]
+    redo = [(cell, key) for cell, key in zip(args.parsed, args.cells) if key in done and args.redo
+            and any(done[key][row].get("run") != len(prov) - 1 for row in args.redo)]  # (a stopped run resumes)
+    for (motion, scale, count), key in redo:
+        again = run_cell(motion, scale, count, args, rows=args.redo)
+        done[key].update({row: {**again[row], "run": len(prov) - 1} for row in args.redo})
+        print(key, "redone", {r: round(done[key][r]["psnr_db"], 2) for r in args.redo}, flush=True)
+        write_results(args.out, {"settings": settings, "cells": done}, prov=prov)
     for (motion, scale, count), key in todo:
         done[key] = run_cell(motion, scale, count, args)
         print(key, {r: round(done[key][r]["psnr_db"], 2) for r in args.rows}, flush=True)
-        write_results(args.out, {"settings": settings, "cells": done}, argv=argv)
+        write_results(args.out, {"settings": settings, "cells": done}, argv=argv, prov=prov)
     results = {"settings": settings, "cells": done, "summary": summary(done, args.rows)}
     prov = write_results(args.out, results, argv=argv, prov=prov)
     text = table(done, args.rows) + "\n" + "\n".join(f"- {k}: {v}" for k, v in results["summary"].items()) + "\n"
-    write_results(args.out.with_suffix(".md"), text, prov=prov)
+    if isinstance(prov, list):
+        text += "\nRuns (a redone row names its run): " + "; ".join(
+            f"{i}: `{run['command']}` at {run['commit'][:10]}, {run['date']}" for i, run in enumerate(prov)) + "\n"
+    write_results(args.out.with_suffix(".md"), text, prov=prov[-1] if isinstance(prov, list) else prov)
     print(text)
     return 0
+
+
+def _runs_with_this_one(runs, this: dict) -> list:
+    """The provenance list of a file ``--redo`` adds to: its runs (one dict in a file never redone)
+    and this run, unless the last is this run's own command at this commit (a stopped run resumed)."""
+    runs = runs if isinstance(runs, list) else [runs]
+    last = runs[-1]
+    if last.get("command") == this["command"] and last.get("commit") == this["commit"]:
+        return runs
+    return [*runs, this]
 
 
 if __name__ == "__main__":
