@@ -124,6 +124,26 @@ def test_the_eval_resumes_where_it_stopped(eh, tmp_path, capsys):
     assert "| translation | " in out.with_suffix(".md").read_text()
 
 
+def test_redo_runs_the_named_rows_again_once(eh, tmp_path, capsys):
+    out = tmp_path / "cells.json"
+    args = ["--out", str(out), "--motions", "translation", "--scales", "2", "--frames", "3", "--size", "64x48",
+            "--no-vidsr", "--no-learned", "--rows", "bicubic", "classical"]
+    assert eh.main(args) == 0
+    done = json.loads(out.read_text())
+    rows = done["cells"]["translation|S=2|F=3"]["rows"]
+    rows["bicubic"]["psnr_db"] = rows["classical"]["psnr_db"] = 99.0  # what an older method gave
+    out.write_text(json.dumps(done))
+    assert eh.main([*args, "--redo", "classical"]) == 0
+    again = json.loads(out.read_text())
+    rows = again["cells"]["translation|S=2|F=3"]["rows"]
+    assert rows["bicubic"]["psnr_db"] == 99.0 and rows["bicubic"]["run"] == 0
+    assert rows["classical"]["psnr_db"] < 99.0 and rows["classical"]["run"] == 1
+    assert eh.main([*args, "--redo", "classical"]) == 0  # done: the same run, nothing run again
+    assert json.loads(out.read_text()) == {**again, "summary": json.loads(out.read_text())["summary"]}
+    assert eh.main([*args, "--redo", "oracle"]) == 2
+    assert "--redo oracle" in capsys.readouterr().err
+
+
 def test_the_eval_runs_only_the_rows_asked_for_and_compares_learned_with_classical(eh, tmp_path, capsys):
     out = tmp_path / "learned.json"
     assert eh.main(["--out", str(out), "--motions", "translation", "--rows", "bogus", "--size", "64x48"]) == 2

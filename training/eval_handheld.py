@@ -64,6 +64,9 @@ def parse_args(argv=None):
     p.add_argument("--no-vidsr", action="store_true", help="skip the vidsr row")
     p.add_argument("--rows", nargs="+", default=list(ROWS), metavar="ROW",
                    help=f"only these rows (default all: {', '.join(ROWS)}); --no-learned and --no-vidsr still apply")
+    p.add_argument("--redo", nargs="+", default=[], metavar="ROW",
+                   help="run these rows again where --out holds them (after a change of the method; a stopped run "
+                        "resumes); the others are run only where missing")
     p.add_argument("--blur", type=float, default=0.3, help="the lens's Gaussian sigma, LR px (default 0.3)")
     p.add_argument("--border", type=int, default=4, help="border left out of the score, LR px (default 4)")
     p.add_argument("--seed", type=int, default=0)
@@ -79,9 +82,11 @@ def check_args(args) -> str | None:
     bad = [m for m in args.motions if m not in MOTIONS]
     if bad:
         return f"unknown motion(s) {', '.join(bad)}; choose from {', '.join(MOTIONS)}"
-    bad = [r for r in args.rows if r not in ROWS]
+    bad = [r for r in args.rows + args.redo if r not in ROWS]
     if bad:
         return f"unknown row(s) {', '.join(bad)}; choose from {', '.join(ROWS)}"
+    if not set(args.redo) <= set(args.rows):
+        return f"--redo {' '.join(args.redo)}: rows of this run's --rows ({', '.join(args.rows)})"
     if any(not 1 <= s <= 8 for s in args.scales):
         return f"--scales must lie in 1..8, got {args.scales}"
     if any(f < 2 for f in args.frames):
@@ -304,7 +309,10 @@ def main(argv=None) -> int:
     results, problem = load_results(args)
     if problem:
         return _refuse(problem)
-    results["provenance"].append(provenance(argv))
+    this, runs = provenance(argv), results["provenance"]
+    if not (args.redo and runs and runs[-1]["command"] == this["command"] and runs[-1]["commit"] == this["commit"]):
+        runs.append(this)  # (a stopped --redo run at this commit resumes as the same run)
+    run = len(runs) - 1
     from hbis_torch.io_utils import atomic_write_text
     from hbis_torch.training.handheld_render import render_burst
 
@@ -316,7 +324,8 @@ def main(argv=None) -> int:
             for motion in args.motions:
                 key = cell_key(motion, S, F)
                 cell = results["cells"].setdefault(key, {"motion": motion, "scale": S, "frames": F, "rows": {}})
-                todo = [r for r in rows if r not in cell["rows"]]
+                todo = [r for r in rows
+                        if r not in cell["rows"] or (r in args.redo and cell["rows"][r].get("run") != run)]
                 if not todo:
                     continue
                 t = time.perf_counter()
@@ -326,7 +335,7 @@ def main(argv=None) -> int:
                 for row in todo:
                     got = run_row(row, burst, cache)
                     got["psnr_db"] = psnr(got.pop("image"), burst.truth, args.border, S)
-                    got["run"] = len(results["provenance"]) - 1
+                    got["run"] = run
                     cell["rows"][row] = got
                     save()
                     write_table(args.out, results, argv)
