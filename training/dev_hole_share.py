@@ -17,8 +17,9 @@ Each burst is assembled once with the defaults; the classical method then runs w
 (``--shares``; 1e9 fits every node) and each lens (``--lenses``: ``est``, the burst's own
 estimate, the default; a number, that sigma in LR px given as ``--psf-sigma`` would). PSNR as
 each renderer's own evaluation scores it (4 LR px of border left out). The summary gives, per
-renderer and lens, each share's difference from the default share (mean, worst, best). Each burst
-is written to ``--out`` when done; a run that stops resumes at the next.
+renderer and lens, each share's difference from the default share (mean, worst, best); the
+committed benchmarks/results/dev_hole_share.json was made when the default was 0.5 (it is 2 since
+that run). Each burst is written to ``--out`` when done; a run that stops resumes at the next.
 """
 
 from __future__ import annotations
