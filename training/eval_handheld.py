@@ -282,6 +282,16 @@ def load_results(args) -> tuple[dict | None, str | None]:
     return old, None
 
 
+def runs_with(runs, this: dict) -> list:
+    """The provenance list of a results file a ``--redo`` run adds to: its runs (one dict in a file
+    that held one) and this run, unless the last is this run's own command at this commit (a
+    stopped run resumed)."""
+    runs = runs if isinstance(runs, list) else [runs]
+    if runs and runs[-1].get("command") == this["command"] and runs[-1].get("commit") == this["commit"]:
+        return runs
+    return [*runs, this]
+
+
 def _refuse(line: str) -> int:
     print(f"eval_handheld: {line}", file=sys.stderr)
     return 2
@@ -310,8 +320,7 @@ def main(argv=None) -> int:
     if problem:
         return _refuse(problem)
     this, runs = provenance(argv), results["provenance"]
-    if not (args.redo and runs and runs[-1]["command"] == this["command"] and runs[-1]["commit"] == this["commit"]):
-        runs.append(this)  # (a stopped --redo run at this commit resumes as the same run)
+    results["provenance"] = runs = runs_with(runs, this) if args.redo else [*runs, this]
     run = len(runs) - 1
     from hbis_torch.io_utils import atomic_write_text
     from hbis_torch.training.handheld_render import render_burst

@@ -70,7 +70,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval_handheld import _peer, bicubic, psnr
+from eval_handheld import _peer, bicubic, psnr, runs_with
 
 MOTIONS = ("translation", "similarity", "homography", "rolling", "object", "brightness", "shaken")
 # the homographies under each motion that adds what no homography holds (:func:`effects`)
@@ -415,7 +415,7 @@ def main(argv=None) -> int:
         prov = previous["provenance"] if args.table_only else None
         args.rows = settings["rows"]
         if args.redo:
-            prov = _runs_with_this_one(previous["provenance"], provenance(argv=argv))
+            prov = runs_with(previous["provenance"], provenance(argv=argv))
     todo = [] if args.table_only else [(cell, key) for cell, key in zip(args.parsed, args.cells) if key not in done]
     redo = [(cell, key) for cell, key in zip(args.parsed, args.cells) if key in done and args.redo
             and any(done[key][row].get("run") != len(prov) - 1 for row in args.redo)]  # (a stopped run resumes)
@@ -437,16 +437,6 @@ def main(argv=None) -> int:
     write_results(args.out.with_suffix(".md"), text, prov=prov[-1] if isinstance(prov, list) else prov)
     print(text)
     return 0
-
-
-def _runs_with_this_one(runs, this: dict) -> list:
-    """The provenance list of a file ``--redo`` adds to: its runs (one dict in a file never redone)
-    and this run, unless the last is this run's own command at this commit (a stopped run resumed)."""
-    runs = runs if isinstance(runs, list) else [runs]
-    last = runs[-1]
-    if last.get("command") == this["command"] and last.get("commit") == this["commit"]:
-        return runs
-    return [*runs, this]
 
 
 if __name__ == "__main__":
