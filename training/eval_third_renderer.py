@@ -56,7 +56,8 @@ stops resumes at the next cell. At the end a summary (each difference's mean and
 issue's 0.3 dB) goes into the JSON and, with the table, beside it as ``.md`` (``--table-only``
 writes both again from a finished ``--out``). ``--redo ROW ...`` runs those rows again in the cells
 ``--out`` already holds and keeps the others (the peer's, bicubic's: rows a change of the project's
-method leaves as they were); the file then lists every run's provenance, and each redone row names
+method leaves as they were; the cell's motion models come from the new assembly); the file then
+lists every run's provenance, and each redone row names
 its run (``"run"``: the index in that list).
 """
 
@@ -421,7 +422,8 @@ def main(argv=None) -> int:
             and any(done[key][row].get("run") != len(prov) - 1 for row in args.redo)]  # (a stopped run resumes)
     for (motion, scale, count), key in redo:
         again = run_cell(motion, scale, count, args, rows=args.redo)
-        done[key].update({row: {**again[row], "run": len(prov) - 1} for row in args.redo})
+        done[key].update({"models": again["models"], "assemble_messages": again["assemble_messages"],
+                          **{row: {**again[row], "run": len(prov) - 1} for row in args.redo}})
         print(key, "redone", {r: round(done[key][r]["psnr_db"], 2) for r in args.redo}, flush=True)
         write_results(args.out, {"settings": settings, "cells": done}, prov=prov)
     for (motion, scale, count), key in todo:
