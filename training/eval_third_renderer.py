@@ -57,8 +57,7 @@ issue's 0.3 dB) goes into the JSON and, with the table, beside it as ``.md`` (``
 writes both again from a finished ``--out``). ``--redo ROW ...`` runs those rows again in the cells
 ``--out`` already holds and keeps the others (the peer's, bicubic's: rows a change of the project's
 method leaves as they were; the cell's motion models come from the new assembly); the file then
-lists every run's provenance, and each redone row names
-its run (``"run"``: the index in that list).
+lists every run's provenance, and each redone row names its run (``"run"``: the index in that list).
 """
 
 from __future__ import annotations
