@@ -71,12 +71,14 @@ def _homographies(count: int, width: int, height: int, rng: np.random.Generator)
     return np.stack(out)
 
 
-def camera_burst(seed: int, scale: int, count: int, width: int, height: int):
-    """The ``cam`` burst (module docstring): (frames (F, H, W) uint16, truth (S H, S W), bits)."""
+def camera_burst(seed: int, scale: int, count: int, width: int, height: int, lens: float | None = None):
+    """The ``cam`` burst (module docstring; ``lens``, LR px, in place of the drawn one): (frames
+    (F, H, W) uint16, truth (S H, S W), bits)."""
     from scipy.ndimage import gaussian_filter, map_coordinates, zoom
 
     rng = np.random.default_rng(77_000 + seed)
     blur, well = rng.uniform(0.2, 0.5), float(np.exp(rng.uniform(np.log(3000), np.log(20000))))
+    blur = blur if lens is None else lens
     fine, margin, bits = 2, 8, 12  # scene px per output px; LR px of scene beyond the reference
     scene = zoom(dev_scene(scale * (height + 2 * margin), scale * (width + 2 * margin), rng), fine, order=3)
     lens = gaussian_filter(scene.clip(0, 1), blur * scale * fine, mode="nearest")
@@ -99,14 +101,16 @@ def camera_burst(seed: int, scale: int, count: int, width: int, height: int):
     return np.stack(frames), truth.astype(np.float32), bits
 
 
-def simulator_burst(seed: int, scale: int, count: int, width: int, height: int):
-    """The ``sim`` burst (module docstring): (frames (F, H, W) uint8, truth (S H, S W), 8)."""
+def simulator_burst(seed: int, scale: int, count: int, width: int, height: int, lens: float | None = None):
+    """The ``sim`` burst (module docstring; ``lens``, LR px, in place of 0.3): (frames (F, H, W)
+    uint8, truth (S H, S W), 8)."""
     from hbis_torch.simulate.burst import random_motions, simulate_burst
 
     rng = np.random.default_rng(10_000 + seed)
     truth = dev_scene(scale * height, scale * width, rng)
     motions = random_motions(count, (height, width), rng, max_shift=2.0, max_rotation_deg=1.0, max_zoom=0.005)
-    burst = simulate_burst(truth, scale, motions, noise=0.01, seed=int(rng.integers(2**31)), blur_px=0.3)
+    burst = simulate_burst(truth, scale, motions, noise=0.01, seed=int(rng.integers(2**31)),
+                           blur_px=0.3 if lens is None else lens)
     return burst.frames, burst.truth, 8
 
 
@@ -125,13 +129,13 @@ def run_burst(generator: str, seed: int, args) -> dict:
 
     make = camera_burst if generator == "cam" else simulator_burst
     scale = args.scale
-    frames, truth, bits = make(seed, scale, args.frames, args.width, args.height)
+    frames, truth, bits = make(seed, scale, args.frames, args.width, args.height, args.lens)
     stack, _ = assemble_burst(frames, scale, bit_depth=bits)
     f, positions, _, weights = burst_samples(stack)
     noise = estimate_noise_params(f.numpy())
     # the lens blur the classical method measures and undoes, as the learned method's classical step
-    classical = functools.partial(burst_sr, lens_sigma=burst_lens_sigma(f, positions, weights,
-                                                                        stack.reference_index, []))
+    lens_sigma = burst_lens_sigma(f, positions, weights, stack.reference_index, [])
+    classical = functools.partial(burst_sr, lens_sigma=lens_sigma)
     b = 4 * scale  # 4 LR px
 
     def score(image):
@@ -140,7 +144,7 @@ def run_burst(generator: str, seed: int, args) -> dict:
 
     t = time.perf_counter()
     image = classical(f, positions, scale, weights).numpy()
-    out = {"generator": generator, "seed": seed, "classical_db": score(image),
+    out = {"generator": generator, "seed": seed, "lens_undone": round(lens_sigma, 3), "classical_db": score(image),
            "classical_s": round(time.perf_counter() - t, 3)}
     net = adapt.load_refiner(shipped_model_path(scale).with_suffix(".pt"))
     t = time.perf_counter()
@@ -152,7 +156,8 @@ def run_burst(generator: str, seed: int, args) -> dict:
         adapt.LEARNING_RATE = float(rate)
         try:
             done = adapt.adapt_refiner(net, f, positions, weights, scale, noise, stack.reference_index, classical,
-                                       steps=int(steps), patience=int(patience[0]) if patience else None)
+                                       steps=int(steps), patience=int(patience[0]) if patience else None,
+                                       lens_sigma=lens_sigma if args.forward == "lens" else 0.0)
         finally:
             adapt.LEARNING_RATE = shipped
         out[variant] = {"db": score(adapt.refine(done.net, image, scale, noise)), "kept_step": done.step,
@@ -172,6 +177,10 @@ def main(argv=None) -> int:
     p.add_argument("--variants", nargs="+", default=["30:1e-3"],
                    help="STEPS:LEARNING_RATE[:PATIENCE] (default 30:1e-3; PATIENCE: stop after that many checks "
                         "without better weights)")
+    p.add_argument("--lens", type=float, help="the cameras' lens blur, LR px (default: sim 0.3, cam drawn from 0.2 to 0.5)")
+    p.add_argument("--forward", choices=["lens", "fixed"], default="lens",
+                   help="the adaptation's forward model blurs by the lens the classical image undid (lens, the "
+                        "default) or by adapt.BLUR_PX alone (fixed, as before 2026-12-07)")
     args = p.parse_args(argv)
     try:
         args.width, args.height = (int(v) for v in args.size.lower().split("x"))
@@ -200,7 +209,7 @@ def main(argv=None) -> int:
         summary[v] = {"minus_classical_mean_db": float(np.mean(gains)), "minus_classical_worst_db": float(min(gains)),
                       "seconds_over_classical_mean": float(np.mean([r[v]["seconds"] / r["classical_s"] for r in rows]))}
     write_results(args.out, {"settings": {k: getattr(args, k) for k in ("generators", "seeds", "size", "frames",
-                                                                          "scale", "variants")},
+                                                                          "scale", "variants", "lens", "forward")},
                              "rows": rows, "summary": summary}, argv=argv)
     print(summary)
     return 0

@@ -3,8 +3,10 @@
 The shipped networks learned from simulated cameras; a real camera blurs, adds noise and
 processes its frames in ways no simulator here reproduces. A burst carries its own check of that:
 a frame left out of the reconstruction can be predicted from the others' image through the forward
-model of observation space (the pixel's box and a small blur, read where the frame's motion puts
+model of observation space (the pixel's box and the lens, read where the frame's motion puts
 each sample: :mod:`hbis_torch.observation.forward`), and compared with what the camera recorded.
+The lens is the one the classical image undid (:func:`forward_blur`): the network's output is
+meant to be the scene without it, so the frames are predicted through it again.
 :func:`adapt_refiner` fine-tunes the network's last convolution for a few steps to make that
 prediction better:
 
@@ -95,8 +97,13 @@ BUDGET_MIN_S = 5.0
 # 30 steps in 25.8 s, its time of 14.3 s spent", benchmarks/results/eval_third_renderer_no_margin.json;
 # on the idle machine the same code makes its steps in about a second).
 MIN_STEPS = 2 * CHECK_EVERY
-# Validate's lens blur (LR px): real cameras blur beyond the pixel's box; a camera that does not
-# (the project's own simulator) gets sharpened past the scene (docs/real-bursts.md, "Where it loses").
+# Validate's lens blur (LR px), the least the forward model blurs by: real cameras blur beyond the
+# pixel's box; a camera that does not (the project's own simulator) gets sharpened past the scene
+# (docs/real-bursts.md, "Where it loses"). Where the classical image undid a larger lens, the
+# forward model blurs by that (:func:`forward_blur`): with 0.2 alone, the frames of a lens of 0.6 LR
+# px read softer than predicted and the adaptation taught the network to blur, 0.2 to 0.5 dB below
+# the unadapted network on eight development bursts (``training/adapt_dev.py --lens 0.6 --forward
+# fixed``, benchmarks/results/adapt_dev_lens06_fixed.json); with the lens, level with it.
 BLUR_PX = DEFAULT_BLUR_PX
 SEED = 0
 
@@ -243,13 +250,20 @@ def make_fold(held: list[int], frames: Tensor, positions: Tensor, weights: Tenso
                 frames[held].reshape(-1)[inside].float(), w[inside].float())
 
 
-class _Predictor:
-    """The forward model on a window of the output: blur by the pixel's box and the lens, read at
-    the samples' positions (bicubic), as :func:`hbis_torch.observation.forward.predict_frame`."""
+def forward_blur(lens_sigma: float) -> float:
+    """The lens blur (LR px) of the adaptation's forward model when the classical image undid
+    ``lens_sigma`` LR px: that lens, or :data:`BLUR_PX` where it is less."""
+    return max(BLUR_PX, float(lens_sigma))
 
-    def __init__(self, scale: int):
+
+class _Predictor:
+    """The forward model on a window of the output: blur by the pixel's box and the lens
+    (``blur_px``, LR px), read at the samples' positions (bicubic), as
+    :func:`hbis_torch.observation.forward.predict_frame`."""
+
+    def __init__(self, scale: int, blur_px: float = BLUR_PX):
         self.scale = scale
-        self.kernel = torch.from_numpy(pixel_kernel(scale, 1.0, BLUR_PX).astype(np.float32))
+        self.kernel = torch.from_numpy(pixel_kernel(scale, 1.0, blur_px).astype(np.float32))
         # LR px of context a window needs for its samples' predictions to equal the whole
         # image's: the last convolution's 1, the blur's reach and the bicubic read's 2 output px
         self.halo = 1 + math.ceil((len(self.kernel) // 2 + 2) / scale)
@@ -290,7 +304,7 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
                   noise_params: tuple[float, float], reference: int, classical, *, steps: int = STEPS,
                   seed: int = SEED, on_step=None, budget_s: float | None = None,
                   crop: int = CROP_PX, patience: int | None = PATIENCE,
-                  min_steps: int | None = None) -> Adaptation | None:
+                  min_steps: int | None = None, lens_sigma: float = 0.0) -> Adaptation | None:
     """Fine-tune a copy of ``net``'s last convolution to predict the burst's left-out frames
     (the module's recipe).
 
@@ -328,6 +342,9 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
         make all ``steps`` (unless the budget stops them).
     min_steps : int, optional
         Steps made whatever the clock says (default :data:`MIN_STEPS`).
+    lens_sigma : float
+        The lens blur the classical image undoes, LR px: the forward model blurs by it
+        (:func:`forward_blur`).
 
     Returns
     -------
@@ -347,7 +364,7 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
             fold.features = net.features(fold.base, fold.noise)
     check, train = folds[0], folds[1:]
     tail = copy.deepcopy(net.tail).train()
-    predict = _Predictor(scale)
+    predict = _Predictor(scale, forward_blur(lens_sigma))
     halo = predict.halo
     rows, cols = check.base.shape[-2:]
     size = (min(rows, WINDOW_PX), min(cols, WINDOW_PX))

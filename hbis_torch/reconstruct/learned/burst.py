@@ -44,7 +44,8 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
 
     ``lens_sigma`` (LR px) is the lens blur the classical image undoes, as the classical method's
     (:func:`~hbis_torch.reconstruct.burst.reconstruct_burst` measures it where none is given); the
-    adaptation's folds undo the same. ``shared`` is the classical image's
+    adaptation's folds undo the same, and its forward model blurs by it
+    (:func:`~hbis_torch.reconstruct.learned.adapt.forward_blur`). ``shared`` is the classical image's
     (:func:`~hbis_torch.reconstruct.classical.sr.classical_sr`'s: a colour burst's channels).
 
     Returns (S H, S W) float32 in [0, 1]."""
@@ -96,7 +97,8 @@ def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, ou
         budget = max(BUDGET_X_CLASSICAL * classical_s, BUDGET_MIN_S)
         with progress(total=STEPS, desc="adapting the network to the burst", unit="step") as bar:
             adaptation = adapt_refiner(load_refiner(weights_file), frames, positions, weights, stack.h, noise,
-                                       stack.reference_index, classical, on_step=bar.update, budget_s=budget)
+                                       stack.reference_index, classical, on_step=bar.update, budget_s=budget,
+                                       lens_sigma=classical.keywords["lens_sigma"])
         _last.clear()
         _last.update(positions=weakref.ref(positions), key=key, adaptation=adaptation)
         if adaptation is None:
