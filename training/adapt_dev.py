@@ -177,7 +177,8 @@ def main(argv=None) -> int:
     p.add_argument("--variants", nargs="+", default=["30:1e-3"],
                    help="STEPS:LEARNING_RATE[:PATIENCE] (default 30:1e-3; PATIENCE: stop after that many checks "
                         "without better weights)")
-    p.add_argument("--lens", type=float, help="the cameras' lens blur, LR px (default: sim 0.3, cam drawn from 0.2 to 0.5)")
+    p.add_argument("--lens", type=float,
+                   help="the cameras' lens blur, LR px (default: sim 0.3, cam drawn from 0.2 to 0.5)")
     p.add_argument("--forward", choices=["lens", "fixed"], default="lens",
                    help="the adaptation's forward model blurs by the lens the classical image undid (lens, the "
                         "default) or by adapt.BLUR_PX alone (fixed, as before 2026-12-07)")
@@ -191,6 +192,9 @@ def main(argv=None) -> int:
         return 2
     if not args.out.parent.is_dir():
         print(f"adapt_dev: the folder of --out {args.out} does not exist", file=sys.stderr)
+        return 2
+    if args.lens is not None and not 0 <= args.lens <= 2:
+        print(f"adapt_dev: --lens takes 0 to 2 LR px, got {args.lens}", file=sys.stderr)
         return 2
     import torch
 
