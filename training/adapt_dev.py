@@ -71,16 +71,18 @@ def _homographies(count: int, width: int, height: int, rng: np.random.Generator)
     return np.stack(out)
 
 
-def camera_burst(seed: int, scale: int, count: int, width: int, height: int, lens: float | None = None):
-    """The ``cam`` burst (module docstring; ``lens``, LR px, in place of the drawn one): (frames
-    (F, H, W) uint16, truth (S H, S W), bits)."""
+def camera_burst(seed: int, scale: int, count: int, width: int, height: int, lens: float | None = None,
+                 scene_blur: float = 0.0):
+    """The ``cam`` burst (module docstring; ``lens``, LR px, in place of the drawn one; the scene
+    itself blurred by ``scene_blur`` LR px): (frames (F, H, W) uint16, truth (S H, S W), bits)."""
     from scipy.ndimage import gaussian_filter, map_coordinates, zoom
 
     rng = np.random.default_rng(77_000 + seed)
     blur, well = rng.uniform(0.2, 0.5), float(np.exp(rng.uniform(np.log(3000), np.log(20000))))
     blur = blur if lens is None else lens
     fine, margin, bits = 2, 8, 12  # scene px per output px; LR px of scene beyond the reference
-    scene = zoom(dev_scene(scale * (height + 2 * margin), scale * (width + 2 * margin), rng), fine, order=3)
+    scene = dev_scene(scale * (height + 2 * margin), scale * (width + 2 * margin), rng)
+    scene = zoom(gaussian_filter(scene, scene_blur * scale) if scene_blur else scene, fine, order=3)
     lens = gaussian_filter(scene.clip(0, 1), blur * scale * fine, mode="nearest")
     m = margin * scale * fine
     core = scene.clip(0, 1)[m:m + height * scale * fine, m:m + width * scale * fine]
@@ -101,13 +103,17 @@ def camera_burst(seed: int, scale: int, count: int, width: int, height: int, len
     return np.stack(frames), truth.astype(np.float32), bits
 
 
-def simulator_burst(seed: int, scale: int, count: int, width: int, height: int, lens: float | None = None):
-    """The ``sim`` burst (module docstring; ``lens``, LR px, in place of 0.3): (frames (F, H, W)
-    uint8, truth (S H, S W), 8)."""
+def simulator_burst(seed: int, scale: int, count: int, width: int, height: int, lens: float | None = None,
+                    scene_blur: float = 0.0):
+    """The ``sim`` burst (module docstring; ``lens``, LR px, in place of 0.3; the scene itself
+    blurred by ``scene_blur`` LR px): (frames (F, H, W) uint8, truth (S H, S W), 8)."""
+    from scipy.ndimage import gaussian_filter
+
     from hbis_torch.simulate.burst import random_motions, simulate_burst
 
     rng = np.random.default_rng(10_000 + seed)
     truth = dev_scene(scale * height, scale * width, rng)
+    truth = gaussian_filter(truth, scene_blur * scale) if scene_blur else truth
     motions = random_motions(count, (height, width), rng, max_shift=2.0, max_rotation_deg=1.0, max_zoom=0.005)
     burst = simulate_burst(truth, scale, motions, noise=0.01, seed=int(rng.integers(2**31)),
                            blur_px=0.3 if lens is None else lens)
@@ -129,7 +135,7 @@ def run_burst(generator: str, seed: int, args) -> dict:
 
     make = camera_burst if generator == "cam" else simulator_burst
     scale = args.scale
-    frames, truth, bits = make(seed, scale, args.frames, args.width, args.height, args.lens)
+    frames, truth, bits = make(seed, scale, args.frames, args.width, args.height, args.lens, args.scene_blur)
     stack, _ = assemble_burst(frames, scale, bit_depth=bits)
     f, positions, _, weights = burst_samples(stack)
     noise = estimate_noise_params(f.numpy())
@@ -150,19 +156,25 @@ def run_burst(generator: str, seed: int, args) -> dict:
     t = time.perf_counter()
     out["unadapted_db"] = score(adapt.refine(net, image, scale, noise))
     out["refine_s"] = round(time.perf_counter() - t, 3)
-    shipped = adapt.LEARNING_RATE
-    for variant in args.variants:
+    shipped = adapt.LEARNING_RATE, adapt.LENS_WEIGHT
+    for variant, weight in ((v, w) for v in args.variants for w in args.lens_weights):
         steps, rate, *patience = variant.split(":")
-        adapt.LEARNING_RATE = float(rate)
+        adapt.LEARNING_RATE, adapt.LENS_WEIGHT = float(rate), weight
         try:
             done = adapt.adapt_refiner(net, f, positions, weights, scale, noise, stack.reference_index, classical,
                                        steps=int(steps), patience=int(patience[0]) if patience else None,
-                                       lens_sigma=lens_sigma if args.forward == "lens" else 0.0)
+                                       lens_sigma=lens_sigma)
         finally:
-            adapt.LEARNING_RATE = shipped
-        out[variant] = {"db": score(adapt.refine(done.net, image, scale, noise)), "kept_step": done.step,
+            adapt.LEARNING_RATE, adapt.LENS_WEIGHT = shipped
+        out[_key(variant, weight, args)] = {"db": score(adapt.refine(done.net, image, scale, noise)), "kept_step": done.step,
                         "seconds": round(done.seconds, 3), "steps_taken": done.steps_taken}
     return out
+
+
+def _key(variant: str, weight: float, args) -> str:
+    """A row's key for ``variant`` with the lens weight ``weight``: the variant alone where only
+    one weight is tried."""
+    return variant if len(args.lens_weights) == 1 else f"{variant}@{weight:g}"
 
 
 def main(argv=None) -> int:
@@ -179,9 +191,12 @@ def main(argv=None) -> int:
                         "without better weights)")
     p.add_argument("--lens", type=float,
                    help="the cameras' lens blur, LR px (default: sim 0.3, cam drawn from 0.2 to 0.5)")
-    p.add_argument("--forward", choices=["lens", "fixed"], default="lens",
-                   help="the adaptation's forward model blurs by the lens the classical image undid (lens, the "
-                        "default) or by adapt.BLUR_PX alone (fixed, as before 2026-12-07)")
+    p.add_argument("--scene-blur", type=float, default=0.0,
+                   help="blur the scene itself by this many LR px (a soft scene, whose edges the lens estimate "
+                        "reads as lens)")
+    p.add_argument("--lens-weights", nargs="+", type=float,
+                   help="adapt.LENS_WEIGHT values to try with each variant (default: the shipped one; 0: the "
+                        "forward model blurs by adapt.BLUR_PX alone, as before 2026-12-07; 1: by the lens undone)")
     args = p.parse_args(argv)
     try:
         args.width, args.height = (int(v) for v in args.size.lower().split("x"))
@@ -193,9 +208,14 @@ def main(argv=None) -> int:
     if not args.out.parent.is_dir():
         print(f"adapt_dev: the folder of --out {args.out} does not exist", file=sys.stderr)
         return 2
-    if args.lens is not None and not 0 <= args.lens <= 2:
-        print(f"adapt_dev: --lens takes 0 to 2 LR px, got {args.lens}", file=sys.stderr)
+    if args.lens is not None and not 0 <= args.lens <= 2 or not 0 <= args.scene_blur <= 2:
+        print(f"adapt_dev: --lens and --scene-blur take 0 to 2 LR px, got {args.lens} and {args.scene_blur}",
+              file=sys.stderr)
         return 2
+    if args.lens_weights is None:
+        from hbis_torch.reconstruct.learned import adapt
+
+        args.lens_weights = [adapt.LENS_WEIGHT]
     import torch
 
     from hbis_torch.provenance import write_results
@@ -208,12 +228,13 @@ def main(argv=None) -> int:
             print(rows[-1], flush=True)
     summary = {"classical_db": float(np.mean([r["classical_db"] for r in rows])),
                "unadapted_minus_classical_db": float(np.mean([r["unadapted_db"] - r["classical_db"] for r in rows]))}
-    for v in args.variants:
+    for v in (_key(v, w, args) for v in args.variants for w in args.lens_weights):
         gains = [r[v]["db"] - r["classical_db"] for r in rows]
         summary[v] = {"minus_classical_mean_db": float(np.mean(gains)), "minus_classical_worst_db": float(min(gains)),
                       "seconds_over_classical_mean": float(np.mean([r[v]["seconds"] / r["classical_s"] for r in rows]))}
     write_results(args.out, {"settings": {k: getattr(args, k) for k in ("generators", "seeds", "size", "frames",
-                                                                          "scale", "variants", "lens", "forward")},
+                                                                          "scale", "variants", "lens", "scene_blur",
+                                                                          "lens_weights")},
                              "rows": rows, "summary": summary}, argv=argv)
     print(summary)
     return 0

@@ -105,6 +105,7 @@ MIN_STEPS = 2 * CHECK_EVERY
 # the unadapted network on eight development bursts (``training/adapt_dev.py --lens 0.6 --forward
 # fixed``, benchmarks/results/adapt_dev_lens06_fixed.json); with the lens, level with it.
 BLUR_PX = DEFAULT_BLUR_PX
+LENS_WEIGHT = 1.0
 SEED = 0
 
 
@@ -252,8 +253,9 @@ def make_fold(held: list[int], frames: Tensor, positions: Tensor, weights: Tenso
 
 def forward_blur(lens_sigma: float) -> float:
     """The lens blur (LR px) of the adaptation's forward model when the classical image undid
-    ``lens_sigma`` LR px: that lens, or :data:`BLUR_PX` where it is less."""
-    return max(BLUR_PX, float(lens_sigma))
+    ``lens_sigma`` LR px: :data:`LENS_WEIGHT` of the way from :data:`BLUR_PX` to that lens, and
+    :data:`BLUR_PX` where the lens is less."""
+    return BLUR_PX + LENS_WEIGHT * max(0.0, float(lens_sigma) - BLUR_PX)
 
 
 class _Predictor:
