@@ -166,8 +166,9 @@ def run_burst(generator: str, seed: int, args) -> dict:
                                        lens_sigma=lens_sigma)
         finally:
             adapt.LEARNING_RATE, adapt.LENS_WEIGHT = shipped
-        out[_key(variant, weight, args)] = {"db": score(adapt.refine(done.net, image, scale, noise)), "kept_step": done.step,
-                        "seconds": round(done.seconds, 3), "steps_taken": done.steps_taken}
+        out[_key(variant, weight, args)] = {"db": score(adapt.refine(done.net, image, scale, noise)),
+                                            "kept_step": done.step, "seconds": round(done.seconds, 3),
+                                            "steps_taken": done.steps_taken}
     return out
 
 
