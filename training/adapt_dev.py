@@ -197,7 +197,7 @@ def main(argv=None) -> int:
                         "reads as lens)")
     p.add_argument("--lens-weights", nargs="+", type=float,
                    help="adapt.LENS_WEIGHT values to try with each variant (default: the shipped one; 0: the "
-                        "forward model blurs by adapt.BLUR_PX alone, as before 2026-12-07; 1: by the lens undone)")
+                        "forward model blurs by adapt.BLUR_PX alone, the default; 1: by the lens undone)")
     args = p.parse_args(argv)
     try:
         args.width, args.height = (int(v) for v in args.size.lower().split("x"))

@@ -44,7 +44,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
 
     ``lens_sigma`` (LR px) is the lens blur the classical image undoes, as the classical method's
     (:func:`~hbis_torch.reconstruct.burst.reconstruct_burst` measures it where none is given); the
-    adaptation's folds undo the same, and its forward model blurs by it
+    adaptation's folds undo the same, and its forward model may blur by it
     (:func:`~hbis_torch.reconstruct.learned.adapt.forward_blur`). ``shared`` is the classical image's
     (:func:`~hbis_torch.reconstruct.classical.sr.classical_sr`'s: a colour burst's channels).
 
