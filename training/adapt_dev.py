@@ -2,7 +2,7 @@
 
     python training/adapt_dev.py --out benchmarks/results/adapt_dev.json
         [--generators sim cam] [--seeds 0 1 2 3] [--size 640x480] [--frames 16] [--scale 2]
-        [--variants 30:1e-3 40:1e-3 30:1e-3:2]
+        [--variants 30:1e-3 40:1e-3 30:1e-3:2] [--lens 0.6] [--scene-blur 0.3] [--lens-weights 0 1]
 
 Never the held-out renderer (:mod:`hbis_torch.training.handheld_render`) nor its photographs:
 the scenes are the training photographs (:data:`hbis_torch.training.data.TRAIN_PHOTOS`) in a
@@ -22,6 +22,11 @@ undoing the lens blur the classical method measures), the shipped network's refi
 and the network adapted with each variant (``STEPS:LEARNING_RATE[:PATIENCE]`` of
 :func:`~hbis_torch.reconstruct.learned.adapt.adapt_refiner`, no time budget) are scored against the truth
 (PSNR without 4 LR px of border), with their seconds (torch on one thread).
+
+``--lens`` fixes both cameras' lens, ``--scene-blur`` blurs the scene itself (a soft scene, whose
+softness the lens estimate reads as lens), and ``--lens-weights`` tries each variant with each
+:data:`~hbis_torch.reconstruct.learned.adapt.LENS_WEIGHT` (how far the adaptation's forward
+model blurs by the lens the classical image undid).
 """
 
 from __future__ import annotations

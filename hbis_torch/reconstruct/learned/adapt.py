@@ -5,7 +5,7 @@ processes its frames in ways no simulator here reproduces. A burst carries its o
 a frame left out of the reconstruction can be predicted from the others' image through the forward
 model of observation space (the pixel's box and the lens, read where the frame's motion puts
 each sample: :mod:`hbis_torch.observation.forward`), and compared with what the camera recorded
-(:func:`forward_blur` says which lens: validate's, by default, whatever the classical image undid).
+(the lens: validate's 0.2 LR px by default, whatever lens the classical image undid; :func:`forward_blur`).
 :func:`adapt_refiner` fine-tunes the network's last convolution for a few steps to make that
 prediction better:
 
@@ -350,8 +350,8 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
     min_steps : int, optional
         Steps made whatever the clock says (default :data:`MIN_STEPS`).
     lens_sigma : float
-        The lens blur the classical image undoes, LR px: the forward model blurs by it
-        (:func:`forward_blur`).
+        The lens blur the classical image undoes, LR px: the forward model blurs by it as far as
+        :data:`LENS_WEIGHT` says (:func:`forward_blur`; by default not at all).
 
     Returns
     -------
