@@ -312,8 +312,7 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
                   seed: int = SEED, on_step=None, budget_s: float | None = None,
                   crop: int = CROP_PX, patience: int | None = PATIENCE,
                   min_steps: int | None = None, lens_sigma: float = 0.0) -> Adaptation | None:
-    """Fine-tune a copy of ``net``'s last convolution to predict the burst's left-out frames
-    (the module's recipe).
+    """Fine-tune a copy of ``net``'s last convolution to predict the burst's left-out frames (the module's recipe).
 
     Parameters
     ----------
@@ -335,8 +334,7 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
     steps : int
         Adam steps at most.
     seed : int
-        Seeds the windows' draw: the same burst gives the same result (unless the time budget
-        stops it at another step).
+        Seeds the windows' draw: the same burst, the same result (unless the budget stops it).
     on_step : callable, optional
         Called after each step (a progress bar's ``update``).
     budget_s : float, optional
@@ -345,13 +343,11 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
     crop : int
         Side of the window the adaptation works on, LR px (:func:`crop_box`).
     patience : int, optional
-        Stop once this many checks in a row found no better weights (:data:`PATIENCE`). None:
-        make all ``steps`` (unless the budget stops them).
+        Stop once this many checks in a row found no better weights (:data:`PATIENCE`; None: never).
     min_steps : int, optional
         Steps made whatever the clock says (default :data:`MIN_STEPS`).
     lens_sigma : float
-        The lens blur the classical image undoes, LR px: the forward model blurs by it as far as
-        :data:`LENS_WEIGHT` says (:func:`forward_blur`; by default not at all).
+        The lens the classical image undoes, LR px, which :func:`forward_blur` may read.
 
     Returns
     -------
