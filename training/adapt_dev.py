@@ -88,7 +88,8 @@ def camera_burst(seed: int, scale: int, count: int, width: int, height: int, len
     fine, margin, bits = 2, 8, 12  # scene px per output px; LR px of scene beyond the reference
     scene = dev_scene(scale * (height + 2 * margin), scale * (width + 2 * margin), rng)
     scene = zoom(gaussian_filter(scene, scene_blur * scale) if scene_blur else scene, fine, order=3)
-    lens = gaussian_filter(scene.clip(0, 1), blur * scale * fine, mode="nearest")
+    # the scene through the lens, before the pixels integrate it
+    seen = gaussian_filter(scene.clip(0, 1), blur * scale * fine, mode="nearest")
     m = margin * scale * fine
     core = scene.clip(0, 1)[m:m + height * scale * fine, m:m + width * scale * fine]
     truth = core.reshape(height * scale, fine, width * scale, fine).mean((1, 3))
@@ -102,7 +103,7 @@ def camera_burst(seed: int, scale: int, count: int, width: int, height: int, len
                 x, y, w = motion @ np.stack(((u + dx).ravel(), (v + dy).ravel(), np.ones(u.size)))
                 fx = ((x / w).reshape(height, width) + margin + 0.5) * scale * fine - 0.5
                 fy = ((y / w).reshape(height, width) + margin + 0.5) * scale * fine - 0.5
-                mean += map_coordinates(lens, [fy, fx], order=1, mode="nearest") / 9
+                mean += map_coordinates(seen, [fy, fx], order=1, mode="nearest") / 9
         electrons = rng.poisson(np.clip(mean, 0, None) * well) + rng.normal(0, 3.0, mean.shape)
         frames.append(np.clip(np.round(electrons / well * (2**bits - 1)), 0, 2**bits - 1).astype(np.uint16))
     return np.stack(frames), truth.astype(np.float32), bits
