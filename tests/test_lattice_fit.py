@@ -176,6 +176,35 @@ def test_data_weights_are_the_stencils_diagonal():
     assert torch.equal(lattice_fit.data_weights(lambda: [batch], (ROWS, COLS)), stencil[0])
 
 
+def test_the_diagonal_of_every_sample_reads_again_only_near_what_was_not_read(monkeypatch):
+    """The ridge's scale needs every sample's diagonal: where the samples read for the fit hold
+    all of a node's, their sums are taken as they are (the same bits) and only the samples near the
+    others are read again; where they hold every node's, no sample is read twice."""
+    batch = dense_batch_with_a_gap()
+    shape = (ROWS, COLS)
+    every = lattice_fit.data_weights(lambda: [batch], shape)
+    read_again = []
+    cell_terms = lattice_fit._cell_terms
+
+    def counted(part, rows, cols, dtype, columns):
+        read_again.append(len(part.values))
+        return cell_terms(part, rows, cols, dtype, columns)
+
+    for share in (0.4, 0.7, 1.0):  # a corner of the lattice, half of it, all of it
+        read = torch.zeros(ROWS + 2, COLS + 2, dtype=torch.bool)
+        read[: int(share * (ROWS + 2)), : int(share * (COLS + 2)) + 1] = True
+        _, stencil = lattice_fit.normal_equations(lambda: [batch], shape, read=read)
+        read_again.clear()
+        monkeypatch.setattr(lattice_fit, "_cell_terms", counted)
+        diagonal = lattice_fit._every_samples_diagonal(lambda: [batch], shape, torch.float32, read, stencil[0])
+        monkeypatch.setattr(lattice_fit, "_cell_terms", cell_terms)
+        assert torch.equal(diagonal.view(torch.int32), every.view(torch.int32))
+        if share == 1.0:
+            assert read_again == []
+        else:
+            assert 0 < sum(read_again) < (1 - 0.5 * share * share) * len(batch.values)
+
+
 def test_the_stencil_applies_as_the_matrix():
     batch = clustered_batch(torch.float64)
     rhs, stencil = lattice_fit.normal_equations(lambda: [batch], (ROWS, COLS), torch.float64)
