@@ -77,7 +77,8 @@ TALLY_PIECE_SAMPLES = 1 << 16
 
 def _phase_offset(where: Tensor) -> Tensor:
     """How far each position (..., 2) lies from the reference's pixel grid, the larger axis's, LR px (...)."""
-    return (where - where.round()).abs_().amax(-1)
+    rest = (where - where.round()).abs_()
+    return torch.maximum(rest[..., 0], rest[..., 1])  # (amax over the last axis of two: twice the time)
 
 
 class Tally:
@@ -153,11 +154,11 @@ class Tally:
     def _framed_index(where: Tensor, s: int, rows: int, cols: int) -> Tensor:
         """Flat index (N,) int64 in a (rows + 2, cols + 2) grid framed by one node of the node
         nearest each position (H, W, 2) on the s-times grid, clamped to the frame."""
-        u = (s * (where[..., 0] + 0.5) - 0.5) if s != 1 else where[..., 0]
-        v = (s * (where[..., 1] + 0.5) - 0.5) if s != 1 else where[..., 1]
-        u = u.round().clamp_(-1, cols).to(torch.int64)
-        v = v.round().clamp_(-1, rows).to(torch.int64)
-        return v.add_(1).mul_(cols + 2).add_(u).add_(1).reshape(-1)
+        # both axes at once, and the index formed in float64 (exact below 2^53 nodes), converted
+        # once: the same indices as each axis's apart in int64, in half the time
+        node = where.round() if s == 1 else torch.add(where, 0.5).mul_(s).sub_(0.5).round_()
+        u, v = node[..., 0].clamp(-1, cols), node[..., 1].clamp(-1, rows)
+        return torch.add(u, v, alpha=cols + 2).add_(cols + 3).to(torch.int64).reshape(-1)
 
     def coverage(self) -> np.ndarray:
         H, W = self.shape
