@@ -240,7 +240,7 @@ def _edge_points(reference: np.ndarray, noise: float) -> list[tuple[float, float
     found (:func:`_structure_at`): over a whole 12 MP frame its three smoothed products cost
     seconds, and a few hundred peaks are read."""
     import torch
-    from scipy.ndimage import gaussian_filter
+    from hbis_torch.gaussian_filter import gaussian_filter
 
     # frame-sized arrays in torch's memory (as capture.burst.luminance's: NumPy's huge pages
     # fault in slower than the arithmetic on them takes)
@@ -276,11 +276,12 @@ def _edge_points(reference: np.ndarray, noise: float) -> list[tuple[float, float
 
 def _structure_at(gx: np.ndarray, gy: np.ndarray, ys: np.ndarray, xs: np.ndarray):
     """The structure tensor of the gradients (gx, gy) (H, W), smoothed by a Gaussian of 1.5 px
-    (scipy's ``gaussian_filter``), at the N pixels (ys, xs) at least its radius (6 px) inside the
-    frame: its coherence (l1 - l2) / (l1 + l2) and its dominant direction's angle (radians), each
-    (N,). Equal to the whole frame's filtered tensor read at those pixels: the filter of a window
-    of the radius around a pixel reads nothing the whole frame's would not."""
-    from scipy.ndimage import gaussian_filter
+    (scipy.ndimage's ``gaussian_filter``, as :mod:`hbis_torch.gaussian_filter` sums it), at the N
+    pixels (ys, xs) at least its radius (6 px) inside the frame: its coherence (l1 - l2) / (l1 + l2)
+    and its dominant direction's angle (radians), each (N,). Equal to the whole frame's filtered
+    tensor read at those pixels: the filter of a window of the radius around a pixel reads nothing
+    the whole frame's would not."""
+    from hbis_torch.gaussian_filter import gaussian_filter
 
     radius = int(4.0 * 1.5 + 0.5)  # gaussian_filter's own reach at truncate=4
     offsets = np.arange(-radius, radius + 1)

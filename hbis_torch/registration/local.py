@@ -231,7 +231,7 @@ def smooth_offsets(offsets: np.ndarray, weight: np.ndarray, sigma: float) -> np.
     a turn at the frame's edges nor lets a tile without a say pull its neighbours to zero (it gets
     theirs). Zero where no tile has a say.
     """
-    from scipy.ndimage import gaussian_filter
+    from hbis_torch.gaussian_filter import gaussian_filter
 
     if not (weight > 0).any():
         return np.zeros_like(offsets)
