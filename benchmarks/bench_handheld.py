@@ -36,7 +36,11 @@ one run, and the JSON says on what machine and under what load (the load average
 A virtual machine's speed also drifts from one hour to the next, so a change is timed against
 ``--baseline DIR``, a checkout of another commit: each of its start-up and full-burst processes
 runs right after this checkout's (its own ``benchmarks/bench_handheld.py``, no learned method, no
-vidsr), and ``own_over_baseline`` is this checkout's own time over the baseline's.
+vidsr), and ``own_over_baseline`` is this checkout's own time over the baseline's. Where the
+machine is busy enough that the imports alone vary by a second from process to process, the
+fastest runs say little: ``own_median_s`` is the median full run's assemble + classical less the
+median start-up run's (the imports, the same on both sides, left out), and
+``own_median_over_baseline`` compares those (ask for ``--repeats 8`` or more).
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ import argparse
 import json
 import os
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -149,6 +154,15 @@ def fastest(runs: list) -> dict:
     best = dict(min(runs, key=lambda r: r["to_classical_s"]))
     best["peak_rss_mb"] = max(r["peak_rss_mb"] for r in runs)
     return best
+
+
+def median_own(start_runs: list, full_runs: list) -> float | None:
+    """The median full run's assemble + classical seconds less the median start-up run's (the
+    imports left out); None where a run failed."""
+    if any("failed" in r for r in start_runs + full_runs):
+        return None
+    steps = [[r["assemble_s"] + r["classical_s"] for r in runs] for runs in (start_runs, full_runs)]
+    return statistics.median(steps[1]) - statistics.median(steps[0])
 
 
 def _commit(root: Path) -> str:
@@ -302,6 +316,11 @@ def measure(row: dict, path: Path, w: int, h: int, args) -> None:
             row["vidsr_over_hbis"] = full["vidsr_s"] / (full["assemble_s"] + full["classical_s"])
         if base and "own_s" in base:
             row["own_over_baseline"] = row["own_s"] / base["own_s"]
+    row["own_median_s"] = median_own(row["start_runs"], row["full_runs"])
+    if base:
+        base["own_median_s"] = median_own(base["start_runs"], base["full_runs"])
+        if row["own_median_s"] and base["own_median_s"]:
+            row["own_median_over_baseline"] = row["own_median_s"] / base["own_median_s"]
 
 
 def summary(r: dict) -> str:
@@ -321,6 +340,9 @@ def summary(r: dict) -> str:
         b = r["baseline"]
         text += (f"; the baseline {b['commit'][:10]}: own time {b['own_s']:.2f} s = {b['own_over_floor']:.0f} x "
                  f"the floor, this one {r['own_over_baseline']:.2f} x its")
+    if "own_median_over_baseline" in r:
+        text += (f"; medians, imports left out: {r['own_median_s']:.2f} s against "
+                 f"{r['baseline']['own_median_s']:.2f} s, {r['own_median_over_baseline']:.2f} x")
     return text
 
 
