@@ -77,9 +77,11 @@ def _homographies(count: int, width: int, height: int, rng: np.random.Generator)
 
 
 def camera_burst(seed: int, scale: int, count: int, width: int, height: int, lens: float | None = None,
-                 scene_blur: float = 0.0):
+                 scene_blur: float = 0.0, first_blur: float = 0.0):
     """The ``cam`` burst (module docstring; ``lens``, LR px, in place of the drawn one; the scene
-    itself blurred by ``scene_blur`` LR px): (frames (F, H, W) uint16, truth (S H, S W), bits)."""
+    itself blurred by ``scene_blur`` LR px; the first frame, the reference, out of focus by a
+    Gaussian of ``first_blur`` LR px on top of the lens): (frames (F, H, W) uint16, truth (S H,
+    S W), bits)."""
     from scipy.ndimage import gaussian_filter, map_coordinates, zoom
 
     rng = np.random.default_rng(77_000 + seed)
@@ -96,14 +98,17 @@ def camera_burst(seed: int, scale: int, count: int, width: int, height: int, len
     v, u = np.mgrid[0:height, 0:width].astype(np.float64)
     offsets = (np.arange(3) + 0.5) / 3 - 0.5
     frames = []
-    for motion in _homographies(count, width, height, rng):
+    for k, motion in enumerate(_homographies(count, width, height, rng)):
+        through = seen
+        if k == 0 and first_blur:
+            through = gaussian_filter(scene.clip(0, 1), np.hypot(blur, first_blur) * scale * fine, mode="nearest")
         mean = np.zeros((height, width))
         for dy in offsets:
             for dx in offsets:
                 x, y, w = motion @ np.stack(((u + dx).ravel(), (v + dy).ravel(), np.ones(u.size)))
                 fx = ((x / w).reshape(height, width) + margin + 0.5) * scale * fine - 0.5
                 fy = ((y / w).reshape(height, width) + margin + 0.5) * scale * fine - 0.5
-                mean += map_coordinates(seen, [fy, fx], order=1, mode="nearest") / 9
+                mean += map_coordinates(through, [fy, fx], order=1, mode="nearest") / 9
         electrons = rng.poisson(np.clip(mean, 0, None) * well) + rng.normal(0, 3.0, mean.shape)
         frames.append(np.clip(np.round(electrons / well * (2**bits - 1)), 0, 2**bits - 1).astype(np.uint16))
     return np.stack(frames), truth.astype(np.float32), bits
