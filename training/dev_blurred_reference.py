@@ -108,8 +108,8 @@ def main(argv=None) -> int:
         width, height = (int(v) for v in args.size.lower().split("x"))
     except ValueError:
         width = height = 0
-    if min(width, height) < 64 or min(args.frames) < 3 or min(args.first_blurs) < 0:
-        print("dev_blurred_reference: --size WxH of 64 px or more, --frames 3 or more, --first-blurs >= 0",
+    if min(width, height) < 32 or min(args.frames) < 3 or min(args.first_blurs) < 0:
+        print("dev_blurred_reference: --size WxH of 32 px or more, --frames 3 or more, --first-blurs >= 0",
               file=sys.stderr)
         return 2
     if not args.out.parent.is_dir():
