@@ -7,18 +7,19 @@ The robustness weights compare every frame with the reference, each blurred by t
 Gaussian (:data:`hbis_torch.reconstruct.burst.COMPARE_BLUR_PX`). Where the reference is out of
 focus and the other frames are sharp, every edge differs between them by the blur alone, and
 the sharp frames' samples there lose weight: the fused lattice then leans on the soft reference
-where the detail is. The variant measured here (not the project's default) first blurs each
-frame clearly sharper than the reference (its :func:`~hbis_torch.capture.sharpness.frame_sharpness`
-above the reference's over :data:`~hbis_torch.capture.sharpness.BLURRED_SHARE`) by the Gaussian
-of :data:`SIGMAS` whose sharpness comes nearest the reference's, for the comparison alone (the
-samples fused are the frames' own).
+where the detail is. Since 2026-12-07 each frame clearly sharper than the reference is compared
+through the reference's blur (:func:`hbis_torch.capture.sharpness.blur_to_reference`: its
+sharpness above the reference's over ``BLURRED_SHARE``, blurred for the comparison alone by the
+Gaussian whose sharpness comes nearest the reference's; the samples fused are the frames' own).
+This script measures it (``matched_db``) beside every frame compared as it is (``plain_db``, the
+comparison before; the files made at 507bd29 and afdf8d3 name them ``default_db`` and
+``matched_db``, with the matching written in the script).
 
 Bursts: ``training/adapt_dev.py``'s ``cam`` camera (the training photographs, homographies, a
 lens of 0.2 to 0.5 LR px, Poisson-Gaussian noise, 12 bits), S = 2, its first frame (the
 reference, on the truth's grid) out of focus by a further Gaussian of ``--first-blurs`` LR px
-(0: the control, where the variant must change nothing). Classical PSNR against the truth, 4 LR
-px of border left out, the default beside the variant. Development data only: never the held-out
-renderers or their photographs.
+(0: the control, where nothing may change). Classical PSNR against the truth, 4 LR px of border
+left out. Development data only: never the held-out renderers or their photographs.
 """
 
 from __future__ import annotations
@@ -30,37 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-#: The extra Gaussians (LR px) a sharper frame may be blurred by for the comparison.
-SIGMAS = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0)
-
-
-def blurred(image, sigma: float):
-    """``image`` (F, H, W) float32 blurred by a Gaussian of ``sigma`` px (Kornia, replicated border)."""
-    import kornia
-
-    size = 2 * int(np.ceil(3 * sigma)) + 1
-    return kornia.filters.gaussian_blur2d(image[:, None], (size, size), (sigma, sigma), border_type="replicate")[:, 0]
-
-
-def matched_to_reference(grey, reference: int):
-    """``grey`` (F, H, W) with each frame clearly sharper than the reference blurred by the
-    :data:`SIGMAS` Gaussian that brings its sharpness nearest the reference's; and the sigmas."""
-    from hbis_torch.capture.sharpness import BLURRED_SHARE, frame_sharpness
-
-    sharpness = frame_sharpness(grey)
-    out, sigmas = grey.clone(), [0.0] * len(grey)
-    for k in range(len(grey)):
-        if k != reference and sharpness[reference] < BLURRED_SHARE * sharpness[k]:
-            tried = {s: float(frame_sharpness(blurred(grey[k:k + 1], s))[0]) for s in SIGMAS}
-            sigmas[k] = min(SIGMAS, key=lambda s: abs(tried[s] - sharpness[reference]))
-            out[k] = blurred(grey[k:k + 1], sigmas[k])[0]
-    return out, sigmas
-
 
 def run_burst(seed: int, frames: int, first_blur: float, width: int, height: int) -> dict:
     from adapt_dev import camera_burst  # (training/, this script's folder)
     from skimage.metrics import peak_signal_noise_ratio
 
+    import hbis_torch.capture.sharpness as sharpness
     import hbis_torch.reconstruct.burst as burst_path
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.reconstruct import reconstruct
@@ -75,20 +51,15 @@ def run_burst(seed: int, frames: int, first_blur: float, width: int, height: int
                                                    data_range=1.0)), 3)
 
     out = {"seed": seed, "frames": frames, "first_blur": first_blur,
-           "default_db": score(reconstruct(stack, "classical"))}
-    original, seen = burst_path.robustness_weights, {}
-
-    def compared_through_the_blur(grey, positions, trusted, reference, *args, **kwargs):
-        grey, seen["sigmas"] = matched_to_reference(grey, reference)
-        return original(grey, positions, trusted, reference, *args, **kwargs)
-
-    burst_path.robustness_weights = compared_through_the_blur
+           "matched_db": score(reconstruct(stack, "classical")),
+           "sigmas": sharpness.blur_to_reference(burst_path.corrected_frames(stack), stack.reference_index)}
+    matching = sharpness.blur_to_reference
+    sharpness.blur_to_reference = lambda grey, reference: [0.0] * len(grey)
     try:
-        out["matched_db"] = score(reconstruct(stack, "classical"))
+        out["plain_db"] = score(reconstruct(stack, "classical"))
     finally:
-        burst_path.robustness_weights = original
-    out["matched_minus_default_db"] = round(out["matched_db"] - out["default_db"], 3)
-    out["sigmas"] = seen.get("sigmas")
+        sharpness.blur_to_reference = matching
+    out["matched_minus_plain_db"] = round(out["matched_db"] - out["plain_db"], 3)
     return out
 
 
@@ -125,13 +96,13 @@ def main(argv=None) -> int:
     summary = {}
     for first_blur in args.first_blurs:
         for frames in args.frames:
-            gains = [r["matched_minus_default_db"] for r in rows
+            gains = [r["matched_minus_plain_db"] for r in rows
                      if r["first_blur"] == first_blur and r["frames"] == frames]
             summary[f"blur={first_blur:g}|F={frames}"] = {"mean_db": float(np.mean(gains)),
                                                           "worst_db": float(np.min(gains)),
                                                           "best_db": float(np.max(gains))}
     print(summary)
-    write_results(args.out, {"settings": {"size": args.size, "sigmas": SIGMAS}, "rows": rows, "summary": summary}, argv)
+    write_results(args.out, {"settings": {"size": args.size}, "rows": rows, "summary": summary}, argv)
     return 0
 
 

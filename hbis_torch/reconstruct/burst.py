@@ -138,7 +138,9 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
     """Per-sample weights in [0, 1]: 1 where the motion explains the sample, towards 0 where not.
 
     Computed a frame at a time (its positions, blur and comparison), so that no array of every
-    sample's position or blurred value is held beside the frames.
+    sample's position or blurred value is held beside the frames. A frame clearly sharper than an
+    out-of-focus reference is compared through the reference's blur
+    (:func:`~hbis_torch.capture.sharpness.blur_to_reference`).
 
     Parameters
     ----------
@@ -163,9 +165,12 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
         untrusted frames. (Each weight is a float32 value, so float32 holds it exactly: half
         the memory of float64, the same numbers.)
     """
+    from hbis_torch.capture.sharpness import blur_to_reference, gaussian_blur
     from hbis_torch.sensor.noise import noise_sigma
 
     F, H, W = grey.shape
+    # frames clearly sharper than the reference are compared through its blur (none where it is as sharp)
+    match = blur_to_reference(grey, reference)
     ref = _blur(grey[reference][None])[0]
     local = torch.nn.functional.avg_pool2d(torch.stack((ref, ref * ref))[:, None], 3, 1, 1,
                                            count_include_pad=False)[:, 0]
@@ -180,7 +185,8 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
         where = positions[k]
         at_ref, tau = _sample(both, where)  # one grid for both images
         tau.mul_(CONTRAST_TOLERANCE).add_(NOISE_TOLERANCE * max(noise, 1e-4))
-        weight = torch.exp(-((_blur(grey[k][None])[0] - at_ref) / tau) ** 2)
+        frame = grey[k][None] if not match[k] else gaussian_blur(grey[k][None], match[k])
+        weight = torch.exp(-((_blur(frame)[0] - at_ref) / tau) ** 2)
         weight = _minimum_3x3(weight)  # grow each rejection a pixel
         weights[k] = weight * _inside(where, (H, W))
         if sensor is not None:
