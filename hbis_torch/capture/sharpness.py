@@ -179,11 +179,12 @@ def blur_to_reference(grey: torch.Tensor, reference: int) -> list[float]:
     blur alone, its samples there lose weight, and the fused image leans on the soft reference
     where the detail is. Compared through the reference's blur (the frame blurred by this sigma
     for the comparison alone; its own samples are fused), it differs only where the scene or the
-    motion does. On development bursts (the training photographs, ``training/dev_blurred_reference.py``:
-    S = 2, 8 and 16 frames, a reference out of focus by a further Gaussian of 0.7 / 1.0 LR px) the
-    classical image gained +0.18 to +0.32 / +2.2 to +2.6 dB on the mean at 640 x 480 and +0.03 to
-    +0.04 / +0.11 to +0.18 dB at 64 x 48, one burst of 90 lower (by 0.02 dB); the sigma found
-    was the blur added (0.75 for 0.7, 1.0 for 1.0); a reference in focus changes nothing.
+    motion does. On development bursts (the training photographs,
+    ``training/dev_blurred_reference.py``: S = 2, 8 to 30 frames, a reference out of focus by a
+    further Gaussian of 0.7 / 1.0 LR px) the classical image gained +0.18 to +0.32 / +2.2 to +2.6 dB
+    on the mean at 640 x 480 and +0.03 to +0.04 / +0.11 to +0.18 dB at 64 x 48, one burst of the 48
+    lower (by 0.02 dB); the sigma found was the blur added (0.75 for 0.7, 1.0 for 1.0); a reference
+    in focus changes nothing.
 
     Parameters
     ----------
