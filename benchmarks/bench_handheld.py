@@ -319,7 +319,7 @@ def measure(row: dict, path: Path, w: int, h: int, args) -> None:
     row["own_median_s"] = median_own(row["start_runs"], row["full_runs"])
     if base:
         base["own_median_s"] = median_own(base["start_runs"], base["full_runs"])
-        if row["own_median_s"] and base["own_median_s"]:
+        if row["own_median_s"] is not None and base["own_median_s"]:
             row["own_median_over_baseline"] = row["own_median_s"] / base["own_median_s"]
 
 

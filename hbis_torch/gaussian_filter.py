@@ -1,10 +1,10 @@
 """``scipy.ndimage.gaussian_filter``'s sums, without importing ``scipy.ndimage``.
 
-A 640 x 480 burst's lens estimate and local motion each smooth a few small float64 arrays with a
-Gaussian (a frame's gradients, edge windows' structure tensors, a field of tile shifts). Importing
-``scipy.ndimage`` for it took 0.6 to 0.8 s on this project's 2-core machine (scipy's array-API
-layer imports ``numpy.f2py``), as long as the burst's whole classical reconstruction, and a
-32 x 32 burst never paid it, so it counted as the burst's own time. This module is the same filter:
+A burst's lens estimate and local motion each smooth a few small float64 arrays with a Gaussian
+(a frame's gradients, edge windows' structure tensors, a field of tile shifts). Importing
+``scipy.ndimage`` for it took 0.2 to 0.4 s in a process that had reconstructed a small burst on
+this project's 2-core machine, 0.8 s in a fresh one (scipy's array-API layer imports
+``numpy.f2py``): every ``hbis reconstruct`` of a burst paid it. This module is the same filter:
 scipy's kernel (the Gaussian sampled to ``truncate`` sigmas and normalised) and its sums in
 scipy's order for a symmetric kernel (the centre sample times its weight, then each pair of
 samples the same distance either side, added together and times their weight, from the

@@ -233,7 +233,7 @@ def _every_samples_diagonal(batches, shape: tuple[int, int], dtype, read: Tensor
     A node's diagonal adds the samples of the four cells it is a corner of, whose nearest nodes
     are its 3 x 3 neighbours: where ``read`` marks all of them, ``summed`` added the same samples
     in the same order. At 640 x 480 with 16 frames at S = 2 that is every node, and the second
-    pass over the samples (a fifth of the fit's time) is not made."""
+    pass over the samples (about a sixth of the fit's time) is not made."""
     if read is None:
         return summed
     lacking = _dilate(~read, 1)
