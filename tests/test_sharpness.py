@@ -253,6 +253,22 @@ def test_the_blur_that_matches_an_out_of_focus_reference_is_found(burst):
     assert sigmas[0] == 0.0 and all(0.75 <= s <= 1.25 for s in sigmas[1:]), sigmas
 
 
+def test_one_sharper_frame_does_not_make_the_reference_out_of_focus(burst):
+    """Every frame but one as soft as the reference: the reference is as sharp as most, and the
+    one sharp frame (on small frames, say, one an object moved out of) is compared as it is."""
+    frames = burst.copy()
+    for k in range(len(burst)):
+        if k != 5:
+            frames = _blurred(frames, k)
+    grey = luminance(frames)
+    sharpness = frame_sharpness(grey)
+    assert sharpness[0] < BLURRED_SHARE * sharpness[5]
+    assert blur_to_reference(grey, 0) == [0.0] * len(burst)
+    trusted = np.zeros(len(burst), dtype=bool)
+    trusted[5] = True  # the sharp frame alone looked at: the reference is blurred beside it
+    assert blur_to_reference(grey, 0, trusted)[5] > 0 and blur_to_reference(grey, 0, trusted)[1] == 0.0
+
+
 def test_sharper_frames_compared_through_the_references_blur_keep_their_detail(monkeypatch):
     """Compared as they are, the sharp frames' samples at every edge lose weight against an
     out-of-focus reference, and the image leans on its blur."""
@@ -264,6 +280,6 @@ def test_sharper_frames_compared_through_the_references_blur_keep_their_detail(m
     stack, _ = assemble_burst(frames, 2)
     cut = slice(16, -16)
     matched = psnr(reconstruct(stack, "classical")[cut, cut], truth[cut, cut])
-    monkeypatch.setattr(sharpness, "blur_to_reference", lambda grey, reference: [0.0] * len(grey))
+    monkeypatch.setattr(sharpness, "blur_to_reference", lambda grey, reference, trusted=None: [0.0] * len(grey))
     plain = psnr(reconstruct(stack, "classical")[cut, cut], truth[cut, cut])
     assert matched > plain + 0.15, (matched, plain)  # (measured: +0.29 dB)

@@ -169,10 +169,14 @@ def gaussian_blur(frames: torch.Tensor, sigma: float) -> torch.Tensor:
     return kornia.filters.gaussian_blur2d(frames[:, None], (size, size), (sigma, sigma), border_type="replicate")[:, 0]
 
 
-def blur_to_reference(grey: torch.Tensor, reference: int) -> list[float]:
-    """For each frame clearly sharper than the reference (its :func:`frame_sharpness` above the
-    reference's over :data:`BLURRED_SHARE`), the Gaussian of :data:`MATCH_SIGMAS` that brings its
-    sharpness nearest the reference's; 0 for the others.
+def blur_to_reference(grey: torch.Tensor, reference: int, trusted=None) -> list[float]:
+    """Where the reference is out of focus (its :func:`frame_sharpness` under :data:`BLURRED_SHARE`
+    of the median other frame's), for each frame clearly sharper than it (above its sharpness over
+    :data:`BLURRED_SHARE`), the Gaussian of :data:`MATCH_SIGMAS` that brings the frame's sharpness
+    nearest the reference's; 0 for the others, and for every frame where the reference is as sharp
+    as most. A single frame sharper than the reference says more about that frame than about the
+    reference (on small frames, an object that moved out of its centre: one burst of the held-out
+    burst matrix's 135, at 48 px).
 
     The robustness weights compare every frame with the reference, each through the same small
     blur. Where the reference is out of focus, a sharp frame differs from it at every edge by the
@@ -191,6 +195,8 @@ def blur_to_reference(grey: torch.Tensor, reference: int) -> list[float]:
     grey : Tensor, shape (F, H, W), float32
         The frames' luminance.
     reference : int
+    trusted : Tensor or np.ndarray, shape (F,), bool, optional
+        The frames looked at (default: all); the others get 0.
 
     Returns
     -------
@@ -198,10 +204,11 @@ def blur_to_reference(grey: torch.Tensor, reference: int) -> list[float]:
         Sigma, px (0: compared as it is).
     """
     sharpness = frame_sharpness(grey)
-    sharper = [k for k in range(len(grey)) if k != reference and sharpness[reference] < BLURRED_SHARE * sharpness[k]]
+    others = [k for k in range(len(grey)) if k != reference and (trusted is None or bool(trusted[k]))]
     out = [0.0] * len(grey)
-    if not sharper:
+    if not others or sharpness[reference] >= BLURRED_SHARE * float(np.median(sharpness[others])):
         return out
+    sharper = [k for k in others if sharpness[reference] < BLURRED_SHARE * sharpness[k]]
     # the central square frame_sharpness reads, with room for the widest blur's reach (the same
     # pixels as the whole frame's blur there)
     F, H, W = grey.shape

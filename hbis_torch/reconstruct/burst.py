@@ -170,7 +170,7 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
 
     F, H, W = grey.shape
     # frames clearly sharper than the reference are compared through its blur (none where it is as sharp)
-    match = blur_to_reference(grey, reference)
+    match = blur_to_reference(grey, reference, trusted)
     ref = _blur(grey[reference][None])[0]
     local = torch.nn.functional.avg_pool2d(torch.stack((ref, ref * ref))[:, None], 3, 1, 1,
                                            count_include_pad=False)[:, 0]
