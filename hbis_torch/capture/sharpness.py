@@ -211,7 +211,7 @@ def blur_to_reference(grey: torch.Tensor, reference: int, trusted=None) -> list[
     sharper = [k for k in others if sharpness[reference] < BLURRED_SHARE * sharpness[k]]
     # the central square frame_sharpness reads, with room for the widest blur's reach (the same
     # pixels as the whole frame's blur there)
-    F, H, W = grey.shape
+    H, W = grey.shape[1:]
     margin = int(np.ceil(3 * max(MATCH_SIGMAS))) + 3  # (and frame_sharpness's own 5 x 5 blur and difference)
     rows, cols = min(H, CENTRE_PX + 2 * margin), min(W, CENTRE_PX + 2 * margin)
     top, left = (H - rows) // 2, (W - cols) // 2
