@@ -147,8 +147,10 @@ def fit_lattice(image: Tensor, batches, kernel_sigma: float, ridge: float = RIDG
     Tensor, shape (rows, cols), in ``image``'s dtype
     """
     rows, cols = image.shape
-    # a sample's bilinear corners are its nearest node's neighbours
+    # a sample's bilinear corners are its nearest node's neighbours; where that reads every node
+    # (16 frames of 640 x 480 at S = 2), no sample's node is looked up to test it (a tenth of the sums' time)
     read = None if solve is None else _dilate(solve, 1)
+    read = None if read is not None and bool(read.all()) else read
     prior = torch.nn.functional.pad(image.to(dtype)[None, None], (1, 1, 1, 1), mode="replicate")[0, 0]
     if shared and "stencil" in shared:  # another channel of the same samples
         rhs, stencil, lam = _right_hand_side(batches, (rows, cols), dtype, read), shared["stencil"], shared["lam"]
