@@ -124,6 +124,26 @@ def test_the_eval_resumes_where_it_stopped(eh, tmp_path, capsys):
     assert "| translation | " in out.with_suffix(".md").read_text()
 
 
+def test_a_dimmer_light_is_a_setting_of_its_own(eh, tmp_path, capsys):
+    out = tmp_path / "dim.json"
+    args = ["--out", str(out), "--motions", "translation", "--scales", "2", "--frames", "3", "--size", "64x48",
+            "--no-vidsr", "--no-learned", "--rows", "bicubic"]
+    assert eh.main([*args, "--full-well", "200"]) == 0
+    dim = json.loads(out.read_text())
+    assert dim["settings"]["full_well_e"] == 200
+    # a dimmer light's burst is noisier: bicubic of its reference scores lower than in the default light
+    bright = tmp_path / "bright.json"
+    assert eh.main([*args[:1], str(bright), *args[2:]]) == 0
+    default = json.loads(bright.read_text())
+    assert "full_well_e" not in default["settings"]  # files made before the setting existed resume
+    key = "translation|S=2|F=3"
+    assert dim["cells"][key]["rows"]["bicubic"]["psnr_db"] < default["cells"][key]["rows"]["bicubic"]["psnr_db"] - 3
+    # resuming the dim file in the default light is refused, the file untouched
+    before = out.read_text()
+    assert eh.main(args) == 2 and "other settings" in capsys.readouterr().err and out.read_text() == before
+    assert eh.main([*args, "--full-well", "5"]) == 2 and "--full-well" in capsys.readouterr().err
+
+
 def test_redo_runs_the_named_rows_again_once(eh, tmp_path, capsys):
     out = tmp_path / "cells.json"
     args = ["--out", str(out), "--motions", "translation", "--scales", "2", "--frames", "3", "--size", "64x48",

@@ -2,12 +2,13 @@
 
     python training/eval_handheld.py --out benchmarks/results/eval_handheld.json
         [--motions translation similarity ...] [--scales 2 3 4] [--frames 8 16] [--size 640x480]
-        [--no-learned] [--no-vidsr] [--rows classical learned] [--blur 0.3] [--border 4] [--seed 0]
+        [--no-learned] [--no-vidsr] [--rows classical learned] [--blur 0.3] [--border 4] [--full-well 5000]
+        [--seed 0]
 
 Every cell is a motion (:data:`hbis_torch.training.handheld_render.MOTIONS`) x S x F: one burst
 of :func:`~hbis_torch.training.handheld_render.render_burst` (frames W x H, 16-bit, lens blur,
-Poisson-Gaussian noise of about 1 %), scored against its truth by PSNR (scikit-image) over the
-image without a border of ``--border`` LR px (4 by default: S x 4 output px). The rows:
+Poisson-Gaussian noise of about 1 %, or more with a smaller ``--full-well``: a dimmer light),
+scored against its truth by PSNR (scikit-image) over the image without a border of ``--border`` LR px (4 by default: S x 4 output px). The rows:
 
 * **bicubic**: the reference frame enlarged S times (torch, bicubic, pixel centres kept);
 * **vidsr**: the peer, in its best setting for fidelity (benchmarks/peers/vidsr_peer.py; skipped
@@ -47,6 +48,8 @@ ROWS = ("bicubic", "vidsr", "classical", "classical_lens", "learned", "oracle")
 #: The goals of the issue: classical within ORACLE_GAP of the oracle, never more than PEER_GAP behind
 #: vidsr, at least BICUBIC_GAIN over bicubic with BICUBIC_FRAMES frames or more.
 ORACLE_GAP, PEER_GAP, BICUBIC_GAIN, BICUBIC_FRAMES = 0.3, 0.3, 2.0, 8
+#: The renderer's full well by default (electrons at white).
+FULL_WELL_E = 5000.0
 
 
 def parse_args(argv=None):
@@ -69,6 +72,9 @@ def parse_args(argv=None):
                         "resumes); the others are run only where missing")
     p.add_argument("--blur", type=float, default=0.3, help="the lens's Gaussian sigma, LR px (default 0.3)")
     p.add_argument("--border", type=int, default=4, help="border left out of the score, LR px (default 4)")
+    p.add_argument("--full-well", type=float, default=FULL_WELL_E,
+                   help=f"electrons at white (default {FULL_WELL_E:g}: about 1 %% noise at mid-grey); fewer is "
+                        "a dimmer light: 1000 about 2.2 %%, 200 about 5 %%")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--table-only", action="store_true", help="only write the .md table of what --out holds "
                    "(e.g. of a run still going or stopped)")
@@ -99,6 +105,8 @@ def check_args(args) -> str | None:
         return f"--size {args.size}: frames must be 32 x 32 px or more"
     if not 0 <= args.blur <= 3:
         return f"--blur must lie in 0..3 LR px, got {args.blur}"
+    if not 10 <= args.full_well <= 1e6:
+        return f"--full-well must lie in 10..1e6 electrons, got {args.full_well:g}"
     if not 0 <= 2 * args.border < min(w, h):
         return f"--border {args.border} leaves nothing of {args.size} frames"
     if not args.out.parent.is_dir():
@@ -108,9 +116,11 @@ def check_args(args) -> str | None:
 
 
 def settings_of(args) -> dict:
-    """What a resumed run must share with the file it resumes."""
-    return {"size": [args.width, args.height], "blur_sigma_px": args.blur, "border_px": args.border,
-            "seed": args.seed}
+    """What a resumed run must share with the file it resumes (the full well where it is not the
+    default, so that the files made before it was a setting resume)."""
+    settings = {"size": [args.width, args.height], "blur_sigma_px": args.blur, "border_px": args.border,
+                "seed": args.seed}
+    return settings if args.full_well == FULL_WELL_E else {**settings, "full_well_e": args.full_well}
 
 
 def cell_key(motion: str, scale: int, frames: int) -> str:
@@ -338,7 +348,8 @@ def main(argv=None) -> int:
                 if not todo:
                     continue
                 t = time.perf_counter()
-                burst = render_burst(motion, S, F, args.width, args.height, blur_sigma_px=args.blur, seed=args.seed)
+                burst = render_burst(motion, S, F, args.width, args.height, blur_sigma_px=args.blur,
+                                     full_well_e=args.full_well, seed=args.seed)
                 cell["render_s"] = time.perf_counter() - t
                 cache: dict = {}
                 for row in todo:
