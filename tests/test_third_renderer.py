@@ -66,6 +66,21 @@ def test_the_noise_is_about_what_the_full_well_gives(third):
     difference = noisy[0] / 65535.0 - clean[0]
     expected = np.sqrt(np.mean(clean[0]) / third.FULL_WELL_E)
     assert 0.8 * expected < difference.std() < 1.2 * expected
+    # a dimmer light (--full-well 200): seven times the noise
+    dim, _, _ = third.render("translation", 2, 2, 64, 48, seed=1, photos=("camera",), full_well=200.0)
+    expected = np.sqrt(np.mean(clean[0]) / 200.0)
+    assert 0.8 * expected < (dim[0] / 65535.0 - clean[0]).std() < 1.2 * expected
+
+
+def test_a_dimmer_light_is_a_setting_of_its_own(third, tmp_path, capsys):
+    out = tmp_path / "r.json"
+    with pytest.raises(SystemExit) as stop:
+        third.main(["--out", str(out), "--cells", "similarity:2:4", "--no-vidsr", "--full-well", "5"])
+    assert stop.value.code == 2 and "--full-well 5" in capsys.readouterr().err
+    args = third.parse_args(["--out", str(out), "--cells", "similarity:2:4", "--no-vidsr", "--full-well", "200"])
+    assert third._settings(args)["full_well_e"] == 200
+    default = third.parse_args(["--out", str(out), "--cells", "similarity:2:4", "--no-vidsr"])
+    assert "full_well_e" not in third._settings(default)  # the files made before the setting resume
 
 
 def test_bad_cells_are_refused_before_any_work(third, tmp_path, capsys):

@@ -2,7 +2,8 @@
 
     python training/eval_third_renderer.py --out benchmarks/results/eval_third_renderer.json
         [--cells similarity:2:16 homography:4:16 ...] [--photos held-out|training] [--seed 0]
-        [--size 640x480] [--blur 0.3] [--colour] [--point-target] [--no-learned] [--no-vidsr] [--table-only]
+        [--size 640x480] [--blur 0.3] [--full-well 10000] [--colour] [--point-target] [--no-learned] [--no-vidsr]
+        [--table-only]
         [--redo classical classical_lens learned]
 
 The held-out matrix (training/eval_handheld.py) renders with the project's own second renderer
@@ -36,8 +37,8 @@ nothing with the package but the photographs:
   reference smeared (a shake while the shutter was open: the enlarged scene blurred along a line
   of :data:`SHAKE_PX` LR px in a random direction, or by a Gaussian of :data:`SHAKE_SIGMA_PX`, in
   turn);
-* **the noise**: Poisson of a full well of :data:`FULL_WELL_E` electrons (at mid grey 0.7 % of white) and
-  Gaussian read noise of :data:`READ_E`, 16 bits.
+* **the noise**: Poisson of a full well of :data:`FULL_WELL_E` electrons (at mid grey 0.7 % of white;
+  ``--full-well``: a dimmer light, 200 about 5 %) and Gaussian read noise of :data:`READ_E`, 16 bits.
 
 The truth is the scene itself on the output grid (no lens: the lens is what the methods should
 undo; the photographs' own softness is part of the scene). The scene ends at the reference
@@ -206,10 +207,11 @@ def _with_object(background: np.ndarray, texture: np.ndarray, centre: np.ndarray
 
 
 def render(motion: str, scale: int, count: int, width: int, height: int, seed: int, photos,
-           blur: float = 0.3, noise: bool = True, colour: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           blur: float = 0.3, noise: bool = True, colour: bool = False,
+           full_well: float = FULL_WELL_E) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A burst: (frames (F, H, W) uint16 (float64 in [0, 1] without ``noise``), truth (S H, S W)
     float32, homographies (F, 3, 3)); with ``colour`` the frames (F, H, W, 3) and the truth
-    (S H, S W, 3), RGB."""
+    (S H, S W, 3), RGB; ``full_well``: electrons at white."""
     rng = np.random.default_rng(seed)
     truth = scene(scale * height, scale * width, photos, rng, colour)
     motions = homographies(BASE.get(motion, motion), count, width, height, rng)
@@ -232,8 +234,8 @@ def render(motion: str, scale: int, count: int, width: int, height: int, seed: i
         frame = _integrated(seen, m, roll, scale, width, height) * (extra["gain"][k] if "gain" in extra else 1)
         frame = np.clip(frame, 0, 1)
         if noise:
-            electrons = rng.poisson(frame * FULL_WELL_E) + rng.normal(0, READ_E, frame.shape)
-            frame = np.clip(np.round(electrons / FULL_WELL_E * 65535), 0, 65535).astype(np.uint16)
+            electrons = rng.poisson(frame * full_well) + rng.normal(0, READ_E, frame.shape)
+            frame = np.clip(np.round(electrons / full_well * 65535), 0, 65535).astype(np.uint16)
         frames.append(frame)
     return np.stack(frames), truth, motions
 
@@ -279,7 +281,7 @@ def run_cell(motion: str, scale: int, count: int, args, rows=None) -> dict:
     from hbis_torch.reconstruct import reconstruct
 
     frames, truth, _ = render(motion, scale, count, args.width, args.height, args.seed, args.photo_names, args.blur,
-                              colour=args.colour)
+                              colour=args.colour, full_well=args.full_well)
     stack, assemble_messages = assemble_burst(frames, scale)
     out = {"models": list(stack.meta["motion_models"]), "assemble_messages": assemble_messages}
     for row in args.rows if rows is None else rows:
@@ -340,6 +342,9 @@ def parse_args(argv):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--size", default="640x480", help="frames' WxH (default 640x480)")
     p.add_argument("--blur", type=float, default=0.3, help="the lens's Gaussian sigma, LR px (default 0.3)")
+    p.add_argument("--full-well", type=float, default=FULL_WELL_E,
+                   help=f"electrons at white (default {FULL_WELL_E:g}: 0.7 %% noise at mid grey); fewer is a "
+                        "dimmer light: 200 about 5 %%")
     p.add_argument("--colour", action="store_true", help="RGB bursts (the same photographs' crops in colour), "
                    "reconstructed with the methods' colour defaults and scored over the three channels")
     p.add_argument("--point-target", action="store_true", help="also classical_point: the classical method aiming at "
@@ -369,6 +374,8 @@ def parse_args(argv):
         problem = f"--out {args.out}: the folder does not exist"
     if problem is None and not 0 <= args.blur <= 2:
         problem = f"--blur {args.blur}: 0 to 2 LR px"
+    if problem is None and not 10 <= args.full_well <= 1e6:
+        problem = f"--full-well {args.full_well:g}: 10 to 1e6 electrons"
     if problem is None and args.table_only and not args.out.is_file():
         problem = f"--table-only: {args.out} does not exist"
     if problem is None and args.redo and (not args.out.is_file() or not set(args.redo) <= set(_rows(args))):
@@ -394,6 +401,8 @@ def _settings(args) -> dict:
     """What a results file's cells depend on besides the cell: a run resumes only a file of the same."""
     out = {"photos": args.photos, "seed": args.seed, "size": [args.width, args.height], "blur": args.blur,
            "rows": _rows(args)}
+    if args.full_well != FULL_WELL_E:  # (files of the default light name none)
+        out["full_well_e"] = args.full_well
     return {**out, "colour": True} if args.colour else out  # (grey runs' files name no colour)
 
 
