@@ -130,7 +130,7 @@ def test_a_dimmer_light_is_a_setting_of_its_own(eh, tmp_path, capsys):
             "--no-vidsr", "--no-learned", "--rows", "bicubic"]
     assert eh.main([*args, "--full-well", "200"]) == 0
     dim = json.loads(out.read_text())
-    assert dim["settings"]["full_well_e"] == 200
+    assert dim["settings"]["full_well_e"] == 200 and "(200 e- full well" in out.with_suffix(".md").read_text()
     # a dimmer light's burst is noisier: bicubic of its reference scores lower than in the default light
     bright = tmp_path / "bright.json"
     assert eh.main([*args[:1], str(bright), *args[2:]]) == 0

@@ -437,8 +437,8 @@ def table(results: dict) -> str:
     s = results["settings"]
     lines = ["# Hand-held bursts against the truth (training/eval_handheld.py)", "",
              f"Frames {s['size'][0]} x {s['size'][1]}, 16-bit, lens blur sigma {s['blur_sigma_px']} LR px, "
-             f"Poisson-Gaussian noise (5000 e- full well, 3 e- read), seed {s['seed']}; PSNR (dB) against the truth "
-             f"without a border of {s['border_px']} LR px. hbis_torch/training/handheld_render.py renders the "
+             f"Poisson-Gaussian noise ({s.get('full_well_e', FULL_WELL_E):g} e- full well, 3 e- read), seed {s['seed']}; "
+             f"PSNR (dB) against the truth without a border of {s['border_px']} LR px. hbis_torch/training/handheld_render.py renders the "
              "bursts; training/eval_handheld.py's docstring says what each row is. A cell misses a goal of the "
              f"issue where classical is more than {ORACLE_GAP} dB below the oracle, more than {PEER_GAP} dB "
              f"below vidsr, or (with {BICUBIC_FRAMES} frames or more) less than {BICUBIC_GAIN} dB above bicubic.",
