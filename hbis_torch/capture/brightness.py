@@ -86,15 +86,15 @@ def fit_gain_offset(frame: torch.Tensor, reference: torch.Tensor, motion: np.nda
     lo, hi = SATURATION_MARGIN, 1.0 - SATURATION_MARGIN
     use = (x > lo) & (x < hi) & (y > lo) & (y < hi)
     gain, offset = 1.0, 0.0
-    for _ in range(2):
+    for refit in (True, False):
         x_used, y_used = x[use], y[use]  # gathered once: most of the fit's time went on gathers
         if len(x_used) < 16 or float(x_used.std()) < 1e-4:
             return 1.0, 0.0
         A = torch.stack((x_used, torch.ones_like(x_used)), -1)
         gain, offset = torch.linalg.lstsq(A, y_used[:, None], driver=LSTSQ_DRIVER).solution[:, 0].tolist()
-        r = y - (gain * x + offset)
-        spread = 1.4826 * float(r[use].abs().median()) + 1e-6
-        use = use & (r.abs() < 3 * spread)
+        if refit:  # the pixels far off the line left out (the residuals of the pixels used, as gathered)
+            spread = 1.4826 * float((y_used - (gain * x_used + offset)).abs().median()) + 1e-6
+            use = use & ((y - (gain * x + offset)).abs() < 3 * spread)
     if not 1.0 / GAIN_RANGE <= gain <= GAIN_RANGE:
         return 1.0, 0.0
     return gain, offset
