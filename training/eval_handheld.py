@@ -8,7 +8,8 @@
 Every cell is a motion (:data:`hbis_torch.training.handheld_render.MOTIONS`) x S x F: one burst
 of :func:`~hbis_torch.training.handheld_render.render_burst` (frames W x H, 16-bit, lens blur,
 Poisson-Gaussian noise of about 1 %, or more with a smaller ``--full-well``: a dimmer light),
-scored against its truth by PSNR (scikit-image) over the image without a border of ``--border`` LR px (4 by default: S x 4 output px). The rows:
+scored against its truth by PSNR (scikit-image) over the image without a border of ``--border``
+LR px (4 by default: S x 4 output px). The rows:
 
 * **bicubic**: the reference frame enlarged S times (torch, bicubic, pixel centres kept);
 * **vidsr**: the peer, in its best setting for fidelity (benchmarks/peers/vidsr_peer.py; skipped
@@ -437,9 +438,9 @@ def table(results: dict) -> str:
     s = results["settings"]
     lines = ["# Hand-held bursts against the truth (training/eval_handheld.py)", "",
              f"Frames {s['size'][0]} x {s['size'][1]}, 16-bit, lens blur sigma {s['blur_sigma_px']} LR px, "
-             f"Poisson-Gaussian noise ({s.get('full_well_e', FULL_WELL_E):g} e- full well, 3 e- read), seed {s['seed']}; "
-             f"PSNR (dB) against the truth without a border of {s['border_px']} LR px. hbis_torch/training/handheld_render.py renders the "
-             "bursts; training/eval_handheld.py's docstring says what each row is. A cell misses a goal of the "
+             f"Poisson-Gaussian noise ({s.get('full_well_e', FULL_WELL_E):g} e- full well, 3 e- read), "
+             f"seed {s['seed']}; PSNR (dB) against the truth without a border of {s['border_px']} LR px. "
+             "hbis_torch/training/handheld_render.py renders the bursts; training/eval_handheld.py's docstring says what each row is. A cell misses a goal of the "
              f"issue where classical is more than {ORACLE_GAP} dB below the oracle, more than {PEER_GAP} dB "
              f"below vidsr, or (with {BICUBIC_FRAMES} frames or more) less than {BICUBIC_GAIN} dB above bicubic.",
              "", "## Provenance", ""]
