@@ -12,7 +12,9 @@ with this checkout's function and with the same function loaded from the baselin
 file (``git worktree add DIR COMMIT``), the two alternating, the first of each pair swapped from
 one repeat to the next. Printed: each one's median seconds (all the recorded calls), their ratio,
 and whether the two gave the same bits. The baseline's module is its file alone, run against this
-checkout's package: a comparison of that file's code, not of the commits' whole paths.
+checkout's package: a comparison of that file's code, not of the commits' whole paths. A stage's
+recorded calls must not change their arguments (the two here do not; a colour burst's lattice fit,
+which fills a ``shared`` dictionary for the next channel, is not timed: the burst is grey).
 """
 
 from __future__ import annotations
@@ -27,7 +29,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
 # name: (module, function, the modules whose name for the function the calls go through)
 STAGES = {
     "brightness": ("hbis_torch.capture.brightness", "fit_gain_offset", ("hbis_torch.capture.burst",)),
