@@ -13,12 +13,16 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from hbis_torch.registration.threaded_sample import grid_sample_threaded
+from hbis_torch.registration.bspline import _spline_fetch, prefilter
 
 #: Share of the points a trimmed error keeps (the best ones): a moving object's are left out.
 TRIM = 0.75
 #: Pixels of a frame that score each model's motion (:func:`model_evidence`): a regular grid of about this many.
 EVIDENCE_POINTS = 32768
+#: How much less noise the reference's cubic B-spline gives halfway between two pixels than at a
+#: pixel, along one axis (its variance, for white noise blurred by the evidence's 5-tap Gaussian:
+#: derived in tests/test_burst_fast_paths.py); in between, the drop times sin^2(pi f) (within 3e-4).
+SPLINE_NOISE_DROP = 0.0067
 
 
 def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: list) -> dict:
@@ -46,8 +50,6 @@ def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: li
     dict of str -> dict of int -> float
         Lower is better; inf where a motion leaves too little of the frame on the reference.
     """
-    import kornia
-
     from hbis_torch.registration.homography import N_PARAMS
 
     F, H, W = grey.shape
@@ -59,7 +61,10 @@ def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: li
     points = torch.stack((u.reshape(-1), v.reshape(-1), torch.ones(u.numel(), dtype=torch.float64)))
     # the reference blurred everywhere (it is read between pixels); a frame only at its points,
     # 5 x 5 taps a point (a strided convolution; the points are 3 px or more inside the frame)
-    ref = kornia.filters.gaussian_blur2d(grey[reference][None, None], (5, 5), (1.0, 1.0), border_type="replicate")
+    # its cubic B-spline: bilinear reading would smooth the reference's noise by up to a fifth
+    # between pixels, so in a dim light a model that spreads the points over fractions of a pixel
+    # would seem to explain the frame better (module docstring)
+    _, coefficients = prefilter(grey[reference][None], kernel=_evidence_taps())
     window = (slice(1, 1 + (rows - 1) * step + 5), slice(1, 1 + (cols - 1) * step + 5))
     # Residuals of the blurred frames are correlated over about 4 pi px^2.
     independent = max(1.0, (H - 6) * (W - 6) / (4 * np.pi))
@@ -70,32 +75,54 @@ def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: li
         q = torch.from_numpy(np.stack([motions[m][k] for m in names])) @ points  # (models, 3, N)
         qu, qv = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
         inside = (qu >= 3) & (qu <= W - 4) & (qv >= 3) & (qv <= H - 4)
-        grid = torch.stack((2 * qu / (W - 1) - 1, 2 * qv / (H - 1) - 1), -1).float().nan_to_num_(0.0, 0.0, 0.0)
-        target = grid_sample_threaded(ref, grid.reshape(1, 1, -1, 2), mode="bilinear", align_corners=True)
-        target = target.reshape(len(names), -1).double()
-        counts = inside.sum(1).tolist()
+        # (float32 places: a frame of 4000 px is read within 2e-4 px, far below what the models differ by)
+        where = torch.stack((qu, qv), -1).nan_to_num_(0.0, 0.0, 0.0).float()  # (models, N, 2) px
+        target = _spline_fetch(coefficients, where)[0].double()
+        scale = _noise_scale(where)  # (models, N)
+        scored = [i for i, model in enumerate(names)  # (finite points, finite motion)
+                  if int(inside[i].sum()) >= 64 and np.isfinite(motions[model][k]).all()]
+        # every model on the same points (those all of them keep on the reference): with n in the
+        # BIC, a model that kept a few dozen points more would win by them alone
+        common = inside[scored].all(0) if scored else None
         for i, model in enumerate(names):
-            if counts[i] < 64 or not np.isfinite(motions[model][k]).all():  # (finite points, finite motion)
+            if i not in scored:
                 out[model][k] = float("inf")
                 continue
-            mse = trimmed_line_mse(values[inside[i]], target[i][inside[i]]) + 1e-20
-            n = min(float(counts[i]), independent * counts[i] / inside.shape[1])
+            kept = common if int(common.sum()) >= 64 else inside[i]
+            count = int(kept.sum())
+            mse = trimmed_line_mse(values[kept], target[i][kept], scale[i][kept]) + 1e-20
+            n = min(float(count), independent * count / inside.shape[1])
             out[model][k] = n * np.log(mse) + N_PARAMS[model] * np.log(n)
     return out
+
+
+def _noise_scale(places: Tensor) -> Tensor:
+    """(...) float64: the factor that brings a residual's squared noise at the reference's points
+    ``places`` (..., 2) (u, v) px to its level at whole pixels (:data:`SPLINE_NOISE_DROP`):
+    2 / (1 + g), g the spline's noise gain there, the frame's side (at whole pixels) and the
+    reference's alike in noise."""
+    gain = torch.sin(torch.pi * places.double()).square_().mul_(-SPLINE_NOISE_DROP).add_(1).prod(-1)
+    return gain.add_(1).reciprocal_().mul_(2)
 
 
 def _evidence_kernel() -> Tensor:
     """(1, 1, 5, 5) float32: the Gaussian of 1 px that :func:`model_evidence` blurs frames by
     (Kornia's 5-tap kernel, as its ``gaussian_blur2d`` weighs it)."""
-    import kornia
-
-    taps = kornia.filters.get_gaussian_kernel1d(5, 1.0)[0]
+    taps = _evidence_taps()
     return (taps[:, None] * taps[None, :])[None, None].float()
 
 
-def trimmed_line_mse(x: torch.Tensor, y: torch.Tensor) -> float:
+def _evidence_taps() -> Tensor:
+    """(5,) float32: :func:`_evidence_kernel`'s taps along one axis."""
+    import kornia
+
+    return kornia.filters.get_gaussian_kernel1d(5, 1.0)[0].float()
+
+
+def trimmed_line_mse(x: torch.Tensor, y: torch.Tensor, scale: torch.Tensor | None = None) -> float:
     """Mean squared residual of ``y`` (N,) about its least-squares line in ``x`` (N,) (a gain and
     an offset), over the best :data:`TRIM` of the points: a moving object's are left out.
+    ``scale`` (N,), optional: factors of the squared residuals (before the best are taken).
 
     The line in closed form about the means (float64: the same fit as a least-squares solver's to
     rounding, without its overhead; a constant ``x`` leaves ``y``'s mean, as the minimum-norm
@@ -104,5 +131,7 @@ def trimmed_line_mse(x: torch.Tensor, y: torch.Tensor) -> float:
     sxx = float(dx.dot(dx))
     slope = float(dx.dot(dy)) / sxx if sxx > 0 else 0.0
     squared = (dy - slope * dx).pow(2)
+    if scale is not None:
+        squared.mul_(scale)
     # the smallest TRIM of them, unsorted (a selection: a fifth of a sort's time, the same values)
     return float(torch.topk(squared, int(TRIM * len(squared)), largest=False, sorted=False).values.mean())
