@@ -165,6 +165,38 @@ def test_lattice_noise_of_a_full_frame_lattice_is_measured_on_tiles_alike(monkey
     assert on_strips > 1.1 * whole  # measured: 16 % above it, the tiles 4 % below
 
 
+def _two_class_lattice(first: int, rows: int = 600, cols: int = 600) -> torch.Tensor:
+    """(rows, cols) bool: the nodes of one class of an S = 2 lattice's four (rows and columns from
+    ``first``, every other)."""
+    one = torch.zeros(rows, cols, dtype=torch.bool)
+    one[first::2, first::2] = True
+    return one
+
+
+def test_a_large_lattices_typical_weight_is_every_node_classs():
+    # A burst's shifts that cluster give one class of an S = 2 lattice's nodes more samples than the
+    # other three: the typical node is theirs (every other row and column read that class alone).
+    from hbis_torch.reconstruct.classical.holes import MEDIAN_NODES, typical_weight
+
+    one = _two_class_lattice(0)
+    assert one.numel() > MEDIAN_NODES
+    den = torch.where(one, 4.0, 1.0) * (1 + 0.01 * torch.rand(one.shape, generator=torch.Generator().manual_seed(0)))
+    assert typical_weight(den) == pytest.approx(1.0, abs=0.02)
+
+
+def test_a_large_lattices_noise_is_read_on_every_node_class(monkeypatch):
+    from hbis_torch.reconstruct.classical import holes, sr
+
+    one = _two_class_lattice(1)  # (the noise operator's centres at every other node from the second)
+    rng = np.random.default_rng(3)
+    image = torch.tensor(0.5 + rng.normal(0, 1, one.shape) * np.where(one.numpy(), 0.004, 0.012), dtype=torch.float32)
+    assert holes.MEDIAN_NODES < image.numel() <= sr.TILES_FROM
+    valid = torch.ones(one.shape, dtype=torch.bool)
+    subset = lattice_noise(image, 0.45, valid)
+    monkeypatch.setattr(holes, "MEDIAN_NODES", image.numel())  # every node
+    assert subset == pytest.approx(lattice_noise(image, 0.45, valid), rel=0.03)
+
+
 def test_periodic_smooth_decomposition_is_exact_and_periodic():
     img = torch.tensor(natural_scene(64))
     p, s = periodic_smooth(img)

@@ -14,7 +14,7 @@ from torch import Tensor
 from hbis_torch.checks import as_float64_tensor, check_h
 from hbis_torch.errors import HbisInputError
 from hbis_torch.optics import NodePositions, interpolate_positions
-from hbis_torch.reconstruct.classical.holes import every_other, fill_holes, lower_median, typical_weight
+from hbis_torch.reconstruct.classical.holes import fill_holes, lower_median, median_subset, typical_weight
 from hbis_torch.reconstruct.classical.lattice import batch_slices, common_offset_of, node_batch
 from hbis_torch.reconstruct.classical.lattice_fit import fill_holes_from_samples
 from hbis_torch.reconstruct.classical.splat import splat, splat_on_lattice
@@ -337,9 +337,9 @@ def lattice_noise(image: Tensor, kernel_sigma: float, valid: Tensor | None = Non
         where = np.ones(residual.shape, dtype=bool) if where is None else where
         return 1.4826 * lower_median(torch.from_numpy(residual), torch.from_numpy(where)) / _lattice_gain(
             kernel_sigma, image.dtype)
-    out = every_other(immerkaer(image).abs_())  # on a large lattice, a quarter of the nodes
+    out = median_subset(immerkaer(image).abs_())  # on a large lattice, one node in MEDIAN_STRIDE
     if valid is not None:
-        inner = every_other(_complete(valid))
+        inner = median_subset(_complete(valid))
         if int(inner.sum()) >= 16:  # else too few complete neighbourhoods: use every node
             return 1.4826 * lower_median(out, inner) / _lattice_gain(kernel_sigma, image.dtype)
     return 1.4826 * float(out.median()) / _lattice_gain(kernel_sigma, image.dtype)
