@@ -36,6 +36,14 @@ def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: li
     better by more than its parameters could by chance, and that margin shrinks as the frame
     grows.
 
+    Every model is scored on the same points, those all of them keep on the reference: with
+    ``n`` in the BIC, a model that kept a few dozen points more would win by them alone. The
+    reference is read between pixels by its cubic B-spline, not bilinearly: a bilinear read
+    averages the noise of two neighbours, a ninth less of its variance halfway along an axis, so
+    in a dim light a slight turn, which spreads the points over fractions of a pixel, would seem
+    to explain a frame that only shifted by a whole pixel better; the spline's own drop
+    (:data:`SPLINE_NOISE_DROP`) is divided out of each squared residual.
+
     Parameters
     ----------
     grey : Tensor, shape (F, H, W), float32
@@ -59,11 +67,9 @@ def model_evidence(grey: torch.Tensor, reference: int, motions: dict, frames: li
                           torch.arange(3, W - 3, step, dtype=torch.float64), indexing="ij")
     rows, cols = v.shape
     points = torch.stack((u.reshape(-1), v.reshape(-1), torch.ones(u.numel(), dtype=torch.float64)))
-    # the reference blurred everywhere (it is read between pixels); a frame only at its points,
-    # 5 x 5 taps a point (a strided convolution; the points are 3 px or more inside the frame)
-    # its cubic B-spline: bilinear reading would smooth the reference's noise by up to a fifth
-    # between pixels, so in a dim light a model that spreads the points over fractions of a pixel
-    # would seem to explain the frame better (module docstring)
+    # the reference blurred everywhere and taken as its cubic B-spline (it is read between
+    # pixels); a frame only at its points, 5 x 5 taps a point (a strided convolution; the points
+    # are 3 px or more inside the frame)
     _, coefficients = prefilter(grey[reference][None], kernel=_evidence_taps())
     window = (slice(1, 1 + (rows - 1) * step + 5), slice(1, 1 + (cols - 1) * step + 5))
     # Residuals of the blurred frames are correlated over about 4 pi px^2.
