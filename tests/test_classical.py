@@ -173,7 +173,7 @@ def _two_class_lattice(first: int, rows: int = 600, cols: int = 600) -> torch.Te
     return one
 
 
-def test_a_large_lattices_typical_weight_is_every_node_classs():
+def test_a_large_lattices_typical_weight_is_read_on_every_node_class():
     # A burst's shifts that cluster give one class of an S = 2 lattice's nodes more samples than the
     # other three: the typical node is theirs (every other row and column read that class alone).
     from hbis_torch.reconstruct.classical.holes import MEDIAN_NODES, typical_weight
