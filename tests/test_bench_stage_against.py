@@ -1,6 +1,5 @@
 """benchmarks/bench_stage_against.py: refuses bad input before any work; a stage against itself."""
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -10,11 +9,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_stage_against", REPO / "benchmarks" / "bench_stage_against.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def bench(load_script):
+    return load_script("benchmarks/bench_stage_against.py")
 
 
 @pytest.mark.parametrize("argv", [["--baseline", "/nonexistent"], ["--stages", "splat"], ["--repeats", "1"],
