@@ -10,9 +10,6 @@ least squares that ``scipy.optimize.least_squares(loss="soft_l1", f_scale=3)`` s
 residuals in noise units ``r`` weigh in as ``2 C^2 (sqrt(1 + r^2 / C^2) - 1)`` (C =
 :data:`F_SCALE`), near ``r^2`` for the noise and growing as ``|r|`` for outliers.
 
-With two parameters more, (amount, width), the step is sharpened by an unsharp mask
-(:func:`halo_profile`), as a camera's processing leaves a photograph's edges.
-
 All edges are solved together, in float64 tensors of shape (edges, samples), by one
 Levenberg-Marquardt: each edge's step is the Gauss-Newton step of its robust cost (the Hessian's
 samples weighed by the loss's rho'(z) + 2 z rho''(z), as scipy's does), damped by its own factor
@@ -43,9 +40,9 @@ STEP_TOLERANCE = 1e-9
 """... or moves no parameter by more than this share of its scale (:data:`SCALES`)."""
 DAMPING = 1.0
 """The damping factor each edge starts from (Marquardt's scaling: a share of the Hessian's diagonal)."""
-SCALES = (0.1, 0.1, 0.1, 0.05, 0.1, 0.1, 0.1)
+SCALES = (0.1, 0.1, 0.1, 0.05, 0.1)
 """The parameters' typical scales (c0, c1 in the units of frames in [0, 1]; t, sigma LR px;
-theta radians; with a halo, its amount and its width in LR px)."""
+theta radians)."""
 
 
 def profile(d: Tensor, theta: Tensor, sigma: Tensor, aperture: float, derivatives: bool = True) -> Tensor:
@@ -100,45 +97,17 @@ def profile(d: Tensor, theta: Tensor, sigma: Tensor, aperture: float, derivative
 
 
 def _model(q: Tensor, xy: Tensor, values: Tensor, scale: Tensor, aperture: float) -> tuple[Tensor, Tensor]:
-    """The residuals (E, N) in noise units and their Jacobian (E, P, N) at parameters ``q`` (E, P);
+    """The residuals (E, N) in noise units and their Jacobian (E, 5, N) at parameters ``q`` (E, 5);
     ``scale``: 1 / noise at the samples, 0 at the padding. Theta moves d and the pixel's footprint
-    on the normal. P = 5, or 7 with a sharpening halo (:func:`halo_profile`)."""
-    c0, c1, t, theta, sigma = q[:, :5].T[..., None]
+    on the normal."""
+    c0, c1, t, theta, sigma = q.T[..., None]
     cos, sin = theta.cos(), theta.sin()
     x, y = xy.unbind(1)
-    d = x * cos + y * sin - t
-    if q.shape[1] == 5:
-        e, e_d, e_s, e_theta = profile(d, theta, sigma, aperture)
-        extra = []
-    else:
-        e, e_d, e_s, e_theta, e_a, e_w = halo_profile(d, theta, sigma, q[:, 5:6], q[:, 6:7], aperture)
-        extra = [c1 * scale * e_a, c1 * scale * e_w]
+    e, e_d, e_s, e_theta = profile(x * cos + y * sin - t, theta, sigma, aperture)
     c1_scale = c1 * scale
     jacobian = torch.stack([scale, e * scale, -c1_scale * e_d, c1_scale * (e_d * (y * cos - x * sin) + e_theta),
-                            c1_scale * e_s, *extra], 1)
+                            c1_scale * e_s], 1)
     return (e * c1 + c0 - values) * scale, jacobian
-
-
-def halo_profile(d: Tensor, theta: Tensor, sigma: Tensor, amount: Tensor, width: Tensor, aperture: float) -> Tensor:
-    """:func:`profile` of a step sharpened by an unsharp mask, and its derivatives.
-
-    ``(1 + amount) E(sigma) - amount E(sqrt(sigma^2 + width^2))``: the blurred step plus ``amount``
-    times its difference from the same step blurred further by a Gaussian of ``width`` (LR px), the
-    overshoot a camera's sharpening leaves on each side of an edge. ``sigma`` is then the edge's
-    blur before the sharpening.
-
-    Returns
-    -------
-    Tensor, shape (6,) + d's shape
-        The response, then its derivatives in ``d``, ``sigma``, ``theta`` (as :func:`profile`'s),
-        ``amount`` and ``width``.
-    """
-    wide = torch.sqrt(sigma * sigma + width * width)
-    near, far = profile(d, theta, sigma, aperture), profile(d, theta, wide, aperture)
-    keep = 1 + amount
-    e = keep * near[0] - amount * far[0]
-    return torch.stack([e, keep * near[1] - amount * far[1], keep * near[2] - amount * far[2] * (sigma / wide),
-                        keep * near[3] - amount * far[3], near[0] - far[0], -amount * far[2] * (width / wide)])
 
 
 def _cost(r: Tensor) -> Tensor:
@@ -159,9 +128,8 @@ def fit_edges(xy: Tensor, values: Tensor, valid: Tensor, start: Tensor, lower: T
         The samples' values.
     valid : Tensor, shape (E, N), bool
         Which samples are real (the rest pad the edges to N).
-    start, lower, upper : Tensor, shape (E, 5) or (E, 7), float64
-        The parameters (c0, c1, t, theta, sigma) to start from and their bounds (infinite: none);
-        with 7, a sharpening halo's amount and width follow (:func:`halo_profile`).
+    start, lower, upper : Tensor, shape (E, 5), float64
+        The parameters (c0, c1, t, theta, sigma) to start from and their bounds (infinite: none).
     noise : float
         The samples' noise standard deviation (values' units).
     aperture : float
@@ -169,7 +137,7 @@ def fit_edges(xy: Tensor, values: Tensor, valid: Tensor, start: Tensor, lower: T
 
     Returns
     -------
-    q : Tensor, shape (E, 5) or (E, 7)
+    q : Tensor, shape (E, 5)
         The fitted parameters.
     rms : Tensor, shape (E,)
         The RMS residual at ``q``, noise units.
@@ -178,9 +146,7 @@ def fit_edges(xy: Tensor, values: Tensor, valid: Tensor, start: Tensor, lower: T
         (infinite where the Jacobian is singular).
     """
     scale = valid / noise
-    count = start.shape[1]
-    eye = torch.eye(count, dtype=torch.float64)
-    tolerance = STEP_TOLERANCE * torch.tensor(SCALES[:count], dtype=torch.float64)
+    eye, tolerance = torch.eye(5, dtype=torch.float64), STEP_TOLERANCE * torch.tensor(SCALES, dtype=torch.float64)
     q = torch.maximum(torch.minimum(start, upper), lower)
     r, jac = _model(q, xy, values, scale, aperture)
     cost = _cost(r)

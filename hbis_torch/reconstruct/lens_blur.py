@@ -27,16 +27,6 @@ lens from its scene there, and undoing blur that is not the lens costs several d
 reason a group softer than :data:`FULL_TRUST` has only a share of its blur undone, none from
 :data:`MAX_TRUSTED` on (:func:`sigma_to_undo`).
 
-Photographs carry their camera's sharpening: an unsharp mask leaves an overshoot on each side of
-an edge, and the step model then reads the edge sharper than its blur (on the training
-photographs at their own scale at S = 2, most of the sharpest fits lay 0.05 to 0.15 LR px below a
-lens of 0.3 LR px, and the lens undone was 0.14 to 0.20). Every accepted edge is fitted again
-with a halo (:func:`~hbis_torch.reconstruct.edge_fit.halo_profile`: the blurred step plus an
-amount of its difference from the same step blurred further, of a width from
-:data:`HALO_WIDTH`), and where the halo explains the samples better by more than chance
-(:data:`HALO_MIN_GAIN`) its sigma, the blur under the sharpening, is the edge's. A halo only
-raises an edge's sigma back towards the blur it had before the sharpening.
-
 An edge is accepted when its window holds one straight edge (the structure tensor's coherence),
 its step stands :data:`MIN_CONTRAST_NOISE` times above the samples' noise, the fit explains the
 samples to within the noise (and a share of the step, for registration errors; a larger share
@@ -101,18 +91,6 @@ strays than that keeps a share of its weight, falling linearly to none at 2a str
 burst, so an all-or-nothing limit gives two nearly equal bursts answers a whole lens apart."""
 MAX_SIGMA = 3.0
 """The largest sigma (LR px) a fit may reach."""
-HALO_MIN_GAIN = 20.0
-"""An edge's sigma is read under a sharpening halo (the fit of
-:func:`~hbis_torch.reconstruct.edge_fit.halo_profile`) where the halo lowers the sum of its squared
-residuals (noise units) by more than this: for a plain edge the two parameters more lower it by
-about chi-square with 2 degrees of freedom, above 20 once in 20 000 edges."""
-HALO_START = (0.3, 1.0)
-"""The halo fit starts from the plain fit with this amount and width (LR px)."""
-HALO_WIDTH = (0.5, 3.0)
-"""The halo's width (LR px) between these: a narrower one cannot be told from a sharper lens (the
-difference of two nearly equal Gaussians is sigma's own derivative)."""
-MAX_HALO = 3.0
-"""The halo's largest amount."""
 SCENE_MARGIN = 0.1
 """Sigma (LR px) taken off the sharpest group's in quadrature before it is undone: even a scene's
 sharpest edges are a little soft, and undoing too much blur (ringing) costs far more than too
@@ -137,8 +115,7 @@ class LensEstimate(NamedTuple):
     0 where it is None); ``edges``: the accepted edges;
     ``edge_sigmas``: each accepted edge's sigma (LR px), sorted; ``tried``: the edges fitted;
     ``cluttered``: the edges were taken with the looser residual test
-    (:data:`CLUTTERED_RESIDUAL_STEP`), too few passing the usual one; ``halos``: how many of the
-    accepted edges carry a sharpening halo (their sigma measured under it, :data:`HALO_MIN_GAIN`).
+    (:data:`CLUTTERED_RESIDUAL_STEP`), too few passing the usual one.
     """
 
     sharpest: float | None
@@ -150,7 +127,6 @@ class LensEstimate(NamedTuple):
     agreement: float = 1.0
     below: int = 0
     cluttered: bool = False
-    halos: int = 0
 
     def describe(self) -> str:
         """One line for the user."""
@@ -165,8 +141,6 @@ class LensEstimate(NamedTuple):
                 return f"lens blur: {found}; none undone (set one with --psf-sigma)"
             return f"lens blur: {found}; undoing sigma {self.sigma:.2f} LR px (--psf-sigma sets it)"
         kind = "straight edges (beside other texture: too few clean ones)" if self.cluttered else "straight edges"
-        if self.halos:
-            kind += f", {self.halos} of them sharpened (read under their halo),"
         found = f"{self.group} of {self.edges} {kind} agree on sigma {self.sharpest:.2f} LR px"
         strays = stray_share(self.below, self.edges) < 1
         if self.agreement < 1 and not strays:
@@ -368,10 +342,8 @@ def _fit_edges(samples: list, thetas: list, noise: float, aperture: float) -> li
 
     ``samples``: each edge's (positions (N, 2) relative to its point, values (N,)), as
     :func:`_samples` gives them; ``thetas``: each edge's normal's angle (radians) to start from.
-    Returns, for each edge, (sigma, its standard error, c1, RMS residual in noise units, whether
-    sigma was read under a sharpening halo), or None where the edge has too few samples on a side
-    or its fit leaves the window's middle; all but sigma are the plain fit's (the tests judge the
-    edge by them: the halo fit's sigma is less pinned, its two parameters more trading with it)."""
+    Returns, for each edge, (sigma, its standard error, c1, RMS residual in noise units), or None
+    where the edge has too few samples on a side or its fit leaves the window's middle."""
     import torch
 
     from hbis_torch.reconstruct.edge_fit import fit_edges
@@ -402,28 +374,11 @@ def _fit_edges(samples: list, thetas: list, noise: float, aperture: float) -> li
     lower = torch.stack([-inf, -inf, -2 * ones, theta - 0.5, 0.02 * ones], 1)
     upper = torch.stack([inf, inf, 2 * ones, theta + 0.5, MAX_SIGMA * ones], 1)
     q, rms, error = fit_edges(xy, values, valid, start, lower, upper, noise, aperture)
-    fits = [(float(q[i, 4]), float(error[i]), float(q[i, 1]), float(rms[i]), False) for i in range(len(q))]
-    # the halo fit (a few plain fits' time an edge) only for the edges that pass the tests (the
-    # looser residual's): their plain fit says the window holds one clean edge; sigma is then read
-    # under the halo where it explains the samples better by more than chance
-    rows = [i for i in range(len(q)) if abs(float(q[i, 2])) <= 1.5 and _passes(fits[i], noise, CLUTTERED_RESIDUAL_STEP)]
-    if rows:
-        rows = torch.tensor(rows)
-        width = torch.full((len(rows), 1), HALO_START[1], dtype=torch.float64)
-        halo_q, halo_rms, _ = fit_edges(
-            xy[rows], values[rows], valid[rows], torch.cat([q[rows], torch.full_like(width, HALO_START[0]), width], 1),
-            torch.cat([lower[rows], torch.zeros_like(width), torch.full_like(width, HALO_WIDTH[0])], 1),
-            torch.cat([upper[rows], torch.full_like(width, MAX_HALO), torch.full_like(width, HALO_WIDTH[1])], 1),
-            noise, aperture)
-        # the sum of squared residuals (noise units) the halo explains beyond the plain fit
-        sharpened = (rms[rows] ** 2 - halo_rms**2) * valid[rows].sum(1) > HALO_MIN_GAIN
-        for k, i in enumerate(rows.tolist()):
-            if sharpened[k]:
-                fits[i] = (float(halo_q[k, 4]),) + fits[i][1:4] + (True,)
     out = []
     for f in fitted:
         # None where the edge left the window's middle: one side barely sampled
-        out.append(None if f is None or abs(float(q[f, 2])) > 1.5 else fits[f])
+        out.append(None if f is None or abs(float(q[f, 2])) > 1.5 else
+                   (float(q[f, 4]), float(error[f]), float(q[f, 1]), float(rms[f])))
     return out
 
 
@@ -467,39 +422,33 @@ def estimate_lens_sigma(frames, positions, weights, reference: int, noise: float
         xy, values = _samples(frames, positions, weights, x, y, theta)
         samples.append((xy, values.astype(np.float64)))
     fits = _fit_edges(samples, [theta for _, _, theta in points], noise, aperture)
-    (sigmas, halos), cluttered = _accepted(fits, noise, MAX_RESIDUAL_STEP), False
+    sigmas, cluttered = _accepted(fits, noise, MAX_RESIDUAL_STEP), False
     if len(sigmas) < MIN_EDGES:
         loose = _accepted(fits, noise, CLUTTERED_RESIDUAL_STEP)
-        if len(loose[0]) >= MIN_EDGES:
-            (sigmas, halos), cluttered = loose, True
+        if len(loose) >= MIN_EDGES:
+            sigmas, cluttered = loose, True
     found = sharpest_group(sigmas) if len(sigmas) >= MIN_EDGES else None
     if found is None:
         bound = bound_to_undo(sigmas) if len(sigmas) >= MIN_EDGES else 0.0
-        return LensEstimate(None, bound, 0, len(sigmas), sigmas, len(points), 0.0, cluttered=cluttered, halos=halos)
+        return LensEstimate(None, bound, 0, len(sigmas), sigmas, len(points), 0.0, cluttered=cluttered)
     sharpest, group, agreement, below = found
     return LensEstimate(sharpest, undone(sigmas, sharpest, agreement, below), group, len(sigmas), sigmas,
-                        len(points), agreement, below, cluttered, halos)
+                        len(points), agreement, below, cluttered)
 
 
-def _accepted(fits: list, noise: float, residual_step: float) -> tuple[np.ndarray, int]:
+def _accepted(fits: list, noise: float, residual_step: float) -> np.ndarray:
     """The sigmas (sorted, LR px) of the :func:`_fit_edges` ``fits`` that pass the module
-    docstring's tests, with ``residual_step`` the share of the step the residual may add, and how
-    many of them were measured under a sharpening halo."""
-    sigmas, halos = [], 0
+    docstring's tests, with ``residual_step`` the share of the step the residual may add."""
+    sigmas = []
     for fit in fits:
-        if fit is not None and _passes(fit, noise, residual_step):
-            sigmas.append(fit[0])
-            halos += len(fit) > 4 and fit[4]
-    return np.sort(np.array(sigmas)), halos
-
-
-def _passes(fit: tuple, noise: float, residual_step: float) -> bool:
-    """Whether an edge's plain fit (sigma, its standard error, c1, RMS residual in noise units)
-    passes the module docstring's tests, the residual allowed ``residual_step`` of the step."""
-    _, error, c1, rms = fit[:4]
-    contrast = abs(c1) / noise
-    return (error < MAX_SIGMA_ERROR and contrast > MIN_CONTRAST_NOISE
-            and rms < MAX_RESIDUAL_NOISE + residual_step * contrast)
+        if fit is None:
+            continue
+        s, error, c1, rms = fit
+        contrast = abs(c1) / noise
+        if error < MAX_SIGMA_ERROR and contrast > MIN_CONTRAST_NOISE and \
+                rms < MAX_RESIDUAL_NOISE + residual_step * contrast:
+            sigmas.append(s)
+    return np.sort(np.array(sigmas))
 
 
 def undone(sigmas: np.ndarray, sharpest: float, agreement: float, below: int) -> float:
