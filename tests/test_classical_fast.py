@@ -60,26 +60,27 @@ def _filter_by_definition(model, shifts, s2, beta, noise2, strength):
     num = torch.zeros((len(rows), len(cols)), dtype=torch.complex128)
     den = torch.zeros((len(rows), len(cols)), dtype=torch.float64)
     for kx, ky in shifts:
-        prior, k_mag, w = (t.double() for t in model.terms(kx, ky, rows, cols, s2, beta))
+        prior, k_mag, w, k2 = (t.double() for t in model.terms(kx, ky, rows, cols, s2, beta))
         gx, gy = model.fx.double()[None, :] + kx, model.fy.double()[:, None] + ky
         phase = torch.exp(-2j * math.pi * (gx * model.offset[0] + gy * model.offset[1]))
         num += prior * k_mag * w * phase
-        den += prior * k_mag * k_mag
+        den += prior * k2  # abs(K)^2, the lens's square averaged over its spread
     return num / (den + strength * noise2)
 
 
-@pytest.mark.parametrize("rows, cols, h, tolerance", [
-    (24, 32, 3, 1e-5),  # every frequency evaluated; an even row count: fy = -1/2 too
-    (25, 32, 3, 1e-5),  # odd
-    (1024, 768, 2, 3e-4),  # the aliases on every 3rd frequency (768 / 2 / ALIAS_SAMPLES = 128): 8.7e-5
+@pytest.mark.parametrize("rows, cols, h, tolerance, lens", [
+    (24, 32, 3, 1e-5, 0.0),  # every frequency evaluated; an even row count: fy = -1/2 too
+    (25, 32, 3, 1e-5, 0.0),  # odd
+    (24, 32, 3, 1e-5, 0.4),  # a lens, its transfer and its square averaged over LENS_SPREAD
+    (1024, 768, 2, 3e-4, 0.0),  # the aliases on every 3rd frequency (768 / 2 / ALIAS_SAMPLES = 128): 8.7e-5
 ])
-def test_the_filter_by_blocks_and_coarse_aliases_matches_its_definition(rows, cols, h, tolerance):
+def test_the_filter_by_blocks_and_coarse_aliases_matches_its_definition(rows, cols, h, tolerance, lens):
     """_apply_filter (blocks of rows filtered with their mirrors, the aliases' sums interpolated
     from a coarse grid) against the filter computed at every frequency from its definition; an
     offset that is not half a pixel, so that the aliases' phases differ between fy and -fy."""
     fy = torch.fft.fftfreq(rows, dtype=torch.float64).to(torch.float32)
     fx = torch.fft.rfftfreq(cols, dtype=torch.float64).to(torch.float32)
-    model = _Model(fx, fy, h, 0.9, 1.5, (0.2, -0.35), 1e-4)
+    model = _Model(fx, fy, h, 0.9, 1.5, (0.2, -0.35), 1e-4, lens)
     shifts = [(kx, ky) for ky in (-1, 0, 1) for kx in (-1, 0, 1)]
     terms = (shifts, 1e-4, 2.0, 1e-5, 2.0)
     spectrum = torch.ones((rows, len(fx)), dtype=torch.complex64)
