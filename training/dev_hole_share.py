@@ -57,44 +57,58 @@ def burst_and_score(renderer: str, kind: str, scale: int, frames: int, seed: int
     return burst, lambda image: psnr(image, truth, 4, scale)
 
 
-def run_burst(renderer: str, kind: str, scale: int, frames: int, seed: int, shares, lenses) -> dict:
-    """One burst's PSNR for every share and lens, ``"{lens}|{share}"`` -> dB."""
-    import hbis_torch.reconstruct.classical.lattice_fit as lattice_fit
+def sweep_burst(renderer: str, kind: str, scale: int, frames: int, seed: int, module, name: str, values,
+                lenses) -> dict:
+    """One burst's PSNR with ``module.name`` set to each of ``values`` and each lens,
+    ``"{lens}|{value:g}"`` -> dB (the setting restored after)."""
     from hbis_torch.capture.burst import assemble_burst
     from hbis_torch.reconstruct import reconstruct
 
     burst, score = burst_and_score(renderer, kind, scale, frames, seed)
     stack, _ = assemble_burst(burst, scale)
-    default, out = lattice_fit.HOLE_SHARE, {}
+    default, out = getattr(module, name), {}
     try:
         for lens in lenses:
-            for share in shares:
-                lattice_fit.HOLE_SHARE = share
+            for value in values:
+                setattr(module, name, value)
                 options = {} if lens == "est" else {"lens_sigma": float(lens)}
-                out[f"{lens}|{share:g}"] = score(reconstruct(stack, "classical", **options))
+                out[f"{lens}|{value:g}"] = score(reconstruct(stack, "classical", **options))
     finally:
-        lattice_fit.HOLE_SHARE = default
+        setattr(module, name, default)
     return out
+
+
+def sweep_summary(cells: dict, values, lenses, baseline: float, label: str) -> dict:
+    """Per renderer and lens, each value's difference from ``baseline``'s: ``minus_{label}_mean_db``,
+    ``_worst_db``, ``_best_db`` and the bursts counted."""
+    out = {}
+    for renderer in sorted({key.split("|")[0] for key in cells}):
+        rows = [c for key, c in cells.items() if key.split("|")[0] == renderer]
+        for lens in lenses:
+            base = [c[f"{lens}|{baseline:g}"] for c in rows]
+            for value in values:
+                if value == baseline:
+                    continue
+                gains = np.array([c[f"{lens}|{value:g}"] for c in rows]) - base
+                out[f"{renderer}|{lens}|{value:g}"] = {f"minus_{label}_mean_db": float(gains.mean()),
+                                                       f"minus_{label}_worst_db": float(gains.min()),
+                                                       f"minus_{label}_best_db": float(gains.max()),
+                                                       "bursts": len(rows)}
+    return out
+
+
+def run_burst(renderer: str, kind: str, scale: int, frames: int, seed: int, shares, lenses) -> dict:
+    """One burst's PSNR for every share and lens, ``"{lens}|{share}"`` -> dB."""
+    import hbis_torch.reconstruct.classical.lattice_fit as lattice_fit
+
+    return sweep_burst(renderer, kind, scale, frames, seed, lattice_fit, "HOLE_SHARE", shares, lenses)
 
 
 def summary(cells: dict, shares, lenses) -> dict:
     """Per renderer and lens, each share's difference from the default share: mean, worst, best (dB)."""
     from hbis_torch.reconstruct.classical.lattice_fit import HOLE_SHARE
 
-    out = {}
-    for renderer in sorted({key.split("|")[0] for key in cells}):
-        rows = [c for key, c in cells.items() if key.split("|")[0] == renderer]
-        for lens in lenses:
-            base = [c[f"{lens}|{HOLE_SHARE:g}"] for c in rows]
-            for share in shares:
-                if share == HOLE_SHARE:
-                    continue
-                gains = np.array([c[f"{lens}|{share:g}"] for c in rows]) - base
-                out[f"{renderer}|{lens}|{share:g}"] = {"minus_default_mean_db": float(gains.mean()),
-                                                       "minus_default_worst_db": float(gains.min()),
-                                                       "minus_default_best_db": float(gains.max()),
-                                                       "bursts": len(rows)}
-    return out
+    return sweep_summary(cells, shares, lenses, HOLE_SHARE, "default")
 
 
 def main(argv=None) -> int:

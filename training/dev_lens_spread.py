@@ -23,46 +23,19 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-from dev_hole_share import BURSTS, burst_and_score
+from dev_hole_share import BURSTS, sweep_burst, sweep_summary
 
 
 def run_burst(renderer: str, kind: str, scale: int, frames: int, seed: int, spreads, lenses) -> dict:
     """One burst's PSNR for every spread and lens, ``"{lens}|{spread}"`` -> dB."""
     import hbis_torch.reconstruct.classical.wiener as wiener
-    from hbis_torch.capture.burst import assemble_burst
-    from hbis_torch.reconstruct import reconstruct
 
-    burst, score = burst_and_score(renderer, kind, scale, frames, seed)
-    stack, _ = assemble_burst(burst, scale)
-    default, out = wiener.LENS_SPREAD, {}
-    try:
-        for lens in lenses:
-            for spread in spreads:
-                wiener.LENS_SPREAD = spread
-                options = {} if lens == "est" else {"lens_sigma": float(lens)}
-                out[f"{lens}|{spread:g}"] = score(reconstruct(stack, "classical", **options))
-    finally:
-        wiener.LENS_SPREAD = default
-    return out
+    return sweep_burst(renderer, kind, scale, frames, seed, wiener, "LENS_SPREAD", spreads, lenses)
 
 
 def summary(cells: dict, spreads, lenses) -> dict:
     """Per renderer and lens, each spread's difference from none: mean, worst, best (dB)."""
-    out = {}
-    for renderer in sorted({key.split("|")[0] for key in cells}):
-        rows = [c for key, c in cells.items() if key.split("|")[0] == renderer]
-        for lens in lenses:
-            base = [c[f"{lens}|0"] for c in rows]
-            for spread in spreads:
-                if spread == 0:
-                    continue
-                gains = np.array([c[f"{lens}|{spread:g}"] for c in rows]) - base
-                out[f"{renderer}|{lens}|{spread:g}"] = {"minus_none_mean_db": float(gains.mean()),
-                                                        "minus_none_worst_db": float(gains.min()),
-                                                        "minus_none_best_db": float(gains.max()),
-                                                        "bursts": len(rows)}
-    return out
+    return sweep_summary(cells, spreads, lenses, 0.0, "none")
 
 
 def main(argv=None) -> int:
