@@ -1,5 +1,5 @@
 """The deblurring's lens spread: the Wiener filter is the MMSE one over a lens blur whose variance
-is known to a share (``wiener.LENS_SPREAD``), so a lens undone too large over-sharpens less."""
+is known to a share (``transfer.LENS_SPREAD``), so a lens undone too large over-sharpens less."""
 
 import math
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-import hbis_torch.reconstruct.classical.wiener as wiener
+import hbis_torch.reconstruct.classical.transfer as transfer
 from hbis_torch.capture.burst import assemble_burst
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.simulate.burst import random_motions, simulate_burst
@@ -18,7 +18,7 @@ from hbis_torch.training.burst_data import truth_raster
 def test_the_lens_transfer_s_moments_are_the_mean_over_the_spread(spread):
     r2 = torch.tensor([0.0, 1e-6, 0.01, 0.1, 0.5, 2.0], dtype=torch.float64)
     sigma = 0.8
-    mean, square = wiener.lens_transfer(r2, sigma, spread)
+    mean, square = transfer.lens_transfer(r2, sigma, spread)
     # sigma^2 uniform over (1 -+ spread) sigma^2: the midpoint rule on a fine grid
     t = (torch.arange(20000, dtype=torch.float64) + 0.5) / 20000
     variance = sigma**2 * (1 - spread + 2 * spread * t)
@@ -29,7 +29,7 @@ def test_the_lens_transfer_s_moments_are_the_mean_over_the_spread(spread):
 
 def test_the_lens_transfer_in_float32_is_float64_s():
     r2 = torch.linspace(0, 3, 101, dtype=torch.float64)
-    for got, want in zip(wiener.lens_transfer(r2.float(), 0.6, 0.5), wiener.lens_transfer(r2, 0.6, 0.5)):
+    for got, want in zip(transfer.lens_transfer(r2.float(), 0.6, 0.5), transfer.lens_transfer(r2, 0.6, 0.5)):
         assert got.dtype == torch.float32
         torch.testing.assert_close(got.double(), want, rtol=2e-6, atol=1e-9)
 
@@ -57,6 +57,6 @@ def _error(image, truth) -> float:
 def test_the_spread_over_sharpens_less_and_costs_little_at_the_truth(monkeypatch, burst, lens, most):
     stack, truth = burst
     with_spread = _error(reconstruct(stack, "classical", lens_sigma=lens), truth)
-    monkeypatch.setattr(wiener, "LENS_SPREAD", 0.0)
+    monkeypatch.setattr(transfer, "LENS_SPREAD", 0.0)
     without = _error(reconstruct(stack, "classical", lens_sigma=lens), truth)
     assert with_spread < most * without, (with_spread, without)

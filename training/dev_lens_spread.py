@@ -1,6 +1,6 @@
 """Development matrix for the deblurring's lens spread (issue 49): the Wiener filter made the MMSE
 one over a lens blur whose variance is uncertain by a share
-(:data:`hbis_torch.reconstruct.classical.wiener.LENS_SPREAD`), with the lens undone at its
+(:data:`hbis_torch.reconstruct.classical.transfer.LENS_SPREAD`), with the lens undone at its
 estimate, at the truth and over-estimated.
 
     python training/dev_lens_spread.py --out benchmarks/results/dev_lens_spread.json
@@ -28,9 +28,9 @@ from dev_hole_share import BURSTS, sweep_burst, sweep_summary
 
 def run_burst(renderer: str, kind: str, scale: int, frames: int, seed: int, spreads, lenses) -> dict:
     """One burst's PSNR for every spread and lens, ``"{lens}|{spread}"`` -> dB."""
-    import hbis_torch.reconstruct.classical.wiener as wiener
+    import hbis_torch.reconstruct.classical.transfer as transfer
 
-    return sweep_burst(renderer, kind, scale, frames, seed, wiener, "LENS_SPREAD", spreads, lenses)
+    return sweep_burst(renderer, kind, scale, frames, seed, transfer, "LENS_SPREAD", spreads, lenses)
 
 
 def summary(cells: dict, spreads, lenses) -> dict:

@@ -21,6 +21,7 @@ from hbis_torch.reconstruct.classical.periodic import (
     shift_image,
     smooth_spectrum,
 )
+from hbis_torch.reconstruct.classical import transfer
 from hbis_torch.reconstruct.classical.transfer import box, diffraction_otf, gaussian_transfer, splat_transfer
 
 # The deblurring never trusts the data more than this noise level (intensity units, [0, 1], for
@@ -44,39 +45,6 @@ IN_PLACE_FFT_SIZE = 2 ** 20
 # largest value (tests/test_classical_fast.py), the full frame's image at h = 4 by 3e-7.
 ALIAS_SAMPLES = 128
 
-# The lens blur's relative spread: its variance is taken as uniform over (1 -+ LENS_SPREAD) times
-# the square of the sigma given (a burst's estimate or --psf-sigma), and the filter is the MMSE one
-# over that spread (:func:`lens_transfer`: E[g] where the filter has the lens's transfer g, E[g^2]
-# where it has g^2). Undoing a lens larger than the true one multiplies the scene's detail by their
-# transfers' ratio, which grows without bound with the frequency: 40 % too large (0.42 LR px for
-# 0.3) had cost up to 3.5 dB there; the spread caps the gain where the lens is uncertain. Chosen on
-# development bursts (training/dev_lens_spread.py: the training simulator's five of seed 1 and the
-# third renderer's five with the training photographs of seed 12, 640 x 480, S = 2 to 4): the
-# largest of 0.3 / 0.6 / 0.9 that cost no burst more than 0.1 dB with the burst's own estimate or
-# with the true lens (0.6: at most 0.05 and 0.08 dB; 0.9: 0.12 and 0.20), where it gains +0.49 to
-# +1.19 dB with the lens 40 % too large (benchmarks/results/dev_lens_spread_sim.json, _third.json).
-LENS_SPREAD = 0.6
-
-
-def lens_transfer(r2: Tensor, sigma: float, spread: float) -> tuple[Tensor, Tensor]:
-    """The mean Gaussian lens transfer and the mean of its square, E[g] and E[g^2], at squared
-    frequencies ``r2`` (cycles^2 per px^2) where g = exp(-2 pi^2 s^2 r2) and s^2 is uniform over
-    (1 -+ ``spread``) ``sigma``^2 (px): with a = 2 pi^2 sigma^2 r2,
-    E[g] = exp(-a (1 - spread)) (1 - exp(-2 a spread)) / (2 a spread), E[g^2] the same at 2 a.
-    ``spread`` 0: g and g^2 of ``sigma`` itself."""
-    a = r2 * (2 * math.pi ** 2 * sigma * sigma)
-    if spread <= 0:
-        g = torch.exp(-a)
-        return g, g * g
-
-    def mean(a: Tensor) -> Tensor:
-        x = a * (2 * spread)
-        share = torch.where(x > 1e-6, -torch.expm1(-x) / x.clamp_min(1e-6), 1 - 0.5 * x)
-        return torch.exp(-a * (1 - spread)) * share
-
-    return mean(a), mean(2 * a)
-
-
 def wiener_deblur(
     image: Tensor, h: int, offset: tuple[float, float], kernel_sigma: float, noise: float,
     aperture: float = 1.0, cutoff: float | None = None, strength: float = 1.0, aliases: int = 1,
@@ -94,9 +62,8 @@ def wiener_deblur(
 
     (a = ``aperture``, t = ``target_aperture``), where k runs over the integer aliases (abs(k) <= ``aliases`` per axis).
     ``lens`` is a Gaussian blur beyond the diffraction of ``optics`` (a burst's lens, measured
-    or given: ``lens_sigma``); it is in the kernel only, so the estimate undoes it. Its variance
-    is known to :data:`LENS_SPREAD`: the filter below takes the mean of ``lens`` where it has K
-    and the mean of its square where it has abs(K)^2 (the MMSE filter over that spread).
+    or given: ``lens_sigma``), in the kernel only, so the estimate undoes it; known to a spread
+    (:func:`~.transfer.lens_transfer`): its mean where K has it, its square's mean in abs(K)^2.
     **Prior:** the scene's power spectrum is s^2 / abs(f)^2 (independent Gaussian gradients, the
     1/f^2 law of natural images). The MMSE filter is then, per frequency::
 
@@ -418,13 +385,14 @@ class _Model(NamedTuple):
 
     def terms(self, kx: int, ky: int, rows: Tensor, cols: Tensor, s2: float, beta: float):
         """The prior P = s2 abs(f + k)^-beta, abs(K), W and abs(K)^2 of alias (kx, ky) at rows x cols:
-        the lens's transfer in abs(K) is its mean over :data:`LENS_SPREAD`, in abs(K)^2 its square's
-        (:func:`lens_transfer`)."""
+        the lens's transfer in abs(K) is its mean over :data:`~.transfer.LENS_SPREAD`, in abs(K)^2 its
+        square's (:func:`~.transfer.lens_transfer`)."""
         gx, gy = self.fx[cols][None, :] + kx, self.fy[rows][:, None] + ky
         r2 = (gx * gx + self.eps2) + gy * gy
         optics = (torch.ones_like(r2) if self.cutoff is None
                   else diffraction_otf(torch.sqrt(r2).mul_(self.h / self.cutoff)))
-        lens = lens_transfer(r2, self.lens_sigma * self.h, LENS_SPREAD) if self.lens_sigma > 0 else None
+        lens = (transfer.lens_transfer(r2, self.lens_sigma * self.h, transfer.LENS_SPREAD)
+                if self.lens_sigma > 0 else None)
         prior = r2.log_().mul_(-0.5 * beta).exp_().mul_(s2)  # pow's a quarter of the time
         k_mag = optics * (box(gx, self.h * self.aperture) * box(gy, self.h * self.aperture))
         k2 = k_mag * k_mag
