@@ -12,13 +12,16 @@ def run(*args):
     return subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=300)
 
 
-def test_bad_variants_and_existing_out_are_refused_before_any_work(tmp_path):
+def test_bad_variants_and_existing_out_are_refused_before_any_work(tmp_path, load_script, capsys):
+    """In this process (a process of the script pays its imports, seconds each), then one process
+    for the exit code."""
+    script = load_script("training/variants_ab.py")
     out = tmp_path / "ab.json"
     for variants in ("a:wide:4:0", "a:32:4", "a:32:4:yes", "a:32:4:0:dense", "a:32:4:0:ir:1"):
-        bad = run("--variants", variants, "--out", str(out))
-        assert bad.returncode == 2 and "name:width:blocks:blur" in bad.stderr and not out.exists(), variants
-    clash = run("--variants", "s:32:4:0", "--out", str(out))
-    assert clash.returncode == 2 and "'s'" in clash.stderr
+        assert script.main(["--variants", variants, "--out", str(out)]) == 2, variants
+        assert "name:width:blocks:blur" in capsys.readouterr().err and not out.exists(), variants
+    assert script.main(["--variants", "s:32:4:0", "--out", str(out)]) == 2
+    assert "'s'" in capsys.readouterr().err
     out.write_text("kept")
     exists = run("--out", str(out))
     assert exists.returncode == 2 and "exists" in exists.stderr and out.read_text() == "kept"
