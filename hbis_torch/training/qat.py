@@ -36,7 +36,6 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from hbis_torch.training.net import HbisSRNet, depth_to_space
-from hbis_torch.training.onnx_rewrite import SPLIT_HEAD_ADD
 
 PERCENTILE = 99.999  # as CALIBRATION_METHOD "percentile" of hbis_torch.training.quantize
 METADATA_KEY = "quantization_ranges"  # the float file's metadata entry: JSON of tensor name -> [rmin, rmax]
@@ -179,6 +178,7 @@ def onnx_tensor_ranges(model, ranges: dict) -> dict[str, tuple[float, float]]:
     ValueError
         A rounded tensor not found in the graph.
     """
+    from hbis_torch.training.onnx_rewrite import SPLIT_HEAD_ADD  # onnx, a second and a half to import: only here
     producer_of = {}  # our name -> ONNX tensor
     conv_out = {}  # ONNX tensor -> our name of the convolution
     for node in model.graph.node:

@@ -50,7 +50,6 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.io_utils import atomic_path
 from hbis_torch.reconstruct.learned.runtime import check_model, int8_path
 from hbis_torch.training import qat
-from hbis_torch.training.onnx_rewrite import SPLIT_HEAD_ADD
 
 CALIBRATION_SEED = 31_000  # a pool seed of its own: neither training's (0, 1) nor the tests'
 CALIBRATION_COUNT = 48  # pool examples
@@ -95,6 +94,8 @@ def float_nodes(model) -> list[str]:
     * The ``Add`` that takes the graph input ``base`` directly (the residual sum of the input and
       the correction) and every node after it.
     """
+    from hbis_torch.training.onnx_rewrite import SPLIT_HEAD_ADD  # onnx, a second and a half to import: only here
+
     graph = model.graph
     keep, after = [], set()
     head_seen = False
