@@ -35,7 +35,7 @@ STAGES = (
     ("assemble", "local shifts", "registration/local.py", "local_offsets"),
     ("assemble", "brightness fit", "capture/brightness.py", "fit_gain_offset"),
     ("classical", "robustness weights (and positions)", "reconstruct/burst.py", "robustness_weights"),
-    ("classical", "lens estimate", "reconstruct/lens_blur.py", "burst_lens_sigma"),
+    ("classical", "lens estimate", "reconstruct/lens_blur.py", "burst_lens"),
     ("classical", "splat", "reconstruct/classical/splat.py", "splat_on_lattice"),
     ("classical", "lattice fit of the holes", "reconstruct/classical/lattice_fit.py", "fill_holes_from_samples"),
     ("classical", "Wiener deblurring", "reconstruct/classical/wiener.py", "wiener_deblur"),

@@ -84,6 +84,16 @@ def test_the_forward_models_lens_moves_from_validates_towards_the_lens_undone(mo
     assert adapt.forward_blur(0.6) == 0.6 and adapt.forward_blur(0.1) == adapt.BLUR_PX
 
 
+def test_the_lens_estimates_doubt_moves_the_forward_model_towards_the_lens_undone():
+    """Where the classical image kept some of the edges' blur (the estimate's doubt), the
+    adaptation's forward model blurs by the lens undone, not validate's lens; no doubt changes
+    nothing, to the bit."""
+    assert adapt.forward_blur(0.45, 0.0) == adapt.forward_blur(0.45) == adapt.BLUR_PX
+    assert adapt.forward_blur(0.45, 1.0) == 0.45 and adapt.forward_blur(0.1, 1.0) == adapt.BLUR_PX
+    assert adapt.forward_blur(0.45, 0.5) == pytest.approx((0.45 + adapt.BLUR_PX) / 2)
+    assert adapt.forward_blur(0.45, 3.0) == 0.45  # (a weight of at most 1)
+
+
 @pytest.mark.parametrize("which", ["camera", "astronaut"])
 def test_adapting_through_the_lens_undone_does_not_teach_the_network_to_blur(monkeypatch, which):
     """A lens of 0.6 LR px, undone by the classical image. Through validate's 0.2 LR px alone the
@@ -317,3 +327,31 @@ def test_the_folds_undo_the_lens_the_classical_image_undoes(monkeypatch):
     reconstruct(stack, "learned", lens_sigma=0.4)
     reconstruct(stack, "learned")  # 'auto': the burst's own estimate, a number, and a new adaptation
     assert seen[0] == 0.4 and len(seen) == 2 and isinstance(seen[1], float)
+
+
+def test_the_adaptation_is_handed_the_lens_estimates_doubt(monkeypatch):
+    """The estimate's doubt reaches the adaptation where the lens is measured (here made sure by
+    an estimate whose sharpest edges lie above FULL_TRUST), none where it is given (--psf-sigma),
+    and the learned method says what its forward model blurred by."""
+    from hbis_torch.reconstruct import lens_blur
+
+    stack, _ = _stack(size=24)
+    seen = []
+    real_adapt, real_estimate = adapt.adapt_refiner, lens_blur.burst_lens_estimate
+
+    def spy(*args, **kw):
+        seen.append(kw["lens_doubt"])
+        return real_adapt(*args, **kw)
+
+    def soft(*args):
+        return real_estimate(*args)._replace(sharpest=lens_blur.FULL_TRUST + lens_blur.DOUBT_RAMP, sigma=0.45)
+
+    monkeypatch.setattr(adapt, "adapt_refiner", spy)
+    monkeypatch.setattr(lens_blur, "burst_lens_estimate", soft)
+    learned._last.clear()
+    reconstruct(stack, "learned", lens_sigma=0.45)
+    notes: list = []
+    reconstruct(stack, "learned", messages=notes)
+    learned._last.clear()
+    assert seen == [0.0, 1.0], seen
+    assert any("forward model blurred by 0.45 LR px" in n for n in notes), notes

@@ -10,9 +10,9 @@ from hbis_torch.capture.burst import assemble_burst
 from hbis_torch.cli import main
 from hbis_torch.reconstruct.burst import burst_samples
 from hbis_torch.reconstruct.classical.burst import burst_sample_noise
-from hbis_torch.reconstruct.lens_blur import (FULL_TRUST, GROUP_WIDTH, LOOSE_WIDTH, MAX_TRUSTED, SCENE_MARGIN,
-                                              bound_to_undo, edge_profile, estimate_lens_sigma, sharpest_group,
-                                              sigma_to_undo, stray_share)
+from hbis_torch.reconstruct.lens_blur import (DOUBT_RAMP, FULL_TRUST, GROUP_WIDTH, LOOSE_WIDTH, MAX_TRUSTED,
+                                              SCENE_MARGIN, LensEstimate, bound_to_undo, edge_profile,
+                                              estimate_lens_sigma, sharpest_group, sigma_to_undo, stray_share)
 from hbis_torch.reconstruct.registry import reconstruct
 from hbis_torch.simulate.burst import random_motions, simulate_burst
 from hbis_torch.training.burst_data import truth_raster
@@ -126,6 +126,17 @@ def test_soft_edges_have_a_share_of_their_blur_undone_falling_to_none():
     grid = np.linspace(FULL_TRUST, MAX_TRUSTED, 301)
     undone = np.array([sigma_to_undo(float(s)) for s in grid])
     assert np.all(np.diff(undone) <= 1e-12) and np.max(np.abs(np.diff(undone))) < 0.01
+
+
+def test_the_estimates_doubt_rises_from_full_trust_over_its_ramp():
+    """0 while the sharpest edges are taken for the lens (or none agree), 1 once they lie a ramp
+    above FULL_TRUST, linear and continuous between."""
+    def doubt(sharpest):
+        return LensEstimate(sharpest, 0.3, 10, 40, np.zeros(40), 60).doubt
+
+    assert doubt(None) == 0 and doubt(0.3) == 0 and doubt(FULL_TRUST) == 0
+    assert doubt(FULL_TRUST + DOUBT_RAMP / 2) == pytest.approx(0.5)
+    assert doubt(FULL_TRUST + DOUBT_RAMP) == 1 and doubt(MAX_TRUSTED) == 1
 
 
 def test_reconstruct_measures_the_lens_by_default_and_says_so():

@@ -2,7 +2,7 @@
 
     python training/adapt_dev.py --out benchmarks/results/adapt_dev.json
         [--generators sim cam] [--seeds 0 1 2 3] [--size 640x480] [--frames 16] [--scale 2]
-        [--variants 30:1e-3 40:1e-3 30:1e-3:2] [--lens 0.6] [--scene-blur 0.3] [--lens-weights 0 1]
+        [--variants 30:1e-3 40:1e-3 30:1e-3:2] [--lens 0.6] [--scene-blur 0.3] [--lens-weights 0 1] [--doubt]
 
 Never the held-out renderer (:mod:`hbis_torch.training.handheld_render`) nor its photographs:
 the scenes are the training photographs (:data:`hbis_torch.training.data.TRAIN_PHOTOS`) in a
@@ -26,7 +26,9 @@ and the network adapted with each variant (``STEPS:LEARNING_RATE[:PATIENCE]`` of
 ``--lens`` fixes both cameras' lens, ``--scene-blur`` blurs the scene itself (a soft scene, whose
 softness the lens estimate reads as lens), and ``--lens-weights`` tries each variant with each
 :data:`~hbis_torch.reconstruct.learned.adapt.LENS_WEIGHT` (how far the adaptation's forward
-model blurs by the lens the classical image undid).
+model blurs by the lens the classical image undid); ``--doubt`` also hands it the lens estimate's
+doubt, as the learned method does (:attr:`~hbis_torch.reconstruct.lens_blur.LensEstimate.doubt`:
+the weight is then at least the doubt).
 """
 
 from __future__ import annotations
@@ -140,7 +142,7 @@ def run_burst(generator: str, seed: int, args) -> dict:
     from hbis_torch.reconstruct.burst import burst_samples
     from hbis_torch.reconstruct.classical.burst import burst_sr
     from hbis_torch.reconstruct.learned import adapt
-    from hbis_torch.reconstruct.lens_blur import burst_lens_sigma
+    from hbis_torch.reconstruct.lens_blur import burst_lens
     from hbis_torch.reconstruct.learned.inputs import estimate_noise_params
     from hbis_torch.reconstruct.learned.runtime import shipped_model_path
 
@@ -151,7 +153,8 @@ def run_burst(generator: str, seed: int, args) -> dict:
     f, positions, _, weights = burst_samples(stack)
     noise = estimate_noise_params(f.numpy())
     # the lens blur the classical method measures and undoes, as the learned method's classical step
-    lens_sigma = burst_lens_sigma(f, positions, weights, stack.reference_index, [])
+    estimate = burst_lens(f, positions, weights, stack.reference_index)
+    lens_sigma, lens_doubt = estimate.sigma, estimate.doubt if args.doubt else 0.0
     classical = functools.partial(burst_sr, lens_sigma=lens_sigma)
     b = 4 * scale  # 4 LR px
 
@@ -161,7 +164,9 @@ def run_burst(generator: str, seed: int, args) -> dict:
 
     t = time.perf_counter()
     image = classical(f, positions, scale, weights).numpy()
-    out = {"generator": generator, "seed": seed, "lens_undone": round(lens_sigma, 3), "classical_db": score(image),
+    out = {"generator": generator, "seed": seed, "lens_undone": round(lens_sigma, 3),
+           "lens_sharpest": None if estimate.sharpest is None else round(estimate.sharpest, 3),
+           "lens_doubt": round(lens_doubt, 3), "classical_db": score(image),
            "classical_s": round(time.perf_counter() - t, 3)}
     net = adapt.load_refiner(shipped_model_path(scale).with_suffix(".pt"))
     t = time.perf_counter()
@@ -174,7 +179,7 @@ def run_burst(generator: str, seed: int, args) -> dict:
         try:
             done = adapt.adapt_refiner(net, f, positions, weights, scale, noise, stack.reference_index, classical,
                                        steps=int(steps), patience=int(patience[0]) if patience else None,
-                                       lens_sigma=lens_sigma)
+                                       lens_sigma=lens_sigma, lens_doubt=lens_doubt)
         finally:
             adapt.LEARNING_RATE, adapt.LENS_WEIGHT = shipped
         out[_key(variant, weight, args)] = {"db": score(adapt.refine(done.net, image, scale, noise)),
@@ -209,6 +214,10 @@ def main(argv=None) -> int:
     p.add_argument("--lens-weights", nargs="+", type=float,
                    help="adapt.LENS_WEIGHT values to try with each variant (default: the shipped one; 0: the "
                         "forward model blurs by adapt.BLUR_PX alone, the default; 1: by the lens undone)")
+    p.add_argument("--doubt", action="store_true",
+                   help="hand the adaptation the lens estimate's doubt, as the learned method does (its forward "
+                        "model then blurs towards the lens undone where the sharpest edges are too soft for all of "
+                        "their blur to be undone); without it, only --lens-weights decides, as before the doubt existed")
     args = p.parse_args(argv)
     try:
         args.width, args.height = (int(v) for v in args.size.lower().split("x"))
@@ -246,7 +255,7 @@ def main(argv=None) -> int:
                       "seconds_over_classical_mean": float(np.mean([r[v]["seconds"] / r["classical_s"] for r in rows]))}
     write_results(args.out, {"settings": {k: getattr(args, k) for k in ("generators", "seeds", "size", "frames",
                                                                           "scale", "variants", "lens", "scene_blur",
-                                                                          "lens_weights")},
+                                                                          "lens_weights", "doubt")},
                              "rows": rows, "summary": summary}, argv=argv)
     print(summary)
     return 0

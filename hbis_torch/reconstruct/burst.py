@@ -48,7 +48,7 @@ from hbis_torch.errors import HbisInputError
 from hbis_torch.notices import act
 from hbis_torch.reconstruct.burst_fill import RUN_FILL, Tally, report_still, report_unfilled, tally_frames
 from hbis_torch.reconstruct.burst_fill import coverage, scale_to_run  # noqa: F401 (this module's API too)
-from hbis_torch.reconstruct.lens_blur import burst_lens_sigma
+from hbis_torch.reconstruct.lens_blur import burst_lens
 from hbis_torch.reconstruct.single_frame import enlarge, single_frame
 from hbis_torch.registration.threaded_sample import grid_sample_threaded
 from hbis_torch.stack_io import BURST_MIN_CONFIDENCE
@@ -354,7 +354,10 @@ def reconstruct_burst(stack, method, registration: str = "auto", messages: list 
                      f"S = {run_scale} and enlarged to S = {scale} (bicubic)")
         target = type(stack)(stack.frames, {**stack.meta, "h": run_scale})
     if "lens_sigma" in method.keywords and kw.get("lens_sigma") is None and kw.get("deblur", True):
-        kw["lens_sigma"] = burst_lens_sigma(_luma(frames), positions, weights, ref, notes)
+        estimate = burst_lens(_luma(frames), positions, weights, ref, notes)
+        kw["lens_sigma"] = estimate.sigma
+        if getattr(run, "reads_lens_doubt", False):
+            kw["lens_doubt"] = estimate.doubt
     said: list[str] = []  # the method's lines, once each (a colour burst runs it per channel)
     if not rgb:
         image = run(target, frames, positions, weights, messages=said, **kw)

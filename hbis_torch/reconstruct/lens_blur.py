@@ -103,6 +103,10 @@ to nothing at MAX_TRUSTED (a calibrated ``--psf-sigma`` is undone whole): undoin
 softness costs several dB, undoing too little only leaves some blur, and a ramp keeps two nearly
 equal bursts from getting answers a whole lens apart. A Gaussian of 0.8 LR px leaves 4 % of the
 contrast at the pixel's Nyquist frequency."""
+DOUBT_RAMP = GROUP_WIDTH[0]
+"""Sigma (LR px) over which :attr:`LensEstimate.doubt` rises from 0 at :data:`FULL_TRUST` to 1:
+the width within which edges of one lens agree, so two bursts whose sharpest edges agree to the
+estimate's own precision get nearly the same doubt."""
 
 
 class LensEstimate(NamedTuple):
@@ -127,6 +131,17 @@ class LensEstimate(NamedTuple):
     agreement: float = 1.0
     below: int = 0
     cluttered: bool = False
+
+    @property
+    def doubt(self) -> float:
+        """In [0, 1]: 0 where the sharpest edges are sharp enough to be taken for the lens (or no
+        group agrees), rising over :data:`DOUBT_RAMP` above :data:`FULL_TRUST` to 1, where only a
+        share of their blur is undone (:func:`sigma_to_undo`): the classical image then keeps
+        blur that may be the lens's or the scene's own, which the burst cannot tell apart. The
+        learned method's adaptation reads it (:func:`~hbis_torch.reconstruct.learned.adapt.forward_blur`)."""
+        if self.sharpest is None:
+            return 0.0
+        return min(max((self.sharpest - FULL_TRUST) / DOUBT_RAMP, 0.0), 1.0)
 
     def describe(self) -> str:
         """One line for the user."""
@@ -498,8 +513,13 @@ def sigma_to_undo(sharpest: float) -> float:
 
 
 def burst_lens_sigma(grey, positions, weights, reference: int, notes: list | None = None) -> float:
-    """The lens blur a burst's deblurring undoes when none is given: :func:`burst_lens_estimate`'s
-    sigma, its line added to ``notes``; 0 where it cannot say.
+    """The lens blur a burst's deblurring undoes when none is given: :func:`burst_lens`'s sigma
+    (LR px; 0 where it cannot say)."""
+    return burst_lens(grey, positions, weights, reference, notes).sigma
+
+
+def burst_lens(grey, positions, weights, reference: int, notes: list | None = None) -> LensEstimate:
+    """:func:`burst_lens_estimate`, its line (:meth:`LensEstimate.describe`) added to ``notes``.
 
     Parameters
     ----------
@@ -509,13 +529,12 @@ def burst_lens_sigma(grey, positions, weights, reference: int, notes: list | Non
 
     Returns
     -------
-    float
-        Sigma, LR px.
+    LensEstimate
     """
     estimate = burst_lens_estimate(grey, positions, weights, reference)
     if notes is not None:
         notes.append(estimate.describe())
-    return estimate.sigma
+    return estimate
 
 
 def burst_lens_estimate(grey, positions, weights, reference: int) -> LensEstimate:

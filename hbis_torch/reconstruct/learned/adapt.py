@@ -5,7 +5,8 @@ processes its frames in ways no simulator here reproduces. A burst carries its o
 a frame left out of the reconstruction can be predicted from the others' image through the forward
 model of observation space (the pixel's box and the lens, read where the frame's motion puts
 each sample: :mod:`hbis_torch.observation.forward`), and compared with what the camera recorded
-(the lens: validate's 0.2 LR px by default, whatever lens the classical image undid; :func:`forward_blur`).
+(the lens: validate's 0.2 LR px by default, whatever lens the classical image undid, but the lens
+undone where the burst's edges were too soft for all of their blur to be undone; :func:`forward_blur`).
 :func:`adapt_refiner` fine-tunes the network's last convolution for a few steps to make that
 prediction better:
 
@@ -109,6 +110,15 @@ BLUR_PX = DEFAULT_BLUR_PX
 # overstates the lens, 1 kept the classical image's over-sharpening and the learned method lost up
 # to 1.1 dB of its lead over classical, gaining 0.26 dB only under the 0.6 LR px lens
 # (docs/notes/2026-12-07-adaptation-lens-notes.md): the default stays 0.
+# Where the lens estimate doubts (:attr:`~hbis_torch.reconstruct.lens_blur.LensEstimate.doubt`: the
+# sharpest edges above FULL_TRUST, so the classical image undid only a share of their blur and
+# keeps the rest, a soft lens's or a soft scene's), the weight rises to the doubt: through BLUR_PX
+# the adaptation would blur the image further (the frames read softer than predicted), while the
+# lens undone predicts them as the classical image stands and leaves the network's own
+# sharpening. Chosen on the development bursts of adapt_dev_lens_weight_lens06.json (a 0.6 LR px
+# lens, the lens undone 0.44 to 0.49: weight 1 +0.29 dB over classical, 0 -0.40 dB); none of the
+# held-out renderers' bursts at their default lens (0.3 LR px) has sharpest edges above FULL_TRUST,
+# nor has any of the real sequences, so none of them changes.
 LENS_WEIGHT = 0.0
 SEED = 0
 
@@ -255,12 +265,14 @@ def make_fold(held: list[int], frames: Tensor, positions: Tensor, weights: Tenso
                 frames[held].reshape(-1)[inside].float(), w[inside].float())
 
 
-def forward_blur(lens_sigma: float) -> float:
+def forward_blur(lens_sigma: float, lens_doubt: float = 0.0) -> float:
     """The lens blur (LR px) of the adaptation's forward model when the classical image undid
-    ``lens_sigma`` LR px: :data:`LENS_WEIGHT` of the way from :data:`BLUR_PX` to that lens, and
-    :data:`BLUR_PX` where the lens is less."""
-    # (written so that a weight of 1 gives the lens itself to the bit)
-    return max(BLUR_PX, LENS_WEIGHT * float(lens_sigma) + (1 - LENS_WEIGHT) * BLUR_PX)
+    ``lens_sigma`` LR px: the larger of :data:`LENS_WEIGHT` and ``lens_doubt`` (the lens
+    estimate's :attr:`~hbis_torch.reconstruct.lens_blur.LensEstimate.doubt`, in [0, 1]) of the
+    way from :data:`BLUR_PX` to that lens, and :data:`BLUR_PX` where the lens is less."""
+    weight = max(LENS_WEIGHT, min(max(float(lens_doubt), 0.0), 1.0))
+    # (written so that a weight of 1 gives the lens itself to the bit, and 0 BLUR_PX)
+    return max(BLUR_PX, weight * float(lens_sigma) + (1 - weight) * BLUR_PX)
 
 
 class _Predictor:
@@ -311,7 +323,7 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
                   noise_params: tuple[float, float], reference: int, classical, *, steps: int = STEPS,
                   seed: int = SEED, on_step=None, budget_s: float | None = None,
                   crop: int = CROP_PX, patience: int | None = PATIENCE,
-                  min_steps: int | None = None, lens_sigma: float = 0.0) -> Adaptation | None:
+                  min_steps: int | None = None, lens_sigma: float = 0.0, lens_doubt: float = 0.0) -> Adaptation | None:
     """Fine-tune a copy of ``net``'s last convolution to predict the burst's left-out frames (the module's recipe).
 
     Parameters
@@ -346,8 +358,9 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
         Stop once this many checks in a row found no better weights (:data:`PATIENCE`; None: never).
     min_steps : int, optional
         Steps made whatever the clock says (default :data:`MIN_STEPS`).
-    lens_sigma : float
-        The lens the classical image undoes, LR px, which :func:`forward_blur` may read.
+    lens_sigma, lens_doubt : float
+        The lens the classical image undoes, LR px, and the lens estimate's doubt, which
+        :func:`forward_blur` reads.
 
     Returns
     -------
@@ -367,7 +380,7 @@ def adapt_refiner(net: torch.nn.Module, frames: Tensor, positions: Tensor, weigh
             fold.features = net.features(fold.base, fold.noise)
     check, train = folds[0], folds[1:]
     tail = copy.deepcopy(net.tail).train()
-    predict = _Predictor(scale, forward_blur(lens_sigma))
+    predict = _Predictor(scale, forward_blur(lens_sigma, lens_doubt))
     halo = predict.halo
     rows, cols = check.base.shape[-2:]
     size = (min(rows, WINDOW_PX), min(cols, WINDOW_PX))

@@ -26,7 +26,7 @@ _last: dict = {}
 def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, messages: list | None = None,
                   model=None, threads: int | None = None, provider: str = "auto", extrapolate: bool = False,
                   ensemble: int | None = None, precision: str | None = None, adapt: bool = True,
-                  lens_sigma: float | None = None, shared: dict | None = None) -> np.ndarray:
+                  lens_sigma: float | None = None, lens_doubt: float = 0.0, shared: dict | None = None) -> np.ndarray:
     """The learned method's burst path: the classical burst image, refined by the network for the
     burst's scale, told the noise measured on the frames (a burst's samples lie on no regular
     lattice, where the scans' noise is measured); where no model is shipped for it, the classical image,
@@ -45,7 +45,9 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     ``lens_sigma`` (LR px) is the lens blur the classical image undoes, as the classical method's
     (:func:`~hbis_torch.reconstruct.burst.reconstruct_burst` measures it where none is given); the
     adaptation's folds undo the same, and its forward model may blur by it
-    (:func:`~hbis_torch.reconstruct.learned.adapt.forward_blur`). ``shared`` is the classical image's
+    (:func:`~hbis_torch.reconstruct.learned.adapt.forward_blur`), as it does where ``lens_doubt``
+    (the lens estimate's :attr:`~hbis_torch.reconstruct.lens_blur.LensEstimate.doubt`) says the
+    classical image kept some of the edges' blur. ``shared`` is the classical image's
     (:func:`~hbis_torch.reconstruct.classical.sr.classical_sr`'s: a colour burst's channels).
 
     Returns (S H, S W) float32 in [0, 1]."""
@@ -65,7 +67,7 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
     outside = None if extrapolate else outside_domain(domain_from_metadata(metadata), noise, None)
     if adapt:
         refined = _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages,
-                           precision, classical_s, classical)
+                           precision, classical_s, classical, lens_doubt)
         if refined is not None:
             return refined
     if outside is not None:
@@ -75,21 +77,22 @@ def learned_burst(stack, frames: Tensor, positions: Tensor, weights: Tensor, *, 
 
 
 def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, outside, messages, precision,
-             classical_s, classical):
+             classical_s, classical, lens_doubt: float = 0.0):
     """The image refined by the network adapted to the burst, or None where it cannot be adapted
     (the line saying why goes to ``messages``). The adaptation gets :data:`~hbis_torch.reconstruct.
     learned.adapt.BUDGET_X_CLASSICAL` times ``classical_s`` (the classical step's seconds), at
     least :data:`~hbis_torch.reconstruct.learned.adapt.BUDGET_MIN_S`."""
     from hbis_torch.progress import progress
-    from hbis_torch.reconstruct.learned.adapt import (BUDGET_MIN_S, BUDGET_X_CLASSICAL, STEPS, adapt_refiner,
-                                                      load_refiner, pytorch_weights, refine)
+    from hbis_torch.reconstruct.learned.adapt import (BLUR_PX, BUDGET_MIN_S, BUDGET_X_CLASSICAL, STEPS, adapt_refiner,
+                                                      forward_blur, load_refiner, pytorch_weights, refine)
 
     notes = messages if messages is not None else []
     weights_file = pytorch_weights(path)
     if weights_file is None:
         notes.append(f"no PyTorch weights beside {path.name} (NAME.pt): the network is not adapted to the burst")
         return None
-    key = (str(weights_file), stack.h, stack.reference_index, classical.keywords["lens_sigma"])
+    lens_sigma = classical.keywords["lens_sigma"]
+    key = (str(weights_file), stack.h, stack.reference_index, lens_sigma, lens_doubt)
     cached = _last.get("positions")
     if cached is not None and cached() is positions and _last.get("key") == key:
         adaptation = _last["adaptation"]
@@ -98,7 +101,7 @@ def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, ou
         with progress(total=STEPS, desc="adapting the network to the burst", unit="step") as bar:
             adaptation = adapt_refiner(load_refiner(weights_file), frames, positions, weights, stack.h, noise,
                                        stack.reference_index, classical, on_step=bar.update, budget_s=budget,
-                                       lens_sigma=classical.keywords["lens_sigma"])
+                                       lens_sigma=lens_sigma, lens_doubt=lens_doubt)
         _last.clear()
         _last.update(positions=weakref.ref(positions), key=key, adaptation=adaptation)
         if adaptation is None:
@@ -110,6 +113,11 @@ def _adapted(path, stack, frames, positions, weights, image, noise, ensemble, ou
                          f"kept): mean squared error of the left-out frames' "
                          f"prediction {adaptation.error_before:.3g} unadapted, {adaptation.error_after:.3g} adapted, "
                          f"{adaptation.error_classical:.3g} from the classical image")
+            blur = forward_blur(lens_sigma, lens_doubt)
+            if lens_doubt > 0 and blur > BLUR_PX:
+                notes.append(f"the adaptation's forward model blurred by {blur:.2f} LR px, towards the lens the "
+                             f"classical image undid, not {BLUR_PX} LR px: the edges were too soft for all of their "
+                             "blur to be undone, and through less the network would learn to blur the image further")
     if adaptation is None:
         return None
     if outside is not None and adaptation.error_after >= adaptation.error_classical:
@@ -131,3 +139,6 @@ learned_burst.shares_samples = True
 # peaked at 10 GB where the classical one peaks at 4 (benchmarks/results/bench_burst_budget_*.json).
 # The same bits either way (tests/test_burst.py).
 learned_burst.streams = True
+# Takes ``lens_doubt``, the lens estimate's doubt, where the lens is estimated (reconstruct_burst
+# hands it): the adaptation's forward model reads it (adapt.forward_blur).
+learned_burst.reads_lens_doubt = True
