@@ -217,7 +217,8 @@ def main(argv=None) -> int:
     p.add_argument("--doubt", action="store_true",
                    help="hand the adaptation the lens estimate's doubt, as the learned method does (its forward "
                         "model then blurs towards the lens undone where the sharpest edges are too soft for all of "
-                        "their blur to be undone); without it, only --lens-weights decides, as before the doubt existed")
+                        "their blur to be undone); without it, only --lens-weights decides, as before the doubt "
+                        "existed")
     args = p.parse_args(argv)
     try:
         args.width, args.height = (int(v) for v in args.size.lower().split("x"))

@@ -512,14 +512,10 @@ def sigma_to_undo(sharpest: float) -> float:
     return share * math.sqrt(max(sharpest**2 - SCENE_MARGIN**2, 0.0))
 
 
-def burst_lens_sigma(grey, positions, weights, reference: int, notes: list | None = None) -> float:
-    """The lens blur a burst's deblurring undoes when none is given: :func:`burst_lens`'s sigma
-    (LR px; 0 where it cannot say)."""
-    return burst_lens(grey, positions, weights, reference, notes).sigma
-
-
 def burst_lens(grey, positions, weights, reference: int, notes: list | None = None) -> LensEstimate:
-    """:func:`burst_lens_estimate`, its line (:meth:`LensEstimate.describe`) added to ``notes``.
+    """What a burst's deblurring undoes when no lens is given: :func:`burst_lens_estimate` (its
+    ``sigma``, LR px, 0 where it cannot say), its line (:meth:`LensEstimate.describe`) added to
+    ``notes``.
 
     Parameters
     ----------

@@ -115,10 +115,13 @@ BLUR_PX = DEFAULT_BLUR_PX
 # keeps the rest, a soft lens's or a soft scene's), the weight rises to the doubt: through BLUR_PX
 # the adaptation would blur the image further (the frames read softer than predicted), while the
 # lens undone predicts them as the classical image stands and leaves the network's own
-# sharpening. Chosen on the development bursts of adapt_dev_lens_weight_lens06.json (a 0.6 LR px
-# lens, the lens undone 0.44 to 0.49: weight 1 +0.29 dB over classical, 0 -0.40 dB); none of the
-# held-out renderers' bursts at their default lens (0.3 LR px) has sharpest edges above FULL_TRUST,
-# nor has any of the real sequences, so none of them changes.
+# sharpening. On development bursts (``training/adapt_dev.py --doubt``,
+# benchmarks/results/adapt_dev_[no]doubt_*.json) adapted - classical went from -0.35 to -0.18 dB on
+# the mean under a 0.6 LR px lens (three of eight bursts doubted) and from -0.20 to +0.13 under 0.7;
+# on a scene itself blurred by 0.5 LR px its three doubted bursts kept less of a lead of several dB
+# (+3.33 to +3.08 on the mean). None of the held-out renderers' bursts at their own lens (0.3 LR px)
+# has its sharpest edges above FULL_TRUST, nor has any real sequence: none of them changes
+# (docs/notes/2026-12-07-lens-doubt-notes.md).
 LENS_WEIGHT = 0.0
 SEED = 0
 
