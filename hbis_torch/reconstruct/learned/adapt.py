@@ -116,7 +116,7 @@ BLUR_PX = DEFAULT_BLUR_PX
 # the adaptation would blur the image further (the frames read softer than predicted), while the
 # lens undone predicts them as the classical image stands and leaves the network's own
 # sharpening. On development bursts (``training/adapt_dev.py --doubt``,
-# benchmarks/results/adapt_dev_[no]doubt_*.json) adapted - classical went from -0.35 to -0.18 dB on
+# benchmarks/results/adapt_dev_[no]doubt_*.json) adapted - classical went from -0.34 to -0.18 dB on
 # the mean under a 0.6 LR px lens (four of eight bursts doubted) and from -0.20 to +0.13 under 0.7;
 # on a scene itself blurred by 0.5 LR px its three doubted bursts kept less of a lead of several dB
 # (+3.33 to +3.08 on the mean). None of the held-out renderers' bursts at their own lens (0.3 LR px)
