@@ -271,11 +271,14 @@ def test_one_sharper_frame_does_not_make_the_reference_out_of_focus(burst):
 
 def test_sharper_frames_compared_through_the_references_blur_keep_their_detail(monkeypatch):
     """Compared as they are, the sharp frames' samples at every edge lose weight against an
-    out-of-focus reference, and the image leans on its blur."""
+    out-of-focus reference, and the image leans on its blur (the reference's own samples at full
+    weight on both sides: the next test weighs them)."""
     import hbis_torch.capture.sharpness as sharpness
+    import hbis_torch.reconstruct.burst as burst_path
     from hbis_torch.metrics import psnr
     from hbis_torch.reconstruct import reconstruct
 
+    monkeypatch.setattr(burst_path, "BLURRED_REFERENCE_WEIGHT", 1.0)
     frames, truth = _out_of_focus_reference()
     stack, _ = assemble_burst(frames, 2)
     cut = slice(16, -16)
@@ -283,3 +286,29 @@ def test_sharper_frames_compared_through_the_references_blur_keep_their_detail(m
     monkeypatch.setattr(sharpness, "blur_to_reference", lambda grey, reference, trusted=None: [0.0] * len(grey))
     plain = psnr(reconstruct(stack, "classical")[cut, cut], truth[cut, cut])
     assert matched > plain + 0.15, (matched, plain)  # (measured: +0.29 dB)
+
+
+def test_an_out_of_focus_references_own_samples_weigh_less(burst, monkeypatch):
+    """Its samples weigh BLURRED_REFERENCE_WEIGHT (said so) and the image gains over fusing them
+    at full weight; a reference as sharp as the others keeps weight 1."""
+    import hbis_torch.reconstruct.burst as burst_path
+    from hbis_torch.metrics import psnr
+    from hbis_torch.reconstruct import reconstruct
+    from hbis_torch.reconstruct.burst import BLURRED_REFERENCE_WEIGHT, burst_samples
+
+    assert 0 < BLURRED_REFERENCE_WEIGHT < 1
+    sharp, _ = assemble_burst(burst, 2)
+    assert bool((burst_samples(sharp)[3][0] == 1).all())
+    frames, truth = _out_of_focus_reference()
+    stack, _ = assemble_burst(frames, 2)
+    weights = burst_samples(stack)[3]
+    assert bool((weights[0] == BLURRED_REFERENCE_WEIGHT).all()) and float(weights[1:].max()) > 0.99
+    cut = slice(16, -16)
+    notes: list = []
+    lowered = psnr(reconstruct(stack, "classical", messages=notes)[cut, cut], truth[cut, cut])
+    assert any("frame 0, is out of focus" in n and "weigh 0.25" in n for n in notes), notes
+    monkeypatch.setattr(burst_path, "BLURRED_REFERENCE_WEIGHT", 1.0)
+    notes = []
+    full = psnr(reconstruct(stack, "classical", messages=notes)[cut, cut], truth[cut, cut])
+    assert not any("is out of focus" in n for n in notes)
+    assert lowered > full + 0.5, (lowered, full)  # (measured: +1.09 dB)

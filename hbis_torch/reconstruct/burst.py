@@ -62,6 +62,15 @@ CONTRAST_TOLERANCE = 1.5
 # Where the other frames' samples in a reference pixel weigh less than this, the output leans on
 # the single-frame estimate (fully where they weigh nothing).
 FULL_COVERAGE = 2.0
+# The weight of the reference's own samples where it is out of focus (its sharpness under
+# BLURRED_SHARE of the median other frame's, hbis_torch.capture.sharpness.blur_to_reference): at
+# full weight its blur goes into every pixel it lands on, as a blurred frame's would (those are left
+# out, blurred_frames); its grid stays the output's, and the others are compared with it through its
+# blur. Development bursts (training/dev_blurred_reference.py --reference-weights 1 0.25: the
+# training photographs, a reference out of focus by a further 0.7 / 1 LR px, S = 2): 0 gained most
+# with 16 frames but lost up to 0.8 dB with 4 or 5, whose lattice needs the reference's samples;
+# a quarter gained with 5 to 30 frames and lost at most 0.13 dB with 4.
+BLURRED_REFERENCE_WEIGHT = 0.25
 
 
 def corrected_frames(stack, channel: int | None = None) -> Tensor:
@@ -140,7 +149,8 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
     Computed a frame at a time (its positions, blur and comparison), so that no array of every
     sample's position or blurred value is held beside the frames. A frame clearly sharper than an
     out-of-focus reference is compared through the reference's blur
-    (:func:`~hbis_torch.capture.sharpness.blur_to_reference`).
+    (:func:`~hbis_torch.capture.sharpness.blur_to_reference`), and the reference's own samples
+    then weigh :data:`BLURRED_REFERENCE_WEIGHT`.
 
     Parameters
     ----------
@@ -161,9 +171,9 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
     Returns
     -------
     Tensor, shape (F, H, W), float32
-        1 for the reference's samples; 0 for samples outside the reference frame and for
-        untrusted frames. (Each weight is a float32 value, so float32 holds it exactly: half
-        the memory of float64, the same numbers.)
+        1 for the reference's samples (:data:`BLURRED_REFERENCE_WEIGHT` where it is out of focus);
+        0 for samples outside the reference frame and for untrusted frames. (Each weight is a
+        float32 value, so float32 holds it exactly: half the memory of float64, the same numbers.)
     """
     from hbis_torch.capture.sharpness import blur_to_reference, gaussian_blur
     from hbis_torch.sensor.noise import noise_sigma
@@ -193,7 +203,9 @@ def robustness_weights(grey: Tensor, positions, trusted: Tensor, reference: int,
             weights[k] *= sensor
         if tally is not None:
             tally.add(k, where, weights[k])
-    weights[reference] = 1.0 if sensor is None else sensor
+    # an out-of-focus reference's own samples (the frames sharper than it are matched to its blur)
+    own = BLURRED_REFERENCE_WEIGHT if any(match) else 1.0
+    weights[reference] = own if sensor is None else sensor * own
     if tally is not None:
         tally.add(reference, positions[reference], weights[reference])
     return weights
@@ -432,13 +444,16 @@ def _blend_weight(cover: np.ndarray, scale: int) -> np.ndarray:
 
 
 def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: list, blurred=()) -> None:
-    """Lines naming untrusted frames (but the ``blurred`` ones, named apart) and frames whose
-    samples were mostly down-weighted."""
+    """Lines naming untrusted frames (but the ``blurred`` ones, named apart), frames whose
+    samples were mostly down-weighted, and an out-of-focus reference's own samples' weight."""
     left_out = [k for k in range(len(trusted)) if not bool(trusted[k]) and k not in blurred]
     if left_out:
         notes.append(f"left out {len(left_out)} frame(s) whose motion is not trusted: {left_out}")
     # float32's own (cascade) sum, good to about 1e-7 here: a sum into float64 takes 35 times as long
     mean = weights.reshape(len(weights), -1).sum(1) / max(weights.shape[1] * weights.shape[2], 1)
+    if float(mean[reference]) < 0.5:
+        notes.append(f"the reference, frame {reference}, is out of focus beside most frames: its own samples weigh "
+                     f"{BLURRED_REFERENCE_WEIGHT:g} in the fusion (the output is still drawn on its grid)")
     low = [k for k in range(len(mean)) if k != reference and bool(trusted[k]) and float(mean[k]) < 0.5]
     if low:
         notes.append(f"frame(s) {low}: most samples down-weighted (the motion does not explain them: a moving "
