@@ -66,10 +66,12 @@ FULL_COVERAGE = 2.0
 # BLURRED_SHARE of the median other frame's, hbis_torch.capture.sharpness.blur_to_reference): at
 # full weight its blur goes into every pixel it lands on, as a blurred frame's would (those are left
 # out, blurred_frames); its grid stays the output's, and the others are compared with it through its
-# blur. Development bursts (training/dev_blurred_reference.py --reference-weights 1 0.25: the
-# training photographs, a reference out of focus by a further 0.7 / 1 LR px, S = 2): 0 gained most
-# with 16 frames but lost up to 0.8 dB with 4 or 5, whose lattice needs the reference's samples;
-# a quarter gained with 5 to 30 frames and lost at most 0.13 dB with 4.
+# blur. Development bursts (training/dev_blurred_reference.py --reference-weights 1 0, the files
+# dev_blurred_reference_weight[_64x48].json: the training photographs, a reference out of focus by a
+# further 0.7 / 1 LR px, S = 2): a quarter gained over full weight on the mean of every group of 5
+# to 30 frames (+0.06 to +0.79 dB; single 64 x 48 bursts of 30 frames lost up to 0.31) and held
+# with 4 (within 0.13 dB); 0 gained 0.08 to 0.13 dB more with 16 frames of 640 x 480, but lost 0.56
+# to 0.68 dB to a quarter with 4 or 5, whose lattice needs the reference's samples.
 BLURRED_REFERENCE_WEIGHT = 0.25
 
 
