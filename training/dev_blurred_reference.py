@@ -2,7 +2,7 @@
 
     python training/dev_blurred_reference.py --out benchmarks/results/dev_blurred_reference.json
         [--seeds 0 1 2] [--frames 8 16] [--first-blurs 0 0.7 1.0] [--size 640x480]
-        [--reference-weights 1 0.25]
+        [--reference-weights 1 0]
 
 The robustness weights compare every frame with the reference, each blurred by the same small
 Gaussian (:data:`hbis_torch.reconstruct.burst.COMPARE_BLUR_PX`). Where the reference is out of
@@ -16,10 +16,12 @@ This script measures it (``matched_db``) beside every frame compared as it is (`
 comparison before; the files made at 507bd29 and afdf8d3 name them ``default_db`` and
 ``matched_db``, with the matching written in the script).
 
-Since 2026-12-08 an out-of-focus reference's own samples are left out of the fusion
-(:data:`hbis_torch.reconstruct.burst.BLURRED_REFERENCE_WEIGHT`, 0); ``--reference-weights W``
-scores the burst with that weight set to each W beside the default (``reference_weight_W_db``;
-1 is the code before, the same bits), and the summary gives the default less each.
+Since 2026-12-08 an out-of-focus reference's own samples weigh a quarter in the fusion
+(:data:`hbis_torch.reconstruct.burst.BLURRED_REFERENCE_WEIGHT`); ``--reference-weights W`` scores
+the burst with that weight set to each W beside the default (``reference_weight_W_db``; 1 is the
+code before, the same bits), and the summary gives the default less each. (``plain_db`` turns
+``blur_to_reference`` off, which also decides that the reference is out of focus: its samples
+are then at full weight, so since that day ``matched_minus_plain_db`` holds both changes.)
 
 Bursts: ``training/adapt_dev.py``'s ``cam`` camera (the training photographs, homographies, a
 lens of 0.2 to 0.5 LR px, Poisson-Gaussian noise, 12 bits), S = 2, its first frame (the

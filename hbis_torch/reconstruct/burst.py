@@ -70,8 +70,9 @@ FULL_COVERAGE = 2.0
 # dev_blurred_reference_weight[_64x48].json: the training photographs, a reference out of focus by a
 # further 0.7 / 1 LR px, S = 2): a quarter gained over full weight on the mean of every group of 5
 # to 30 frames (+0.06 to +0.79 dB; single 64 x 48 bursts lost up to 0.31 with 30 frames, 0.05
-# with 8 or 16) and held with 4 (within 0.13 dB); 0 gained 0.08 to 0.13 dB more with 16 frames of 640 x 480, but lost 0.56
-# to 0.68 dB to a quarter with 4 or 5, whose lattice needs the reference's samples.
+# with 8 or 16) and held with 4 (within 0.13 dB); 0 gained 0.08 to 0.13 dB more with 16 frames
+# of 640 x 480, but lost 0.56 to 0.68 dB to a quarter with 4 or 5, whose lattice needs the
+# reference's samples.
 BLURRED_REFERENCE_WEIGHT = 0.25
 
 
