@@ -456,7 +456,8 @@ def _report_weights(weights: Tensor, trusted: Tensor, reference: int, notes: lis
     mean = weights.reshape(len(weights), -1).sum(1) / max(weights.shape[1] * weights.shape[2], 1)
     if float(mean[reference]) < 0.5:
         notes.append(f"the reference, frame {reference}, is out of focus beside most frames: its own samples weigh "
-                     f"{BLURRED_REFERENCE_WEIGHT:g} in the fusion (the output is still drawn on its grid)")
+                     f"{BLURRED_REFERENCE_WEIGHT:g} in the fusion (the output is still drawn on its grid: "
+                     "'hbis assemble --burst --reference sharpest' refines the sharpest frame instead)")
     low = [k for k in range(len(mean)) if k != reference and bool(trusted[k]) and float(mean[k]) < 0.5]
     if low:
         notes.append(f"frame(s) {low}: most samples down-weighted (the motion does not explain them: a moving "
